@@ -1,0 +1,212 @@
+//! `pvrnn bench`: learning and online inference at the paper's scale on random data.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Result;
+use pvrnn_core::infer::{InferenceSettings, OnlineInference};
+use pvrnn_core::train::Trainer;
+use pvrnn_core::{Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor};
+use rayon::prelude::*;
+use serde::Serialize;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Training sequences (paper: 18).
+    #[arg(long, default_value_t = 18)]
+    sequences: usize,
+    /// Steps per sequence (paper: ~300).
+    #[arg(long, default_value_t = 300)]
+    steps: usize,
+    /// Timed training iterations (after one warm-up iteration).
+    #[arg(long, default_value_t = 3)]
+    train_iterations: usize,
+    /// Timed inference steps per condition, after the window is full.
+    #[arg(long, default_value_t = 10)]
+    infer_steps: usize,
+    /// Run only one part: `train` or `infer` (the other's figures are reported as null).
+    #[arg(long)]
+    only: Option<Part>,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum Part {
+    Train,
+    Infer,
+}
+
+#[derive(Serialize, Debug)]
+struct Report {
+    threads: usize,
+    sequences: usize,
+    steps: usize,
+    /// Mean seconds per full-batch training iteration.
+    train_iter_s: Option<f64>,
+    train_iter_min_s: Option<f64>,
+    /// Online inference steps per second at a full window (H = 30, 50 iterations).
+    infer_p16_steps_per_s: Option<f64>,
+    infer_full_steps_per_s: Option<f64>,
+    /// Peak resident memory of the process after training (data included), and at the end.
+    train_peak_rss_mb: f64,
+    peak_rss_mb: f64,
+}
+
+/// Peak resident set size (VmHWM) in MB, where the OS reports it.
+fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+fn random_tensor(shape: &[usize], seed: u64) -> Tensor<f32> {
+    let n: usize = shape.iter().product();
+    let mut data = vec![0f32; n];
+    data.par_chunks_mut(1 << 16)
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            let mut s = (seed ^ (c as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)) | 1;
+            for v in chunk {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                *v = ((s >> 40) as f32 / (1u64 << 24) as f32) * 1.8 - 0.9;
+            }
+        });
+    Tensor::from_vec(shape, data).expect("sized")
+}
+
+fn infer_rate(
+    model: &Arc<Model<f32>>,
+    data: &Observations<f32>,
+    observed: Observed,
+    timed: usize,
+) -> Result<f64> {
+    let mut settings = InferenceSettings::from_config(&model.config, 1);
+    settings.observed = observed;
+    let window = settings.window;
+    let mut inf = OnlineInference::new(model.clone(), settings)?;
+    let steps = data.lengths()[0];
+    anyhow::ensure!(
+        steps >= window + timed,
+        "need at least {} steps for the inference benchmark",
+        window + timed
+    );
+    let step = |inf: &mut OnlineInference<f32>, t: usize| {
+        inf.step(
+            data.step(Modality::Exteroceptive, 0, t),
+            data.step(Modality::Proprioceptive, 0, t),
+        )
+    };
+    for t in 0..window {
+        step(&mut inf, t)?;
+    }
+    let start = Instant::now();
+    for t in window..window + timed {
+        step(&mut inf, t)?;
+    }
+    Ok(timed as f64 / start.elapsed().as_secs_f64())
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let config = ModelConfig::default();
+    let (s, t) = (a.sequences, a.steps);
+    let say = |msg: &str| {
+        if !a.json {
+            eprintln!("{msg}");
+        }
+    };
+    say(&format!(
+        "preparing {s} x {t} random sequences ({} vision + {} proprio dims)...",
+        config.vision.dims(),
+        config.proprio_dims
+    ));
+    let data = Observations::new(
+        random_tensor(&[s, t, config.vision.dims()], 1),
+        random_tensor(&[s, t, config.proprio_dims], 2),
+        None,
+    )?;
+    let model = Model::<f32>::init(config.clone(), s, t, 0)?;
+    let mut trainer = Trainer::new(model, NoiseMode::Sampled { seed: 0 });
+
+    let mut times = Vec::new();
+    if a.only != Some(Part::Infer) {
+        say("training: 1 warm-up iteration...");
+        trainer.step(&data)?;
+        for i in 0..a.train_iterations {
+            let start = Instant::now();
+            trainer.step(&data)?;
+            times.push(start.elapsed().as_secs_f64());
+            say(&format!("  iteration {}: {:.3} s", i + 1, times[i]));
+        }
+    }
+    let train_peak = peak_rss_mb();
+    let model = Arc::new(trainer.model);
+
+    let (mut p16, mut full) = (None, None);
+    if a.only != Some(Part::Train) {
+        say("online inference, proprio + 16x16 observed...");
+        p16 = Some(infer_rate(
+            &model,
+            &data,
+            Observed {
+                vision_levels: 1,
+                proprio: true,
+            },
+            a.infer_steps,
+        )?);
+        say("online inference, everything observed...");
+        full = Some(infer_rate(
+            &model,
+            &data,
+            Observed::all(&config),
+            a.infer_steps,
+        )?);
+    }
+    let mean = (!times.is_empty()).then(|| times.iter().sum::<f64>() / times.len() as f64);
+    let min = (!times.is_empty()).then(|| times.iter().copied().fold(f64::INFINITY, f64::min));
+
+    let report = Report {
+        threads: rayon::current_num_threads(),
+        sequences: s,
+        steps: t,
+        train_iter_s: mean,
+        train_iter_min_s: min,
+        infer_p16_steps_per_s: p16,
+        infer_full_steps_per_s: full,
+        train_peak_rss_mb: train_peak,
+        peak_rss_mb: peak_rss_mb(),
+    };
+    if a.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!("threads                          {}", report.threads);
+        if let (Some(mean), Some(min)) = (mean, min) {
+            println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
+        }
+        if let (Some(p16), Some(full)) = (p16, full) {
+            println!(
+                "inference, proprio + 16x16       {p16:.1} steps/s (H = {}, {} iterations)",
+                config.inference.window, config.inference.iterations
+            );
+            println!("inference, everything observed   {full:.1} steps/s");
+        }
+        println!(
+            "peak memory after training       {:.0} MB",
+            report.train_peak_rss_mb
+        );
+        println!(
+            "peak memory                      {:.0} MB",
+            report.peak_rss_mb
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,46 @@
+use std::path::PathBuf;
+
+use anyhow::Result;
+use pvrnn_core::cpu::CpuBackend;
+use pvrnn_core::free_energy::{NoiseDraw, free_energy};
+use pvrnn_core::{NoiseMode, io};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[arg(long)]
+    model: PathBuf,
+    /// safetensors with `x_extero` [S, T, vision dims] and `x_proprio` [S, T, 28] (f32, normalised).
+    #[arg(long)]
+    inputs: PathBuf,
+    /// eps = 0 instead of seeded noise.
+    #[arg(long)]
+    zero_noise: bool,
+    /// Seed of the noise draw.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Also write dF/d(every trainable tensor) here, named `grad.<tensor>`.
+    #[arg(long)]
+    grads: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let model = io::load_model(&a.model)?;
+    let data = io::load_observations(&a.inputs)?;
+    let mode = if a.zero_noise {
+        NoiseMode::Zero
+    } else {
+        NoiseMode::Sampled { seed: a.seed }
+    };
+    let (report, grads) = free_energy(
+        &CpuBackend,
+        &model,
+        &data,
+        NoiseDraw::evaluation(mode),
+        a.grads.is_some(),
+    )?;
+    if let (Some(path), Some(grads)) = (&a.grads, grads) {
+        io::save_gradients(path, &grads, &model.config)?;
+    }
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
+}

@@ -1,0 +1,113 @@
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use pvrnn_core::infer::{InferenceSettings, run_sequence};
+use pvrnn_core::{Ablation, NoiseMode, Observed, io};
+
+use crate::util;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[arg(long)]
+    model: PathBuf,
+    /// Inputs: `x_extero`, `x_proprio` (and optional `lengths`), normalised.
+    #[arg(long)]
+    inputs: PathBuf,
+    /// Per-step outputs of every sequence: reconstructions `recon.*`, one-step prior
+    /// predictions `prior.*`, `<module>.{mu_p,sigma_p,mu_q,sigma_q,d}`, free energy terms.
+    #[arg(long)]
+    out: PathBuf,
+    /// Which sequences (comma-separated indices); default all.
+    #[arg(long, value_delimiter = ',')]
+    sequences: Option<Vec<usize>>,
+    /// Vision observed: all, none, or the lowest resolutions, e.g. 16 or 32+16.
+    #[arg(long, default_value = "all")]
+    vision: String,
+    /// Proprioception observed: on or off.
+    #[arg(long, default_value = "on", value_parser = util::on_off, action = clap::ArgAction::Set)]
+    proprio: bool,
+    /// Modules whose z is set to 0 (comma-separated: executive, associative, exteroceptive, proprioceptive).
+    #[arg(long, default_value = "none")]
+    ablate: String,
+    /// Window length H (default: the model's configuration, 30).
+    #[arg(long)]
+    window: Option<usize>,
+    /// Updates per step (default 50).
+    #[arg(long)]
+    iterations: Option<usize>,
+    /// Learning rate of the window's adaptive variables (default 1.0).
+    #[arg(long)]
+    lr: Option<f64>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// eps = 0.
+    #[arg(long)]
+    zero_noise: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let model = Arc::new(io::load_model(&a.model)?);
+    let data = io::load_observations(&a.inputs)?;
+    data.check_fits(&model.config)?;
+    let config = &model.config;
+    let mut settings = InferenceSettings::from_config(config, a.seed);
+    settings.observed = Observed {
+        vision_levels: Observed::parse_vision(&a.vision, config)?,
+        proprio: a.proprio,
+    };
+    settings.ablation = Ablation::parse(&a.ablate)?;
+    if let Some(h) = a.window {
+        settings.window = h;
+    }
+    if let Some(n) = a.iterations {
+        settings.iterations = n;
+    }
+    if let Some(lr) = a.lr {
+        settings.optimizer.lr = lr;
+    }
+    if a.zero_noise {
+        settings.noise = NoiseMode::Zero;
+    }
+    settings.validate(config)?;
+    let which: Vec<usize> = a
+        .sequences
+        .unwrap_or_else(|| (0..data.sequences()).collect());
+    let total: usize = which
+        .iter()
+        .map(|&s| data.lengths().get(s).copied().unwrap_or(0))
+        .sum();
+    let bar = util::progress(total as u64, "infer");
+    let mut runs = Vec::with_capacity(which.len());
+    let mut done_before = 0u64;
+    for &s in &which {
+        bar.set_message(format!("sequence {s}"));
+        let run = run_sequence(model.clone(), settings.clone(), &data, s, &mut |done, _| {
+            bar.set_position(done_before + done as u64)
+        })
+        .with_context(|| format!("sequence {s}"))?;
+        done_before += run.steps() as u64;
+        runs.push(run);
+    }
+    bar.finish();
+    io::save_runs(&a.out, config, &runs, &which)?;
+    let mean_fe: f64 = runs
+        .iter()
+        .flat_map(|r| r.free_energy.iter().map(|f| f.total))
+        .sum::<f64>()
+        / total.max(1) as f64;
+    eprintln!(
+        "wrote {} ({} sequences, {} steps; vision {}, proprio {}, mean window free energy {:.5})",
+        a.out.display(),
+        runs.len(),
+        total,
+        settings.observed.vision_label(config),
+        if settings.observed.proprio {
+            "on"
+        } else {
+            "off"
+        },
+        mean_fe
+    );
+    Ok(())
+}

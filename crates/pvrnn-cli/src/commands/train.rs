@@ -1,0 +1,175 @@
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use pvrnn_core::train::Trainer;
+use pvrnn_core::{FreeEnergy, NoiseMode, io};
+
+use crate::util;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Model to start from (from `pvrnn init`); not needed with --resume.
+    #[arg(long, required_unless_present = "resume")]
+    model: Option<PathBuf>,
+    /// Training inputs: `x_extero`, `x_proprio` (and optional `lengths`).
+    #[arg(long)]
+    inputs: PathBuf,
+    /// The run's checkpoint: written every --checkpoint-every iterations and at the end;
+    /// it is also a model file. A CSV log goes next to it (`<out>.log.csv`).
+    #[arg(long)]
+    out: PathBuf,
+    /// Total iterations (default: the configuration's `train.iterations`, the paper's 100,000).
+    #[arg(long)]
+    iterations: Option<u64>,
+    #[arg(long, default_value_t = 100)]
+    checkpoint_every: u64,
+    /// Seed of the noise draws.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// eps = 0 (deterministic learning; for debugging).
+    #[arg(long)]
+    zero_noise: bool,
+    /// Override the configured learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Continue the run saved in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Replace an existing --out instead of refusing.
+    #[arg(long)]
+    overwrite: bool,
+}
+
+fn log_path(out: &Path) -> PathBuf {
+    out.with_extension("log.csv")
+}
+
+const LOG_HEADER: &str = "iteration,total,accuracy_exteroceptive,accuracy_proprioceptive,complexity_executive,complexity_associative,complexity_exteroceptive,complexity_proprioceptive,seconds";
+
+/// Keeps the log rows of iterations before `iteration` (later rows were not checkpointed).
+fn truncate_log(path: &Path, iteration: u64) -> Result<()> {
+    let mut kept = String::from(LOG_HEADER);
+    kept.push('\n');
+    if let Ok(text) = std::fs::read_to_string(path) {
+        for line in text.lines().skip(1) {
+            let it: Option<u64> = line.split(',').next().and_then(|s| s.parse().ok());
+            if it.is_some_and(|i| i < iteration) {
+                kept.push_str(line);
+                kept.push('\n');
+            }
+        }
+    }
+    io::write_atomic(path, kept.as_bytes())?;
+    Ok(())
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let data = io::load_observations(&a.inputs)?;
+    let mut trainer = if a.resume {
+        let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
+        eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
+        t
+    } else {
+        if a.out.exists() && !a.overwrite {
+            bail!(
+                "{} exists: pass --resume to continue that run or --overwrite to start over",
+                a.out.display()
+            );
+        }
+        let model = io::load_model(a.model.as_deref().expect("clap requires --model"))?;
+        let noise = if a.zero_noise {
+            NoiseMode::Zero
+        } else {
+            NoiseMode::Sampled { seed: a.seed }
+        };
+        Trainer::new(model, noise)
+    };
+    if let Some(lr) = a.lr {
+        anyhow::ensure!(lr > 0.0 && lr.is_finite(), "--lr must be positive");
+        trainer.model.config.train.optimizer.lr = lr;
+        trainer.optimizer.config.lr = lr;
+    }
+    pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
+    anyhow::ensure!(
+        a.checkpoint_every >= 1,
+        "--checkpoint-every must be at least 1"
+    );
+    let total = a
+        .iterations
+        .unwrap_or(trainer.model.config.train.iterations);
+    let log = log_path(&a.out);
+    truncate_log(&log, trainer.iteration)?;
+    let mut log_file = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&log)
+        .with_context(|| format!("{}: cannot open log", log.display()))?;
+
+    let interrupted = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupted.clone();
+        ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+
+    let bar = util::progress(total, "train");
+    bar.set_position(trainer.iteration);
+    let start = Instant::now();
+    let mut last: Option<FreeEnergy> = None;
+    while trainer.iteration < total {
+        let it = trainer.iteration;
+        let report = trainer.step(&data)?;
+        writeln!(
+            log_file,
+            "{it},{},{},{},{},{},{},{},{:.3}",
+            report.total,
+            report.accuracy.exteroceptive,
+            report.accuracy.proprioceptive,
+            report.complexity.executive,
+            report.complexity.associative,
+            report.complexity.exteroceptive,
+            report.complexity.proprioceptive,
+            start.elapsed().as_secs_f64()
+        )?;
+        last = Some(report);
+        bar.set_position(trainer.iteration);
+        bar.set_message(format!("F {:.4}", report.total));
+        let stop = interrupted.load(Ordering::SeqCst);
+        if trainer.iteration % a.checkpoint_every == 0 || trainer.iteration == total || stop {
+            log_file.flush()?;
+            io::save_checkpoint(&a.out, &trainer, last)?;
+        }
+        if stop {
+            bar.abandon();
+            eprintln!(
+                "interrupted: checkpoint at iteration {} written to {}; continue with --resume",
+                trainer.iteration,
+                a.out.display()
+            );
+            std::process::exit(130);
+        }
+    }
+    bar.finish();
+    if last.is_none() {
+        // Nothing to do (already at the requested iteration); keep the file as it is.
+        eprintln!(
+            "{} is already at iteration {}",
+            a.out.display(),
+            trainer.iteration
+        );
+    } else {
+        eprintln!(
+            "wrote {} (iteration {}), log {}",
+            a.out.display(),
+            trainer.iteration,
+            log.display()
+        );
+    }
+    if let Some(report) = last {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    Ok(())
+}

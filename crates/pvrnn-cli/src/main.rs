@@ -1,0 +1,62 @@
+//! `pvrnn`: the command-line face of the scalable PV-RNN.
+
+mod commands;
+mod util;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "pvrnn",
+    version,
+    about = "Scalable PV-RNN: learning and online inference for visuo-proprioceptive sequences"
+)]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Create a freshly initialised model for S sequences of T steps.
+    Init(commands::init::Args),
+    /// Print a configuration as TOML: the paper's defaults, or a model's own.
+    Config {
+        /// Print this model's configuration instead of the defaults.
+        #[arg(long)]
+        model: Option<PathBuf>,
+    },
+    /// Free energy of a model on its training inputs, as JSON; optionally its gradients.
+    FreeEnergy(commands::free_energy::Args),
+    /// Learn: full-batch RAdam with checkpoints and resume.
+    Train(commands::train::Args),
+    /// Online inference (sliding-window error regression) on each sequence of the inputs.
+    Infer(commands::infer::Args),
+    /// Time learning and online inference at the paper's scale on random data.
+    Bench(commands::bench::Args),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    if let Err(e) = util::set_threads(cli.threads) {
+        eprintln!("error: {e:#}");
+        std::process::exit(2);
+    }
+    let result = match cli.command {
+        Command::Init(a) => commands::init::run(a),
+        Command::Config { model } => commands::init::print_config(model.as_deref()),
+        Command::FreeEnergy(a) => commands::free_energy::run(a),
+        Command::Train(a) => commands::train::run(a),
+        Command::Infer(a) => commands::infer::run(a),
+        Command::Bench(a) => commands::bench::run(a),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}

@@ -1,0 +1,478 @@
+//! The `pvrnn` binary end to end: init, free-energy (JSON and gradients), train with
+//! checkpoints and resume, infer, config, and clear errors for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use pvrnn_core::ModelConfig;
+use pvrnn_core::config::{ModuleConfig, VisionLayout};
+use pvrnn_core::io::{self, TensorFile};
+
+fn pvrnn(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pvrnn"))
+        .args(args)
+        .output()
+        .expect("runs pvrnn")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = pvrnn(args);
+    assert!(
+        out.status.success(),
+        "pvrnn {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn fails(args: &[&str]) -> String {
+    let out = pvrnn(args);
+    assert!(!out.status.success(), "pvrnn {args:?} should fail");
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        !err.contains("panicked"),
+        "panic instead of an error: {err}"
+    );
+    err
+}
+
+/// A small model configuration as TOML (everything else keeps the paper's values).
+const SMALL: &str = r#"
+kl_weight = 0.01
+[executive]
+d = 8
+z = 3
+[associative]
+d = 8
+z = 3
+[exteroceptive]
+d = 8
+z = 4
+[proprioceptive]
+d = 8
+z = 3
+[exteroceptive_readout]
+hidden = [8, 10]
+[proprioceptive_readout]
+hidden = [8]
+[vision]
+cameras = 2
+channels = 3
+resolutions = [2, 4]
+[train.optimizer]
+lr = 0.01
+[inference]
+window = 4
+iterations = 5
+"#;
+
+fn small_config() -> ModelConfig {
+    let mut c = ModelConfig::default();
+    let m = |d, z, tau: [f64; 2]| ModuleConfig { d, z, tau };
+    c.executive = m(8, 3, c.executive.tau);
+    c.associative = m(8, 3, c.associative.tau);
+    c.exteroceptive = m(8, 4, c.exteroceptive.tau);
+    c.proprioceptive = m(8, 3, c.proprioceptive.tau);
+    c.vision = VisionLayout {
+        cameras: 2,
+        channels: 3,
+        resolutions: vec![2, 4],
+    };
+    c
+}
+
+fn write_inputs(path: &Path, config: &ModelConfig, s: usize, t: usize, poison: bool) {
+    let dv = config.vision.dims();
+    let mut extero: Vec<f32> = (0..s * t * dv)
+        .map(|i| 0.5 * ((i % 97) as f32 * 0.13).sin())
+        .collect();
+    if poison {
+        extero[7] = f32::NAN;
+    }
+    let proprio: Vec<f32> = (0..s * t * 28)
+        .map(|i| 0.6 * ((i % 89) as f32 * 0.07).cos())
+        .collect();
+    // Written without validation so a NaN file can be produced.
+    let mut tensors = std::collections::BTreeMap::new();
+    tensors.insert(
+        "x_extero".to_string(),
+        io::OutTensor::F32(vec![s, t, dv], extero.into()),
+    );
+    tensors.insert(
+        "x_proprio".to_string(),
+        io::OutTensor::F32(vec![s, t, 28], proprio.into()),
+    );
+    io::write_atomic(path, &io::to_bytes(&tensors, Default::default()).unwrap()).unwrap();
+}
+
+struct Scratch {
+    dir: tempfile::TempDir,
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Self {
+            dir: tempfile::tempdir().unwrap(),
+        }
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+    fn s(&self, name: &str) -> String {
+        self.path(name).display().to_string()
+    }
+}
+
+fn setup(x: &Scratch) {
+    std::fs::write(x.path("small.toml"), SMALL).unwrap();
+    write_inputs(&x.path("x.safetensors"), &small_config(), 2, 12, false);
+    ok(&[
+        "init",
+        "--config",
+        &x.s("small.toml"),
+        "--sequences",
+        "2",
+        "--steps",
+        "12",
+        "--seed",
+        "3",
+        "--out",
+        &x.s("m.safetensors"),
+    ]);
+}
+
+#[test]
+fn free_energy_prints_the_documented_json_and_gradients() {
+    let x = Scratch::new();
+    setup(&x);
+    let out = ok(&[
+        "free-energy",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--zero-noise",
+        "--grads",
+        &x.s("g.safetensors"),
+    ]);
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    let acc = v["accuracy"]["exteroceptive"].as_f64().unwrap()
+        + v["accuracy"]["proprioceptive"].as_f64().unwrap();
+    let cx: f64 = [
+        "executive",
+        "associative",
+        "exteroceptive",
+        "proprioceptive",
+    ]
+    .iter()
+    .map(|m| v["complexity"][m].as_f64().unwrap())
+    .sum();
+    let total = v["total"].as_f64().unwrap();
+    assert!(
+        (total - (acc + 0.01 * cx)).abs() < 1e-9 * total.abs().max(1.0),
+        "{v}"
+    );
+    assert!(acc > 0.0);
+    // Zero noise is deterministic.
+    let again = ok(&[
+        "free-energy",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--zero-noise",
+    ]);
+    assert_eq!(out, again);
+
+    let g = TensorFile::open(&x.path("g.safetensors")).unwrap();
+    for name in [
+        "grad.executive.w_dd",
+        "grad.exteroceptive.out.weight",
+        "grad.proprioceptive.a_sigma",
+        "grad.associative.w_dh",
+    ] {
+        assert!(g.contains(name), "{name}");
+    }
+    assert!(
+        !g.contains("grad.executive.bias"),
+        "fixed tensors have no gradient"
+    );
+    assert_eq!(g.shape("grad.exteroceptive.a_mu"), Some(&[2, 12, 4][..]));
+}
+
+#[test]
+fn train_checkpoints_resumes_and_lowers_free_energy() {
+    let x = Scratch::new();
+    setup(&x);
+    let run = x.s("run.safetensors");
+    let first = ok(&[
+        "train",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &run,
+        "--iterations",
+        "30",
+        "--checkpoint-every",
+        "10",
+    ]);
+    let f30: serde_json::Value = serde_json::from_str(first.trim()).unwrap();
+    // Refuses to clobber a run.
+    let e = fails(&[
+        "train",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &run,
+        "--iterations",
+        "30",
+    ]);
+    assert!(e.contains("--resume"), "{e}");
+    // Resume to 60 and compare with a straight 60-iteration run.
+    ok(&[
+        "train",
+        "--resume",
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &run,
+        "--iterations",
+        "60",
+    ]);
+    let straight = x.s("straight.safetensors");
+    ok(&[
+        "train",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &straight,
+        "--iterations",
+        "60",
+        "--checkpoint-every",
+        "7",
+    ]);
+    let a = io::load_model(Path::new(&run)).unwrap();
+    let b = io::load_model(Path::new(&straight)).unwrap();
+    assert_eq!(a, b, "resumed and straight runs differ");
+    // The log has one row per iteration.
+    let log = std::fs::read_to_string(x.path("run.log.csv")).unwrap();
+    assert_eq!(log.lines().count(), 61, "{log}");
+    let last_total: f64 = log
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(last_total < f30["total"].as_f64().unwrap());
+    // The checkpoint is a model: free-energy reads it.
+    ok(&[
+        "free-energy",
+        "--model",
+        &run,
+        "--inputs",
+        &x.s("x.safetensors"),
+    ]);
+}
+
+#[test]
+fn infer_writes_per_step_outputs_under_conditions() {
+    let x = Scratch::new();
+    setup(&x);
+    let out = x.s("r.safetensors");
+    ok(&[
+        "infer",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &out,
+        "--vision",
+        "2",
+        "--proprio",
+        "off",
+        "--ablate",
+        "executive",
+        "--sequences",
+        "1",
+        "--iterations",
+        "3",
+    ]);
+    let f = TensorFile::open(Path::new(&out)).unwrap();
+    assert_eq!(
+        f.shape("recon.exteroceptive"),
+        Some(&[1, 12, small_config().vision.dims()][..])
+    );
+    assert_eq!(f.shape("prior.proprioceptive"), Some(&[1, 12, 28][..]));
+    assert_eq!(f.shape("exteroceptive.sigma_q"), Some(&[1, 12, 4][..]));
+    assert_eq!(f.shape("associative.d"), Some(&[1, 12, 8][..]));
+    assert_eq!(f.indices("sequence").unwrap(), vec![1]);
+    let settings = f.metadata("settings").unwrap();
+    assert!(
+        settings.contains("\"vision_levels\":1") && settings.contains("\"proprio\":false"),
+        "{settings}"
+    );
+    assert!(settings.contains("\"iterations\":3"), "{settings}");
+    let e = fails(&[
+        "infer",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &out,
+        "--vision",
+        "8",
+    ]);
+    assert!(e.contains("lowest"), "{e}");
+    let e = fails(&[
+        "infer",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &out,
+        "--ablate",
+        "cortex",
+    ]);
+    assert!(e.contains("unknown module `cortex`"), "{e}");
+}
+
+#[test]
+fn bad_inputs_give_clear_errors() {
+    let x = Scratch::new();
+    setup(&x);
+    let m = x.s("m.safetensors");
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &x.s("missing.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+    ]);
+    assert!(
+        e.contains("missing.safetensors") && e.contains("No such file"),
+        "{e}"
+    );
+
+    write_inputs(&x.path("nan.safetensors"), &small_config(), 2, 12, true);
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("nan.safetensors"),
+    ]);
+    assert!(
+        e.contains("nan.safetensors") && e.contains("x_extero") && e.contains("non-finite"),
+        "{e}"
+    );
+
+    write_inputs(&x.path("three.safetensors"), &small_config(), 3, 12, false);
+    let e = fails(&[
+        "train",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("three.safetensors"),
+        "--out",
+        &x.s("o.safetensors"),
+        "--iterations",
+        "1",
+    ]);
+    assert!(
+        e.contains("2 sequences of 12 steps") && e.contains("3 sequences"),
+        "{e}"
+    );
+
+    write_inputs(
+        &x.path("paper.safetensors"),
+        &ModelConfig::default(),
+        2,
+        12,
+        false,
+    );
+    let e = fails(&[
+        "infer",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("paper.safetensors"),
+        "--out",
+        &x.s("o.safetensors"),
+    ]);
+    assert!(
+        e.contains("x_extero has 32256 dimensions per step but the model expects 120"),
+        "{e}"
+    );
+
+    let bytes = std::fs::read(x.path("m.safetensors")).unwrap();
+    std::fs::write(x.path("cut.safetensors"), &bytes[..bytes.len() / 2]).unwrap();
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &x.s("cut.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+    ]);
+    assert!(
+        e.contains("cut.safetensors") && e.contains("truncated"),
+        "{e}"
+    );
+
+    std::fs::write(x.path("bad.toml"), "[executive]\nd = -3\n").unwrap();
+    let e = fails(&[
+        "init",
+        "--config",
+        &x.s("bad.toml"),
+        "--sequences",
+        "1",
+        "--steps",
+        "2",
+        "--out",
+        &x.s("o.safetensors"),
+    ]);
+    assert!(e.contains("bad.toml"), "{e}");
+    let e = fails(&[
+        "train",
+        "--resume",
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &m,
+    ]);
+    assert!(e.contains("not a checkpoint"), "{e}");
+}
+
+#[test]
+fn config_prints_toml_that_init_accepts() {
+    let x = Scratch::new();
+    let text = ok(&["config"]);
+    assert!(text.contains("kl_weight = 0.005"));
+    std::fs::write(x.path("paper.toml"), &text).unwrap();
+    ok(&[
+        "init",
+        "--config",
+        &x.s("paper.toml"),
+        "--sequences",
+        "1",
+        "--steps",
+        "3",
+        "--out",
+        &x.s("p.safetensors"),
+    ]);
+    let model = io::load_model(&x.path("p.safetensors")).unwrap();
+    assert_eq!(model.config, ModelConfig::default());
+    let from_model = ok(&["config", "--model", &x.s("p.safetensors")]);
+    assert_eq!(from_model, text);
+}

@@ -1,0 +1,131 @@
+//! The seam between the model's bookkeeping (learning loop, sliding window, optimiser, I/O)
+//! and the arithmetic.
+//!
+//! A [`Backend`] turns parameters into a [`LoadedModel`] (the CPU backend lays weights out
+//! for its kernels; a GPU backend would upload them). Everything expensive then happens in
+//! one call: [`LoadedModel::evaluate`] runs a batch of windows (whole sequences in learning,
+//! the sliding window in inference) forward, computes the free energy on the observed
+//! dimensions, and optionally back-propagates through time. The CPU implementation is
+//! [`crate::cpu::CpuBackend`]; a GPU backend implements the same two traits and nothing
+//! above them changes.
+
+use crate::Real;
+use crate::config::ModelConfig;
+use crate::data::{Ablation, Observed};
+use crate::params::Params;
+
+/// Where the adaptive variables of a window come from.
+#[derive(Clone, Copy, Debug)]
+pub enum Posterior<'a, T> {
+    /// `a_mu`, `a_sigma` per module, each `[len, z]` row-major.
+    Adaptive {
+        a_mu: [&'a [T]; 4],
+        a_sigma: [&'a [T]; 4],
+    },
+    /// The posterior equals the prior at every step (a = the prior's pre-activations):
+    /// free generation, and the initial value of a.
+    Prior,
+}
+
+/// One window: consecutive steps of one sequence.
+#[derive(Clone, Debug)]
+pub struct Window<'a, T> {
+    pub len: usize,
+    /// Internal state h entering the window, per module; `None` = zeros (sequence start).
+    pub h0: Option<[&'a [T]; 4]>,
+    pub posterior: Posterior<'a, T>,
+    /// eps per module, `[len, z]`.
+    pub eps: [&'a [T]; 4],
+    /// Per modality, one target row per step (at least the observed dimensions long);
+    /// may be empty for a modality that is not observed.
+    pub targets: [Vec<&'a [T]>; 2],
+}
+
+/// What gradients to compute.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Grads {
+    None,
+    /// Only the adaptive variables (online inference).
+    Adaptive,
+    /// Adaptive variables and every weight (learning).
+    All,
+}
+
+/// For which steps to compute the read-outs of *all* dimensions (observed or not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FullOutputs {
+    None,
+    LastStep,
+    AllSteps,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct Request {
+    pub observed: Observed,
+    pub ablation: Ablation,
+    pub grads: Grads,
+    pub full_outputs: FullOutputs,
+}
+
+/// Per-step states of one module over a window, row-major `[len, dim]`.
+#[derive(Clone, Debug, Default)]
+pub struct ModuleTrace<T> {
+    /// State entering the window, `[d]`.
+    pub h0: Vec<T>,
+    pub d0: Vec<T>,
+    pub h: Vec<T>,
+    pub d: Vec<T>,
+    /// Prior mean, its pre-activation, and log sigma.
+    pub mu_p: Vec<T>,
+    pub pre_mu_p: Vec<T>,
+    pub log_sigma_p: Vec<T>,
+    /// 1 / sigma_p^2, kept for the backward pass.
+    pub inv_var_p: Vec<T>,
+    /// Posterior mean, log sigma and sigma.
+    pub mu_q: Vec<T>,
+    pub log_sigma_q: Vec<T>,
+    pub sigma_q: Vec<T>,
+    pub z: Vec<T>,
+    /// Per step: KL[q || p] / z (the complexity term before W).
+    pub kl: Vec<f64>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Trace<T> {
+    pub len: usize,
+    pub modules: [ModuleTrace<T>; 4],
+}
+
+/// Results for one window.
+#[derive(Clone, Debug)]
+pub struct WindowResult<T> {
+    pub trace: Trace<T>,
+    /// Per modality, per step: (1 / observed dims) * sum 1/2 (x - x^)^2; zeros if unobserved.
+    pub accuracy: [Vec<f64>; 2],
+    /// d F / d a_mu and d F / d a_sigma per module, `[len, z]` (when gradients were requested).
+    pub grad_a_mu: Option<[Vec<T>; 4]>,
+    pub grad_a_sigma: Option<[Vec<T>; 4]>,
+    /// Per modality, all-dimension read-outs of the requested steps, `[steps, dims]`.
+    pub outputs: [Vec<T>; 2],
+}
+
+#[derive(Clone, Debug)]
+pub struct BatchResult<T> {
+    pub windows: Vec<WindowResult<T>>,
+    /// d F / d every weight (fixed tensors are zero), with `Grads::All`.
+    pub grad_params: Option<Params<T>>,
+}
+
+/// An implementation of the model's arithmetic.
+pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
+    /// Prepares a set of weights for evaluation. Weights are fixed for the loaded model's
+    /// lifetime: learning loads once per iteration, inference once per run.
+    fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>>;
+}
+
+/// Weights ready for evaluation on one backend.
+pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
+    /// Forward pass, free energy and (optionally) back-propagation through time for a batch
+    /// of windows. The free energy is F = sum_steps [accuracy terms + W * complexity terms].
+    fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T>;
+}

@@ -1,0 +1,541 @@
+//! Online inference by error regression (eq. 18): weights fixed, the adaptive variables of a
+//! sliding window of the last H steps are updated to minimise the window's free energy.
+//!
+//! At each new step t (spec, "Online inference"):
+//! - the window is steps max(1, t-H+1)..t; it grows while t < H;
+//! - the newest step's a starts at the prior's pre-activation from d_{t-1}; older window
+//!   steps keep their a (warm start);
+//! - `iterations` RAdam updates of all window a's, fresh eps each iteration, moments reset
+//!   at each new step;
+//! - the state entering the window is held fixed; a final pass recomputes the window, and
+//!   the state after its oldest step is held for the next step once the window is full.
+//!
+//! A step can be run in slices ([`OnlineInference::begin_step`],
+//! [`OnlineInference::iterate`], [`OnlineInference::finish_step`]) so an interactive front
+//! end can spread the work over frames.
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use crate::backend::{Backend, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window};
+use crate::config::{Modality, ModelConfig, ModuleId, RAdamConfig, validate_radam};
+use crate::cpu::{CpuBackend, prior_preactivations};
+use crate::data::{Ablation, Observations, Observed};
+use crate::error::{Error, Result};
+use crate::free_energy::FreeEnergy;
+use crate::noise::{NoiseMode, Stream};
+use crate::optim::RAdam;
+use crate::params::Model;
+use crate::{Real, Tensor};
+
+/// Everything that determines an inference run besides the model and the data.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InferenceSettings {
+    /// H.
+    pub window: usize,
+    pub iterations: usize,
+    pub optimizer: RAdamConfig,
+    pub reset_moments_each_step: bool,
+    pub observed: Observed,
+    pub ablation: Ablation,
+    pub noise: NoiseMode,
+}
+
+impl InferenceSettings {
+    /// The model's configured defaults, everything observed, no ablation.
+    pub fn from_config(config: &ModelConfig, seed: u64) -> Self {
+        Self {
+            window: config.inference.window,
+            iterations: config.inference.iterations,
+            optimizer: config.inference.optimizer.clone(),
+            reset_moments_each_step: config.inference.reset_moments_each_step,
+            observed: Observed::all(config),
+            ablation: Ablation::none(),
+            noise: NoiseMode::Sampled { seed },
+        }
+    }
+
+    pub fn validate(&self, config: &ModelConfig) -> Result<()> {
+        if self.window == 0 {
+            return Err(Error::InvalidArgument(
+                "the inference window H must be at least 1".into(),
+            ));
+        }
+        if self.observed.vision_levels > config.vision.resolutions.len() {
+            return Err(Error::InvalidArgument(format!(
+                "{} vision levels observed, but the model has {}",
+                self.observed.vision_levels,
+                config.vision.resolutions.len()
+            )));
+        }
+        validate_radam("inference optimizer", &self.optimizer)
+    }
+}
+
+/// One module's distributions and state at a step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModuleStep<T> {
+    pub mu_p: Vec<T>,
+    pub sigma_p: Vec<T>,
+    pub mu_q: Vec<T>,
+    pub sigma_q: Vec<T>,
+    pub d: Vec<T>,
+}
+
+/// What online inference reports after step t.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepOutput<T> {
+    /// 0-based index of the step.
+    pub t: usize,
+    /// Posterior reconstruction x^_t of all dimensions, per modality.
+    pub recon: [Vec<T>; 2],
+    /// One-step-ahead prior prediction x^_{t+1}, per modality.
+    pub prior_next: [Vec<T>; 2],
+    pub modules: [ModuleStep<T>; 4],
+    /// Free energy of the window after the updates (final pass).
+    pub window_free_energy: FreeEnergy,
+    /// The newest step's accuracy terms (observed dimensions), per modality.
+    pub step_accuracy: [f64; 2],
+}
+
+#[derive(Debug)]
+struct Pending {
+    iterations_done: usize,
+}
+
+/// Online inference over one sequence, one step at a time.
+#[derive(Debug)]
+pub struct OnlineInference<T: Real> {
+    model: Arc<Model<T>>,
+    settings: InferenceSettings,
+    loaded: Box<dyn LoadedModel<T>>,
+    /// h entering the window; `None` = zeros (the window still starts at step 1).
+    held_h: Option<[Vec<T>; 4]>,
+    /// Window adaptive variables per module, `[len, z]`.
+    a_mu: [Vec<T>; 4],
+    a_sigma: [Vec<T>; 4],
+    /// Observed part of each window step's input, per modality.
+    observations: [Vec<Vec<T>>; 2],
+    /// State after the newest finished step.
+    last_h: [Vec<T>; 4],
+    last_d: [Vec<T>; 4],
+    steps_done: usize,
+    optimizer: RAdam<T>,
+    pending: Option<Pending>,
+}
+
+impl<T: Real> OnlineInference<T> {
+    pub fn new(model: Arc<Model<T>>, settings: InferenceSettings) -> Result<Self> {
+        Self::with_backend(model, settings, &CpuBackend)
+    }
+
+    pub fn with_backend(
+        model: Arc<Model<T>>,
+        settings: InferenceSettings,
+        backend: &dyn Backend<T>,
+    ) -> Result<Self> {
+        settings.validate(&model.config)?;
+        let config = &model.config;
+        let zeros_d = ModuleId::ALL.map(|id| vec![T::ZERO; config.module(id).d]);
+        let optimizer = RAdam::new(settings.optimizer.clone(), &[0; 8]);
+        Ok(Self {
+            held_h: None,
+            a_mu: Default::default(),
+            a_sigma: Default::default(),
+            observations: Default::default(),
+            last_h: zeros_d.clone(),
+            last_d: zeros_d,
+            steps_done: 0,
+            optimizer,
+            pending: None,
+            loaded: backend.load(&model.params, config),
+            model,
+            settings,
+        })
+    }
+
+    pub fn settings(&self) -> &InferenceSettings {
+        &self.settings
+    }
+    pub fn model(&self) -> &Arc<Model<T>> {
+        &self.model
+    }
+    /// Steps finished so far.
+    pub fn steps_done(&self) -> usize {
+        self.steps_done
+    }
+    /// Current window length.
+    pub fn window_len(&self) -> usize {
+        self.observations[0].len()
+    }
+    /// Iterations still to run for the step in progress (0 when none is in progress).
+    pub fn iterations_left(&self) -> usize {
+        self.pending
+            .as_ref()
+            .map_or(0, |p| self.settings.iterations - p.iterations_done)
+    }
+
+    fn z(&self, m: usize) -> usize {
+        self.model.config.module(ModuleId::ALL[m]).z
+    }
+
+    /// Starts step t with its observation (full-length vectors; only the observed
+    /// dimensions are read).
+    pub fn begin_step(&mut self, x_extero: &[T], x_proprio: &[T]) -> Result<()> {
+        if self.pending.is_some() {
+            return Err(Error::InvalidArgument(
+                "begin_step called before the previous step was finished".into(),
+            ));
+        }
+        let config = &self.model.config;
+        let mut observed_rows: [Vec<T>; 2] = Default::default();
+        for (modality, x) in Modality::ALL.into_iter().zip([x_extero, x_proprio]) {
+            let dims = config.modality_dims(modality);
+            if x.len() != dims {
+                return Err(Error::Mismatch(format!(
+                    "step {}: {} observation has {} values, the model expects {dims}",
+                    self.steps_done,
+                    modality.name(),
+                    x.len()
+                )));
+            }
+            let k = self.settings.observed.dims(config, modality);
+            if let Some(i) = x[..k].iter().position(|v| !v.is_finite()) {
+                return Err(Error::NonFinite {
+                    what: format!("step {} observation", self.steps_done),
+                    name: modality.name().into(),
+                    index: vec![i],
+                    value: x[i].to_f64(),
+                });
+            }
+            observed_rows[modality.index()] = x[..k].to_vec();
+        }
+        // The newest step's a = prior pre-activations from d_{t-1}.
+        let (pre_mu, pre_sigma) = prior_preactivations(
+            &self.model.params,
+            std::array::from_fn(|m| self.last_d[m].as_slice()),
+        );
+        for m in 0..4 {
+            self.a_mu[m].extend_from_slice(&pre_mu[m]);
+            self.a_sigma[m].extend_from_slice(&pre_sigma[m]);
+        }
+        for (rows, row) in self.observations.iter_mut().zip(observed_rows) {
+            rows.push(row);
+        }
+        let sizes: Vec<usize> = (0..8).map(|i| self.a_mu[i % 4].len()).collect();
+        if self.settings.reset_moments_each_step || self.steps_done == 0 {
+            self.optimizer = RAdam::new(self.settings.optimizer.clone(), &sizes);
+        } else {
+            // Keep the moments of the steps still in the window; the new step's start at 0.
+            for (i, &n) in sizes.iter().enumerate() {
+                self.optimizer.m[i].resize(n, T::ZERO);
+                self.optimizer.v[i].resize(n, T::ZERO);
+            }
+        }
+        self.pending = Some(Pending { iterations_done: 0 });
+        Ok(())
+    }
+
+    fn window_pass(
+        &self,
+        eps: &[Vec<T>; 4],
+        grads: Grads,
+        full: FullOutputs,
+    ) -> crate::backend::WindowResult<T> {
+        let len = self.window_len();
+        let window = Window {
+            len,
+            h0: self
+                .held_h
+                .as_ref()
+                .map(|h| std::array::from_fn(|m| h[m].as_slice())),
+            posterior: Posterior::Adaptive {
+                a_mu: std::array::from_fn(|m| self.a_mu[m].as_slice()),
+                a_sigma: std::array::from_fn(|m| self.a_sigma[m].as_slice()),
+            },
+            eps: std::array::from_fn(|m| eps[m].as_slice()),
+            targets: std::array::from_fn(|i| {
+                self.observations[i].iter().map(Vec::as_slice).collect()
+            }),
+        };
+        let request = Request {
+            observed: self.settings.observed,
+            ablation: self.settings.ablation,
+            grads,
+            full_outputs: full,
+        };
+        let mut result = self
+            .loaded
+            .evaluate(std::slice::from_ref(&window), &request);
+        result.windows.pop().expect("one window")
+    }
+
+    fn eps(&self, stream: Stream, tags: &[u64], len: usize) -> [Vec<T>; 4] {
+        std::array::from_fn(|m| {
+            let mut e = vec![T::ZERO; len * self.z(m)];
+            let mut key = tags.to_vec();
+            key.push(m as u64);
+            self.settings.noise.fill(stream, &key, &mut e);
+            e
+        })
+    }
+
+    /// Runs up to `max` of the step's remaining updates; returns how many are left.
+    pub fn iterate(&mut self, max: usize) -> usize {
+        crate::parallel::in_pool(|| self.iterate_here(max))
+    }
+
+    fn iterate_here(&mut self, max: usize) -> usize {
+        let Some(done) = self.pending.as_ref().map(|p| p.iterations_done) else {
+            return 0;
+        };
+        let todo = max.min(self.settings.iterations - done);
+        let t = self.steps_done as u64;
+        for k in 0..todo {
+            let eps = self.eps(
+                Stream::InferIteration,
+                &[t, (done + k) as u64],
+                self.window_len(),
+            );
+            let result = self.window_pass(&eps, Grads::Adaptive, FullOutputs::None);
+            let (Some(g_mu), Some(g_sigma)) = (result.grad_a_mu, result.grad_a_sigma) else {
+                unreachable!("adaptive gradients requested")
+            };
+            let grads: Vec<&[T]> = g_mu
+                .iter()
+                .chain(g_sigma.iter())
+                .map(Vec::as_slice)
+                .collect();
+            let (mu, sigma) = (&mut self.a_mu, &mut self.a_sigma);
+            let mut params: Vec<&mut [T]> = mu
+                .iter_mut()
+                .chain(sigma.iter_mut())
+                .map(Vec::as_mut_slice)
+                .collect();
+            self.optimizer.update(&mut params, &grads);
+        }
+        let pending = self.pending.as_mut().expect("checked above");
+        pending.iterations_done += todo;
+        self.settings.iterations - pending.iterations_done
+    }
+
+    /// Final pass over the window and the outputs of the step; slides the window.
+    pub fn finish_step(&mut self) -> Result<StepOutput<T>> {
+        if self.pending.is_none() {
+            return Err(Error::InvalidArgument(
+                "finish_step called without begin_step".into(),
+            ));
+        }
+        crate::parallel::in_pool(|| {
+            self.iterate_here(usize::MAX);
+            self.finish_here()
+        })
+    }
+
+    fn finish_here(&mut self) -> Result<StepOutput<T>> {
+        let t = self.steps_done;
+        let len = self.window_len();
+        let config = self.model.config.clone();
+        let eps = self.eps(Stream::InferFinal, &[t as u64], len);
+        let result = self.window_pass(&eps, Grads::None, FullOutputs::LastStep);
+        let trace = &result.trace;
+
+        let mut accuracy = [0.0; 2];
+        for (sum, per_step) in accuracy.iter_mut().zip(&result.accuracy) {
+            *sum = per_step.iter().sum();
+        }
+        let complexity: [f64; 4] = std::array::from_fn(|m| trace.modules[m].kl.iter().sum());
+        let window_free_energy = FreeEnergy::from_terms(accuracy, complexity, config.kl_weight);
+        if !window_free_energy.total.is_finite() {
+            return Err(Error::Numerical(format!(
+                "online inference diverged at step {t} (window free energy {}); try a smaller inference lr",
+                window_free_energy.total
+            )));
+        }
+        let step_accuracy = [result.accuracy[0][len - 1], result.accuracy[1][len - 1]];
+        let modules = last_step_states(trace, &config);
+        for m in 0..4 {
+            let d = config.module(ModuleId::ALL[m]).d;
+            self.last_h[m] = trace.modules[m].h[(len - 1) * d..len * d].to_vec();
+            self.last_d[m] = trace.modules[m].d[(len - 1) * d..len * d].to_vec();
+        }
+        let recon = result.outputs;
+        let prior_next = self.prior_prediction(t);
+
+        // Slide: once the window is full, the state after its oldest step is held and that
+        // step leaves the window.
+        if len == self.settings.window {
+            self.held_h = Some(std::array::from_fn(|m| {
+                let d = config.module(ModuleId::ALL[m]).d;
+                trace.modules[m].h[..d].to_vec()
+            }));
+            for m in 0..4 {
+                let z = self.z(m);
+                self.a_mu[m].drain(..z);
+                self.a_sigma[m].drain(..z);
+                for opt_i in [m, m + 4] {
+                    self.optimizer.m[opt_i].drain(..z);
+                    self.optimizer.v[opt_i].drain(..z);
+                }
+            }
+            for rows in &mut self.observations {
+                rows.remove(0);
+            }
+        }
+        self.pending = None;
+        self.steps_done += 1;
+        Ok(StepOutput {
+            t,
+            recon,
+            prior_next,
+            modules,
+            window_free_energy,
+            step_accuracy,
+        })
+    }
+
+    /// x^_{t+1} from the prior: one generation step from the state after step t with
+    /// z = mu_p + sigma_p * eps.
+    fn prior_prediction(&self, t: usize) -> [Vec<T>; 2] {
+        let (pre_mu, pre_sigma) = prior_preactivations(
+            &self.model.params,
+            std::array::from_fn(|m| self.last_d[m].as_slice()),
+        );
+        let eps = self.eps(Stream::InferPrior, &[t as u64], 1);
+        let window = Window {
+            len: 1,
+            h0: Some(std::array::from_fn(|m| self.last_h[m].as_slice())),
+            posterior: Posterior::Adaptive {
+                a_mu: std::array::from_fn(|m| pre_mu[m].as_slice()),
+                a_sigma: std::array::from_fn(|m| pre_sigma[m].as_slice()),
+            },
+            eps: std::array::from_fn(|m| eps[m].as_slice()),
+            targets: [Vec::new(), Vec::new()],
+        };
+        let request = Request {
+            observed: Observed {
+                vision_levels: 0,
+                proprio: false,
+            },
+            ablation: self.settings.ablation,
+            grads: Grads::None,
+            full_outputs: FullOutputs::LastStep,
+        };
+        let mut result = self
+            .loaded
+            .evaluate(std::slice::from_ref(&window), &request);
+        result.windows.pop().expect("one window").outputs
+    }
+
+    /// begin + all iterations + finish.
+    pub fn step(&mut self, x_extero: &[T], x_proprio: &[T]) -> Result<StepOutput<T>> {
+        self.begin_step(x_extero, x_proprio)?;
+        self.finish_step()
+    }
+}
+
+fn last_step_states<T: Real>(trace: &Trace<T>, config: &ModelConfig) -> [ModuleStep<T>; 4] {
+    let t = trace.len - 1;
+    std::array::from_fn(|m| {
+        let id = ModuleId::ALL[m];
+        let (d, z) = (config.module(id).d, config.module(id).z);
+        let mt = &trace.modules[m];
+        let row = |v: &[T], w: usize| v[t * w..(t + 1) * w].to_vec();
+        ModuleStep {
+            mu_p: row(&mt.mu_p, z),
+            sigma_p: mt.log_sigma_p[t * z..(t + 1) * z]
+                .iter()
+                .map(|x| x.exp())
+                .collect(),
+            mu_q: row(&mt.mu_q, z),
+            sigma_q: row(&mt.sigma_q, z),
+            d: row(&mt.d, d),
+        }
+    })
+}
+
+/// A whole inference run of one sequence, stacked over steps.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Run<T> {
+    pub settings: InferenceSettings,
+    /// Per modality `[steps, dims]`.
+    pub recon: [Tensor<T>; 2],
+    pub prior_next: [Tensor<T>; 2],
+    /// Per module: `mu_p, sigma_p, mu_q, sigma_q` `[steps, z]` and `d` `[steps, d]`.
+    pub modules: [RunModule<T>; 4],
+    /// Per step: window free energy and the newest step's accuracy terms.
+    pub free_energy: Vec<FreeEnergy>,
+    pub step_accuracy: Vec<[f64; 2]>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunModule<T> {
+    pub mu_p: Tensor<T>,
+    pub sigma_p: Tensor<T>,
+    pub mu_q: Tensor<T>,
+    pub sigma_q: Tensor<T>,
+    pub d: Tensor<T>,
+}
+
+impl<T: Real> Run<T> {
+    pub fn steps(&self) -> usize {
+        self.free_energy.len()
+    }
+
+    /// Stacks per-step outputs.
+    pub fn from_steps(settings: InferenceSettings, steps: &[StepOutput<T>]) -> Self {
+        let n = steps.len();
+        let stack = |f: &dyn Fn(&StepOutput<T>) -> &[T]| -> Tensor<T> {
+            let w = steps.first().map_or(0, |s| f(s).len());
+            let mut data = Vec::with_capacity(n * w);
+            for s in steps {
+                data.extend_from_slice(f(s));
+            }
+            Tensor::from_vec(&[n, w], data).expect("every step has the same sizes")
+        };
+        Self {
+            recon: std::array::from_fn(|i| stack(&|s| &s.recon[i])),
+            prior_next: std::array::from_fn(|i| stack(&|s| &s.prior_next[i])),
+            modules: std::array::from_fn(|m| RunModule {
+                mu_p: stack(&|s| &s.modules[m].mu_p),
+                sigma_p: stack(&|s| &s.modules[m].sigma_p),
+                mu_q: stack(&|s| &s.modules[m].mu_q),
+                sigma_q: stack(&|s| &s.modules[m].sigma_q),
+                d: stack(&|s| &s.modules[m].d),
+            }),
+            free_energy: steps.iter().map(|s| s.window_free_energy).collect(),
+            step_accuracy: steps.iter().map(|s| s.step_accuracy).collect(),
+            settings,
+        }
+    }
+}
+
+/// Runs online inference over sequence `s` of `data` (all of its steps), calling
+/// `progress(done, total)` after each step.
+pub fn run_sequence<T: Real>(
+    model: Arc<Model<T>>,
+    settings: InferenceSettings,
+    data: &Observations<T>,
+    s: usize,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Run<T>> {
+    data.check_fits(&model.config)?;
+    if s >= data.sequences() {
+        return Err(Error::InvalidArgument(format!(
+            "sequence {s} does not exist (the inputs hold {})",
+            data.sequences()
+        )));
+    }
+    let mut inference = OnlineInference::new(model, settings.clone())?;
+    let len = data.lengths()[s];
+    let mut steps = Vec::with_capacity(len);
+    for t in 0..len {
+        steps.push(inference.step(
+            data.step(Modality::Exteroceptive, s, t),
+            data.step(Modality::Proprioceptive, s, t),
+        )?);
+        progress(t + 1, len);
+    }
+    Ok(Run::from_steps(settings, &steps))
+}

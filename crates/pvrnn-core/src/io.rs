@@ -1,0 +1,750 @@
+//! safetensors files: models (spec tensor names, configuration as JSON metadata `config`),
+//! checkpoints (a model plus optimiser state), gradients (`grad.` prefix), inputs
+//! (`x_extero`, `x_proprio`) and inference runs.
+//!
+//! Every reader checks the header, dtypes, shapes and values and names the file and tensor
+//! in its error; files are written to a temporary name and renamed, so an interrupted write
+//! never leaves a half-written file under the real name.
+
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use safetensors::tensor::{Metadata, TensorInfo};
+use safetensors::{Dtype, SafeTensorError, View};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{Modality, ModelConfig, ModuleId};
+use crate::data::Observations;
+use crate::error::{Error, Result};
+use crate::free_energy::{FreeEnergy, Gradients};
+use crate::infer::{InferenceSettings, Run, RunModule};
+use crate::noise::NoiseMode;
+use crate::optim::RAdam;
+use crate::params::{Adaptive, Model, Params, Role};
+use crate::train::{Trainer, trainable_names};
+use crate::{Real, Tensor};
+
+/// Identifies what kind of file a safetensors file is (metadata key `format`).
+pub const MODEL_FORMAT: &str = "pvrnn-model/1";
+pub const CHECKPOINT_FORMAT: &str = "pvrnn-checkpoint/1";
+pub const RUN_FORMAT: &str = "pvrnn-inference/1";
+const OPTIMIZER_PREFIX: &str = "radam.";
+
+/// A parsed safetensors file held in memory.
+#[derive(Debug)]
+pub struct TensorFile {
+    what: String,
+    bytes: Vec<u8>,
+    data_start: usize,
+    tensors: HashMap<String, TensorInfo>,
+    metadata: HashMap<String, String>,
+}
+
+fn describe(e: SafeTensorError) -> String {
+    match e {
+        SafeTensorError::MetadataIncompleteBuffer | SafeTensorError::InvalidOffset(_) => {
+            format!("the file is truncated or its header does not match its size ({e})")
+        }
+        SafeTensorError::HeaderTooSmall | SafeTensorError::HeaderTooLarge => {
+            format!("the header is missing or corrupt ({e})")
+        }
+        other => other.to_string(),
+    }
+}
+
+impl TensorFile {
+    pub fn open(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(bytes, path.display().to_string())
+    }
+
+    /// Parses a file already in memory (e.g. fetched in the browser); `what` names it in errors.
+    pub fn from_bytes(bytes: Vec<u8>, what: impl Into<String>) -> Result<Self> {
+        let what = what.into();
+        let format_err = |detail: String| Error::Format {
+            what: what.clone(),
+            detail,
+        };
+        let (header_len, metadata): (usize, Metadata) =
+            safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| format_err(describe(e)))?;
+        let data_start = 8 + header_len;
+        let tensors: HashMap<String, TensorInfo> = metadata
+            .tensors()
+            .into_iter()
+            .map(|(name, info)| (name, info.clone()))
+            .collect();
+        let meta = metadata.metadata().clone().unwrap_or_default();
+        Ok(Self {
+            what,
+            bytes,
+            data_start,
+            tensors,
+            metadata: meta,
+        })
+    }
+
+    pub fn what(&self) -> &str {
+        &self.what
+    }
+    pub fn metadata(&self, key: &str) -> Option<&str> {
+        self.metadata.get(key).map(String::as_str)
+    }
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.tensors.keys().map(String::as_str)
+    }
+    pub fn contains(&self, name: &str) -> bool {
+        self.tensors.contains_key(name)
+    }
+    pub fn shape(&self, name: &str) -> Option<&[usize]> {
+        self.tensors.get(name).map(|i| i.shape.as_slice())
+    }
+
+    fn info(&self, name: &str) -> Result<&TensorInfo> {
+        self.tensors.get(name).ok_or_else(|| Error::MissingTensor {
+            what: self.what.clone(),
+            name: name.into(),
+        })
+    }
+
+    /// An f32 tensor, checked for shape (`None` = any) and finiteness.
+    pub fn f32(&self, name: &str, shape: Option<&[usize]>) -> Result<Tensor<f32>> {
+        let info = self.info(name)?;
+        if info.dtype != Dtype::F32 {
+            return Err(Error::Dtype {
+                what: self.what.clone(),
+                name: name.into(),
+                found: format!("{:?}", info.dtype),
+            });
+        }
+        if let Some(shape) = shape
+            && info.shape != shape
+        {
+            return Err(Error::Shape {
+                what: self.what.clone(),
+                name: name.into(),
+                found: info.shape.clone(),
+                expected: format!("{shape:?}"),
+            });
+        }
+        let (a, b) = info.data_offsets;
+        let raw = &self.bytes[self.data_start + a..self.data_start + b];
+        let data: Vec<f32> = raw
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        let tensor = Tensor::from_vec(&info.shape, data).map_err(|_| Error::Format {
+            what: self.what.clone(),
+            detail: format!(
+                "tensor `{name}` has {} bytes for shape {:?}",
+                raw.len(),
+                info.shape
+            ),
+        })?;
+        if let Some((flat, value)) = tensor.first_non_finite() {
+            return Err(Error::NonFinite {
+                what: self.what.clone(),
+                name: name.into(),
+                index: tensor.unravel(flat),
+                value: value as f64,
+            });
+        }
+        Ok(tensor)
+    }
+
+    /// An integer tensor (I64 or I32) as `usize`s.
+    pub fn indices(&self, name: &str) -> Result<Vec<usize>> {
+        let info = self.info(name)?;
+        let (a, b) = info.data_offsets;
+        let raw = &self.bytes[self.data_start + a..self.data_start + b];
+        let values: Vec<i64> = match info.dtype {
+            Dtype::I64 => raw
+                .chunks_exact(8)
+                .map(|c| i64::from_le_bytes(c.try_into().unwrap()))
+                .collect(),
+            Dtype::I32 => raw
+                .chunks_exact(4)
+                .map(|c| i32::from_le_bytes(c.try_into().unwrap()) as i64)
+                .collect(),
+            other => {
+                return Err(Error::Dtype {
+                    what: self.what.clone(),
+                    name: name.into(),
+                    found: format!("{other:?} (expected I64 or I32)"),
+                });
+            }
+        };
+        values
+            .into_iter()
+            .map(|v| {
+                usize::try_from(v).map_err(|_| Error::Format {
+                    what: self.what.clone(),
+                    detail: format!("`{name}` holds the negative value {v}"),
+                })
+            })
+            .collect()
+    }
+}
+
+/// A tensor to write: f32 values or i64 indices.
+#[derive(Debug)]
+pub enum OutTensor<'a> {
+    F32(Vec<usize>, Cow<'a, [f32]>),
+    I64(Vec<usize>, Vec<i64>),
+}
+
+impl OutTensor<'_> {
+    pub fn f32<T: Real>(t: &Tensor<T>) -> OutTensor<'static> {
+        OutTensor::F32(
+            t.shape().to_vec(),
+            Cow::Owned(t.data().iter().map(|v| v.to_f32()).collect()),
+        )
+    }
+}
+
+fn f32_bytes(v: &[f32]) -> Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        Cow::Borrowed(bytemuck::cast_slice(v))
+    } else {
+        Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
+    }
+}
+
+impl View for &OutTensor<'_> {
+    fn dtype(&self) -> Dtype {
+        match self {
+            OutTensor::F32(..) => Dtype::F32,
+            OutTensor::I64(..) => Dtype::I64,
+        }
+    }
+    fn shape(&self) -> &[usize] {
+        match self {
+            OutTensor::F32(s, _) | OutTensor::I64(s, _) => s,
+        }
+    }
+    fn data(&self) -> Cow<'_, [u8]> {
+        match self {
+            OutTensor::F32(_, v) => f32_bytes(v),
+            OutTensor::I64(_, v) => Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        }
+    }
+    fn data_len(&self) -> usize {
+        match self {
+            OutTensor::F32(_, v) => v.len() * 4,
+            OutTensor::I64(_, v) => v.len() * 8,
+        }
+    }
+}
+
+/// Serialises tensors and metadata to bytes.
+pub fn to_bytes(
+    tensors: &BTreeMap<String, OutTensor<'_>>,
+    metadata: HashMap<String, String>,
+) -> Result<Vec<u8>> {
+    safetensors::serialize(tensors.iter().map(|(k, v)| (k.as_str(), v)), Some(metadata)).map_err(
+        |e| Error::Format {
+            what: "serialising".into(),
+            detail: e.to_string(),
+        },
+    )
+}
+
+/// Writes bytes to `path` atomically: a temporary file in the same folder, synced, renamed.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::InvalidArgument(format!("{}: not a file path", path.display())))?;
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+fn save(
+    path: &Path,
+    tensors: &BTreeMap<String, OutTensor<'_>>,
+    metadata: HashMap<String, String>,
+) -> Result<()> {
+    write_atomic(path, &to_bytes(tensors, metadata)?)
+}
+
+fn model_tensors<T: Real>(model: &Model<T>) -> BTreeMap<String, OutTensor<'static>> {
+    let mut out = BTreeMap::new();
+    for (name, t, _) in model.params.named() {
+        out.insert(name, OutTensor::f32(t));
+    }
+    for (name, t) in model.adaptive.named() {
+        out.insert(name, OutTensor::f32(t));
+    }
+    out
+}
+
+fn model_metadata(config: &ModelConfig, format: &str) -> HashMap<String, String> {
+    HashMap::from([
+        ("config".to_string(), config.to_json()),
+        ("format".to_string(), format.to_string()),
+    ])
+}
+
+/// A model as safetensors bytes.
+pub fn model_to_bytes<T: Real>(model: &Model<T>) -> Result<Vec<u8>> {
+    to_bytes(
+        &model_tensors(model),
+        model_metadata(&model.config, MODEL_FORMAT),
+    )
+}
+
+pub fn save_model<T: Real>(path: &Path, model: &Model<T>) -> Result<()> {
+    save(
+        path,
+        &model_tensors(model),
+        model_metadata(&model.config, MODEL_FORMAT),
+    )
+}
+
+pub fn load_model(path: &Path) -> Result<Model<f32>> {
+    model_from_file(&TensorFile::open(path)?)
+}
+
+pub fn model_from_bytes(bytes: Vec<u8>, what: &str) -> Result<Model<f32>> {
+    model_from_file(&TensorFile::from_bytes(bytes, what)?)
+}
+
+/// Reads and checks a model (also accepts a checkpoint, ignoring its optimiser state).
+pub fn model_from_file(file: &TensorFile) -> Result<Model<f32>> {
+    let config_json = file.metadata("config").ok_or_else(|| Error::Format {
+        what: file.what().into(),
+        detail: "no `config` metadata: not a pvrnn model file".into(),
+    })?;
+    let config = ModelConfig::from_json(config_json).map_err(|e| Error::Format {
+        what: file.what().into(),
+        detail: format!("its configuration is invalid: {e}"),
+    })?;
+    let mut params = Params::<f32>::zeros(&config);
+    let mut expected: Vec<String> = Vec::new();
+    for (name, t, _) in params.named_mut() {
+        let shape = t.shape().to_vec();
+        *t = file.f32(&name, Some(&shape))?;
+        expected.push(name);
+    }
+    // The adaptive variables fix S and T; every module must agree.
+    let a0 = format!("{}.a_mu", ModuleId::Executive.name());
+    let (s, steps) = match file.shape(&a0) {
+        Some(&[s, t, _]) => (s, t),
+        Some(other) => {
+            return Err(Error::Shape {
+                what: file.what().into(),
+                name: a0,
+                found: other.to_vec(),
+                expected: "[sequences, steps, z]".into(),
+            });
+        }
+        None => {
+            return Err(Error::MissingTensor {
+                what: file.what().into(),
+                name: a0,
+            });
+        }
+    };
+    let mut adaptive = Adaptive::zeros(&config, s, steps);
+    for (name, t) in adaptive.named_mut() {
+        let shape = t.shape().to_vec();
+        *t = file.f32(&name, Some(&shape))?;
+        expected.push(name);
+    }
+    for name in file.names() {
+        if !expected.iter().any(|e| e == name) && !name.starts_with(OPTIMIZER_PREFIX) {
+            return Err(Error::UnexpectedTensor {
+                what: file.what().into(),
+                name: name.into(),
+            });
+        }
+    }
+    Ok(Model {
+        config,
+        params,
+        adaptive,
+    })
+}
+
+/// Learning state stored in a checkpoint's metadata.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct TrainingState {
+    iteration: u64,
+    optimizer_step: u64,
+    noise: NoiseMode,
+    last_free_energy: Option<FreeEnergy>,
+}
+
+/// Saves a learning run: the model (loadable as a model) plus optimiser moments.
+pub fn save_checkpoint<T: Real>(
+    path: &Path,
+    trainer: &Trainer<T>,
+    last: Option<FreeEnergy>,
+) -> Result<()> {
+    let mut tensors = model_tensors(&trainer.model);
+    for ((name, m), v) in trainable_names(&trainer.model)
+        .into_iter()
+        .zip(&trainer.optimizer.m)
+        .zip(&trainer.optimizer.v)
+    {
+        let f = |x: &Vec<T>| {
+            OutTensor::F32(
+                vec![x.len()],
+                Cow::Owned(x.iter().map(|v| v.to_f32()).collect()),
+            )
+        };
+        tensors.insert(format!("{OPTIMIZER_PREFIX}m.{name}"), f(m));
+        tensors.insert(format!("{OPTIMIZER_PREFIX}v.{name}"), f(v));
+    }
+    let mut meta = model_metadata(&trainer.model.config, CHECKPOINT_FORMAT);
+    let state = TrainingState {
+        iteration: trainer.iteration,
+        optimizer_step: trainer.optimizer.step,
+        noise: trainer.noise,
+        last_free_energy: last,
+    };
+    meta.insert(
+        "training".into(),
+        serde_json::to_string(&state).expect("serialisable"),
+    );
+    save(path, &tensors, meta)
+}
+
+/// Whether a file is a checkpoint (has learning state).
+pub fn is_checkpoint(file: &TensorFile) -> bool {
+    file.metadata("training").is_some()
+}
+
+/// Restores a learning run from a checkpoint.
+pub fn load_checkpoint(path: &Path) -> Result<Trainer<f32>> {
+    let file = TensorFile::open(path)?;
+    let model = model_from_file(&file)?;
+    let state: TrainingState = file
+        .metadata("training")
+        .ok_or_else(|| Error::Format {
+            what: file.what().into(),
+            detail: "no `training` metadata: a model, not a checkpoint (start a new run from it instead)".into(),
+        })
+        .and_then(|s| {
+            serde_json::from_str(s).map_err(|e| Error::Format {
+                what: file.what().into(),
+                detail: format!("bad `training` metadata: {e}"),
+            })
+        })?;
+    let names = trainable_names(&model);
+    let sizes: Vec<usize> = {
+        let mut v: Vec<usize> = model
+            .params
+            .named()
+            .into_iter()
+            .filter(|x| x.2 == Role::Trainable)
+            .map(|x| x.1.len())
+            .collect();
+        v.extend(model.adaptive.named().into_iter().map(|x| x.1.len()));
+        v
+    };
+    let mut optimizer = RAdam::new(model.config.train.optimizer.clone(), &sizes);
+    optimizer.step = state.optimizer_step;
+    for (i, (name, &n)) in names.iter().zip(&sizes).enumerate() {
+        optimizer.m[i] = file
+            .f32(&format!("{OPTIMIZER_PREFIX}m.{name}"), Some(&[n]))?
+            .into_data();
+        optimizer.v[i] = file
+            .f32(&format!("{OPTIMIZER_PREFIX}v.{name}"), Some(&[n]))?
+            .into_data();
+    }
+    Trainer::resume(model, optimizer, state.iteration, state.noise)
+}
+
+/// Writes d F / d every trainable tensor as `grad.<name>`.
+pub fn save_gradients<T: Real>(
+    path: &Path,
+    grads: &Gradients<T>,
+    config: &ModelConfig,
+) -> Result<()> {
+    let mut tensors = BTreeMap::new();
+    for (name, t, role) in grads.params.named() {
+        if role == Role::Trainable {
+            tensors.insert(format!("grad.{name}"), OutTensor::f32(t));
+        }
+    }
+    for (name, t) in grads.adaptive.named() {
+        tensors.insert(format!("grad.{name}"), OutTensor::f32(t));
+    }
+    save(path, &tensors, model_metadata(config, "pvrnn-gradients/1"))
+}
+
+/// Reads `x_extero [S, T, vision]`, `x_proprio [S, T, 28]` and optional `lengths [S]`.
+pub fn load_observations(path: &Path) -> Result<Observations<f32>> {
+    observations_from_file(&TensorFile::open(path)?)
+}
+
+pub fn observations_from_file(file: &TensorFile) -> Result<Observations<f32>> {
+    let extero = file.f32("x_extero", None)?;
+    let proprio = file.f32("x_proprio", None)?;
+    let lengths = if file.contains("lengths") {
+        Some(file.indices("lengths")?)
+    } else {
+        None
+    };
+    Observations::new(extero, proprio, lengths).map_err(|e| match e {
+        Error::Shape {
+            name,
+            found,
+            expected,
+            ..
+        } => Error::Shape {
+            what: file.what().into(),
+            name,
+            found,
+            expected,
+        },
+        Error::Mismatch(m) => Error::Mismatch(format!("{}: {m}", file.what())),
+        other => other,
+    })
+}
+
+pub fn save_observations<T: Real>(path: &Path, obs: &Observations<T>) -> Result<()> {
+    let mut tensors = BTreeMap::new();
+    tensors.insert(
+        "x_extero".into(),
+        OutTensor::f32(obs.tensor(Modality::Exteroceptive)),
+    );
+    tensors.insert(
+        "x_proprio".into(),
+        OutTensor::f32(obs.tensor(Modality::Proprioceptive)),
+    );
+    tensors.insert(
+        "lengths".into(),
+        OutTensor::I64(
+            vec![obs.sequences()],
+            obs.lengths().iter().map(|&l| l as i64).collect(),
+        ),
+    );
+    save(
+        path,
+        &tensors,
+        HashMap::from([("format".into(), "pvrnn-inputs/1".into())]),
+    )
+}
+
+/// Names of a run's per-step tensors (without the sequence axis).
+fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
+    let mut v = Vec::new();
+    for modality in Modality::ALL {
+        v.push((
+            format!("recon.{}", modality.name()),
+            &run.recon[modality.index()],
+        ));
+        v.push((
+            format!("prior.{}", modality.name()),
+            &run.prior_next[modality.index()],
+        ));
+    }
+    for id in ModuleId::ALL {
+        let m = &run.modules[id.index()];
+        for (field, t) in [
+            ("mu_p", &m.mu_p),
+            ("sigma_p", &m.sigma_p),
+            ("mu_q", &m.mu_q),
+            ("sigma_q", &m.sigma_q),
+            ("d", &m.d),
+        ] {
+            v.push((format!("{}.{field}", id.name()), t));
+        }
+    }
+    v
+}
+
+/// Writes inference runs of several sequences, stacked `[S, T_max, ...]` (shorter runs are
+/// zero-padded; `lengths` gives each run's steps). Per-step free energy terms are
+/// `free_energy.*` `[S, T_max]`.
+pub fn save_runs<T: Real>(
+    path: &Path,
+    config: &ModelConfig,
+    runs: &[Run<T>],
+    sequence_ids: &[usize],
+) -> Result<()> {
+    let Some(first) = runs.first() else {
+        return Err(Error::InvalidArgument("no inference runs to save".into()));
+    };
+    let s = runs.len();
+    let t_max = runs.iter().map(Run::steps).max().unwrap_or(0);
+    let mut tensors = BTreeMap::new();
+    let names: Vec<String> = run_tensors(first).into_iter().map(|(n, _)| n).collect();
+    for (k, name) in names.iter().enumerate() {
+        let width = run_tensors(first)[k].1.shape()[1];
+        let mut data = vec![0f32; s * t_max * width];
+        for (i, run) in runs.iter().enumerate() {
+            let t = run_tensors(run)[k].1;
+            for (dst, src) in data[i * t_max * width..].iter_mut().zip(t.data()) {
+                *dst = src.to_f32();
+            }
+        }
+        tensors.insert(
+            name.clone(),
+            OutTensor::F32(vec![s, t_max, width], Cow::Owned(data)),
+        );
+    }
+    let per_step = |f: &dyn Fn(&FreeEnergy, &[f64; 2]) -> f64| {
+        let mut data = vec![0f32; s * t_max];
+        for (i, run) in runs.iter().enumerate() {
+            for (t, (fe, acc)) in run.free_energy.iter().zip(&run.step_accuracy).enumerate() {
+                data[i * t_max + t] = f(fe, acc) as f32;
+            }
+        }
+        OutTensor::F32(vec![s, t_max], Cow::Owned(data))
+    };
+    tensors.insert("free_energy.total".into(), per_step(&|fe, _| fe.total));
+    for modality in Modality::ALL {
+        let mi = modality.index();
+        tensors.insert(
+            format!("step_accuracy.{}", modality.name()),
+            per_step(&|_, acc| acc[mi]),
+        );
+    }
+    tensors.insert(
+        "free_energy.accuracy.exteroceptive".into(),
+        per_step(&|fe, _| fe.accuracy.exteroceptive),
+    );
+    tensors.insert(
+        "free_energy.accuracy.proprioceptive".into(),
+        per_step(&|fe, _| fe.accuracy.proprioceptive),
+    );
+    for id in ModuleId::ALL {
+        tensors.insert(
+            format!("free_energy.complexity.{}", id.name()),
+            per_step(&|fe, _| fe.complexity_of(id)),
+        );
+    }
+    tensors.insert(
+        "lengths".into(),
+        OutTensor::I64(vec![s], runs.iter().map(|r| r.steps() as i64).collect()),
+    );
+    tensors.insert(
+        "sequence".into(),
+        OutTensor::I64(vec![s], sequence_ids.iter().map(|&i| i as i64).collect()),
+    );
+    let mut meta = model_metadata(config, RUN_FORMAT);
+    meta.insert(
+        "settings".into(),
+        serde_json::to_string(&first.settings).expect("serialisable"),
+    );
+    save(path, &tensors, meta)
+}
+
+/// Reads runs written by [`save_runs`]; returns them with their sequence indices.
+pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<(usize, Run<f32>)>> {
+    let settings: InferenceSettings = file
+        .metadata("settings")
+        .and_then(|s| serde_json::from_str(s).ok())
+        .ok_or_else(|| Error::Format {
+            what: file.what().into(),
+            detail: "no valid `settings` metadata: not a pvrnn inference file".into(),
+        })?;
+    let lengths = file.indices("lengths")?;
+    let ids = file.indices("sequence")?;
+    let s = lengths.len();
+    let t_max = lengths.iter().copied().max().unwrap_or(0);
+    let read = |name: &str, width: usize| file.f32(name, Some(&[s, t_max, width]));
+    let cut = |t: &Tensor<f32>, i: usize, len: usize| -> Tensor<f32> {
+        let width = t.shape()[2];
+        Tensor::from_vec(&[len, width], t.sub(&[i])[..len * width].to_vec()).expect("sized")
+    };
+    let mut recon = Vec::new();
+    let mut prior = Vec::new();
+    for modality in Modality::ALL {
+        let dims = config.modality_dims(modality);
+        recon.push(read(&format!("recon.{}", modality.name()), dims)?);
+        prior.push(read(&format!("prior.{}", modality.name()), dims)?);
+    }
+    let mut module_tensors = Vec::new();
+    for id in ModuleId::ALL {
+        let (d, z) = (config.module(id).d, config.module(id).z);
+        let n = id.name();
+        module_tensors.push([
+            read(&format!("{n}.mu_p"), z)?,
+            read(&format!("{n}.sigma_p"), z)?,
+            read(&format!("{n}.mu_q"), z)?,
+            read(&format!("{n}.sigma_q"), z)?,
+            read(&format!("{n}.d"), d)?,
+        ]);
+    }
+    let scalar = |name: &str| file.f32(name, Some(&[s, t_max]));
+    let total = scalar("free_energy.total")?;
+    let acc: Vec<Tensor<f32>> = Modality::ALL
+        .iter()
+        .map(|m| scalar(&format!("step_accuracy.{}", m.name())))
+        .collect::<Result<_>>()?;
+    let fe_acc: Vec<Tensor<f32>> = Modality::ALL
+        .iter()
+        .map(|m| scalar(&format!("free_energy.accuracy.{}", m.name())))
+        .collect::<Result<_>>()?;
+    let cx: Vec<Tensor<f32>> = ModuleId::ALL
+        .iter()
+        .map(|m| scalar(&format!("free_energy.complexity.{}", m.name())))
+        .collect::<Result<_>>()?;
+    let mut runs = Vec::with_capacity(s);
+    for i in 0..s {
+        let len = lengths[i];
+        let free_energy = (0..len)
+            .map(|t| {
+                let at = |x: &Tensor<f32>| x.data()[i * t_max + t] as f64;
+                let mut fe = FreeEnergy::from_terms(
+                    std::array::from_fn(|m| at(&fe_acc[m])),
+                    std::array::from_fn(|m| at(&cx[m])),
+                    config.kl_weight,
+                );
+                // The stored total, not one recomputed from f32-rounded terms.
+                fe.total = at(&total);
+                fe
+            })
+            .collect();
+        let step_accuracy = (0..len)
+            .map(|t| {
+                [
+                    acc[0].data()[i * t_max + t] as f64,
+                    acc[1].data()[i * t_max + t] as f64,
+                ]
+            })
+            .collect();
+        runs.push((
+            ids.get(i).copied().unwrap_or(i),
+            Run {
+                settings: settings.clone(),
+                recon: [cut(&recon[0], i, len), cut(&recon[1], i, len)],
+                prior_next: [cut(&prior[0], i, len), cut(&prior[1], i, len)],
+                modules: std::array::from_fn(|m| {
+                    let [a, b, c, d, e] = &module_tensors[m];
+                    RunModule {
+                        mu_p: cut(a, i, len),
+                        sigma_p: cut(b, i, len),
+                        mu_q: cut(c, i, len),
+                        sigma_q: cut(d, i, len),
+                        d: cut(e, i, len),
+                    }
+                }),
+                free_energy,
+                step_accuracy,
+            },
+        ));
+    }
+    Ok(runs)
+}

@@ -1,0 +1,40 @@
+//! The scalable PV-RNN (Idei et al., "Scalable predictive processing framework for multitask
+//! caregiving robots"): a hierarchical predictive-coding variational RNN over vision and
+//! proprioception.
+//!
+//! - [`config`]: the model configuration (paper defaults, every open point a field).
+//! - [`params`]: weights and adaptive variables with the spec's tensor names; [`Model`].
+//! - [`free_energy`]: F, its terms, and exact gradients ([`free_energy::free_energy`]).
+//! - [`train`]: full-batch RAdam learning ([`train::Trainer`]).
+//! - [`infer`]: online inference over a sliding window ([`infer::OnlineInference`]).
+//! - [`io`]: safetensors files for models, checkpoints, gradients, inputs and runs.
+//! - [`backend`]: the arithmetic interface; [`cpu`] implements it.
+//!
+//! The crate has no GUI or OS dependency beyond files in [`io`] and compiles to
+//! `wasm32-unknown-unknown`.
+
+pub mod backend;
+pub mod config;
+pub mod cpu;
+pub mod data;
+pub mod error;
+pub mod free_energy;
+pub mod infer;
+pub mod io;
+mod kernels;
+pub mod noise;
+pub mod optim;
+mod parallel;
+pub mod params;
+pub mod real;
+pub mod tensor;
+pub mod train;
+
+pub use config::{Modality, ModelConfig, ModuleId};
+pub use data::{Ablation, Observations, Observed};
+pub use error::{Error, Result};
+pub use free_energy::FreeEnergy;
+pub use noise::NoiseMode;
+pub use params::Model;
+pub use real::Real;
+pub use tensor::Tensor;

@@ -1,0 +1,57 @@
+//! Parallelism that disappears on wasm: rayon natively, a plain loop in the browser.
+//!
+//! Work is always split into the same pieces whatever the thread count, and partial results
+//! are combined in piece order, so results do not depend on how many threads ran them.
+
+/// `(0..n).map(f)`, in parallel where threads exist; results in index order.
+pub(crate) fn map<R: Send>(n: usize, f: impl Fn(usize) -> R + Sync + Send) -> Vec<R> {
+    map_if(true, n, f)
+}
+
+/// Like [`map`], but sequential unless `worth_it`: waking an idle worker costs tens of
+/// microseconds, more than small pieces of work save.
+pub(crate) fn map_if<R: Send>(
+    worth_it: bool,
+    n: usize,
+    f: impl Fn(usize) -> R + Sync + Send,
+) -> Vec<R> {
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        use rayon::prelude::*;
+        if worth_it && n > 1 {
+            return (0..n).into_par_iter().map(f).collect();
+        }
+    }
+    let _ = worth_it;
+    (0..n).map(f).collect()
+}
+
+/// Multiply-adds below which a split into parallel tasks does not pay (~0.2 ms of work;
+/// measured: the 16x16 inference condition, 4.6 M per iteration, runs faster on one thread).
+pub(crate) const PARALLEL_MIN_MACS: usize = 10_000_000;
+
+/// How to parallelise one faer product of about `flops` floating-point operations when not
+/// already inside a parallel task.
+pub(crate) fn gemm_par(flops: usize) -> faer::Par {
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        if flops > 4_000_000 && rayon::current_num_threads() > 1 {
+            return faer::Par::rayon(0);
+        }
+    }
+    let _ = flops;
+    faer::Par::Seq
+}
+
+/// Runs `f` on a worker thread of the pool, so the parallel sections inside it start from a
+/// worker instead of each paying a hand-off from a foreign thread.
+pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        rayon::scope(|_| f())
+    }
+    #[cfg(target_arch = "wasm32")]
+    {
+        f()
+    }
+}

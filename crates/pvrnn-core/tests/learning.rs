@@ -1,0 +1,238 @@
+//! Learning lowers the free energy; online inference with the learned weights tracks the
+//! sequence; everything is reproducible from the seed.
+
+mod common;
+
+#[cfg(target_arch = "wasm32")]
+use wasm_bindgen_test::wasm_bindgen_test as test;
+
+use std::sync::Arc;
+
+use common::{sine_observations, tiny_config};
+use pvrnn_core::config::ModuleConfig;
+use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence};
+use pvrnn_core::train::Trainer;
+use pvrnn_core::{
+    Ablation, Modality, Model, ModelConfig, ModuleId, NoiseMode, Observations, Observed,
+};
+
+fn learning_config() -> ModelConfig {
+    let mut c = tiny_config();
+    let m = |d, z, fast, slow| ModuleConfig {
+        d,
+        z,
+        tau: [fast, slow],
+    };
+    c.executive = m(10, 4, 6.0, 12.0);
+    c.associative = m(10, 4, 3.0, 6.0);
+    c.exteroceptive = m(12, 5, 1.5, 3.0);
+    c.proprioceptive = m(10, 4, 1.5, 3.0);
+    c.exteroceptive_readout.hidden = vec![12, 16];
+    c.proprioceptive_readout.hidden = vec![12];
+    c.kl_weight = 0.005;
+    c.train.optimizer.lr = 0.01;
+    c
+}
+
+/// Mean squared error of a modality's predictions against the data, over steps and dims.
+fn mse(pred: &[f32], data: &Observations<f32>, modality: Modality, s: usize) -> f64 {
+    let dims = data.dims(modality);
+    let mut sum = 0.0;
+    for (t, row) in pred.chunks_exact(dims).enumerate() {
+        for (p, x) in row.iter().zip(data.step(modality, s, t)) {
+            sum += ((p - x) as f64).powi(2);
+        }
+    }
+    sum / pred.len() as f64
+}
+
+fn trained(iterations: usize) -> (Trainer<f32>, Observations<f32>, f64, f64) {
+    let config = learning_config();
+    let data = sine_observations::<f32>(&config, 2, 48);
+    let model = Model::<f32>::init(config, 2, 48, 1).unwrap();
+    let mut trainer = Trainer::new(model, NoiseMode::Sampled { seed: 1 });
+    let first = trainer.step(&data).unwrap().total;
+    let mut last = first;
+    for _ in 1..iterations {
+        last = trainer.step(&data).unwrap().total;
+    }
+    (trainer, data, first, last)
+}
+
+#[test]
+fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence() {
+    let (trainer, data, first, last) = trained(400);
+    assert!(last < 0.2 * first, "free energy {first} -> {last}");
+
+    let model = Arc::new(trainer.model);
+    let mut settings = InferenceSettings::from_config(&model.config, 3);
+    settings.window = 8;
+    settings.iterations = 20;
+    let run = run_sequence(model.clone(), settings.clone(), &data, 0, &mut |_, _| {}).unwrap();
+    let baseline = 0.36 / 2.0; // mean of (0.6 sin)^2: the error of predicting 0
+    let vision = mse(run.recon[0].data(), &data, Modality::Exteroceptive, 0);
+    let proprio = mse(run.recon[1].data(), &data, Modality::Proprioceptive, 0);
+    assert!(
+        vision < 0.1 * baseline,
+        "vision reconstruction MSE {vision}"
+    );
+    assert!(
+        proprio < 0.1 * baseline,
+        "proprio reconstruction MSE {proprio}"
+    );
+
+    // Vision unobserved above the lowest level: the model still predicts it from 1x1 + proprio.
+    let mut partial = settings.clone();
+    partial.observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let run_partial = run_sequence(model.clone(), partial, &data, 0, &mut |_, _| {}).unwrap();
+    let hidden_part = model.config.vision.observed_dims(1);
+    let dims = model.config.vision.dims();
+    let mut err = 0.0;
+    let mut n = 0;
+    for t in 0..data.lengths()[0] {
+        let pred = &run_partial.recon[0].data()[t * dims..(t + 1) * dims];
+        for i in hidden_part..dims {
+            err += ((pred[i] - data.step(Modality::Exteroceptive, 0, t)[i]) as f64).powi(2);
+            n += 1;
+        }
+    }
+    assert!(
+        err / (n as f64) < 0.25 * baseline,
+        "unobserved-resolution MSE {}",
+        err / n as f64
+    );
+
+    // The prior's one-step prediction is also better than chance.
+    let steps = data.lengths()[0];
+    let dv = model.config.vision.dims();
+    let prior = &run.prior_next[0].data()[..(steps - 1) * dv];
+    let mut perr = 0.0;
+    for t in 0..steps - 1 {
+        for (p, x) in
+            prior[t * dv..(t + 1) * dv]
+                .iter()
+                .zip(data.step(Modality::Exteroceptive, 0, t + 1))
+        {
+            perr += ((p - x) as f64).powi(2);
+        }
+    }
+    let perr = perr / prior.len() as f64;
+    assert!(
+        perr < 0.5 * baseline,
+        "one-step prior prediction MSE {perr}"
+    );
+}
+
+#[test]
+fn window_grows_then_slides() {
+    let config = learning_config();
+    let data = sine_observations::<f32>(&config, 1, 12);
+    let model = Arc::new(Model::<f32>::init(config.clone(), 1, 12, 2).unwrap());
+    let mut settings = InferenceSettings::from_config(&config, 1);
+    settings.window = 5;
+    settings.iterations = 3;
+    let mut inf = OnlineInference::new(model, settings).unwrap();
+    for t in 0..12 {
+        inf.begin_step(
+            data.step(Modality::Exteroceptive, 0, t),
+            data.step(Modality::Proprioceptive, 0, t),
+        )
+        .unwrap();
+        assert_eq!(inf.window_len(), (t + 1).min(5));
+        assert_eq!(inf.iterations_left(), 3);
+        assert_eq!(inf.iterate(2), 1);
+        let out = inf.finish_step().unwrap();
+        assert_eq!(out.t, t);
+        assert_eq!(out.recon[0].len(), config.vision.dims());
+        assert_eq!(
+            out.modules[ModuleId::Exteroceptive.index()].mu_q.len(),
+            config.exteroceptive.z
+        );
+        assert!(
+            out.modules
+                .iter()
+                .all(|m| m.sigma_p.iter().all(|&s| s > 0.0))
+        );
+    }
+    assert_eq!(inf.steps_done(), 12);
+}
+
+#[test]
+fn same_seed_same_result_and_zero_noise_ignores_seed() {
+    let config = learning_config();
+    let data = sine_observations::<f32>(&config, 2, 10);
+    let run = |noise: NoiseMode| {
+        let model = Model::<f32>::init(config.clone(), 2, 10, 4).unwrap();
+        let mut t = Trainer::new(model, noise);
+        let reports: Vec<f64> = (0..3).map(|_| t.step(&data).unwrap().total).collect();
+        (reports, t.model)
+    };
+    let (a, ma) = run(NoiseMode::Sampled { seed: 1 });
+    let (b, mb) = run(NoiseMode::Sampled { seed: 1 });
+    let (c, _) = run(NoiseMode::Sampled { seed: 2 });
+    assert_eq!(a, b);
+    assert_eq!(ma, mb);
+    assert_ne!(a[1], c[1]);
+    let (z1, _) = run(NoiseMode::Zero);
+    let (z2, _) = run(NoiseMode::Zero);
+    assert_eq!(z1, z2);
+
+    let model = Arc::new(ma);
+    let infer = |seed| {
+        let mut s = InferenceSettings::from_config(&config, seed);
+        s.window = 4;
+        s.iterations = 5;
+        run_sequence(model.clone(), s, &data, 1, &mut |_, _| {}).unwrap()
+    };
+    assert_eq!(infer(7), infer(7));
+    assert_ne!(infer(7).recon[0], infer(8).recon[0]);
+}
+
+#[test]
+fn ablating_a_module_changes_the_prediction() {
+    let (trainer, data, _, _) = trained(60);
+    let model = Arc::new(trainer.model);
+    let run = |ablation| {
+        let mut s = InferenceSettings::from_config(&model.config, 3);
+        s.window = 6;
+        s.iterations = 5;
+        s.noise = NoiseMode::Zero;
+        s.ablation = ablation;
+        run_sequence(model.clone(), s, &data, 0, &mut |_, _| {}).unwrap()
+    };
+    let standard = run(Ablation::none());
+    for id in ModuleId::ALL {
+        let ablated = run(Ablation::of(&[id]));
+        let diff: f32 = standard.recon[0]
+            .data()
+            .iter()
+            .zip(ablated.recon[0].data())
+            .map(|(a, b)| (a - b).abs())
+            .sum();
+        assert!(diff > 1e-3, "ablating {} changed nothing", id.name());
+    }
+}
+
+#[test]
+fn bad_steps_are_rejected() {
+    let config = learning_config();
+    let model = Arc::new(Model::<f32>::init(config.clone(), 1, 4, 2).unwrap());
+    let mut inf = OnlineInference::new(model, InferenceSettings::from_config(&config, 1)).unwrap();
+    let dv = config.vision.dims();
+    let e = inf
+        .begin_step(&vec![0.0; dv - 1], &[0.0; 4])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("exteroceptive") && e.contains(&format!("{}", dv - 1)),
+        "{e}"
+    );
+    let mut x = vec![0.0; dv];
+    x[2] = f32::NAN;
+    let e = inf.begin_step(&x, &[0.0; 4]).unwrap_err().to_string();
+    assert!(e.contains("non-finite"), "{e}");
+    assert!(inf.finish_step().is_err());
+}

@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Installs what a fresh machine lacks to build and test everything. Idempotent: each step
+# is skipped when already done. Versions are pinned (see ../shared/notes/toolchain.md).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+WASM_BINDGEN_VERSION=0.2.130
+
+step() { printf '\n== %s\n' "$*" >&2; }
+
+if ! rustup target list --installed | grep -q '^wasm32-unknown-unknown$'; then
+    step "adding the wasm32-unknown-unknown target"
+    rustup target add wasm32-unknown-unknown
+fi
+
+if ! wasm-bindgen-test-runner --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
+    step "installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (about 2 minutes)"
+    # Without --locked: its lock file wants a crate version this registry lacks.
+    cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
+fi
+
+if ! command -v node >/dev/null 2>&1; then
+    step "installing Node.js (runs the wasm tests)"
+    apt-get update -qq && apt-get install -y -qq nodejs
+fi

@@ -19,4 +19,7 @@ cargo test --workspace
 step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown
 
+step "the dataset crate and the simulator build for WebAssembly"
+cargo build -p pvrnn-dataset -p caresim --target wasm32-unknown-unknown
+
 echo "all tests passed" >&2

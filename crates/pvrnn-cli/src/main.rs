@@ -1,6 +1,7 @@
 //! `pvrnn`: the command-line face of the scalable PV-RNN.
 
 mod commands;
+mod inputs;
 mod util;
 
 use std::path::PathBuf;
@@ -39,6 +40,10 @@ enum Command {
     Infer(commands::infer::Args),
     /// Time learning and online inference at the paper's scale on random data.
     Bench(commands::bench::Args),
+    /// Write the caresim benchmark (repositioning and wiping) as a dataset folder.
+    Simulate(commands::simulate::Args),
+    /// Import real robot recordings (frames and a proprioception CSV) as a dataset folder.
+    Import(commands::import::Args),
 }
 
 fn main() {
@@ -54,6 +59,8 @@ fn main() {
         Command::Train(a) => commands::train::run(a),
         Command::Infer(a) => commands::infer::run(a),
         Command::Bench(a) => commands::bench::run(a),
+        Command::Simulate(a) => commands::simulate::run(a),
+        Command::Import(a) => commands::import::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

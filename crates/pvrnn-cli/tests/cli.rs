@@ -476,3 +476,145 @@ fn config_prints_toml_that_init_accepts() {
     let from_model = ok(&["config", "--model", &x.s("p.safetensors")]);
     assert_eq!(from_model, text);
 }
+
+#[test]
+fn simulate_then_learn_and_infer_from_the_dataset_folder() {
+    let x = Scratch::new();
+    let ds = x.s("ds");
+    ok(&[
+        "simulate",
+        "--out",
+        &ds,
+        "--tasks",
+        "wiping",
+        "--heights",
+        "650",
+        "--learn-per-height",
+        "1",
+        "--test-per-height",
+        "1",
+        "--seed",
+        "4",
+    ]);
+    let dataset = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();
+    assert_eq!(dataset.sequences.len(), 2);
+    for s in &dataset.sequences {
+        let stem = pvrnn_dataset::file_stem(&s.info.name);
+        assert!(
+            x.path("ds")
+                .join("previews")
+                .join(format!("{stem}.png"))
+                .is_file()
+        );
+        assert!(
+            x.path("ds")
+                .join("previews")
+                .join(format!("{stem}.gif"))
+                .is_file()
+        );
+    }
+    // A small model sized and scaled by the dataset, the paper's vision layout.
+    std::fs::write(x.path("small.toml"), "[executive]\nd = 6\nz = 2\n[associative]\nd = 6\nz = 2\n[exteroceptive]\nd = 6\nz = 3\n[proprioceptive]\nd = 6\nz = 2\n").unwrap();
+    let m = x.s("m.safetensors");
+    ok(&[
+        "init",
+        "--config",
+        &x.s("small.toml"),
+        "--dataset",
+        &ds,
+        "--out",
+        &m,
+    ]);
+    let model = io::load_model(Path::new(&m)).unwrap();
+    assert_eq!(model.adaptive.sequences(), 1);
+    let norm = model
+        .config
+        .normalisation
+        .as_ref()
+        .expect("init --dataset stores the ranges");
+    assert!(norm.proprio_max[14] > norm.proprio_min[14]);
+    let run = x.s("run.safetensors");
+    ok(&[
+        "train",
+        "--model",
+        &m,
+        "--inputs",
+        &ds,
+        "--out",
+        &run,
+        "--iterations",
+        "2",
+    ]);
+    let out = x.s("r.safetensors");
+    ok(&[
+        "infer",
+        "--model",
+        &run,
+        "--inputs",
+        &ds,
+        "--out",
+        &out,
+        "--vision",
+        "16",
+        "--iterations",
+        "2",
+        "--window",
+        "5",
+    ]);
+    let f = TensorFile::open(Path::new(&out)).unwrap();
+    let names: Vec<String> = serde_json::from_str(f.metadata("sequence_names").unwrap()).unwrap();
+    assert_eq!(names, ["wiping_650mm_test0"]);
+    assert_eq!(f.shape("recon.exteroceptive").unwrap()[2], 32_256);
+    let e = fails(&[
+        "infer", "--model", &run, "--inputs", &ds, "--out", &out, "--split", "later",
+    ]);
+    assert!(e.contains("--split later"), "{e}");
+    // The paper-sized default model does not fit a dataset of other image sizes, and says so.
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("missing-ds"),
+    ]);
+    assert!(e.contains("missing-ds"), "{e}");
+}
+
+#[test]
+fn import_reads_recordings_into_a_dataset() {
+    let x = Scratch::new();
+    let seq = pvrnn_dataset::Sequence {
+        info: pvrnn_dataset::SequenceInfo {
+            name: "rec".into(),
+            file: "rec.safetensors".into(),
+            task: "wiping".into(),
+            bed_height_mm: None,
+            split: pvrnn_dataset::Split::Learn,
+            seed: None,
+            length: 3,
+            subtasks: vec![],
+        },
+        cameras: 2,
+        image_size: 64,
+        images: (0..3 * 2 * 64 * 64 * 3).map(|i| (i % 256) as u8).collect(),
+        joints: vec![0.1; 3 * 14],
+        torques: vec![1.5; 3 * 14],
+        subtask: vec![0; 3],
+    };
+    let cams = vec!["left".to_string(), "right".to_string()];
+    pvrnn_dataset::import::write_recording(&seq, &cams, &x.path("recordings").join("trial_a"))
+        .unwrap();
+    ok(&["import", "--from", &x.s("recordings"), "--out", &x.s("ds")]);
+    let ds = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();
+    assert_eq!(ds.sequences[0].images, seq.images);
+    assert!(x.path("ds").join("previews").join("trial_a.png").is_file());
+    std::fs::remove_file(
+        x.path("recordings")
+            .join("trial_a")
+            .join("left")
+            .join("000001.png"),
+    )
+    .unwrap();
+    let e = fails(&["import", "--from", &x.s("recordings"), "--out", &x.s("ds2")]);
+    assert!(e.contains("frame 1 is missing"), "{e}");
+}

@@ -152,6 +152,33 @@ impl TensorFile {
         Ok(tensor)
     }
 
+    /// A U8 tensor (8-bit images), checked for shape (`None` = any); returns shape and bytes.
+    pub fn u8(&self, name: &str, shape: Option<&[usize]>) -> Result<(Vec<usize>, Vec<u8>)> {
+        let info = self.info(name)?;
+        if info.dtype != Dtype::U8 {
+            return Err(Error::Dtype {
+                what: self.what.clone(),
+                name: name.into(),
+                found: format!("{:?} (expected U8)", info.dtype),
+            });
+        }
+        if let Some(shape) = shape
+            && info.shape != shape
+        {
+            return Err(Error::Shape {
+                what: self.what.clone(),
+                name: name.into(),
+                found: info.shape.clone(),
+                expected: format!("{shape:?}"),
+            });
+        }
+        let (a, b) = info.data_offsets;
+        Ok((
+            info.shape.clone(),
+            self.bytes[self.data_start + a..self.data_start + b].to_vec(),
+        ))
+    }
+
     /// An integer tensor (I64 or I32) as `usize`s.
     pub fn indices(&self, name: &str) -> Result<Vec<usize>> {
         let info = self.info(name)?;
@@ -186,11 +213,12 @@ impl TensorFile {
     }
 }
 
-/// A tensor to write: f32 values or i64 indices.
+/// A tensor to write: f32 values, i64 indices or u8 bytes (images).
 #[derive(Debug)]
 pub enum OutTensor<'a> {
     F32(Vec<usize>, Cow<'a, [f32]>),
     I64(Vec<usize>, Vec<i64>),
+    U8(Vec<usize>, Cow<'a, [u8]>),
 }
 
 impl OutTensor<'_> {
@@ -215,38 +243,62 @@ impl View for &OutTensor<'_> {
         match self {
             OutTensor::F32(..) => Dtype::F32,
             OutTensor::I64(..) => Dtype::I64,
+            OutTensor::U8(..) => Dtype::U8,
         }
     }
     fn shape(&self) -> &[usize] {
         match self {
-            OutTensor::F32(s, _) | OutTensor::I64(s, _) => s,
+            OutTensor::F32(s, _) | OutTensor::I64(s, _) | OutTensor::U8(s, _) => s,
         }
     }
     fn data(&self) -> Cow<'_, [u8]> {
         match self {
             OutTensor::F32(_, v) => f32_bytes(v),
             OutTensor::I64(_, v) => Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+            OutTensor::U8(_, v) => Cow::Borrowed(v),
         }
     }
     fn data_len(&self) -> usize {
         match self {
             OutTensor::F32(_, v) => v.len() * 4,
             OutTensor::I64(_, v) => v.len() * 8,
+            OutTensor::U8(_, v) => v.len(),
         }
     }
 }
 
-/// Serialises tensors and metadata to bytes.
+/// Serialises tensors and metadata to bytes. The header is canonical (keys sorted), so the
+/// same tensors and metadata always give the same bytes.
 pub fn to_bytes(
     tensors: &BTreeMap<String, OutTensor<'_>>,
     metadata: HashMap<String, String>,
 ) -> Result<Vec<u8>> {
-    safetensors::serialize(tensors.iter().map(|(k, v)| (k.as_str(), v)), Some(metadata)).map_err(
-        |e| Error::Format {
-            what: "serialising".into(),
-            detail: e.to_string(),
-        },
-    )
+    let bytes =
+        safetensors::serialize(tensors.iter().map(|(k, v)| (k.as_str(), v)), Some(metadata))
+            .map_err(|e| Error::Format {
+                what: "serialising".into(),
+                detail: e.to_string(),
+            })?;
+    Ok(canonical_header(bytes))
+}
+
+/// Rewrites a safetensors header with its JSON keys sorted (safetensors writes its metadata
+/// map in hash order, which differs between runs). Data offsets are relative to the data
+/// section, so only the header and its length change.
+fn canonical_header(bytes: Vec<u8>) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8-byte length")) as usize;
+    let header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..8 + n]).expect("safetensors wrote valid JSON");
+    // serde_json's map is ordered by key (no preserve_order feature).
+    let mut json = serde_json::to_vec(&header).expect("serialisable");
+    while !json.len().is_multiple_of(8) {
+        json.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + json.len() + bytes.len() - 8 - n);
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&bytes[8 + n..]);
+    out
 }
 
 /// Writes bytes to `path` atomically: a temporary file in the same folder, synced, renamed.
@@ -581,6 +633,7 @@ pub fn save_runs<T: Real>(
     config: &ModelConfig,
     runs: &[Run<T>],
     sequence_ids: &[usize],
+    sequence_names: Option<&[String]>,
 ) -> Result<()> {
     let Some(first) = runs.first() else {
         return Err(Error::InvalidArgument("no inference runs to save".into()));
@@ -647,6 +700,12 @@ pub fn save_runs<T: Real>(
         "settings".into(),
         serde_json::to_string(&first.settings).expect("serialisable"),
     );
+    if let Some(names) = sequence_names {
+        meta.insert(
+            "sequence_names".into(),
+            serde_json::to_string(names).expect("serialisable"),
+        );
+    }
     save(path, &tensors, meta)
 }
 

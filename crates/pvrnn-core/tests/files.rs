@@ -332,7 +332,7 @@ mod on_disk {
             })
             .collect();
         let rpath = dir.path().join("runs.safetensors");
-        io::save_runs(&rpath, &config, &runs, &[0, 1]).unwrap();
+        io::save_runs(&rpath, &config, &runs, &[0, 1], None).unwrap();
         let back = io::load_runs(&TensorFile::open(&rpath).unwrap(), &config).unwrap();
         assert_eq!(back.len(), 2);
         assert_eq!(back[1].0, 1);

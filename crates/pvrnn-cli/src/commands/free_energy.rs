@@ -4,14 +4,21 @@ use anyhow::Result;
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::{NoiseMode, io};
+use pvrnn_dataset::Split;
+
+use crate::inputs;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[arg(long)]
     model: PathBuf,
-    /// safetensors with `x_extero` [S, T, vision dims] and `x_proprio` [S, T, 28] (f32, normalised).
+    /// safetensors with `x_extero` [S, T, vision dims] and `x_proprio` [S, T, 28] (f32,
+    /// normalised), or a dataset folder.
     #[arg(long)]
     inputs: PathBuf,
+    /// Dataset split: learn (default), test or all.
+    #[arg(long)]
+    split: Option<String>,
     /// eps = 0 instead of seeded noise.
     #[arg(long)]
     zero_noise: bool,
@@ -24,8 +31,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let model = io::load_model(&a.model)?;
-    let data = io::load_observations(&a.inputs)?;
+    let mut model = io::load_model(&a.model)?;
+    let data = inputs::load(&a.inputs, a.split.as_deref(), Split::Learn, &mut model)?.observations;
     let mode = if a.zero_noise {
         NoiseMode::Zero
     } else {

@@ -5,15 +5,20 @@ use anyhow::{Context, Result};
 use pvrnn_core::infer::{InferenceSettings, run_sequence};
 use pvrnn_core::{Ablation, NoiseMode, Observed, io};
 
-use crate::util;
+use crate::{inputs, util};
+use pvrnn_dataset::Split;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[arg(long)]
     model: PathBuf,
-    /// Inputs: `x_extero`, `x_proprio` (and optional `lengths`), normalised.
+    /// Inputs: a safetensors file (`x_extero`, `x_proprio`, optional `lengths`, normalised)
+    /// or a dataset folder (its test split unless --split says otherwise).
     #[arg(long)]
     inputs: PathBuf,
+    /// Dataset split: test (default), learn or all.
+    #[arg(long)]
+    split: Option<String>,
     /// Per-step outputs of every sequence: reconstructions `recon.*`, one-step prior
     /// predictions `prior.*`, `<module>.{mu_p,sigma_p,mu_q,sigma_q,d}`, free energy terms.
     #[arg(long)]
@@ -47,8 +52,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let model = Arc::new(io::load_model(&a.model)?);
-    let data = io::load_observations(&a.inputs)?;
+    let mut model = io::load_model(&a.model)?;
+    let inputs = inputs::load(&a.inputs, a.split.as_deref(), Split::Test, &mut model)?;
+    let (data, names) = (inputs.observations, inputs.names);
+    let model = Arc::new(model);
     data.check_fits(&model.config)?;
     let config = &model.config;
     let mut settings = InferenceSettings::from_config(config, a.seed);
@@ -90,7 +97,13 @@ pub fn run(a: Args) -> Result<()> {
         runs.push(run);
     }
     bar.finish();
-    io::save_runs(&a.out, config, &runs, &which)?;
+    let chosen_names = names.map(|n| {
+        which
+            .iter()
+            .filter_map(|&s| n.get(s).cloned())
+            .collect::<Vec<_>>()
+    });
+    io::save_runs(&a.out, config, &runs, &which, chosen_names.as_deref())?;
     let mean_fe: f64 = runs
         .iter()
         .flat_map(|r| r.free_energy.iter().map(|f| f.total))

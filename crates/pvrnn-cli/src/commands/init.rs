@@ -2,6 +2,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use pvrnn_core::{Model, io};
+use pvrnn_dataset::{Dataset, Selection, Split, proprio_ranges};
 
 use crate::util;
 
@@ -11,11 +12,15 @@ pub struct Args {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Number of training sequences S.
-    #[arg(long)]
-    sequences: usize,
+    #[arg(long, required_unless_present = "dataset")]
+    sequences: Option<usize>,
     /// Steps per sequence T.
-    #[arg(long)]
-    steps: usize,
+    #[arg(long, required_unless_present = "dataset")]
+    steps: Option<usize>,
+    /// Size the model for a dataset folder's learning split (S, longest T) and store its
+    /// proprioception ranges.
+    #[arg(long, conflicts_with_all = ["sequences", "steps"])]
+    dataset: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long)]
@@ -23,14 +28,28 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let config = util::load_config(a.config.as_deref())?;
-    let model = Model::<f32>::init(config, a.sequences, a.steps, a.seed)?;
+    let mut config = util::load_config(a.config.as_deref())?;
+    let (sequences, steps) = match &a.dataset {
+        Some(dir) => {
+            let dataset = Dataset::open(dir)?;
+            let learn = dataset.select(&Selection::Split(Split::Learn))?;
+            pvrnn_dataset::inputs::check_layout(&dataset.manifest, &config.vision)?;
+            config.normalisation = Some(proprio_ranges(&learn));
+            (
+                learn.len(),
+                learn.iter().map(|s| s.len()).max().unwrap_or(0),
+            )
+        }
+        None => (
+            a.sequences.expect("clap requires it"),
+            a.steps.expect("clap requires it"),
+        ),
+    };
+    let model = Model::<f32>::init(config, sequences, steps, a.seed)?;
     io::save_model(&a.out, &model)?;
     eprintln!(
-        "wrote {} ({} sequences x {} steps, seed {})",
+        "wrote {} ({sequences} sequences x {steps} steps, seed {})",
         a.out.display(),
-        a.sequences,
-        a.steps,
         a.seed
     );
     Ok(())

@@ -8,16 +8,21 @@ use anyhow::{Context, Result, bail};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{FreeEnergy, NoiseMode, io};
 
-use crate::util;
+use crate::{inputs, util};
+use pvrnn_dataset::Split;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Model to start from (from `pvrnn init`); not needed with --resume.
     #[arg(long, required_unless_present = "resume")]
     model: Option<PathBuf>,
-    /// Training inputs: `x_extero`, `x_proprio` (and optional `lengths`).
+    /// Training inputs: a safetensors file (`x_extero`, `x_proprio`, optional `lengths`) or
+    /// a dataset folder (its learning split; the model stores the proprioception ranges).
     #[arg(long)]
     inputs: PathBuf,
+    /// Dataset split: learn (default), test or all.
+    #[arg(long)]
+    split: Option<String>,
     /// The run's checkpoint: written every --checkpoint-every iterations and at the end;
     /// it is also a model file. A CSV log goes next to it (`<out>.log.csv`).
     #[arg(long)]
@@ -68,7 +73,6 @@ fn truncate_log(path: &Path, iteration: u64) -> Result<()> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let data = io::load_observations(&a.inputs)?;
     let mut trainer = if a.resume {
         let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
         eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
@@ -88,6 +92,13 @@ pub fn run(a: Args) -> Result<()> {
         };
         Trainer::new(model, noise)
     };
+    let data = inputs::load(
+        &a.inputs,
+        a.split.as_deref(),
+        Split::Learn,
+        &mut trainer.model,
+    )?
+    .observations;
     if let Some(lr) = a.lr {
         anyhow::ensure!(lr > 0.0 && lr.is_finite(), "--lr must be positive");
         trainer.model.config.train.optimizer.lr = lr;

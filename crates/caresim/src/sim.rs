@@ -1,0 +1,292 @@
+//! Running a trial: inverse kinematics, towel, torques and both cameras, step by step.
+
+use glam::{DAffine3, DVec3};
+use pvrnn_dataset::{Sequence, SequenceInfo, Split};
+
+use crate::arm::DOF;
+use crate::body::Mannequin;
+use crate::cloth::Cloth;
+use crate::render::{self, Camera, Frame, Material};
+use crate::scene::{self, Robot};
+use crate::shapes::{Mesh, Shape};
+use crate::task::{Plan, Script, SimRng, Task, Variation};
+
+/// Camera image size and supersampling.
+pub const IMAGE_SIZE: usize = 64;
+pub const SUPERSAMPLE: usize = 4;
+/// Seconds per step (the towel's clock).
+const STEP_SECONDS: f64 = 0.1;
+const TOWEL_SIZE: f64 = 0.30;
+const TOWEL_PARTICLES: usize = 11;
+/// Sensor noise (std) of joint angles (rad) and torques (N m).
+const JOINT_NOISE: f64 = 2e-4;
+const TORQUE_NOISE: f64 = 0.05;
+
+/// Which trial to simulate.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct TrialSpec {
+    pub task: Task,
+    pub bed_height_mm: u32,
+    pub split: Split,
+    /// Trial number within its task, height and split.
+    pub index: usize,
+    pub seed: u64,
+}
+
+impl TrialSpec {
+    pub fn name(&self) -> String {
+        format!(
+            "{}_{}mm_{}{}",
+            self.task.name(),
+            self.bed_height_mm,
+            self.split.name(),
+            self.index
+        )
+    }
+}
+
+/// A step's state besides the recorded signals (for tests and diagnostics).
+#[derive(Clone, Debug)]
+pub struct StepRecord {
+    pub plan: Plan,
+    /// Joint angles and torques without sensor noise (left arm, right arm).
+    pub q: [[f64; DOF]; 2],
+    pub torques: [[f64; DOF]; 2],
+    pub ik_position_error: [f64; 2],
+    pub tcp: [DAffine3; 2],
+    pub towel_centroid: Option<DVec3>,
+    pub towel_grip_error: Option<f64>,
+}
+
+/// One trial in progress.
+#[derive(Debug)]
+pub struct Simulation {
+    pub spec: TrialSpec,
+    pub robot: Robot,
+    pub body: Mannequin,
+    pub script: Script,
+    pub towel: Option<Cloth>,
+    pub bed_top: f64,
+    pub q: [[f64; DOF]; 2],
+    step: usize,
+    noise: SimRng,
+    lift: f64,
+    body_cache: Option<(f64, Vec<(Mesh, Material)>)>,
+}
+
+impl Simulation {
+    pub fn new(spec: TrialSpec) -> Self {
+        Self::with_robot(spec, Robot::default())
+    }
+
+    pub fn with_robot(spec: TrialSpec, robot: Robot) -> Self {
+        let variation = Variation::draw(spec.task, spec.seed);
+        let bed_top = spec.bed_height_mm as f64 / 1000.0;
+        let body = Mannequin::new(scene::HIPS, bed_top, variation.posture);
+        let towel = variation.wipe.as_ref().map(|w| {
+            let lm = body.landmarks();
+            let across = DVec3::Z.cross(lm.along);
+            let shapes = body.shapes(0.0);
+            let mut centre = lm.belly + lm.along * w.towel_offset[0] + across * w.towel_offset[1];
+            // Laid down just above the body, then left to drape.
+            centre.z =
+                crate::shapes::surface_height(&shapes, centre.x, centre.y, bed_top + 0.6, bed_top)
+                    .unwrap_or(bed_top)
+                    + 0.02;
+            let mut towel = Cloth::new(
+                centre,
+                w.towel_yaw + body.posture.yaw,
+                TOWEL_SIZE,
+                TOWEL_PARTICLES,
+            );
+            for _ in 0..20 {
+                towel.step(STEP_SECONDS, 8, &shapes, bed_top, None);
+            }
+            towel
+        });
+        let grasp = towel.as_ref().map(Cloth::grasp_point);
+        let script = Script::new(spec.task, variation, &body, bed_top, grasp);
+        let mut q = robot.rest;
+        // Settle into the first targets from the rest posture.
+        let first = script.at(0, &body);
+        for arm in 0..2 {
+            robot.arms[arm].solve_ik(&mut q[arm], &first.hands[arm], &robot.rest[arm]);
+        }
+        Self {
+            noise: SimRng::new(spec.seed ^ 0x5EED_0F5E_0015),
+            spec,
+            robot,
+            body,
+            script,
+            towel,
+            bed_top,
+            q,
+            step: 0,
+            lift: 0.0,
+            body_cache: None,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.script.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Advances one step; returns its state.
+    pub fn step(&mut self) -> StepRecord {
+        let plan = self.script.at(self.step, &self.body);
+        let mut ik_err = [0.0; 2];
+        for arm in 0..2 {
+            ik_err[arm] = self.robot.arms[arm]
+                .solve_ik(&mut self.q[arm], &plan.hands[arm], &self.robot.rest[arm])
+                .position_error;
+        }
+        let tcp = [0, 1].map(|a| self.robot.arms[a].fk(&self.q[a]).tcp);
+        self.lift = plan.lift;
+        if let Some(towel) = self.towel.as_mut() {
+            if plan.grasping && !towel.is_grasped() {
+                towel.grasp(&tcp[1], 0.04);
+            } else if !plan.grasping && towel.is_grasped() {
+                towel.release();
+            }
+            let mut colliders = self.body.shapes(0.0);
+            if !towel.is_grasped() {
+                colliders.push(scene::hand_shape(&tcp[1]));
+            }
+            towel.step(
+                STEP_SECONDS,
+                8,
+                &colliders,
+                self.bed_top,
+                towel.is_grasped().then_some(&tcp[1]),
+            );
+        }
+        let torques = [0, 1].map(|a| self.robot.arms[a].static_torques(&self.q[a], plan.forces[a]));
+        self.step += 1;
+        StepRecord {
+            plan,
+            q: self.q,
+            torques,
+            ik_position_error: ik_err,
+            tcp,
+            towel_centroid: self.towel.as_ref().map(Cloth::centroid),
+            towel_grip_error: self
+                .towel
+                .as_ref()
+                .filter(|t| t.is_grasped())
+                .map(|t| t.grip_error(&tcp[1])),
+        }
+    }
+
+    /// Renders camera `camera` (0 left, 1 right) in the current state.
+    pub fn render(
+        &mut self,
+        camera: usize,
+        with_robot: bool,
+        size: usize,
+        supersample: usize,
+    ) -> Frame {
+        let cam: Camera = self.robot.cameras[camera];
+        self.render_from(&cam, with_robot, size, supersample)
+    }
+
+    /// Renders the current state from any camera (e.g. an overview for people).
+    pub fn render_from(
+        &mut self,
+        cam: &Camera,
+        with_robot: bool,
+        size: usize,
+        supersample: usize,
+    ) -> Frame {
+        let stale = self
+            .body_cache
+            .as_ref()
+            .is_none_or(|(lift, _)| (lift - self.lift).abs() > 1e-9);
+        if stale {
+            let head = match self.body.parts(0.0)[5].shape {
+                Shape::Ellipsoid { c, .. } => c,
+                _ => self.body.origin,
+            };
+            let mut meshes = scene::room_meshes(self.bed_top, head);
+            meshes.extend(scene::body_meshes(&self.body, self.lift));
+            self.body_cache = Some((self.lift, meshes));
+        }
+        let mut items: Vec<(&Mesh, Material)> = Vec::new();
+        let cached = &self.body_cache.as_ref().expect("filled above").1;
+        items.extend(cached.iter().map(|(m, mat)| (m, *mat)));
+        let robot = if with_robot {
+            self.robot.meshes(&self.q)
+        } else {
+            Vec::new()
+        };
+        items.extend(robot.iter().map(|(m, mat)| (m, *mat)));
+        let towel = self
+            .towel
+            .as_ref()
+            .map(|t| (t.mesh(), scene::towel_material()));
+        if let Some((m, mat)) = &towel {
+            items.push((m, *mat));
+        }
+        render::render(&items, cam, size, supersample, scene::BACKGROUND)
+    }
+
+    /// Noisy sensor readings of a step: 14 joint angles, 14 torques (left arm, then right).
+    fn sensors(&mut self, record: &StepRecord) -> ([f32; 14], [f32; 14]) {
+        let mut joints = [0f32; 14];
+        let mut torques = [0f32; 14];
+        for arm in 0..2 {
+            for j in 0..DOF {
+                joints[arm * DOF + j] =
+                    (record.q[arm][j] + JOINT_NOISE * self.noise.normal()) as f32;
+                torques[arm * DOF + j] =
+                    (record.torques[arm][j] + TORQUE_NOISE * self.noise.normal()) as f32;
+            }
+        }
+        (joints, torques)
+    }
+}
+
+/// Simulates a whole trial into a dataset sequence, with each step's state.
+pub fn simulate(spec: &TrialSpec) -> (Sequence, Vec<StepRecord>) {
+    let mut sim = Simulation::new(spec.clone());
+    let t = sim.len();
+    let frame = IMAGE_SIZE * IMAGE_SIZE * 3;
+    let mut images = Vec::with_capacity(t * 2 * frame);
+    let mut joints = Vec::with_capacity(t * 14);
+    let mut torques = Vec::with_capacity(t * 14);
+    let mut subtask = Vec::with_capacity(t);
+    let mut records = Vec::with_capacity(t);
+    for _ in 0..t {
+        let record = sim.step();
+        for cam in 0..2 {
+            images.extend(sim.render(cam, true, IMAGE_SIZE, SUPERSAMPLE).rgb);
+        }
+        let (j, tq) = sim.sensors(&record);
+        joints.extend(j);
+        torques.extend(tq);
+        subtask.push(record.plan.subtask);
+        records.push(record);
+    }
+    let name = spec.name();
+    let seq = Sequence {
+        info: SequenceInfo {
+            file: format!("{name}.safetensors"),
+            name,
+            task: spec.task.name().into(),
+            bed_height_mm: Some(spec.bed_height_mm as f64),
+            split: spec.split,
+            seed: Some(spec.seed),
+            length: t,
+            subtasks: spec.task.subtasks().iter().map(|s| s.to_string()).collect(),
+        },
+        cameras: 2,
+        image_size: IMAGE_SIZE,
+        images,
+        joints,
+        torques,
+        subtask,
+    };
+    (seq, records)
+}

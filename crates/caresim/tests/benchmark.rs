@@ -1,0 +1,334 @@
+//! The benchmark's promises, checked on simulated trials.
+
+use std::sync::OnceLock;
+
+use caresim::arm::{Q_MAX, Q_MIN, TAU_MAX};
+use caresim::scene::{ID_BED, ID_BODY};
+use caresim::{DatasetSpec, Simulation, StepRecord, Task, TrialSpec, simulate};
+use glam::DVec3;
+use pvrnn_dataset::{Sequence, Split};
+
+fn trial(task: Task, height: u32, index: usize) -> TrialSpec {
+    let spec = DatasetSpec::default();
+    spec.trials()
+        .into_iter()
+        .find(|t| {
+            t.task == task
+                && t.bed_height_mm == height
+                && t.split == Split::Learn
+                && t.index == index
+        })
+        .expect("a paper trial")
+}
+
+/// One simulated trial per task, shared by the tests.
+fn simulated(task: Task) -> &'static (Sequence, Vec<StepRecord>) {
+    static REPOSITIONING: OnceLock<(Sequence, Vec<StepRecord>)> = OnceLock::new();
+    static WIPING: OnceLock<(Sequence, Vec<StepRecord>)> = OnceLock::new();
+    let cell = match task {
+        Task::Repositioning => &REPOSITIONING,
+        Task::Wiping => &WIPING,
+    };
+    cell.get_or_init(|| simulate(&trial(task, 650, 0)))
+}
+
+#[test]
+fn the_paper_dataset_has_24_trials_with_distinct_seeds() {
+    let trials = DatasetSpec::default().trials();
+    assert_eq!(trials.len(), 24);
+    for task in Task::ALL {
+        let learn = trials
+            .iter()
+            .filter(|t| t.task == task && t.split == Split::Learn)
+            .count();
+        let test = trials
+            .iter()
+            .filter(|t| t.task == task && t.split == Split::Test)
+            .count();
+        assert_eq!((learn, test), (9, 3));
+        for h in caresim::BED_HEIGHTS_MM {
+            assert_eq!(
+                trials
+                    .iter()
+                    .filter(|t| t.task == task && t.bed_height_mm == h && t.split == Split::Test)
+                    .count(),
+                1
+            );
+        }
+    }
+    let mut seeds: Vec<u64> = trials.iter().map(|t| t.seed).collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    assert_eq!(seeds.len(), 24);
+}
+
+#[test]
+fn same_seed_gives_byte_identical_sequences() {
+    let spec = trial(Task::Wiping, 590, 1);
+    let (a, _) = simulate(&spec);
+    let (b, _) = simulate(&spec);
+    // (assert! rather than assert_eq!: a failure should not print megabytes.)
+    assert!(
+        a.to_bytes().unwrap() == b.to_bytes().unwrap(),
+        "two runs of one seed differ"
+    );
+    let other = TrialSpec {
+        seed: spec.seed + 1,
+        ..spec
+    };
+    assert!(simulate(&other).0.to_bytes().unwrap() != a.to_bytes().unwrap());
+}
+
+#[test]
+fn shapes_ranges_and_labels() {
+    for task in Task::ALL {
+        let (seq, records) = simulated(task);
+        seq.validate("sim").unwrap();
+        let t = seq.len();
+        assert!(
+            (270..=330).contains(&t),
+            "{task:?}: {t} steps, expected about 300"
+        );
+        assert_eq!(seq.images.len(), t * 2 * 64 * 64 * 3);
+        assert_eq!(
+            seq.info.subtasks,
+            task.subtasks().map(String::from).to_vec()
+        );
+        // Labels run 0, 1, 2 in order, each for a while.
+        assert!(
+            seq.subtask
+                .windows(2)
+                .all(|w| w[1] == w[0] || w[1] == w[0] + 1)
+        );
+        for label in 0..3 {
+            assert!(seq.subtask.iter().filter(|&&s| s == label).count() > 30);
+        }
+        for step in 0..t {
+            let p = seq.proprio(step);
+            for j in 0..14 {
+                let (lo, hi) = (Q_MIN[j % 7], Q_MAX[j % 7]);
+                assert!(
+                    p[j] as f64 >= lo - 1e-3 && p[j] as f64 <= hi + 1e-3,
+                    "joint {j} = {} outside its limits",
+                    p[j]
+                );
+                assert!(
+                    (p[14 + j] as f64).abs() < TAU_MAX[j % 7],
+                    "torque {j} = {} beyond the rated torque",
+                    p[14 + j]
+                );
+            }
+        }
+        // Images have content: not one flat colour.
+        let first = seq.image(0, 0);
+        let mean = first.iter().map(|&v| v as f64).sum::<f64>() / first.len() as f64;
+        let var = first
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / first.len() as f64;
+        assert!(var.sqrt() > 20.0, "image std {}", var.sqrt());
+        assert_eq!(records.len(), t);
+    }
+}
+
+#[test]
+fn inverse_kinematics_reaches_every_target_within_joint_limits() {
+    for task in Task::ALL {
+        for height in caresim::BED_HEIGHTS_MM {
+            let mut sim = Simulation::new(trial(task, height, 2));
+            for _ in 0..sim.len() {
+                let r = sim.step();
+                for arm in 0..2 {
+                    assert!(
+                        r.ik_position_error[arm] < 0.01,
+                        "{task:?} {height} mm: hand error {:.4} m",
+                        r.ik_position_error[arm]
+                    );
+                    for j in 0..7 {
+                        assert!(r.q[arm][j] >= Q_MIN[j] && r.q[arm][j] <= Q_MAX[j]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn torques_rise_while_the_upper_body_is_lifted() {
+    let (_, records) = simulated(Task::Repositioning);
+    let load = |r: &StepRecord| r.torques[0].iter().map(|t| t.abs()).sum::<f64>();
+    let holding: Vec<f64> = records
+        .iter()
+        .filter(|r| r.plan.subtask == 1)
+        .map(load)
+        .collect();
+    let lifting: Vec<f64> = records
+        .iter()
+        .filter(|r| r.plan.subtask == 2 && r.plan.lift > 0.1)
+        .map(load)
+        .collect();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(!lifting.is_empty());
+    assert!(
+        mean(&lifting) > 1.3 * mean(&holding),
+        "holding {:.2} N m, lifting {:.2} N m",
+        mean(&holding),
+        mean(&lifting)
+    );
+    // And the load follows the lift: the left arm's torques are higher during the lift's
+    // first half than at rest at its start.
+    let start = records.iter().position(|r| r.plan.subtask == 2).unwrap();
+    assert!(load(&records[start + 20]) > load(&records[start]));
+}
+
+#[test]
+fn the_towel_follows_the_grasping_hand_and_stays_after_release() {
+    let (_, records) = simulated(Task::Wiping);
+    let grasped: Vec<&StepRecord> = records.iter().filter(|r| r.plan.grasping).collect();
+    assert!(grasped.len() > 100);
+    for r in &grasped {
+        assert!(
+            r.towel_grip_error.unwrap() < 1e-9,
+            "grasped towel particles left the hand"
+        );
+    }
+    // Dragged along while wiping: the towel's centre moves with the hand.
+    let wiping: Vec<&StepRecord> = records.iter().filter(|r| r.plan.subtask == 1).collect();
+    let hand_path: f64 = wiping
+        .windows(2)
+        .map(|w| (w[1].tcp[1].translation - w[0].tcp[1].translation).length())
+        .sum();
+    let towel_path: f64 = wiping
+        .windows(2)
+        .map(|w| (w[1].towel_centroid.unwrap() - w[0].towel_centroid.unwrap()).length())
+        .sum();
+    assert!(
+        hand_path > 0.15 && towel_path > 0.5 * hand_path,
+        "hand moved {hand_path:.3} m, towel {towel_path:.3} m"
+    );
+    // After release it settles and stays while the hand withdraws.
+    let release = records.iter().rposition(|r| r.plan.grasping).unwrap() + 1;
+    let settled = records[release + 25].towel_centroid.unwrap();
+    let last = records.last().unwrap();
+    assert!((last.towel_centroid.unwrap() - settled).length() < 0.01);
+    assert!(
+        (last.tcp[1].translation - settled).length() > 0.2,
+        "the hand withdrew"
+    );
+}
+
+#[test]
+fn bed_heights_give_measurably_different_images() {
+    let first_frame = |height: u32| {
+        let mut spec = trial(Task::Repositioning, 650, 0);
+        spec.bed_height_mm = height;
+        let mut sim = Simulation::new(spec);
+        sim.step();
+        sim.render(1, true, 64, 4)
+    };
+    let frames: Vec<_> = caresim::BED_HEIGHTS_MM
+        .iter()
+        .map(|&h| first_frame(h))
+        .collect();
+    // A higher bed is nearer the head cameras: the bed and the body fill more of the image.
+    let near = |f: &caresim::render::Frame| f.count(ID_BED) + f.count(ID_BODY);
+    assert!(near(&frames[0]) < near(&frames[1]) && near(&frames[1]) < near(&frames[2]));
+    for w in frames.windows(2) {
+        let diff: f64 = w[0]
+            .rgb
+            .iter()
+            .zip(&w[1].rgb)
+            .map(|(a, b)| (*a as f64 - *b as f64).abs())
+            .sum::<f64>()
+            / w[0].rgb.len() as f64;
+        assert!(
+            diff > 4.0,
+            "mean pixel difference {diff:.1} between adjacent heights"
+        );
+    }
+}
+
+/// Hand positions of a trial resampled at `n` points of normalised time.
+fn hand_path(spec: TrialSpec, hand: usize, n: usize) -> Vec<DVec3> {
+    let mut sim = Simulation::new(spec);
+    let path: Vec<DVec3> = (0..sim.len())
+        .map(|_| sim.step().tcp[hand].translation)
+        .collect();
+    (0..n)
+        .map(|i| path[i * (path.len() - 1) / (n - 1)])
+        .collect()
+}
+
+/// Mean over normalised time of the across-trial standard deviation of the hand position.
+fn variability(task: Task, hand: usize) -> f64 {
+    let paths: Vec<Vec<DVec3>> = (0..3)
+        .flat_map(|i| caresim::BED_HEIGHTS_MM.map(|h| hand_path(trial(task, h, i), hand, 100)))
+        .collect();
+    let n = paths.len() as f64;
+    (0..100)
+        .map(|k| {
+            let mean = paths.iter().map(|p| p[k]).sum::<DVec3>() / n;
+            (paths
+                .iter()
+                .map(|p| (p[k] - mean).length_squared())
+                .sum::<f64>()
+                / n)
+                .sqrt()
+        })
+        .sum::<f64>()
+        / 100.0
+}
+
+#[test]
+fn wiping_varies_more_across_trials_than_repositioning() {
+    // The working hand of each task: left for repositioning, right for wiping.
+    let repositioning = variability(Task::Repositioning, 0);
+    let wiping = variability(Task::Wiping, 1);
+    assert!(
+        wiping > 1.5 * repositioning,
+        "trajectory variability: wiping {wiping:.4} m, repositioning {repositioning:.4} m"
+    );
+}
+
+#[test]
+fn the_arms_occlude_the_body_in_some_frames() {
+    let mut sim = Simulation::new(trial(Task::Wiping, 650, 0));
+    let mut largest: f64 = 0.0;
+    for t in 0..sim.len() {
+        sim.step();
+        if t % 10 == 0 {
+            let with = sim.render(0, true, 64, 2).count(ID_BODY) as f64;
+            let without = sim.render(0, false, 64, 2).count(ID_BODY) as f64;
+            largest = largest.max(1.0 - with / without);
+        }
+    }
+    assert!(
+        largest > 0.15,
+        "the arms hide at most {:.0}% of the body",
+        100.0 * largest
+    );
+}
+
+#[test]
+fn simulate_import_format_load_round_trip() {
+    use pvrnn_core::ModelConfig;
+    use pvrnn_dataset::import::{import_sequence, write_recording};
+    use pvrnn_dataset::{Dataset, proprio_ranges};
+    let (seq, _) = simulated(Task::Wiping);
+    let cams = vec!["left".to_string(), "right".to_string()];
+    let dir = tempfile::tempdir().unwrap();
+    write_recording(seq, &cams, dir.path()).unwrap();
+    let imported = import_sequence(dir.path(), &seq.info.name, &cams, caresim::IMAGE_SIZE).unwrap();
+    // Everything survives; the seed travels in meta.json.
+    assert!(
+        imported == *seq,
+        "the imported sequence differs from the simulated one"
+    );
+    let ds = Dataset::new("round trip", cams, caresim::IMAGE_SIZE, vec![imported]).unwrap();
+    let mut config = ModelConfig::default();
+    config.normalisation = Some(proprio_ranges(&ds.split(None)));
+    let obs = ds.observations(&ds.split(None), &config).unwrap();
+    assert_eq!(obs.dims(pvrnn_core::Modality::Exteroceptive), 32_256);
+    assert_eq!(obs.lengths(), &[seq.len()]);
+}

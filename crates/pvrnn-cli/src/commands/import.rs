@@ -1,0 +1,56 @@
+//! `pvrnn import`: real robot recordings into the dataset format.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use pvrnn_dataset::{import, preview, previews_dir};
+
+use crate::util;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Folder of recordings: one sub-folder per sequence with meta.json, a folder of frames
+    /// per camera and proprio.csv (see docs/dataset.md).
+    #[arg(long)]
+    from: PathBuf,
+    /// Dataset folder to write.
+    #[arg(long)]
+    out: PathBuf,
+    /// Camera folder names, in the order the model sees them.
+    #[arg(long, value_delimiter = ',', default_values_t = ["left".to_string(), "right".to_string()])]
+    cameras: Vec<String>,
+    /// Square image size after centre crop and area resampling.
+    #[arg(long, default_value_t = 64)]
+    image_size: usize,
+    /// Skip the contact sheets and animations.
+    #[arg(long)]
+    no_previews: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    anyhow::ensure!(a.image_size >= 2, "--image-size must be at least 2");
+    let bar = util::progress(0, "import");
+    let dataset = import::import_recordings(&a.from, &a.cameras, a.image_size, &mut |name| {
+        bar.inc_length(1);
+        bar.set_message(name.to_string());
+        bar.inc(1);
+    })?;
+    bar.finish();
+    dataset.write(&a.out)?;
+    if !a.no_previews {
+        let dir = previews_dir(&a.out);
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        for s in &dataset.sequences {
+            let stem = pvrnn_dataset::file_stem(&s.info.name);
+            preview::write_contact_sheet(s, &dir.join(format!("{stem}.png")))?;
+            preview::write_animation(s, &dir.join(format!("{stem}.gif")), 2, 10)?;
+        }
+    }
+    eprintln!(
+        "wrote {} ({} sequences)",
+        a.out.display(),
+        dataset.sequences.len()
+    );
+    Ok(())
+}

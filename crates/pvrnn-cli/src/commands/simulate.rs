@@ -1,0 +1,106 @@
+//! `pvrnn simulate`: the caresim benchmark as a dataset folder, with previews.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use anyhow::{Context, Result};
+use caresim::{DatasetSpec, Task};
+use pvrnn_dataset::{Dataset, preview, previews_dir};
+use rayon::prelude::*;
+
+use crate::util;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Dataset folder to write.
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Learning sequences per task and bed height (paper: 3).
+    #[arg(long, default_value_t = 3)]
+    learn_per_height: usize,
+    /// Test sequences per task and bed height (paper: 1).
+    #[arg(long, default_value_t = 1)]
+    test_per_height: usize,
+    /// Tasks (comma-separated): repositioning, wiping.
+    #[arg(long, value_delimiter = ',', default_values_t = ["repositioning".to_string(), "wiping".to_string()])]
+    tasks: Vec<String>,
+    /// Bed heights in mm (paper: 590, 650, 710).
+    #[arg(long, value_delimiter = ',', default_values_t = caresim::BED_HEIGHTS_MM)]
+    heights: Vec<u32>,
+    /// Skip the contact sheets and animations.
+    #[arg(long)]
+    no_previews: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let tasks = a
+        .tasks
+        .iter()
+        .map(|t| {
+            Task::parse(t)
+                .with_context(|| format!("unknown task `{t}` (tasks: repositioning, wiping)"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    anyhow::ensure!(
+        !a.heights.is_empty() && a.heights.iter().all(|&h| (300..=1200).contains(&h)),
+        "--heights must be bed heights in mm between 300 and 1200"
+    );
+    let spec = DatasetSpec {
+        seed: a.seed,
+        tasks,
+        bed_heights_mm: a.heights.clone(),
+        learn_per_height: a.learn_per_height,
+        test_per_height: a.test_per_height,
+    };
+    let trials = spec.trials();
+    anyhow::ensure!(
+        !trials.is_empty(),
+        "nothing to simulate: every count is zero"
+    );
+    let bar = util::progress(trials.len() as u64, "simulate");
+    let done = AtomicU64::new(0);
+    let sequences: Vec<_> = trials
+        .par_iter()
+        .map(|trial| {
+            let (seq, _) = caresim::simulate(trial);
+            bar.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
+            seq
+        })
+        .collect();
+    bar.finish();
+    let dataset = Dataset::new(
+        &format!("caresim (seed {})", a.seed),
+        vec!["left".into(), "right".into()],
+        caresim::IMAGE_SIZE,
+        sequences,
+    )?;
+    dataset.write(&a.out)?;
+    if !a.no_previews {
+        let dir = previews_dir(&a.out);
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        dataset
+            .sequences
+            .par_iter()
+            .try_for_each(|s| -> Result<()> {
+                let stem = pvrnn_dataset::file_stem(&s.info.name);
+                preview::write_contact_sheet(s, &dir.join(format!("{stem}.png")))?;
+                preview::write_animation(s, &dir.join(format!("{stem}.gif")), 2, 10)?;
+                Ok(())
+            })?;
+    }
+    let steps: usize = dataset.sequences.iter().map(|s| s.len()).sum();
+    eprintln!(
+        "wrote {} ({} sequences, {steps} steps{})",
+        a.out.display(),
+        dataset.sequences.len(),
+        if a.no_previews {
+            ""
+        } else {
+            ", previews in previews/"
+        }
+    );
+    Ok(())
+}

@@ -44,6 +44,8 @@ enum Command {
     Simulate(commands::simulate::Args),
     /// Import real robot recordings (frames and a proprioception CSV) as a dataset folder.
     Import(commands::import::Args),
+    /// Package a model, a dataset split and precomputed runs for the explorer.
+    Bundle(commands::bundle::Args),
 }
 
 fn main() {
@@ -61,6 +63,7 @@ fn main() {
         Command::Bench(a) => commands::bench::run(a),
         Command::Simulate(a) => commands::simulate::run(a),
         Command::Import(a) => commands::import::run(a),
+        Command::Bundle(a) => commands::bundle::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

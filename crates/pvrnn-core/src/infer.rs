@@ -92,7 +92,12 @@ pub struct StepOutput<T> {
     pub recon: [Vec<T>; 2],
     /// One-step-ahead prior prediction x^_{t+1}, per modality.
     pub prior_next: [Vec<T>; 2],
+    /// Each module's d in that prior step (x^_{t+1} is the read-out of these).
+    pub prior_d: [Vec<T>; 4],
     pub modules: [ModuleStep<T>; 4],
+    /// Mean squared error of `recon` against the whole observation (observed and
+    /// unobserved dimensions), per modality, in model units.
+    pub recon_error: [f64; 2],
     /// Free energy of the window after the updates (final pass).
     pub window_free_energy: FreeEnergy,
     /// The newest step's accuracy terms (observed dimensions), per modality.
@@ -117,6 +122,8 @@ pub struct OnlineInference<T: Real> {
     a_sigma: [Vec<T>; 4],
     /// Observed part of each window step's input, per modality.
     observations: [Vec<Vec<T>>; 2],
+    /// The newest step's whole observation (for its reconstruction error).
+    latest: [Vec<T>; 2],
     /// State after the newest finished step.
     last_h: [Vec<T>; 4],
     last_d: [Vec<T>; 4],
@@ -144,6 +151,7 @@ impl<T: Real> OnlineInference<T> {
             a_mu: Default::default(),
             a_sigma: Default::default(),
             observations: Default::default(),
+            latest: Default::default(),
             last_h: zeros_d.clone(),
             last_d: zeros_d,
             steps_done: 0,
@@ -169,6 +177,11 @@ impl<T: Real> OnlineInference<T> {
     pub fn window_len(&self) -> usize {
         self.observations[0].len()
     }
+    /// A step has begun and is not finished yet.
+    pub fn in_step(&self) -> bool {
+        self.pending.is_some()
+    }
+
     /// Iterations still to run for the step in progress (0 when none is in progress).
     pub fn iterations_left(&self) -> usize {
         self.pending
@@ -223,6 +236,7 @@ impl<T: Real> OnlineInference<T> {
         for (rows, row) in self.observations.iter_mut().zip(observed_rows) {
             rows.push(row);
         }
+        self.latest = [x_extero.to_vec(), x_proprio.to_vec()];
         let sizes: Vec<usize> = (0..8).map(|i| self.a_mu[i % 4].len()).collect();
         if self.settings.reset_moments_each_step || self.steps_done == 0 {
             self.optimizer = RAdam::new(self.settings.optimizer.clone(), &sizes);
@@ -361,7 +375,11 @@ impl<T: Real> OnlineInference<T> {
             self.last_d[m] = trace.modules[m].d[(len - 1) * d..len * d].to_vec();
         }
         let recon = result.outputs;
-        let prior_next = self.prior_prediction(t);
+        let recon_error: [f64; 2] = std::array::from_fn(|i| {
+            let n = recon[i].len().max(1) as f64;
+            recon[i].iter().zip(&self.latest[i]).map(|(a, b)| (*a - *b).to_f64().powi(2)).sum::<f64>() / n
+        });
+        let (prior_next, prior_d) = self.prior_prediction(t);
 
         // Slide: once the window is full, the state after its oldest step is held and that
         // step leaves the window.
@@ -389,15 +407,17 @@ impl<T: Real> OnlineInference<T> {
             t,
             recon,
             prior_next,
+            prior_d,
             modules,
+            recon_error,
             window_free_energy,
             step_accuracy,
         })
     }
 
     /// x^_{t+1} from the prior: one generation step from the state after step t with
-    /// z = mu_p + sigma_p * eps.
-    fn prior_prediction(&self, t: usize) -> [Vec<T>; 2] {
+    /// z = mu_p + sigma_p * eps; also the modules' d in that step.
+    fn prior_prediction(&self, t: usize) -> ([Vec<T>; 2], [Vec<T>; 4]) {
         let (pre_mu, pre_sigma) = prior_preactivations(
             &self.model.params,
             std::array::from_fn(|m| self.last_d[m].as_slice()),
@@ -425,7 +445,9 @@ impl<T: Real> OnlineInference<T> {
         let mut result = self
             .loaded
             .evaluate(std::slice::from_ref(&window), &request);
-        result.windows.pop().expect("one window").outputs
+        let w = result.windows.pop().expect("one window");
+        let [a, b, c, d] = w.trace.modules;
+        (w.outputs, [a.d, b.d, c.d, d.d])
     }
 
     /// begin + all iterations + finish.
@@ -459,14 +481,18 @@ fn last_step_states<T: Real>(trace: &Trace<T>, config: &ModelConfig) -> [ModuleS
 #[derive(Clone, Debug, PartialEq)]
 pub struct Run<T> {
     pub settings: InferenceSettings,
-    /// Per modality `[steps, dims]`.
-    pub recon: [Tensor<T>; 2],
-    pub prior_next: [Tensor<T>; 2],
-    /// Per module: `mu_p, sigma_p, mu_q, sigma_q` `[steps, z]` and `d` `[steps, d]`.
+    /// Per modality `[steps, dims]`: reconstructions and one-step prior predictions of all
+    /// dimensions. `None` in compact runs: they are the read-outs of `d` and `prior_d`
+    /// ([`crate::cpu::readout`]), so a compact run can still show them.
+    pub recon: Option<[Tensor<T>; 2]>,
+    pub prior_next: Option<[Tensor<T>; 2]>,
+    /// Per module: `mu_p, sigma_p, mu_q, sigma_q` `[steps, z]`, `d` and `prior_d` `[steps, d]`.
     pub modules: [RunModule<T>; 4],
-    /// Per step: window free energy and the newest step's accuracy terms.
+    /// Per step: window free energy, the newest step's accuracy terms, and its
+    /// reconstruction error (all dimensions) per modality.
     pub free_energy: Vec<FreeEnergy>,
     pub step_accuracy: Vec<[f64; 2]>,
+    pub recon_error: Vec<[f64; 2]>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -476,6 +502,7 @@ pub struct RunModule<T> {
     pub mu_q: Tensor<T>,
     pub sigma_q: Tensor<T>,
     pub d: Tensor<T>,
+    pub prior_d: Tensor<T>,
 }
 
 impl<T: Real> Run<T> {
@@ -483,8 +510,9 @@ impl<T: Real> Run<T> {
         self.free_energy.len()
     }
 
-    /// Stacks per-step outputs.
-    pub fn from_steps(settings: InferenceSettings, steps: &[StepOutput<T>]) -> Self {
+    /// Stacks per-step outputs; `keep_outputs` keeps the full read-outs (large: two
+    /// vision vectors per step).
+    pub fn from_steps(settings: InferenceSettings, steps: &[StepOutput<T>], keep_outputs: bool) -> Self {
         let n = steps.len();
         let stack = |f: &dyn Fn(&StepOutput<T>) -> &[T]| -> Tensor<T> {
             let w = steps.first().map_or(0, |s| f(s).len());
@@ -495,29 +523,32 @@ impl<T: Real> Run<T> {
             Tensor::from_vec(&[n, w], data).expect("every step has the same sizes")
         };
         Self {
-            recon: std::array::from_fn(|i| stack(&|s| &s.recon[i])),
-            prior_next: std::array::from_fn(|i| stack(&|s| &s.prior_next[i])),
+            recon: keep_outputs.then(|| std::array::from_fn(|i| stack(&|s| &s.recon[i]))),
+            prior_next: keep_outputs.then(|| std::array::from_fn(|i| stack(&|s| &s.prior_next[i]))),
             modules: std::array::from_fn(|m| RunModule {
                 mu_p: stack(&|s| &s.modules[m].mu_p),
                 sigma_p: stack(&|s| &s.modules[m].sigma_p),
                 mu_q: stack(&|s| &s.modules[m].mu_q),
                 sigma_q: stack(&|s| &s.modules[m].sigma_q),
                 d: stack(&|s| &s.modules[m].d),
+                prior_d: stack(&|s| &s.prior_d[m]),
             }),
             free_energy: steps.iter().map(|s| s.window_free_energy).collect(),
             step_accuracy: steps.iter().map(|s| s.step_accuracy).collect(),
+            recon_error: steps.iter().map(|s| s.recon_error).collect(),
             settings,
         }
     }
 }
 
 /// Runs online inference over sequence `s` of `data` (all of its steps), calling
-/// `progress(done, total)` after each step.
+/// `progress(done, total)` after each step; `keep_outputs` as in [`Run::from_steps`].
 pub fn run_sequence<T: Real>(
     model: Arc<Model<T>>,
     settings: InferenceSettings,
     data: &Observations<T>,
     s: usize,
+    keep_outputs: bool,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Run<T>> {
     data.check_fits(&model.config)?;
@@ -537,5 +568,5 @@ pub fn run_sequence<T: Real>(
         )?);
         progress(t + 1, len);
     }
-    Ok(Run::from_steps(settings, &steps))
+    Ok(Run::from_steps(settings, &steps, keep_outputs))
 }

@@ -107,10 +107,10 @@ impl TensorFile {
         })
     }
 
-    /// An f32 tensor, checked for shape (`None` = any) and finiteness.
+    /// An f32 tensor (F16 is widened), checked for shape (`None` = any) and finiteness.
     pub fn f32(&self, name: &str, shape: Option<&[usize]>) -> Result<Tensor<f32>> {
         let info = self.info(name)?;
-        if info.dtype != Dtype::F32 {
+        if info.dtype != Dtype::F32 && info.dtype != Dtype::F16 {
             return Err(Error::Dtype {
                 what: self.what.clone(),
                 name: name.into(),
@@ -129,10 +129,11 @@ impl TensorFile {
         }
         let (a, b) = info.data_offsets;
         let raw = &self.bytes[self.data_start + a..self.data_start + b];
-        let data: Vec<f32> = raw
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let data: Vec<f32> = if info.dtype == Dtype::F16 {
+            raw.chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect()
+        } else {
+            raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        };
         let tensor = Tensor::from_vec(&info.shape, data).map_err(|_| Error::Format {
             what: self.what.clone(),
             detail: format!(
@@ -213,10 +214,11 @@ impl TensorFile {
     }
 }
 
-/// A tensor to write: f32 values, i64 indices or u8 bytes (images).
+/// A tensor to write: f32 values (or f16, half the size), i64 indices or u8 bytes (images).
 #[derive(Debug)]
 pub enum OutTensor<'a> {
     F32(Vec<usize>, Cow<'a, [f32]>),
+    F16(Vec<usize>, Vec<half::f16>),
     I64(Vec<usize>, Vec<i64>),
     U8(Vec<usize>, Cow<'a, [u8]>),
 }
@@ -242,18 +244,20 @@ impl View for &OutTensor<'_> {
     fn dtype(&self) -> Dtype {
         match self {
             OutTensor::F32(..) => Dtype::F32,
+            OutTensor::F16(..) => Dtype::F16,
             OutTensor::I64(..) => Dtype::I64,
             OutTensor::U8(..) => Dtype::U8,
         }
     }
     fn shape(&self) -> &[usize] {
         match self {
-            OutTensor::F32(s, _) | OutTensor::I64(s, _) | OutTensor::U8(s, _) => s,
+            OutTensor::F32(s, _) | OutTensor::F16(s, _) | OutTensor::I64(s, _) | OutTensor::U8(s, _) => s,
         }
     }
     fn data(&self) -> Cow<'_, [u8]> {
         match self {
             OutTensor::F32(_, v) => f32_bytes(v),
+            OutTensor::F16(_, v) => Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect()),
             OutTensor::I64(_, v) => Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect()),
             OutTensor::U8(_, v) => Cow::Borrowed(v),
         }
@@ -261,6 +265,7 @@ impl View for &OutTensor<'_> {
     fn data_len(&self) -> usize {
         match self {
             OutTensor::F32(_, v) => v.len() * 4,
+            OutTensor::F16(_, v) => v.len() * 2,
             OutTensor::I64(_, v) => v.len() * 8,
             OutTensor::U8(_, v) => v.len(),
         }
@@ -597,18 +602,16 @@ pub fn save_observations<T: Real>(path: &Path, obs: &Observations<T>) -> Result<
     )
 }
 
-/// Names of a run's per-step tensors (without the sequence axis).
+/// A run's per-step tensors (without the sequence axis), with their file names.
 fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
     let mut v = Vec::new();
     for modality in Modality::ALL {
-        v.push((
-            format!("recon.{}", modality.name()),
-            &run.recon[modality.index()],
-        ));
-        v.push((
-            format!("prior.{}", modality.name()),
-            &run.prior_next[modality.index()],
-        ));
+        if let Some(recon) = &run.recon {
+            v.push((format!("recon.{}", modality.name()), &recon[modality.index()]));
+        }
+        if let Some(prior) = &run.prior_next {
+            v.push((format!("prior.{}", modality.name()), &prior[modality.index()]));
+        }
     }
     for id in ModuleId::ALL {
         let m = &run.modules[id.index()];
@@ -618,6 +621,7 @@ fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
             ("mu_q", &m.mu_q),
             ("sigma_q", &m.sigma_q),
             ("d", &m.d),
+            ("prior_d", &m.prior_d),
         ] {
             v.push((format!("{}.{field}", id.name()), t));
         }
@@ -625,9 +629,24 @@ fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
     v
 }
 
+/// Per-step scalars of a run, with their file names.
+fn run_scalars<T: Real>(run: &Run<T>) -> Vec<(String, Vec<f64>)> {
+    let mut v = vec![("free_energy.total".to_string(), run.free_energy.iter().map(|f| f.total).collect::<Vec<f64>>())];
+    for modality in Modality::ALL {
+        let (n, i) = (modality.name(), modality.index());
+        v.push((format!("free_energy.accuracy.{n}"), run.free_energy.iter().map(|f| if i == 0 { f.accuracy.exteroceptive } else { f.accuracy.proprioceptive }).collect()));
+        v.push((format!("step_accuracy.{n}"), run.step_accuracy.iter().map(|a| a[i]).collect()));
+        v.push((format!("recon_error.{n}"), run.recon_error.iter().map(|a| a[i]).collect()));
+    }
+    for id in ModuleId::ALL {
+        v.push((format!("free_energy.complexity.{}", id.name()), run.free_energy.iter().map(|f| f.complexity_of(id)).collect()));
+    }
+    v
+}
+
 /// Writes inference runs of several sequences, stacked `[S, T_max, ...]` (shorter runs are
-/// zero-padded; `lengths` gives each run's steps). Per-step free energy terms are
-/// `free_energy.*` `[S, T_max]`.
+/// zero-padded; `lengths` gives each run's steps): per-module states, per-step free-energy
+/// terms and errors, and the full read-outs `recon.*` / `prior.*` when the runs kept them.
 pub fn save_runs<T: Real>(
     path: &Path,
     config: &ModelConfig,
@@ -635,6 +654,18 @@ pub fn save_runs<T: Real>(
     sequence_ids: &[usize],
     sequence_names: Option<&[String]>,
 ) -> Result<()> {
+    write_atomic(path, &runs_to_bytes(config, runs, sequence_ids, sequence_names, false)?)
+}
+
+/// [`save_runs`] into bytes; `half` stores the per-step states as f16 (half the size, about
+/// three significant digits: enough for viewing, e.g. the explorer's precomputed runs).
+pub fn runs_to_bytes<T: Real>(
+    config: &ModelConfig,
+    runs: &[Run<T>],
+    sequence_ids: &[usize],
+    sequence_names: Option<&[String]>,
+    half: bool,
+) -> Result<Vec<u8>> {
     let Some(first) = runs.first() else {
         return Err(Error::InvalidArgument("no inference runs to save".into()));
     };
@@ -651,89 +682,81 @@ pub fn save_runs<T: Real>(
                 *dst = src.to_f32();
             }
         }
-        tensors.insert(
-            name.clone(),
-            OutTensor::F32(vec![s, t_max, width], Cow::Owned(data)),
-        );
+        let tensor = if half {
+            OutTensor::F16(vec![s, t_max, width], data.iter().map(|&v| half::f16::from_f32(v)).collect())
+        } else {
+            OutTensor::F32(vec![s, t_max, width], Cow::Owned(data))
+        };
+        tensors.insert(name.clone(), tensor);
     }
-    let per_step = |f: &dyn Fn(&FreeEnergy, &[f64; 2]) -> f64| {
+    let scalar_names: Vec<String> = run_scalars(first).into_iter().map(|(n, _)| n).collect();
+    for (k, name) in scalar_names.into_iter().enumerate() {
         let mut data = vec![0f32; s * t_max];
         for (i, run) in runs.iter().enumerate() {
-            for (t, (fe, acc)) in run.free_energy.iter().zip(&run.step_accuracy).enumerate() {
-                data[i * t_max + t] = f(fe, acc) as f32;
+            for (t, v) in run_scalars(run)[k].1.iter().enumerate() {
+                data[i * t_max + t] = *v as f32;
             }
         }
-        OutTensor::F32(vec![s, t_max], Cow::Owned(data))
-    };
-    tensors.insert("free_energy.total".into(), per_step(&|fe, _| fe.total));
-    for modality in Modality::ALL {
-        let mi = modality.index();
-        tensors.insert(
-            format!("step_accuracy.{}", modality.name()),
-            per_step(&|_, acc| acc[mi]),
-        );
+        tensors.insert(name, OutTensor::F32(vec![s, t_max], Cow::Owned(data)));
     }
-    tensors.insert(
-        "free_energy.accuracy.exteroceptive".into(),
-        per_step(&|fe, _| fe.accuracy.exteroceptive),
-    );
-    tensors.insert(
-        "free_energy.accuracy.proprioceptive".into(),
-        per_step(&|fe, _| fe.accuracy.proprioceptive),
-    );
-    for id in ModuleId::ALL {
-        tensors.insert(
-            format!("free_energy.complexity.{}", id.name()),
-            per_step(&|fe, _| fe.complexity_of(id)),
-        );
-    }
-    tensors.insert(
-        "lengths".into(),
-        OutTensor::I64(vec![s], runs.iter().map(|r| r.steps() as i64).collect()),
-    );
-    tensors.insert(
-        "sequence".into(),
-        OutTensor::I64(vec![s], sequence_ids.iter().map(|&i| i as i64).collect()),
-    );
+    tensors.insert("lengths".into(), OutTensor::I64(vec![s], runs.iter().map(|r| r.steps() as i64).collect()));
+    tensors.insert("sequence".into(), OutTensor::I64(vec![s], sequence_ids.iter().map(|&i| i as i64).collect()));
     let mut meta = model_metadata(config, RUN_FORMAT);
-    meta.insert(
-        "settings".into(),
-        serde_json::to_string(&first.settings).expect("serialisable"),
-    );
+    meta.insert("settings".into(), serde_json::to_string(&first.settings).expect("serialisable"));
     if let Some(names) = sequence_names {
-        meta.insert(
-            "sequence_names".into(),
-            serde_json::to_string(names).expect("serialisable"),
-        );
+        meta.insert("sequence_names".into(), serde_json::to_string(names).expect("serialisable"));
     }
-    save(path, &tensors, meta)
+    to_bytes(&tensors, meta)
 }
 
-/// Reads runs written by [`save_runs`]; returns them with their sequence indices.
-pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<(usize, Run<f32>)>> {
+/// A run read from a file, with the sequence it belongs to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadedRun {
+    /// Index of the sequence in the inputs it was run on.
+    pub sequence: usize,
+    /// Its name, for runs on a dataset.
+    pub name: Option<String>,
+    pub run: Run<f32>,
+}
+
+/// Reads runs written by [`save_runs`].
+pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRun>> {
+    let bad = |detail: &str| Error::Format {
+        what: file.what().into(),
+        detail: detail.into(),
+    };
     let settings: InferenceSettings = file
         .metadata("settings")
         .and_then(|s| serde_json::from_str(s).ok())
-        .ok_or_else(|| Error::Format {
-            what: file.what().into(),
-            detail: "no valid `settings` metadata: not a pvrnn inference file".into(),
-        })?;
+        .ok_or_else(|| bad("no valid `settings` metadata: not a pvrnn inference file"))?;
+    let names: Option<Vec<String>> = match file.metadata("sequence_names") {
+        Some(text) => Some(serde_json::from_str(text).map_err(|_| bad("invalid `sequence_names` metadata"))?),
+        None => None,
+    };
     let lengths = file.indices("lengths")?;
     let ids = file.indices("sequence")?;
     let s = lengths.len();
+    if ids.len() != s || names.as_ref().is_some_and(|n| n.len() != s) {
+        return Err(bad("`lengths`, `sequence` and `sequence_names` disagree on the number of runs"));
+    }
     let t_max = lengths.iter().copied().max().unwrap_or(0);
     let read = |name: &str, width: usize| file.f32(name, Some(&[s, t_max, width]));
     let cut = |t: &Tensor<f32>, i: usize, len: usize| -> Tensor<f32> {
         let width = t.shape()[2];
         Tensor::from_vec(&[len, width], t.sub(&[i])[..len * width].to_vec()).expect("sized")
     };
-    let mut recon = Vec::new();
-    let mut prior = Vec::new();
-    for modality in Modality::ALL {
-        let dims = config.modality_dims(modality);
-        recon.push(read(&format!("recon.{}", modality.name()), dims)?);
-        prior.push(read(&format!("prior.{}", modality.name()), dims)?);
-    }
+    let optional = |prefix: &str| -> Result<Option<Vec<Tensor<f32>>>> {
+        if !file.contains(&format!("{prefix}.exteroceptive")) {
+            return Ok(None);
+        }
+        Modality::ALL
+            .iter()
+            .map(|m| read(&format!("{prefix}.{}", m.name()), config.modality_dims(*m)))
+            .collect::<Result<Vec<_>>>()
+            .map(Some)
+    };
+    let recon = optional("recon")?;
+    let prior = optional("prior")?;
     let mut module_tensors = Vec::new();
     for id in ModuleId::ALL {
         let (d, z) = (config.module(id).d, config.module(id).z);
@@ -744,18 +767,17 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<(usize, 
             read(&format!("{n}.mu_q"), z)?,
             read(&format!("{n}.sigma_q"), z)?,
             read(&format!("{n}.d"), d)?,
+            read(&format!("{n}.prior_d"), d)?,
         ]);
     }
     let scalar = |name: &str| file.f32(name, Some(&[s, t_max]));
     let total = scalar("free_energy.total")?;
-    let acc: Vec<Tensor<f32>> = Modality::ALL
-        .iter()
-        .map(|m| scalar(&format!("step_accuracy.{}", m.name())))
-        .collect::<Result<_>>()?;
-    let fe_acc: Vec<Tensor<f32>> = Modality::ALL
-        .iter()
-        .map(|m| scalar(&format!("free_energy.accuracy.{}", m.name())))
-        .collect::<Result<_>>()?;
+    let per_modality = |prefix: &str| -> Result<Vec<Tensor<f32>>> {
+        Modality::ALL.iter().map(|m| scalar(&format!("{prefix}.{}", m.name()))).collect()
+    };
+    let fe_acc = per_modality("free_energy.accuracy")?;
+    let step_acc = per_modality("step_accuracy")?;
+    let recon_err = per_modality("recon_error")?;
     let cx: Vec<Tensor<f32>> = ModuleId::ALL
         .iter()
         .map(|m| scalar(&format!("free_energy.complexity.{}", m.name())))
@@ -763,47 +785,40 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<(usize, 
     let mut runs = Vec::with_capacity(s);
     for i in 0..s {
         let len = lengths[i];
+        let at = |x: &Tensor<f32>, t: usize| x.data()[i * t_max + t] as f64;
+        let pair = |x: &[Tensor<f32>], t: usize| [at(&x[0], t), at(&x[1], t)];
         let free_energy = (0..len)
             .map(|t| {
-                let at = |x: &Tensor<f32>| x.data()[i * t_max + t] as f64;
-                let mut fe = FreeEnergy::from_terms(
-                    std::array::from_fn(|m| at(&fe_acc[m])),
-                    std::array::from_fn(|m| at(&cx[m])),
-                    config.kl_weight,
-                );
+                let mut fe = FreeEnergy::from_terms(pair(&fe_acc, t), std::array::from_fn(|m| at(&cx[m], t)), config.kl_weight);
                 // The stored total, not one recomputed from f32-rounded terms.
-                fe.total = at(&total);
+                fe.total = at(&total, t);
                 fe
             })
             .collect();
-        let step_accuracy = (0..len)
-            .map(|t| {
-                [
-                    acc[0].data()[i * t_max + t] as f64,
-                    acc[1].data()[i * t_max + t] as f64,
-                ]
-            })
-            .collect();
-        runs.push((
-            ids.get(i).copied().unwrap_or(i),
-            Run {
+        let both = |x: &Option<Vec<Tensor<f32>>>| x.as_ref().map(|v| [cut(&v[0], i, len), cut(&v[1], i, len)]);
+        runs.push(LoadedRun {
+            sequence: ids[i],
+            name: names.as_ref().map(|n| n[i].clone()),
+            run: Run {
                 settings: settings.clone(),
-                recon: [cut(&recon[0], i, len), cut(&recon[1], i, len)],
-                prior_next: [cut(&prior[0], i, len), cut(&prior[1], i, len)],
+                recon: both(&recon),
+                prior_next: both(&prior),
                 modules: std::array::from_fn(|m| {
-                    let [a, b, c, d, e] = &module_tensors[m];
+                    let [a, b, c, d, e, f] = &module_tensors[m];
                     RunModule {
                         mu_p: cut(a, i, len),
                         sigma_p: cut(b, i, len),
                         mu_q: cut(c, i, len),
                         sigma_q: cut(d, i, len),
                         d: cut(e, i, len),
+                        prior_d: cut(f, i, len),
                     }
                 }),
                 free_energy,
-                step_accuracy,
+                step_accuracy: (0..len).map(|t| pair(&step_acc, t)).collect(),
+                recon_error: (0..len).map(|t| pair(&recon_err, t)).collect(),
             },
-        ));
+        });
     }
     Ok(runs)
 }

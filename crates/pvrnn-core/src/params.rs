@@ -330,6 +330,16 @@ impl<T: Real> Model<T> {
             adaptive: self.adaptive.cast(),
         }
     }
+
+    /// The model without its training sequences' adaptive variables (zero sequences): all
+    /// that online inference needs, and a much smaller file.
+    pub fn weights_only(&self) -> Self {
+        Self {
+            config: self.config.clone(),
+            params: self.params.clone(),
+            adaptive: Adaptive::zeros(&self.config, 0, 1),
+        }
+    }
 }
 
 fn normal_scaled<T: Real>(rng: &mut ChaCha8Rng, out: &mut [T], std: f64) {

@@ -328,18 +328,27 @@ mod on_disk {
         settings.iterations = 2;
         let runs: Vec<_> = (0..2)
             .map(|s| {
-                run_sequence(model.clone(), settings.clone(), &data, s, &mut |_, _| {}).unwrap()
+                run_sequence(model.clone(), settings.clone(), &data, s, true, &mut |_, _| {}).unwrap()
             })
             .collect();
         let rpath = dir.path().join("runs.safetensors");
         io::save_runs(&rpath, &config, &runs, &[0, 1], None).unwrap();
         let back = io::load_runs(&TensorFile::open(&rpath).unwrap(), &config).unwrap();
         assert_eq!(back.len(), 2);
-        assert_eq!(back[1].0, 1);
-        assert_eq!(back[1].1.recon, runs[1].recon);
-        assert_eq!(back[1].1.modules, runs[1].modules);
-        assert_eq!(back[1].1.settings, settings);
-        let t: &Tensor<f32> = &back[0].1.modules[0].sigma_p;
+        assert_eq!(back[1].sequence, 1);
+        assert_eq!(back[1].run.recon, runs[1].recon);
+        assert_eq!(back[1].run.modules, runs[1].modules);
+        assert_eq!(back[1].run.settings, settings);
+        assert_eq!(back[1].run.recon_error.len(), 5);
+        let t: &Tensor<f32> = &back[0].run.modules[0].sigma_p;
         assert_eq!(t.shape(), &[5, config.executive.z]);
+        // A compact run keeps what reproduces the read-outs: recon = readout(d).
+        let compact = pvrnn_core::infer::Run::<f32>::from_steps(settings.clone(), &[], false);
+        assert!(compact.recon.is_none());
+        let d = runs[0].modules[2].d.sub(&[3]);
+        let again = pvrnn_core::cpu::readout(&model.params, pvrnn_core::Modality::Exteroceptive, d, 1);
+        let stored = runs[0].recon.as_ref().unwrap()[0].sub(&[3]);
+        let worst = again.iter().zip(stored).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "readout(d) differs from the stored reconstruction by {worst}");
     }
 }

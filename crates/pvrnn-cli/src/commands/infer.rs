@@ -49,6 +49,10 @@ pub struct Args {
     /// eps = 0.
     #[arg(long)]
     zero_noise: bool,
+    /// Leave out the full read-outs (`recon.*`, `prior.*`: two vision vectors per step);
+    /// they are the read-outs of the stored `d` and `prior_d`.
+    #[arg(long)]
+    compact: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -89,7 +93,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut done_before = 0u64;
     for &s in &which {
         bar.set_message(format!("sequence {s}"));
-        let run = run_sequence(model.clone(), settings.clone(), &data, s, &mut |done, _| {
+        let run = run_sequence(model.clone(), settings.clone(), &data, s, !a.compact, &mut |done, _| {
             bar.set_position(done_before + done as u64)
         })
         .with_context(|| format!("sequence {s}"))?;

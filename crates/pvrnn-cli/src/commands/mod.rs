@@ -1,4 +1,5 @@
 pub mod bench;
+pub mod bundle;
 pub mod free_energy;
 pub mod import;
 pub mod infer;

@@ -23,6 +23,7 @@ impl<T: Real> Backend<T> for CpuBackend {
             prepared: recurrent::Prepared::new(params, config),
             params: params.clone(),
             config: config.clone(),
+            out_t: Default::default(),
         })
     }
 }
@@ -33,6 +34,24 @@ struct CpuModel<T> {
     params: Params<T>,
     config: ModelConfig,
     prepared: recurrent::Prepared<T>,
+    /// Output weights transposed, per modality, made on first use by online inference.
+    out_t: [std::sync::OnceLock<Vec<T>>; 2],
+}
+
+impl<T: Real> CpuModel<T> {
+    fn out_t(&self, mi: usize) -> &[T] {
+        self.out_t[mi].get_or_init(|| {
+            let w = &self.params.readouts[mi].out.weight;
+            let (rows, cols) = (w.shape()[0], w.shape()[1]);
+            let mut t = vec![T::ZERO; rows * cols];
+            for r in 0..rows {
+                for c in 0..cols {
+                    t[c * rows + r] = w.data()[r * cols + c];
+                }
+            }
+            t
+        })
+    }
 }
 
 impl<T: Real> LoadedModel<T> for CpuModel<T> {
@@ -94,7 +113,11 @@ fn evaluate<T: Real>(
                 "one {} target row per step",
                 modality.name()
             );
-            let loss = readout::output_loss(&r.out, top, n, k, &targets, all_grads);
+            // In wasm faer's product runs at half the speed of the small-row kernels; natively
+            // faer is as fast at 16x16 and much faster at full vision.
+            let small = cfg!(target_arch = "wasm32") && n <= readout::SMALL_ROWS && !all_grads;
+            let out_t = small.then(|| model.out_t(mi));
+            let loss = readout::output_loss(&r.out, out_t, top, n, k, &targets, all_grads);
             accuracy[mi] = loss.row_loss;
             if want_grads {
                 let (g_input, layer_grads) =
@@ -133,7 +156,8 @@ fn evaluate<T: Real>(
                 }
             }
             let n_rows = rows.len() / hl.max(1);
-            let pred = readout::output_predict(&r.out, &rows, n_rows);
+            let small = cfg!(target_arch = "wasm32") && n_rows <= readout::SMALL_ROWS;
+            let pred = readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows);
             let dims = config.modality_dims(modality);
             let mut start = 0;
             for (i, count) in per_window.into_iter().enumerate() {
@@ -276,4 +300,13 @@ pub fn prior_preactivations<T: Real>(
         product(&p.w_prior_sigma, p.b_prior_sigma.as_ref(), d[m])
     });
     (mu, sigma)
+}
+
+/// The read-out of `n` module states `d` (`[n, d]` row-major) into predictions of every
+/// dimension of `modality` (`[n, dims]`): how a compact run's images are reconstructed.
+pub fn readout<T: Real>(params: &Params<T>, modality: Modality, d: &[T], n: usize) -> Vec<T> {
+    let r = &params.readouts[modality.index()];
+    let acts = readout::hidden_forward(r, d, n);
+    let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
+    readout::output_predict(&r.out, None, top, n)
 }

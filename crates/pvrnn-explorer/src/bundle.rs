@@ -1,0 +1,162 @@
+//! What the explorer shows: a model, a dataset, and runs computed in advance.
+//!
+//! A bundle folder (written by `pvrnn bundle`) holds `bundle.json`, the model, the dataset
+//! (manifest and sequence files) and `runs.safetensors`. The same pieces can come from a
+//! folder on disk, from files downloaded in the browser, or from files a user drops.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use pvrnn_core::io::{self, TensorFile};
+use pvrnn_core::{Model, Observations};
+use pvrnn_dataset::{inputs::check_layout, proprio_ranges, Dataset, Selection, Split};
+use serde::Deserialize;
+
+use crate::runs::{Condition, RunKey, RunTrace};
+
+/// `bundle.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct BundleManifest {
+    pub format: String,
+    #[serde(default)]
+    pub description: String,
+    pub model: String,
+    pub dataset: String,
+    #[serde(default)]
+    pub runs: Option<String>,
+}
+
+pub const BUNDLE_MANIFEST: &str = "bundle.json";
+pub const BUNDLE_FORMAT: &str = "pvrnn-bundle/1";
+
+/// A model with the dataset it is explored on.
+pub struct Bundle {
+    pub description: String,
+    pub model: Arc<Model<f32>>,
+    pub dataset: Dataset,
+    /// Runs computed in advance (e.g. by `pvrnn bundle`).
+    pub precomputed: Vec<(RunKey, RunTrace)>,
+    observations: HashMap<String, Arc<Observations<f32>>>,
+}
+
+impl std::fmt::Debug for Bundle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Bundle")
+            .field("description", &self.description)
+            .field("sequences", &self.dataset.sequences.len())
+            .field("precomputed", &self.precomputed.len())
+            .finish()
+    }
+}
+
+impl Bundle {
+    /// Checks that the model and the dataset fit together; a model without proprioception
+    /// ranges gets the dataset's learning split's.
+    pub fn new(description: String, mut model: Model<f32>, dataset: Dataset) -> Result<Self, String> {
+        if dataset.sequences.is_empty() {
+            return Err("the dataset holds no sequences".into());
+        }
+        check_layout(&dataset.manifest, &model.config.vision).map_err(|e| format!("the model does not fit the dataset: {e}"))?;
+        if model.config.normalisation.is_none() {
+            let learn = dataset.select(&Selection::Split(Split::Learn)).map_err(|_| {
+                "the model has no proprioception ranges and the dataset has no learning sequences to take them from".to_string()
+            })?;
+            model.config.normalisation = Some(proprio_ranges(&learn));
+        }
+        Ok(Self {
+            description,
+            model: Arc::new(model),
+            dataset,
+            precomputed: Vec::new(),
+            observations: HashMap::new(),
+        })
+    }
+
+    /// Adds runs from a runs file; runs of unknown sequences or conditions are skipped.
+    pub fn add_runs(&mut self, bytes: Vec<u8>, what: &str) -> Result<usize, String> {
+        let file = TensorFile::from_bytes(bytes, what).map_err(|e| e.to_string())?;
+        let runs = io::load_runs(&file, &self.model.config).map_err(|e| e.to_string())?;
+        let mut added = 0;
+        for loaded in runs {
+            let name = loaded
+                .name
+                .or_else(|| self.dataset.sequences.get(loaded.sequence).map(|s| s.info.name.clone()));
+            let (Some(name), Some(condition)) = (name, Condition::of(&loaded.run.settings, &self.model.config)) else {
+                continue;
+            };
+            let Some(seq) = self.dataset.by_name(&name) else { continue };
+            if seq.len() != loaded.run.steps() {
+                continue;
+            }
+            let trace = RunTrace::from_run(&loaded.run, &self.model);
+            self.precomputed.push((RunKey { sequence: name, condition }, trace));
+            added += 1;
+        }
+        Ok(added)
+    }
+
+    /// A bundle from its files' bytes, by file name (as downloaded or dropped).
+    pub fn from_files(files: &HashMap<String, Vec<u8>>) -> Result<Self, String> {
+        let get = |name: &str| files.get(name).cloned().ok_or_else(|| format!("{name} is missing"));
+        let manifest: BundleManifest = serde_json::from_slice(&get(BUNDLE_MANIFEST)?)
+            .map_err(|e| format!("{BUNDLE_MANIFEST} is not a bundle manifest: {e}"))?;
+        if manifest.format != BUNDLE_FORMAT {
+            return Err(format!("{BUNDLE_MANIFEST}: format `{}`, expected `{BUNDLE_FORMAT}`", manifest.format));
+        }
+        let model = io::model_from_bytes(get(&manifest.model)?, &manifest.model).map_err(|e| e.to_string())?;
+        let dataset_json = String::from_utf8(get(&manifest.dataset)?).map_err(|_| format!("{} is not text", manifest.dataset))?;
+        let dataset = Dataset::from_parts(&dataset_json, |name| {
+            files.get(name).cloned().ok_or_else(|| pvrnn_dataset::Error::Format {
+                what: name.into(),
+                detail: "missing from the bundle".into(),
+            })
+        })
+        .map_err(|e| e.to_string())?;
+        let mut bundle = Self::new(manifest.description, model, dataset)?;
+        if let Some(runs) = &manifest.runs {
+            bundle.add_runs(get(runs)?, runs)?;
+        }
+        Ok(bundle)
+    }
+
+    /// The files a bundle manifest names, in download order.
+    pub fn files_of(manifest: &BundleManifest, dataset_json: &str) -> Result<Vec<String>, String> {
+        let dataset: pvrnn_dataset::Manifest =
+            serde_json::from_str(dataset_json).map_err(|e| format!("{}: not a dataset manifest: {e}", manifest.dataset))?;
+        let mut files = vec![manifest.model.clone()];
+        files.extend(dataset.sequences.iter().map(|s| s.file.clone()));
+        files.extend(manifest.runs.clone());
+        Ok(files)
+    }
+
+    /// Opens a bundle folder, or a dataset folder with a model file beside it.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn open_dir(dir: &std::path::Path) -> Result<Self, String> {
+        let read = |name: &str| std::fs::read(dir.join(name)).map_err(|e| format!("{}: {e}", dir.join(name).display()));
+        let manifest_path = dir.join(BUNDLE_MANIFEST);
+        if !manifest_path.is_file() {
+            return Err(format!("{}: not a bundle folder (no {BUNDLE_MANIFEST}); make one with `pvrnn bundle`", dir.display()));
+        }
+        let manifest: BundleManifest = serde_json::from_slice(&read(BUNDLE_MANIFEST)?)
+            .map_err(|e| format!("{}: {e}", manifest_path.display()))?;
+        let model = io::load_model(&dir.join(&manifest.model)).map_err(|e| e.to_string())?;
+        let dataset = Dataset::open(dir).map_err(|e| e.to_string())?;
+        let mut bundle = Self::new(manifest.description.clone(), model, dataset)?;
+        if let Some(runs) = &manifest.runs {
+            let path = dir.join(runs);
+            bundle.add_runs(read(runs)?, &path.display().to_string())?;
+        }
+        Ok(bundle)
+    }
+
+    /// A sequence's model inputs (computed once, shared by its runs).
+    pub fn observations(&mut self, name: &str) -> Result<Arc<Observations<f32>>, String> {
+        if let Some(o) = self.observations.get(name) {
+            return Ok(o.clone());
+        }
+        let seq = self.dataset.by_name(name).ok_or_else(|| format!("no sequence `{name}`"))?;
+        let obs = Arc::new(self.dataset.observations(&[seq], &self.model.config).map_err(|e| e.to_string())?);
+        self.observations.insert(name.to_string(), obs.clone());
+        Ok(obs)
+    }
+}

@@ -1,0 +1,253 @@
+//! The view state (sequence, time, conditions, selected units, what is shown), and its
+//! text form in the URL hash so a view can be shared and reopened, e.g.
+//! `#seq=wiping_650mm_test0&t=120&vision=1&proprio=1&ablate=1000&H=30&iter=50&lr=1000&seed=0&units=0-14`.
+
+use crate::runs::Condition;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewState {
+    pub sequence: Option<String>,
+    pub t: usize,
+    /// `None`: the model's standard condition.
+    pub condition: Option<Condition>,
+    /// Latent units shown in the plots.
+    pub units: Vec<usize>,
+    /// Show d traces.
+    pub show_d: bool,
+    /// Predicted images: the one-step prior prediction instead of the posterior reconstruction.
+    pub prior_images: bool,
+    /// Draw the actual image's contours over the pictures.
+    pub contours: bool,
+    /// Compute and show the ablation contribution maps.
+    pub maps: bool,
+    pub playing: bool,
+    /// Playback speed in steps per second.
+    pub speed: f32,
+}
+
+impl Default for ViewState {
+    fn default() -> Self {
+        Self {
+            sequence: None,
+            t: 0,
+            condition: None,
+            units: (0..15).collect(),
+            show_d: false,
+            prior_images: false,
+            contours: false,
+            // Off by default: four extra runs per condition (minutes at full vision in a browser).
+            maps: false,
+            playing: false,
+            speed: 10.0,
+        }
+    }
+}
+
+fn encode(s: &str) -> String {
+    let mut out = String::new();
+    for b in s.bytes() {
+        if b.is_ascii_alphanumeric() || b"-_.".contains(&b) {
+            out.push(b as char);
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
+}
+
+fn decode(s: &str) -> Option<String> {
+    let bytes = s.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%' {
+            let hex = s.get(i + 1..i + 3)?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(bytes[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// `0-3,7` from a sorted list of units.
+pub fn format_units(units: &[usize]) -> String {
+    let mut parts = Vec::new();
+    let mut i = 0;
+    while i < units.len() {
+        let start = units[i];
+        let mut end = start;
+        while i + 1 < units.len() && units[i + 1] == end + 1 {
+            i += 1;
+            end = units[i];
+        }
+        parts.push(if end > start { format!("{start}-{end}") } else { start.to_string() });
+        i += 1;
+    }
+    parts.join(",")
+}
+
+/// Parses `0-3,7` (sorted, deduplicated); `None` if malformed.
+pub fn parse_units(text: &str) -> Option<Vec<usize>> {
+    let mut units = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b): (usize, usize) = (a.trim().parse().ok()?, b.trim().parse().ok()?);
+                if b < a || b - a > 10_000 {
+                    return None;
+                }
+                units.extend(a..=b);
+            }
+            None => units.push(part.parse().ok()?),
+        }
+    }
+    units.sort_unstable();
+    units.dedup();
+    Some(units)
+}
+
+impl ViewState {
+    /// The hash text (without `#`).
+    pub fn to_hash(&self) -> String {
+        let mut parts = Vec::new();
+        if let Some(s) = &self.sequence {
+            parts.push(format!("seq={}", encode(s)));
+        }
+        parts.push(format!("t={}", self.t));
+        if let Some(c) = &self.condition {
+            parts.push(format!("vision={}", c.vision_levels));
+            parts.push(format!("proprio={}", c.proprio as u8));
+            parts.push(format!("ablate={}", c.ablation.iter().map(|&a| if a { '1' } else { '0' }).collect::<String>()));
+            parts.push(format!("H={}", c.window));
+            parts.push(format!("iter={}", c.iterations));
+            parts.push(format!("lr={}", c.lr_milli));
+            parts.push(format!("seed={}", c.seed));
+        }
+        parts.push(format!("units={}", format_units(&self.units)));
+        for (key, on) in [("d", self.show_d), ("prior", self.prior_images), ("contours", self.contours), ("maps", self.maps)] {
+            parts.push(format!("{key}={}", on as u8));
+        }
+        parts.join("&")
+    }
+
+    /// Reads a hash (with or without `#`); missing or malformed keys keep `base`'s values.
+    /// Condition keys need the `standard` condition to fill what the hash leaves out.
+    pub fn from_hash(hash: &str, base: &ViewState, standard: Condition) -> ViewState {
+        let mut v = base.clone();
+        let mut c = base.condition.unwrap_or(standard);
+        let mut condition_given = false;
+        for pair in hash.trim_start_matches('#').split('&') {
+            let Some((key, value)) = pair.split_once('=') else { continue };
+            let num = || value.parse::<u64>().ok();
+            let flag = || match value {
+                "1" | "true" => Some(true),
+                "0" | "false" => Some(false),
+                _ => None,
+            };
+            match key {
+                "seq" => v.sequence = decode(value).or(v.sequence.take()),
+                "t" => v.t = num().map_or(v.t, |n| n as usize),
+                "units" => v.units = parse_units(value).unwrap_or(v.units.clone()),
+                "d" => v.show_d = flag().unwrap_or(v.show_d),
+                "prior" => v.prior_images = flag().unwrap_or(v.prior_images),
+                "contours" => v.contours = flag().unwrap_or(v.contours),
+                "maps" => v.maps = flag().unwrap_or(v.maps),
+                "vision" => {
+                    if let Some(n) = num() {
+                        c.vision_levels = n.min(8) as u8;
+                        condition_given = true;
+                    }
+                }
+                "proprio" => {
+                    if let Some(f) = flag() {
+                        c.proprio = f;
+                        condition_given = true;
+                    }
+                }
+                "ablate" => {
+                    if value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1') {
+                        for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
+                            *slot = ch == '1';
+                        }
+                        condition_given = true;
+                    }
+                }
+                "H" => {
+                    if let Some(n) = num().filter(|&n| (1..=10_000).contains(&n)) {
+                        c.window = n as u16;
+                        condition_given = true;
+                    }
+                }
+                "iter" => {
+                    if let Some(n) = num().filter(|&n| n <= 10_000) {
+                        c.iterations = n as u16;
+                        condition_given = true;
+                    }
+                }
+                "lr" => {
+                    if let Some(n) = num().filter(|&n| (1..=1_000_000).contains(&n)) {
+                        c.lr_milli = n as u32;
+                        condition_given = true;
+                    }
+                }
+                "seed" => {
+                    if let Some(n) = num().filter(|&n| n <= u32::MAX as u64) {
+                        c.seed = n as u32;
+                        condition_given = true;
+                    }
+                }
+                _ => {}
+            }
+        }
+        if condition_given {
+            v.condition = Some(c);
+        }
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn standard() -> Condition {
+        Condition::standard(&pvrnn_core::ModelConfig::default())
+    }
+
+    #[test]
+    fn hash_round_trip() {
+        let mut c = standard();
+        c.vision_levels = 1;
+        c.proprio = false;
+        c.ablation = [true, false, false, true];
+        c.iterations = 20;
+        c.seed = 7;
+        let v = ViewState {
+            sequence: Some("wiping 650/test#0".into()),
+            t: 123,
+            condition: Some(c),
+            units: vec![0, 1, 2, 5, 9, 10],
+            show_d: true,
+            prior_images: true,
+            contours: true,
+            maps: false,
+            ..ViewState::default()
+        };
+        let hash = v.to_hash();
+        assert!(hash.contains("units=0-2,5,9-10") && hash.contains("ablate=1001"), "{hash}");
+        let back = ViewState::from_hash(&format!("#{hash}"), &ViewState::default(), standard());
+        assert_eq!(back, ViewState { playing: false, speed: v.speed, ..v });
+    }
+
+    #[test]
+    fn malformed_values_keep_the_current_ones() {
+        let base = ViewState::default();
+        let v = ViewState::from_hash("t=abc&units=3-1&vision=x&junk&ablate=12", &base, standard());
+        assert_eq!(v, base);
+        assert_eq!(parse_units("4, 2-3"), Some(vec![2, 3, 4]));
+        assert_eq!(parse_units("a"), None);
+    }
+}

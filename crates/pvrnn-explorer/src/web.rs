@@ -1,0 +1,231 @@
+//! Browser glue: downloading the bundle with progress, reading dropped files, the URL hash.
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::rc::Rc;
+
+use eframe::wasm_bindgen::{closure::Closure, JsCast};
+use eframe::web_sys;
+
+use crate::app::Status;
+use crate::bundle::{Bundle, BundleManifest, BUNDLE_MANIFEST};
+
+pub fn location_hash() -> String {
+    web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
+}
+
+pub fn set_hash(hash: &str) {
+    if let Some(history) = web_sys::window().and_then(|w| w.history().ok()) {
+        let _ = history.replace_state_with_url(&eframe::wasm_bindgen::JsValue::NULL, "", Some(&format!("#{hash}")));
+    }
+}
+
+/// Repaints when the URL hash changes (a pasted link, the back button), so the view follows
+/// it even while the app is idle.
+pub fn repaint_on_hash_change(ctx: eframe::egui::Context) {
+    let Some(window) = web_sys::window() else { return };
+    let listener = Closure::<dyn FnMut()>::new(move || ctx.request_repaint());
+    let _ = window.add_event_listener_with_callback("hashchange", listener.as_ref().unchecked_ref());
+    // Lives as long as the page.
+    listener.forget();
+}
+
+pub fn log(text: &str) {
+    web_sys::console::log_1(&text.into());
+}
+
+/// Milliseconds since the page started loading.
+pub fn now_ms() -> f64 {
+    web_sys::window().and_then(|w| w.performance()).map_or(0.0, |p| p.now())
+}
+
+/// GETs `url` as bytes, reporting (loaded, total) bytes.
+fn fetch(url: &str, on_progress: impl FnMut(f64, f64) + 'static, on_done: impl FnOnce(Result<Vec<u8>, String>) + 'static) {
+    let fail = |e: String| e;
+    let xhr = match web_sys::XmlHttpRequest::new() {
+        Ok(x) => x,
+        Err(_) => return on_done(Err(fail("cannot create a request".into()))),
+    };
+    if xhr.open_with_async("GET", url, true).is_err() {
+        return on_done(Err(format!("cannot request {url}")));
+    }
+    xhr.set_response_type(web_sys::XmlHttpRequestResponseType::Arraybuffer);
+    let on_progress = RefCell::new(on_progress);
+    let progress = Closure::<dyn FnMut(web_sys::ProgressEvent)>::new(move |e: web_sys::ProgressEvent| {
+        let total = if e.length_computable() { e.total() } else { 0.0 };
+        (on_progress.borrow_mut())(e.loaded(), total);
+    });
+    xhr.set_onprogress(Some(progress.as_ref().unchecked_ref()));
+    progress.forget();
+    let done = Rc::new(RefCell::new(Some(on_done)));
+    let (xhr_ok, done_ok, url_ok) = (xhr.clone(), done.clone(), url.to_string());
+    let load = Closure::<dyn FnMut()>::new(move || {
+        let Some(callback) = done_ok.borrow_mut().take() else { return };
+        let status = xhr_ok.status().unwrap_or(0);
+        if !(200..300).contains(&status) {
+            return callback(Err(format!("{url_ok}: HTTP {status}")));
+        }
+        match xhr_ok.response() {
+            Ok(body) => callback(Ok(js_sys::Uint8Array::new(&body).to_vec())),
+            Err(_) => callback(Err(format!("{url_ok}: no response body"))),
+        }
+    });
+    xhr.set_onload(Some(load.as_ref().unchecked_ref()));
+    load.forget();
+    let url_err = url.to_string();
+    let error = Closure::<dyn FnMut()>::new(move || {
+        if let Some(callback) = done.borrow_mut().take() {
+            callback(Err(format!("{url_err}: network error")));
+        }
+    });
+    xhr.set_onerror(Some(error.as_ref().unchecked_ref()));
+    error.forget();
+    if xhr.send().is_err() {
+        log(&format!("cannot send the request for {url}"));
+    }
+}
+
+#[derive(Default)]
+struct Download {
+    base: String,
+    /// Files still to arrive (after the two manifests).
+    expected: Vec<String>,
+    files: HashMap<String, Vec<u8>>,
+    progress: HashMap<String, (f64, f64)>,
+    error: Option<String>,
+    started_ms: f64,
+}
+
+/// Web-only state of the app: the bundle download and files being read after a drop.
+#[derive(Default)]
+pub struct WebState {
+    download: Option<Rc<RefCell<Download>>>,
+    dropped: Rc<RefCell<(usize, Vec<(String, Result<Vec<u8>, String>)>)>>,
+}
+
+impl std::fmt::Debug for WebState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WebState")
+            .field("downloading", &self.download.is_some())
+            .field("dropped_files_read", &self.dropped.borrow().1.len())
+            .finish()
+    }
+}
+
+impl WebState {
+    /// Downloads `base` + bundle.json, then the dataset manifest, then every file.
+    pub fn start_download(&mut self, base: &str) {
+        let d = Rc::new(RefCell::new(Download {
+            base: base.to_string(),
+            started_ms: now_ms(),
+            ..Default::default()
+        }));
+        self.download = Some(d.clone());
+        let url = format!("{base}{BUNDLE_MANIFEST}");
+        fetch(&url, |_, _| {}, move |r| match r {
+            Err(e) => d.borrow_mut().error = Some(e),
+            Ok(bytes) => manifest_arrived(d, bytes),
+        });
+    }
+
+    /// Reads files dropped on the page (asynchronously in the browser).
+    pub fn read_dropped(&self, dropped: &[eframe::egui::DroppedFileHandle]) {
+        self.dropped.borrow_mut().0 += dropped.len();
+        for f in dropped {
+            let (f, queue) = (f.clone(), self.dropped.clone());
+            wasm_bindgen_futures::spawn_local(async move {
+                let name = f.path().to_string_lossy().into_owned();
+                let bytes = f.bytes_async().await;
+                queue.borrow_mut().1.push((name, bytes));
+            });
+        }
+    }
+
+    /// Dropped files, once all of a drop have been read.
+    pub fn take_dropped(&self) -> Option<Vec<(String, Result<Vec<u8>, String>)>> {
+        let mut q = self.dropped.borrow_mut();
+        if q.0 > 0 && q.1.len() == q.0 {
+            q.0 = 0;
+            return Some(std::mem::take(&mut q.1));
+        }
+        None
+    }
+
+    /// Progress into `status`; the bundle (or the error) once the download ends.
+    pub fn poll(&mut self, status: &mut Status) -> Option<Result<Bundle, String>> {
+        let d = self.download.as_ref()?.clone();
+        let d = d.borrow();
+        if let Some(e) = &d.error {
+            let e = format!("could not load the bundle: {e}");
+            drop(d);
+            self.download = None;
+            return Some(Err(e));
+        }
+        let waiting = d.expected.iter().filter(|f| !d.files.contains_key(*f)).count();
+        if d.expected.is_empty() || waiting > 0 {
+            let (loaded, total) = d.progress.values().fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
+            *status = Status::Loading {
+                what: format!(
+                    "loading {} ({:.1} / {:.1} MB, {} of {} files)",
+                    d.base,
+                    loaded / 1e6,
+                    total / 1e6,
+                    d.expected.len() - waiting,
+                    d.expected.len()
+                ),
+                fraction: (total > 0.0).then(|| (loaded / total) as f32),
+            };
+            return None;
+        }
+        let result = Bundle::from_files(&d.files);
+        log(&format!("bundle ready after {:.0} ms (page time {:.0} ms)", now_ms() - d.started_ms, now_ms()));
+        drop(d);
+        self.download = None;
+        Some(result)
+    }
+}
+
+fn manifest_arrived(d: Rc<RefCell<Download>>, bytes: Vec<u8>) {
+    let manifest: BundleManifest = match serde_json::from_slice(&bytes) {
+        Ok(m) => m,
+        Err(e) => {
+            d.borrow_mut().error = Some(format!("{BUNDLE_MANIFEST}: {e}"));
+            return;
+        }
+    };
+    d.borrow_mut().files.insert(BUNDLE_MANIFEST.into(), bytes);
+    let url = format!("{}{}", d.borrow().base, manifest.dataset);
+    let d2 = d.clone();
+    fetch(&url, |_, _| {}, move |r| match r {
+        Err(e) => d2.borrow_mut().error = Some(e),
+        Ok(json) => {
+            let list = std::str::from_utf8(&json)
+                .map_err(|_| "the dataset manifest is not text".to_string())
+                .and_then(|text| Bundle::files_of(&manifest, text));
+            match list {
+                Err(e) => d2.borrow_mut().error = Some(e),
+                Ok(list) => {
+                    d2.borrow_mut().files.insert(manifest.dataset.clone(), json);
+                    d2.borrow_mut().expected = list.clone();
+                    let base = d2.borrow().base.clone();
+                    for file in list {
+                        let (dp, dd, name) = (d2.clone(), d2.clone(), file.clone());
+                        let name2 = file.clone();
+                        fetch(
+                            &format!("{base}{file}"),
+                            move |loaded, total| {
+                                dp.borrow_mut().progress.insert(name.clone(), (loaded, total));
+                            },
+                            move |r| match r {
+                                Err(e) => dd.borrow_mut().error = Some(e),
+                                Ok(bytes) => {
+                                    dd.borrow_mut().files.insert(name2, bytes);
+                                }
+                            },
+                        );
+                    }
+                }
+            }
+        }
+    });
+}

@@ -1,0 +1,120 @@
+// Opens the built site in headless Chromium, waits for the explorer to load its bundle,
+// takes a screenshot, and fails on a panic, a page error, or a blank canvas.
+//
+//   node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N]
+//
+// With --live-seconds N it also opens a condition that is not precomputed (16x16 vision
+// plus proprioception) and waits up to N seconds for the live run's speed in the console.
+import { createRequire } from 'node:module';
+import { inflateSync } from 'node:zlib';
+import { writeFileSync } from 'node:fs';
+
+// playwright-core is installed with the web tools (web/package.json).
+const require = createRequire(new URL('../../web/', import.meta.url));
+const { chromium } = require('playwright-core');
+
+const [url, out, ...rest] = process.argv.slice(2);
+const liveSeconds = rest[0] === '--live-seconds' ? Number(rest[1]) : 0;
+if (!url || !out) {
+  console.error('usage: node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N]');
+  process.exit(2);
+}
+
+/** Decodes an 8-bit RGB(A) PNG into {width, height, channels, pixels}. */
+function decodePng(buf) {
+  let pos = 8, width = 0, height = 0, channels = 0;
+  const idat = [];
+  while (pos < buf.length) {
+    const len = buf.readUInt32BE(pos);
+    const type = buf.toString('ascii', pos + 4, pos + 8);
+    const data = buf.subarray(pos + 8, pos + 8 + len);
+    if (type === 'IHDR') {
+      width = data.readUInt32BE(0);
+      height = data.readUInt32BE(4);
+      channels = { 2: 3, 6: 4 }[data[9]];
+      if (data[8] !== 8 || !channels) throw new Error('unsupported PNG');
+    } else if (type === 'IDAT') idat.push(data);
+    pos += 12 + len;
+  }
+  const raw = inflateSync(Buffer.concat(idat));
+  const stride = width * channels;
+  const pixels = Buffer.alloc(height * stride);
+  for (let y = 0; y < height; y++) {
+    const filter = raw[y * (stride + 1)];
+    for (let x = 0; x < stride; x++) {
+      const v = raw[y * (stride + 1) + 1 + x];
+      const a = x >= channels ? pixels[y * stride + x - channels] : 0;
+      const b = y > 0 ? pixels[(y - 1) * stride + x] : 0;
+      const c = x >= channels && y > 0 ? pixels[(y - 1) * stride + x - channels] : 0;
+      let p;
+      switch (filter) {
+        case 0: p = v; break;
+        case 1: p = v + a; break;
+        case 2: p = v + b; break;
+        case 3: p = v + ((a + b) >> 1); break;
+        case 4: {
+          const pa = Math.abs(b - c), pb = Math.abs(a - c), pc = Math.abs(a + b - 2 * c);
+          p = v + (pa <= pb && pa <= pc ? a : pb <= pc ? b : c);
+          break;
+        }
+        default: throw new Error('bad PNG filter');
+      }
+      pixels[y * stride + x] = p & 255;
+    }
+  }
+  return { width, height, channels, pixels };
+}
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+  args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run', '--disable-background-networking',
+         '--disable-component-update', '--disable-sync', '--enable-unsafe-swiftshader'],
+});
+let failed = false;
+const fail = (msg) => { console.error(`FAIL: ${msg}`); failed = true; };
+try {
+  const page = await browser.newPage({ viewport: { width: 1440, height: 920 } });
+  const logs = [];
+  page.on('console', (m) => logs.push(m.text()));
+  page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
+  const started = Date.now();
+  await page.goto(url);
+  const deadline = Date.now() + 60_000;
+  while (!logs.some((l) => l.includes('bundle ready')) && Date.now() < deadline) {
+    if (logs.some((l) => /panicked|pageerror/.test(l))) break;
+    await page.waitForTimeout(100);
+  }
+  const ready = logs.find((l) => l.includes('bundle ready'));
+  if (ready) console.log(`ready: ${ready} (${Date.now() - started} ms after navigation, wall clock)`);
+  else fail('the bundle never finished loading');
+  await page.waitForTimeout(2500);
+  const shot = await page.screenshot();
+  writeFileSync(out, shot);
+  const png = decodePng(shot);
+  const colours = new Set();
+  let sum = 0, sum2 = 0;
+  for (let i = 0; i < png.pixels.length; i += png.channels) {
+    const l = 0.299 * png.pixels[i] + 0.587 * png.pixels[i + 1] + 0.114 * png.pixels[i + 2];
+    sum += l; sum2 += l * l;
+    if (colours.size < 5000) colours.add((png.pixels[i] << 16) | (png.pixels[i + 1] << 8) | png.pixels[i + 2]);
+  }
+  const n = png.pixels.length / png.channels;
+  const std = Math.sqrt(sum2 / n - (sum / n) ** 2);
+  console.log(`screenshot ${out}: ${png.width}x${png.height}, ${colours.size}${colours.size >= 5000 ? '+' : ''} colours, brightness std ${std.toFixed(1)}`);
+  if (colours.size < 50 || std < 5) fail('the canvas is blank');
+
+  if (liveSeconds > 0) {
+    await page.evaluate(() => { location.hash = 'vision=1&proprio=1&maps=0&t=0'; });
+    const until = Date.now() + liveSeconds * 1000;
+    let live;
+    while (!(live = logs.find((l) => l.includes('computed live'))) && Date.now() < until) await page.waitForTimeout(500);
+    const liveShot = out.replace(/\.png$/, '') + '-live.png';
+    writeFileSync(liveShot, await page.screenshot());
+    if (live) console.log(`live: ${live} (screenshot ${liveShot})`);
+    else fail(`no live run finished within ${liveSeconds} s (screenshot ${liveShot})`);
+  }
+  for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
+} finally {
+  await browser.close();
+}
+process.exit(failed ? 1 : 0);

@@ -23,3 +23,23 @@ if ! command -v node >/dev/null 2>&1; then
     step "installing Node.js (runs the wasm tests)"
     apt-get update -qq && apt-get install -y -qq nodejs
 fi
+
+if ! command -v npm >/dev/null 2>&1; then
+    step "installing npm (wasm-opt and the browser test's driver come from npm)"
+    apt-get update -qq && apt-get install -y -qq npm
+fi
+
+if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
+    step "installing headless Chromium and chromedriver (web tests)"
+    apt-get update -qq && apt-get install -y -qq chromium chromium-driver
+fi
+
+if ! trunk --version 2>/dev/null | grep -q "0.21.14"; then
+    step "installing trunk 0.21.14 (about 7 minutes; 0.22 needs a newer rustc)"
+    cargo install trunk --version 0.21.14 --locked
+fi
+
+if ! [ -x web/node_modules/.bin/wasm-opt ] || ! [ -d web/node_modules/playwright-core ]; then
+    step "installing the web tools (binaryen 132, playwright-core) into web/node_modules"
+    (cd web && npm ci --no-audit --no-fund)
+fi

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Runs every test: formatting, lints, native tests of all crates, and the core's tests
-# compiled to WebAssembly under Node. CI (.ci/run) runs exactly this.
+# Runs every test: formatting, lints, native tests of all crates, the core's tests compiled
+# to WebAssembly under Node, the explorer's browser glue in headless Chromium, and the web
+# site itself: built with Trunk, served on 127.0.0.1, opened in headless Chromium (it must
+# load, draw, and compute a live run in its worker). CI (.ci/run) runs exactly this.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
@@ -21,5 +23,31 @@ cargo test -p pvrnn-core --target wasm32-unknown-unknown
 
 step "the dataset crate and the simulator build for WebAssembly"
 cargo build -p pvrnn-dataset -p caresim --target wasm32-unknown-unknown
+
+step "the explorer's browser glue in headless Chromium"
+CHROMEDRIVER="$(command -v chromedriver)" cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
+
+step "the web site: trunk build --release"
+PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release
+
+step "the web site is at most 15 MB gzipped"
+size=$(find dist -type f -exec sh -c 'gzip -6 -c "$1" | wc -c' _ {} \; | awk '{s += $1} END {print s}')
+echo "dist/: $((size / 1000)) kB gzipped" >&2
+if [ "$size" -gt 15000000 ]; then
+    echo "the site is over 15 MB gzipped" >&2
+    exit 1
+fi
+
+step "the web site in headless Chromium"
+port=${PVRNN_TEST_PORT:-8765}
+python3 -m http.server "$port" --bind 127.0.0.1 --directory dist >/dev/null 2>&1 &
+server=$!
+trap 'kill $server 2>/dev/null || true' EXIT
+for _ in $(seq 50); do
+    (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null && break
+    sleep 0.2
+done
+mkdir -p target
+node tests/web/smoke.mjs "http://127.0.0.1:$port/index.html" target/web-smoke.png --live-seconds 240
 
 echo "all tests passed" >&2

@@ -112,6 +112,9 @@ try {
     writeFileSync(liveShot, await page.screenshot());
     if (live) console.log(`live: ${live} (screenshot ${liveShot})`);
     else fail(`no live run finished within ${liveSeconds} s (screenshot ${liveShot})`);
+    // Chromium runs module workers: live runs must be computed beside the page, not in it.
+    const inPage = logs.find((l) => l.includes('computing in the page'));
+    if (inPage) fail(`the inference worker did not work: ${inPage}`);
   }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
 } finally {

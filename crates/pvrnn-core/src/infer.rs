@@ -377,7 +377,12 @@ impl<T: Real> OnlineInference<T> {
         let recon = result.outputs;
         let recon_error: [f64; 2] = std::array::from_fn(|i| {
             let n = recon[i].len().max(1) as f64;
-            recon[i].iter().zip(&self.latest[i]).map(|(a, b)| (*a - *b).to_f64().powi(2)).sum::<f64>() / n
+            recon[i]
+                .iter()
+                .zip(&self.latest[i])
+                .map(|(a, b)| (*a - *b).to_f64().powi(2))
+                .sum::<f64>()
+                / n
         });
         let (prior_next, prior_d) = self.prior_prediction(t);
 
@@ -512,7 +517,11 @@ impl<T: Real> Run<T> {
 
     /// Stacks per-step outputs; `keep_outputs` keeps the full read-outs (large: two
     /// vision vectors per step).
-    pub fn from_steps(settings: InferenceSettings, steps: &[StepOutput<T>], keep_outputs: bool) -> Self {
+    pub fn from_steps(
+        settings: InferenceSettings,
+        steps: &[StepOutput<T>],
+        keep_outputs: bool,
+    ) -> Self {
         let n = steps.len();
         let stack = |f: &dyn Fn(&StepOutput<T>) -> &[T]| -> Tensor<T> {
             let w = steps.first().map_or(0, |s| f(s).len());

@@ -130,9 +130,13 @@ impl TensorFile {
         let (a, b) = info.data_offsets;
         let raw = &self.bytes[self.data_start + a..self.data_start + b];
         let data: Vec<f32> = if info.dtype == Dtype::F16 {
-            raw.chunks_exact(2).map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32()).collect()
+            raw.chunks_exact(2)
+                .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
+                .collect()
         } else {
-            raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+            raw.chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect()
         };
         let tensor = Tensor::from_vec(&info.shape, data).map_err(|_| Error::Format {
             what: self.what.clone(),
@@ -251,7 +255,10 @@ impl View for &OutTensor<'_> {
     }
     fn shape(&self) -> &[usize] {
         match self {
-            OutTensor::F32(s, _) | OutTensor::F16(s, _) | OutTensor::I64(s, _) | OutTensor::U8(s, _) => s,
+            OutTensor::F32(s, _)
+            | OutTensor::F16(s, _)
+            | OutTensor::I64(s, _)
+            | OutTensor::U8(s, _) => s,
         }
     }
     fn data(&self) -> Cow<'_, [u8]> {
@@ -607,10 +614,16 @@ fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
     let mut v = Vec::new();
     for modality in Modality::ALL {
         if let Some(recon) = &run.recon {
-            v.push((format!("recon.{}", modality.name()), &recon[modality.index()]));
+            v.push((
+                format!("recon.{}", modality.name()),
+                &recon[modality.index()],
+            ));
         }
         if let Some(prior) = &run.prior_next {
-            v.push((format!("prior.{}", modality.name()), &prior[modality.index()]));
+            v.push((
+                format!("prior.{}", modality.name()),
+                &prior[modality.index()],
+            ));
         }
     }
     for id in ModuleId::ALL {
@@ -631,15 +644,45 @@ fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
 
 /// Per-step scalars of a run, with their file names.
 fn run_scalars<T: Real>(run: &Run<T>) -> Vec<(String, Vec<f64>)> {
-    let mut v = vec![("free_energy.total".to_string(), run.free_energy.iter().map(|f| f.total).collect::<Vec<f64>>())];
+    let mut v = vec![(
+        "free_energy.total".to_string(),
+        run.free_energy
+            .iter()
+            .map(|f| f.total)
+            .collect::<Vec<f64>>(),
+    )];
     for modality in Modality::ALL {
         let (n, i) = (modality.name(), modality.index());
-        v.push((format!("free_energy.accuracy.{n}"), run.free_energy.iter().map(|f| if i == 0 { f.accuracy.exteroceptive } else { f.accuracy.proprioceptive }).collect()));
-        v.push((format!("step_accuracy.{n}"), run.step_accuracy.iter().map(|a| a[i]).collect()));
-        v.push((format!("recon_error.{n}"), run.recon_error.iter().map(|a| a[i]).collect()));
+        v.push((
+            format!("free_energy.accuracy.{n}"),
+            run.free_energy
+                .iter()
+                .map(|f| {
+                    if i == 0 {
+                        f.accuracy.exteroceptive
+                    } else {
+                        f.accuracy.proprioceptive
+                    }
+                })
+                .collect(),
+        ));
+        v.push((
+            format!("step_accuracy.{n}"),
+            run.step_accuracy.iter().map(|a| a[i]).collect(),
+        ));
+        v.push((
+            format!("recon_error.{n}"),
+            run.recon_error.iter().map(|a| a[i]).collect(),
+        ));
     }
     for id in ModuleId::ALL {
-        v.push((format!("free_energy.complexity.{}", id.name()), run.free_energy.iter().map(|f| f.complexity_of(id)).collect()));
+        v.push((
+            format!("free_energy.complexity.{}", id.name()),
+            run.free_energy
+                .iter()
+                .map(|f| f.complexity_of(id))
+                .collect(),
+        ));
     }
     v
 }
@@ -654,7 +697,10 @@ pub fn save_runs<T: Real>(
     sequence_ids: &[usize],
     sequence_names: Option<&[String]>,
 ) -> Result<()> {
-    write_atomic(path, &runs_to_bytes(config, runs, sequence_ids, sequence_names, false)?)
+    write_atomic(
+        path,
+        &runs_to_bytes(config, runs, sequence_ids, sequence_names, false)?,
+    )
 }
 
 /// [`save_runs`] into bytes; `half` stores the per-step states as f16 (half the size, about
@@ -683,7 +729,10 @@ pub fn runs_to_bytes<T: Real>(
             }
         }
         let tensor = if half {
-            OutTensor::F16(vec![s, t_max, width], data.iter().map(|&v| half::f16::from_f32(v)).collect())
+            OutTensor::F16(
+                vec![s, t_max, width],
+                data.iter().map(|&v| half::f16::from_f32(v)).collect(),
+            )
         } else {
             OutTensor::F32(vec![s, t_max, width], Cow::Owned(data))
         };
@@ -699,12 +748,24 @@ pub fn runs_to_bytes<T: Real>(
         }
         tensors.insert(name, OutTensor::F32(vec![s, t_max], Cow::Owned(data)));
     }
-    tensors.insert("lengths".into(), OutTensor::I64(vec![s], runs.iter().map(|r| r.steps() as i64).collect()));
-    tensors.insert("sequence".into(), OutTensor::I64(vec![s], sequence_ids.iter().map(|&i| i as i64).collect()));
+    tensors.insert(
+        "lengths".into(),
+        OutTensor::I64(vec![s], runs.iter().map(|r| r.steps() as i64).collect()),
+    );
+    tensors.insert(
+        "sequence".into(),
+        OutTensor::I64(vec![s], sequence_ids.iter().map(|&i| i as i64).collect()),
+    );
     let mut meta = model_metadata(config, RUN_FORMAT);
-    meta.insert("settings".into(), serde_json::to_string(&first.settings).expect("serialisable"));
+    meta.insert(
+        "settings".into(),
+        serde_json::to_string(&first.settings).expect("serialisable"),
+    );
     if let Some(names) = sequence_names {
-        meta.insert("sequence_names".into(), serde_json::to_string(names).expect("serialisable"));
+        meta.insert(
+            "sequence_names".into(),
+            serde_json::to_string(names).expect("serialisable"),
+        );
     }
     to_bytes(&tensors, meta)
 }
@@ -730,14 +791,18 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
         .and_then(|s| serde_json::from_str(s).ok())
         .ok_or_else(|| bad("no valid `settings` metadata: not a pvrnn inference file"))?;
     let names: Option<Vec<String>> = match file.metadata("sequence_names") {
-        Some(text) => Some(serde_json::from_str(text).map_err(|_| bad("invalid `sequence_names` metadata"))?),
+        Some(text) => {
+            Some(serde_json::from_str(text).map_err(|_| bad("invalid `sequence_names` metadata"))?)
+        }
         None => None,
     };
     let lengths = file.indices("lengths")?;
     let ids = file.indices("sequence")?;
     let s = lengths.len();
     if ids.len() != s || names.as_ref().is_some_and(|n| n.len() != s) {
-        return Err(bad("`lengths`, `sequence` and `sequence_names` disagree on the number of runs"));
+        return Err(bad(
+            "`lengths`, `sequence` and `sequence_names` disagree on the number of runs",
+        ));
     }
     let t_max = lengths.iter().copied().max().unwrap_or(0);
     let read = |name: &str, width: usize| file.f32(name, Some(&[s, t_max, width]));
@@ -773,7 +838,10 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
     let scalar = |name: &str| file.f32(name, Some(&[s, t_max]));
     let total = scalar("free_energy.total")?;
     let per_modality = |prefix: &str| -> Result<Vec<Tensor<f32>>> {
-        Modality::ALL.iter().map(|m| scalar(&format!("{prefix}.{}", m.name()))).collect()
+        Modality::ALL
+            .iter()
+            .map(|m| scalar(&format!("{prefix}.{}", m.name())))
+            .collect()
     };
     let fe_acc = per_modality("free_energy.accuracy")?;
     let step_acc = per_modality("step_accuracy")?;
@@ -789,13 +857,19 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
         let pair = |x: &[Tensor<f32>], t: usize| [at(&x[0], t), at(&x[1], t)];
         let free_energy = (0..len)
             .map(|t| {
-                let mut fe = FreeEnergy::from_terms(pair(&fe_acc, t), std::array::from_fn(|m| at(&cx[m], t)), config.kl_weight);
+                let mut fe = FreeEnergy::from_terms(
+                    pair(&fe_acc, t),
+                    std::array::from_fn(|m| at(&cx[m], t)),
+                    config.kl_weight,
+                );
                 // The stored total, not one recomputed from f32-rounded terms.
                 fe.total = at(&total, t);
                 fe
             })
             .collect();
-        let both = |x: &Option<Vec<Tensor<f32>>>| x.as_ref().map(|v| [cut(&v[0], i, len), cut(&v[1], i, len)]);
+        let both = |x: &Option<Vec<Tensor<f32>>>| {
+            x.as_ref().map(|v| [cut(&v[0], i, len), cut(&v[1], i, len)])
+        };
         runs.push(LoadedRun {
             sequence: ids[i],
             name: names.as_ref().map(|n| n[i].clone()),

@@ -328,7 +328,15 @@ mod on_disk {
         settings.iterations = 2;
         let runs: Vec<_> = (0..2)
             .map(|s| {
-                run_sequence(model.clone(), settings.clone(), &data, s, true, &mut |_, _| {}).unwrap()
+                run_sequence(
+                    model.clone(),
+                    settings.clone(),
+                    &data,
+                    s,
+                    true,
+                    &mut |_, _| {},
+                )
+                .unwrap()
             })
             .collect();
         let rpath = dir.path().join("runs.safetensors");
@@ -346,9 +354,17 @@ mod on_disk {
         let compact = pvrnn_core::infer::Run::<f32>::from_steps(settings.clone(), &[], false);
         assert!(compact.recon.is_none());
         let d = runs[0].modules[2].d.sub(&[3]);
-        let again = pvrnn_core::cpu::readout(&model.params, pvrnn_core::Modality::Exteroceptive, d, 1);
+        let again =
+            pvrnn_core::cpu::readout(&model.params, pvrnn_core::Modality::Exteroceptive, d, 1);
         let stored = runs[0].recon.as_ref().unwrap()[0].sub(&[3]);
-        let worst = again.iter().zip(stored).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-        assert!(worst < 1e-5, "readout(d) differs from the stored reconstruction by {worst}");
+        let worst = again
+            .iter()
+            .zip(stored)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-5,
+            "readout(d) differs from the stored reconstruction by {worst}"
+        );
     }
 }

@@ -68,10 +68,28 @@ fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence() {
     let mut settings = InferenceSettings::from_config(&model.config, 3);
     settings.window = 8;
     settings.iterations = 20;
-    let run = run_sequence(model.clone(), settings.clone(), &data, 0, true, &mut |_, _| {}).unwrap();
+    let run = run_sequence(
+        model.clone(),
+        settings.clone(),
+        &data,
+        0,
+        true,
+        &mut |_, _| {},
+    )
+    .unwrap();
     let baseline = 0.36 / 2.0; // mean of (0.6 sin)^2: the error of predicting 0
-    let vision = mse(run.recon.as_ref().unwrap()[0].data(), &data, Modality::Exteroceptive, 0);
-    let proprio = mse(run.recon.as_ref().unwrap()[1].data(), &data, Modality::Proprioceptive, 0);
+    let vision = mse(
+        run.recon.as_ref().unwrap()[0].data(),
+        &data,
+        Modality::Exteroceptive,
+        0,
+    );
+    let proprio = mse(
+        run.recon.as_ref().unwrap()[1].data(),
+        &data,
+        Modality::Proprioceptive,
+        0,
+    );
     assert!(
         vision < 0.1 * baseline,
         "vision reconstruction MSE {vision}"

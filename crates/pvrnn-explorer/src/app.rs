@@ -5,19 +5,24 @@ use std::collections::HashMap;
 
 use eframe::egui::{self, Color32, RichText, TextureHandle, TextureOptions};
 use egui_plot::{Bar, BarChart, Legend, Line, LineStyle, Plot, PlotPoints, VLine};
+use pvrnn_core::Modality;
 use pvrnn_core::config::ModuleId;
 use pvrnn_core::cpu::readout;
-use pvrnn_core::Modality;
 use web_time::{Duration, Instant};
 
 use crate::bundle::Bundle;
 use crate::images::{self, Rgb};
 use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
-use crate::state::{format_units, parse_units, ViewState};
+use crate::state::{ViewState, format_units, parse_units};
 
 /// Time given to online inference per frame.
 const COMPUTE_BUDGET: Duration = Duration::from_millis(14);
-const MODULE_TITLES: [&str; 4] = ["Executive module", "Associative module", "Exteroceptive module", "Proprioceptive module"];
+const MODULE_TITLES: [&str; 4] = [
+    "Executive module",
+    "Associative module",
+    "Exteroceptive module",
+    "Proprioceptive module",
+];
 const SUBTASK_COLOURS: [Color32; 4] = [
     Color32::from_rgb(66, 133, 244),
     Color32::from_rgb(244, 160, 0),
@@ -63,7 +68,11 @@ pub struct ExplorerApp {
 
 impl std::fmt::Debug for ExplorerApp {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ExplorerApp").field("bundle", &self.bundle).field("store", &self.store).field("view", &self.view).finish()
+        f.debug_struct("ExplorerApp")
+            .field("bundle", &self.bundle)
+            .field("store", &self.store)
+            .field("view", &self.view)
+            .finish()
     }
 }
 
@@ -91,8 +100,15 @@ impl ExplorerApp {
 
     /// The web app: starts downloading the default bundle and reads the URL hash.
     #[cfg(target_arch = "wasm32")]
-    pub fn new_web(bundle_url: &str) -> Self {
+    pub fn new_web(bundle_url: &str, ctx: &egui::Context) -> Self {
         let mut app = Self::new(None, ViewState::default());
+        // Live inference in a worker beside the page; in the page itself if that fails.
+        match crate::worker::WorkerClient::spawn("./worker.js", ctx.clone()) {
+            Ok(worker) => {
+                app.store = RunStore::with_executor(crate::runs::Executor::Worker(worker))
+            }
+            Err(e) => crate::web::log(&format!("computing in the page: {e}")),
+        }
         app.web.start_download(bundle_url);
         app.last_hash = crate::web::location_hash();
         app
@@ -110,17 +126,32 @@ impl ExplorerApp {
         if !self.last_hash.is_empty() {
             self.view = ViewState::from_hash(&self.last_hash, &self.view, standard);
         }
-        let valid = self.view.sequence.as_ref().is_some_and(|s| bundle.dataset.by_name(s).is_some());
+        let valid = self
+            .view
+            .sequence
+            .as_ref()
+            .is_some_and(|s| bundle.dataset.by_name(s).is_some());
         if !valid {
             if self.view.sequence.is_some() {
                 self.view.t = 0;
             }
-            self.view.sequence = bundle.dataset.sequences.first().map(|s| s.info.name.clone());
+            self.view.sequence = bundle
+                .dataset
+                .sequences
+                .first()
+                .map(|s| s.info.name.clone());
         }
-        let len = self.view.sequence.as_ref().and_then(|s| bundle.dataset.by_name(s)).map_or(1, |s| s.len());
+        let len = self
+            .view
+            .sequence
+            .as_ref()
+            .and_then(|s| bundle.dataset.by_name(s))
+            .map_or(1, |s| s.len());
         self.view.t = self.view.t.min(len.saturating_sub(1));
         if let Some(c) = &mut self.view.condition {
-            c.vision_levels = c.vision_levels.min(bundle.model.config.vision.resolutions.len() as u8);
+            c.vision_levels = c
+                .vision_levels
+                .min(bundle.model.config.vision.resolutions.len() as u8);
         }
         self.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
@@ -152,7 +183,11 @@ impl ExplorerApp {
 
     pub fn condition(&self) -> Option<Condition> {
         let b = self.bundle.as_ref()?;
-        Some(self.view.condition.unwrap_or_else(|| Condition::standard(&b.model.config)))
+        Some(
+            self.view
+                .condition
+                .unwrap_or_else(|| Condition::standard(&b.model.config)),
+        )
     }
 
     pub fn current_key(&self) -> Option<RunKey> {
@@ -182,24 +217,43 @@ impl ExplorerApp {
     }
 
     fn sequence_len(&self) -> usize {
-        let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence) else { return 0 };
+        let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence) else {
+            return 0;
+        };
         b.dataset.by_name(name).map_or(0, |s| s.len())
     }
 
     /// Asks for the runs the view needs and computes for up to `budget`.
     pub fn compute(&mut self, budget: Duration) -> bool {
-        let Some(key) = self.current_key() else { return false };
+        let Some(key) = self.current_key() else {
+            return false;
+        };
         self.store.request(key.clone(), true);
         if self.view.maps {
             let base = key.condition.without_ablation();
-            self.store.request(RunKey { condition: base, ..key.clone() }, false);
+            self.store.request(
+                RunKey {
+                    condition: base,
+                    ..key.clone()
+                },
+                false,
+            );
             for id in ModuleId::ALL {
-                self.store.request(RunKey { condition: base.ablating(id), ..key.clone() }, false);
+                self.store.request(
+                    RunKey {
+                        condition: base.ablating(id),
+                        ..key.clone()
+                    },
+                    false,
+                );
             }
         }
-        let Some(bundle) = self.bundle.as_mut() else { return false };
+        let Some(bundle) = self.bundle.as_mut() else {
+            return false;
+        };
         let model = bundle.model.clone();
-        self.store.work(&model, budget, &mut |name| bundle.observations(name))
+        self.store
+            .work(&model, budget, &mut |name| bundle.observations(name))
     }
 
     /// Handles files dropped on the window: a bundle, a model, a dataset, runs.
@@ -233,7 +287,10 @@ impl ExplorerApp {
         }
         self.take_dropped(&ctx);
         let now = Instant::now();
-        let dt = self.last_frame.map_or(0.0, |l| (now - l).as_secs_f32()).min(0.25);
+        let dt = self
+            .last_frame
+            .map_or(0.0, |l| (now - l).as_secs_f32())
+            .min(0.25);
         self.last_frame = Some(now);
 
         if self.bundle.is_none() {
@@ -242,7 +299,9 @@ impl ExplorerApp {
         }
         self.keyboard(&ctx);
         self.advance_playback(dt);
-        if self.compute(COMPUTE_BUDGET) || !self.idle() {
+        // Inline runs advance only while frames are drawn; a worker's results repaint when
+        // they arrive, so the page does not redraw at full rate beside it.
+        if self.compute(COMPUTE_BUDGET) || (self.store.computes_inline() && !self.idle()) {
             ctx.request_repaint();
         }
         for f in self.store.take_finished() {
@@ -265,9 +324,12 @@ impl ExplorerApp {
         }
         egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
         egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
-        egui::Panel::left("images").resizable(true).default_size(430.0).show(ui, |ui| {
-            egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
-        });
+        egui::Panel::left("images")
+            .resizable(true)
+            .default_size(430.0)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
+            });
         egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| self.traces_ui(ui));
         });
@@ -358,7 +420,12 @@ impl ExplorerApp {
                 if n == 0 {
                     "none".to_string()
                 } else {
-                    config.vision.resolutions[..n].iter().rev().map(|r| r.to_string()).collect::<Vec<_>>().join("+")
+                    config.vision.resolutions[..n]
+                        .iter()
+                        .rev()
+                        .map(|r| r.to_string())
+                        .collect::<Vec<_>>()
+                        .join("+")
                 }
             };
             egui::ComboBox::from_id_salt("vision")
@@ -378,17 +445,31 @@ impl ExplorerApp {
             }
             ui.separator();
             let l = ui.label("H");
-            ui.add(egui::DragValue::new(&mut c.window).range(1..=500)).labelled_by(l.id);
+            ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
+                .labelled_by(l.id);
             let l = ui.label("iterations");
-            ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000)).labelled_by(l.id);
+            ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
+                .labelled_by(l.id);
             let l = ui.label("lr");
             let mut lr = c.lr_milli as f64 / 1000.0;
-            if ui.add(egui::DragValue::new(&mut lr).range(0.001..=100.0).speed(0.01)).labelled_by(l.id).changed() {
+            if ui
+                .add(
+                    egui::DragValue::new(&mut lr)
+                        .range(0.001..=100.0)
+                        .speed(0.01),
+                )
+                .labelled_by(l.id)
+                .changed()
+            {
                 c.lr_milli = (lr * 1000.0).round().max(1.0) as u32;
             }
             let l = ui.label("seed");
             ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
-            if ui.button("standard").on_hover_text("The model's configured inference, everything observed").clicked() {
+            if ui
+                .button("standard")
+                .on_hover_text("The model's configured inference, everything observed")
+                .clicked()
+            {
                 c = standard;
             }
         });
@@ -398,10 +479,10 @@ impl ExplorerApp {
         ui.horizontal_wrapped(|ui| {
             let l = ui.label("Units:");
             let edit = ui.add(egui::TextEdit::singleline(&mut self.units_text).desired_width(90.0)).labelled_by(l.id);
-            if edit.changed() {
-                if let Some(u) = parse_units(&self.units_text) {
-                    self.view.units = u;
-                }
+            if edit.changed()
+                && let Some(u) = parse_units(&self.units_text)
+            {
+                self.view.units = u;
             }
             ui.checkbox(&mut self.view.show_d, "d traces");
             ui.checkbox(&mut self.view.prior_images, "prior prediction images");
@@ -415,10 +496,16 @@ impl ExplorerApp {
     fn progress_ui(&self, ui: &mut egui::Ui) {
         match (self.store.computing(), self.store.progress()) {
             (Some(key), Some((done, total))) => {
-                let what = if Some(key) == self.current_key().as_ref() { "inference" } else { "ablation runs" };
+                let what = if Some(key) == self.current_key().as_ref() {
+                    "inference"
+                } else {
+                    "ablation runs"
+                };
                 ui.spinner();
                 ui.label(format!("{what}: step {done}/{total}"));
-                ui.add(egui::ProgressBar::new(done as f32 / total.max(1) as f32).desired_width(120.0));
+                ui.add(
+                    egui::ProgressBar::new(done as f32 / total.max(1) as f32).desired_width(120.0),
+                );
                 if self.store.waiting() > 0 {
                     ui.weak(format!("+{} waiting", self.store.waiting()));
                 }
@@ -435,13 +522,23 @@ impl ExplorerApp {
     fn sequence_picker(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
         let seqs = &bundle.dataset.sequences;
-        let Some(current) = self.view.sequence.as_ref().and_then(|n| bundle.dataset.by_name(n)) else { return };
+        let Some(current) = self
+            .view
+            .sequence
+            .as_ref()
+            .and_then(|n| bundle.dataset.by_name(n))
+        else {
+            return;
+        };
         let info = current.info.clone();
         let mut tasks: Vec<String> = seqs.iter().map(|s| s.info.task.clone()).collect();
         tasks.dedup();
         tasks.sort();
         tasks.dedup();
-        let height = |s: &pvrnn_dataset::SequenceInfo| s.bed_height_mm.map_or("-".to_string(), |h| format!("{h:.0} mm"));
+        let height = |s: &pvrnn_dataset::SequenceInfo| {
+            s.bed_height_mm
+                .map_or("-".to_string(), |h| format!("{h:.0} mm"))
+        };
         let mut task = info.task.clone();
         let mut bed = height(&info);
         let mut split = info.split.name().to_string();
@@ -455,7 +552,11 @@ impl ExplorerApp {
             })
             .response
             .labelled_by(l.id);
-        let mut heights: Vec<String> = seqs.iter().filter(|s| s.info.task == task).map(|s| height(&s.info)).collect();
+        let mut heights: Vec<String> = seqs
+            .iter()
+            .filter(|s| s.info.task == task)
+            .map(|s| height(&s.info))
+            .collect();
         heights.sort();
         heights.dedup();
         let l = ui.label("Bed");
@@ -480,7 +581,9 @@ impl ExplorerApp {
             .labelled_by(l.id);
         let matching: Vec<&str> = seqs
             .iter()
-            .filter(|s| s.info.task == task && height(&s.info) == bed && s.info.split.name() == split)
+            .filter(|s| {
+                s.info.task == task && height(&s.info) == bed && s.info.split.name() == split
+            })
             .map(|s| s.info.name.as_str())
             .collect();
         let mut chosen = self.view.sequence.clone().unwrap_or_default();
@@ -501,15 +604,23 @@ impl ExplorerApp {
             matching
                 .first()
                 .map(|s| s.to_string())
-                .or_else(|| seqs.iter().find(|s| s.info.task == task && height(&s.info) == bed).map(|s| s.info.name.clone()))
-                .or_else(|| seqs.iter().find(|s| s.info.task == task).map(|s| s.info.name.clone()))
+                .or_else(|| {
+                    seqs.iter()
+                        .find(|s| s.info.task == task && height(&s.info) == bed)
+                        .map(|s| s.info.name.clone())
+                })
+                .or_else(|| {
+                    seqs.iter()
+                        .find(|s| s.info.task == task)
+                        .map(|s| s.info.name.clone())
+                })
         };
-        if let Some(name) = choice {
-            if Some(&name) != self.view.sequence.as_ref() {
-                let len = bundle.dataset.by_name(&name).map_or(1, |s| s.len());
-                self.view.sequence = Some(name);
-                self.view.t = self.view.t.min(len.saturating_sub(1));
-            }
+        if let Some(name) = choice
+            && Some(&name) != self.view.sequence.as_ref()
+        {
+            let len = bundle.dataset.by_name(&name).map_or(1, |s| s.len());
+            self.view.sequence = Some(name);
+            self.view.t = self.view.t.min(len.saturating_sub(1));
         }
     }
 
@@ -524,68 +635,118 @@ impl ExplorerApp {
                 }
                 self.view.playing = !self.view.playing;
             }
-            if ui.button("<").on_hover_text("step back (left arrow)").clicked() {
+            if ui
+                .button("<")
+                .on_hover_text("step back (left arrow)")
+                .clicked()
+            {
                 self.view.t = self.view.t.saturating_sub(1);
             }
-            if ui.button(">").on_hover_text("step forward (right arrow)").clicked() {
+            if ui
+                .button(">")
+                .on_hover_text("step forward (right arrow)")
+                .clicked()
+            {
                 self.view.t = (self.view.t + 1).min(len.saturating_sub(1));
             }
-            ui.add(egui::Slider::new(&mut self.view.speed, 1.0..=60.0).suffix(" steps/s").logarithmic(true).text("speed"));
+            ui.add(
+                egui::Slider::new(&mut self.view.speed, 1.0..=60.0)
+                    .suffix(" steps/s")
+                    .logarithmic(true)
+                    .text("speed"),
+            );
             ui.separator();
             ui.label(format!("t = {} / {}", self.view.t, len.saturating_sub(1)));
         });
         let mut t = self.view.t;
         ui.spacing_mut().slider_width = ui.available_width() - 60.0;
-        ui.add(egui::Slider::new(&mut t, 0..=len.saturating_sub(1)).show_value(false).text("time"));
+        ui.add(
+            egui::Slider::new(&mut t, 0..=len.saturating_sub(1))
+                .show_value(false)
+                .text("time"),
+        );
         self.view.t = t;
         // Subtask strip under the scrub bar, and how far inference has got.
-        let (rect, _) = ui.allocate_exact_size(egui::vec2(ui.spacing().slider_width, 8.0), egui::Sense::hover());
-        if let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence) {
-            if let Some(seq) = b.dataset.by_name(name) {
-                let painter = ui.painter_at(rect);
-                let w = rect.width() / seq.len().max(1) as f32;
-                for (t, &label) in seq.subtask.iter().enumerate() {
-                    let x = rect.left() + t as f32 * w;
-                    let alpha = if t < computed { 255 } else { 90 };
-                    let c = SUBTASK_COLOURS[label as usize % 4];
-                    painter.rect_filled(
-                        egui::Rect::from_min_max(egui::pos2(x, rect.top()), egui::pos2(x + w + 0.5, rect.bottom())),
-                        0.0,
-                        Color32::from_rgba_unmultiplied(c.r(), c.g(), c.b(), alpha),
-                    );
-                }
-                let x = rect.left() + self.view.t as f32 * w;
-                painter.vline(x, rect.y_range(), (2.0, Color32::WHITE));
-                let names = seq.info.subtasks.get(seq.subtask[self.view.t.min(seq.len() - 1)] as usize).cloned().unwrap_or_default();
-                ui.horizontal(|ui| {
-                    ui.weak(format!("subtask: {names}"));
-                    if computed < seq.len() {
-                        ui.weak(format!("(inference has reached step {computed})"));
-                    }
-                });
+        let (rect, _) = ui.allocate_exact_size(
+            egui::vec2(ui.spacing().slider_width, 8.0),
+            egui::Sense::hover(),
+        );
+        if let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence)
+            && let Some(seq) = b.dataset.by_name(name)
+        {
+            let painter = ui.painter_at(rect);
+            let w = rect.width() / seq.len().max(1) as f32;
+            for (t, &label) in seq.subtask.iter().enumerate() {
+                let x = rect.left() + t as f32 * w;
+                let alpha = if t < computed { 255 } else { 90 };
+                let c = SUBTASK_COLOURS[label as usize % 4];
+                painter.rect_filled(
+                    egui::Rect::from_min_max(
+                        egui::pos2(x, rect.top()),
+                        egui::pos2(x + w + 0.5, rect.bottom()),
+                    ),
+                    0.0,
+                    Color32::from_rgba_unmultiplied(c.r(), c.g(), c.b(), alpha),
+                );
             }
+            let x = rect.left() + self.view.t as f32 * w;
+            painter.vline(x, rect.y_range(), (2.0, Color32::WHITE));
+            let names = seq
+                .info
+                .subtasks
+                .get(seq.subtask[self.view.t.min(seq.len() - 1)] as usize)
+                .cloned()
+                .unwrap_or_default();
+            ui.horizontal(|ui| {
+                ui.weak(format!("subtask: {names}"));
+                if computed < seq.len() {
+                    ui.weak(format!("(inference has reached step {computed})"));
+                }
+            });
         }
     }
 
     /// Recomputes the images at the cursor when anything they depend on changed.
     fn refresh_images(&mut self, ctx: &egui::Context) {
-        let (Some(bundle), Some(key)) = (&self.bundle, self.current_key()) else { return };
+        let (Some(bundle), Some(key)) = (&self.bundle, self.current_key()) else {
+            return;
+        };
         let t = self.view.t;
         let base = key.condition.without_ablation();
         let map_keys: Vec<RunKey> = ModuleId::ALL
             .iter()
-            .map(|&id| RunKey { condition: base.ablating(id), ..key.clone() })
+            .map(|&id| RunKey {
+                condition: base.ablating(id),
+                ..key.clone()
+            })
             .collect();
         let steps_of = |k: &RunKey| self.store.get(k).map_or(0, |e| e.trace.steps);
-        let base_key = RunKey { condition: base, ..key.clone() };
-        let stamp = [steps_of(&key).min(t + 1), steps_of(&base_key).min(t + 1), steps_of(&map_keys[0]).min(t + 1), steps_of(&map_keys[1]).min(t + 1), steps_of(&map_keys[2]).min(t + 1) + steps_of(&map_keys[3]).min(t + 1)];
-        let cache_key = (key.clone(), t, self.view.prior_images, self.view.contours, stamp);
+        let base_key = RunKey {
+            condition: base,
+            ..key.clone()
+        };
+        let stamp = [
+            steps_of(&key).min(t + 1),
+            steps_of(&base_key).min(t + 1),
+            steps_of(&map_keys[0]).min(t + 1),
+            steps_of(&map_keys[1]).min(t + 1),
+            steps_of(&map_keys[2]).min(t + 1) + steps_of(&map_keys[3]).min(t + 1),
+        ];
+        let cache_key = (
+            key.clone(),
+            t,
+            self.view.prior_images,
+            self.view.contours,
+            stamp,
+        );
         if self.images.key.as_ref() == Some(&cache_key) {
             return;
         }
         let config = &bundle.model.config;
         let layout = &config.vision;
-        let Some(seq) = bundle.dataset.by_name(&key.sequence) else { return };
+        let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
+            return;
+        };
         let mut actual = vec![0f32; layout.dims()];
         pvrnn_dataset::inputs::vision_vector(seq, t.min(seq.len() - 1), layout, &mut actual);
         let top = layout.resolutions.len() - 1;
@@ -618,20 +779,43 @@ impl ExplorerApp {
         let predictions = if which.is_empty() {
             Vec::new()
         } else {
-            readout(&bundle.model.params, Modality::Exteroceptive, &rows, which.len())
+            readout(
+                &bundle.model.params,
+                Modality::Exteroceptive,
+                &rows,
+                which.len(),
+            )
         };
-        let vector = |name: &str| which.iter().position(|w| *w == name).map(|i| &predictions[i * dims..(i + 1) * dims]);
+        let vector = |name: &str| {
+            which
+                .iter()
+                .position(|w| *w == name)
+                .map(|i| &predictions[i * dims..(i + 1) * dims])
+        };
 
-        let edges = images::contours(&images::camera_image(layout, &actual, top, layout.cameras - 1));
+        let edges = images::contours(&images::camera_image(
+            layout,
+            &actual,
+            top,
+            layout.cameras - 1,
+        ));
         let mut pictures: Vec<(String, Rgb)> = Vec::new();
         for cam in 0..layout.cameras {
             for level in 0..=top {
                 let a = images::camera_image(layout, &actual, level, cam);
-                let a = if self.view.contours && level == top { images::overlay(&a, &images::contours(&a), 60) } else { a };
+                let a = if self.view.contours && level == top {
+                    images::overlay(&a, &images::contours(&a), 60)
+                } else {
+                    a
+                };
                 pictures.push((format!("actual {cam} {level}"), a));
                 if let Some(v) = vector("shown") {
                     let p = images::camera_image(layout, v, level, cam);
-                    let p = if self.view.contours && level == top && cam == layout.cameras - 1 { images::overlay(&p, &edges, 60) } else { p };
+                    let p = if self.view.contours && level == top && cam == layout.cameras - 1 {
+                        images::overlay(&p, &edges, 60)
+                    } else {
+                        p
+                    };
                     pictures.push((format!("predicted {cam} {level}"), p));
                 }
             }
@@ -643,13 +827,18 @@ impl ExplorerApp {
                 if let Some(v) = vector(name) {
                     let map = images::contribution(layout, b, v, top, layout.cameras - 1, 4.0);
                     self.images.maps[m] = Some(map.clone());
-                    let map = if self.view.contours { images::overlay(&map, &edges, 60) } else { map };
+                    let map = if self.view.contours {
+                        images::overlay(&map, &edges, 60)
+                    } else {
+                        map
+                    };
                     pictures.push((format!("map {m}"), map));
                 }
             }
         }
         self.images.predicted = vector("shown").map(<[f32]>::to_vec);
-        let keep: std::collections::HashSet<String> = pictures.iter().map(|(n, _)| n.clone()).collect();
+        let keep: std::collections::HashSet<String> =
+            pictures.iter().map(|(n, _)| n.clone()).collect();
         self.images.textures.retain(|n, _| keep.contains(n));
         for (name, rgb) in pictures {
             let image = rgb.to_color_image();
@@ -675,36 +864,64 @@ impl ExplorerApp {
                 ui.add(egui::Image::new(t).fit_to_exact_size(egui::vec2(size, size)));
             }
             None => {
-                let (rect, _) = ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::hover());
+                let (rect, _) =
+                    ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::hover());
                 ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
-                ui.painter().text(rect.center(), egui::Align2::CENTER_CENTER, "computing", egui::FontId::proportional(11.0), Color32::GRAY);
+                ui.painter().text(
+                    rect.center(),
+                    egui::Align2::CENTER_CENTER,
+                    "computing",
+                    egui::FontId::proportional(11.0),
+                    Color32::GRAY,
+                );
             }
         };
         let cams = ["left camera", "right camera"];
-        let predicted_label = if self.view.prior_images { "prior prediction (t+1)" } else { "posterior reconstruction" };
+        let predicted_label = if self.view.prior_images {
+            "prior prediction (t+1)"
+        } else {
+            "posterior reconstruction"
+        };
         for cam in 0..layout.cameras {
             ui.strong(cams.get(cam).copied().unwrap_or("camera"));
-            egui::Grid::new(format!("images {cam}")).spacing([4.0, 2.0]).show(ui, |ui| {
-                ui.label("");
-                for level in (0..=top).rev() {
-                    let r = layout.resolutions[level];
-                    ui.label(format!("{r}x{r}"));
-                }
-                ui.end_row();
-                ui.label("actual");
-                for level in (0..=top).rev() {
-                    image(ui, self.images.textures.get(&format!("actual {cam} {level}")), shown);
-                }
-                ui.end_row();
-                ui.label(predicted_label);
-                for level in (0..=top).rev() {
-                    image(ui, self.images.textures.get(&format!("predicted {cam} {level}")), shown);
-                }
-                ui.end_row();
-            });
+            egui::Grid::new(format!("images {cam}"))
+                .spacing([4.0, 2.0])
+                .show(ui, |ui| {
+                    ui.label("");
+                    for level in (0..=top).rev() {
+                        let r = layout.resolutions[level];
+                        ui.label(format!("{r}x{r}"));
+                    }
+                    ui.end_row();
+                    ui.label("actual");
+                    for level in (0..=top).rev() {
+                        image(
+                            ui,
+                            self.images.textures.get(&format!("actual {cam} {level}")),
+                            shown,
+                        );
+                    }
+                    ui.end_row();
+                    ui.label(predicted_label);
+                    for level in (0..=top).rev() {
+                        image(
+                            ui,
+                            self.images
+                                .textures
+                                .get(&format!("predicted {cam} {level}")),
+                            shown,
+                        );
+                    }
+                    ui.end_row();
+                });
         }
         ui.add_space(6.0);
-        ui.strong(format!("contours and contributions ({}, {}x{})", cams[layout.cameras.min(2) - 1], layout.resolutions[top], layout.resolutions[top]));
+        ui.strong(format!(
+            "contours and contributions ({}, {}x{})",
+            cams[layout.cameras.min(2) - 1],
+            layout.resolutions[top],
+            layout.resolutions[top]
+        ));
         ui.horizontal_wrapped(|ui| {
             ui.vertical(|ui| {
                 ui.label("contours");
@@ -726,18 +943,31 @@ impl ExplorerApp {
 
     fn traces_ui(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
-        let Some(key) = self.current_key() else { return };
-        let Some(seq) = bundle.dataset.by_name(&key.sequence) else { return };
+        let Some(key) = self.current_key() else {
+            return;
+        };
+        let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
+            return;
+        };
         let len = seq.len();
         let entry = self.store.get(&key);
         if let Some(err) = entry.and_then(|e| e.error.as_ref()) {
-            ui.colored_label(Color32::from_rgb(230, 80, 80), format!("inference failed: {err}"));
+            ui.colored_label(
+                Color32::from_rgb(230, 80, 80),
+                format!("inference failed: {err}"),
+            );
         }
         let empty = RunTrace::new(&bundle.model.config);
         let trace = entry.map_or(&empty, |e| &e.trace);
         let mut seek: Option<usize> = None;
         let t = self.view.t;
-        let plot = |ui: &mut egui::Ui, id: String, title: &str, height: f32, lines: Vec<Line<'static>>, y: Option<(f64, f64)>| -> Option<usize> {
+        let plot = |ui: &mut egui::Ui,
+                    id: String,
+                    title: &str,
+                    height: f32,
+                    lines: Vec<Line<'static>>,
+                    y: Option<(f64, f64)>|
+         -> Option<usize> {
             ui.label(RichText::new(title).small());
             let mut p = Plot::new(id)
                 .height(height)
@@ -751,15 +981,23 @@ impl ExplorerApp {
             if let Some((lo, hi)) = y {
                 p = p.include_y(lo).include_y(hi);
             }
+            let cursor = ui.visuals().strong_text_color();
             let response = p.show(ui, |pu| {
                 for l in lines {
                     pu.line(l);
                 }
-                pu.vline(VLine::new("t", t as f64).color(Color32::WHITE).width(1.0));
+                pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
             });
             let r = &response.response;
             if r.is_pointer_button_down_on() || r.clicked() {
-                r.interact_pointer_pos().map(|pos| response.transform.value_from_position(pos).x.round().clamp(0.0, (len.max(1) - 1) as f64) as usize)
+                r.interact_pointer_pos().map(|pos| {
+                    response
+                        .transform
+                        .value_from_position(pos)
+                        .x
+                        .round()
+                        .clamp(0.0, (len.max(1) - 1) as f64) as usize
+                })
             } else {
                 None
             }
@@ -772,30 +1010,59 @@ impl ExplorerApp {
             let (z, d) = (trace.z[m], trace.d[m]);
             let units: Vec<usize> = self.view.units.iter().copied().filter(|&u| u < z).collect();
             let series = |values: &[f32], width: usize, u: usize| -> Vec<[f64; 2]> {
-                (0..trace.steps).map(|s| [s as f64, values[s * width + u] as f64]).collect()
+                (0..trace.steps)
+                    .map(|s| [s as f64, values[s * width + u] as f64])
+                    .collect()
             };
             let pair = |post: &[f32], prior: &[f32]| -> Vec<Line<'static>> {
                 let mut lines = Vec::new();
                 for (k, &u) in units.iter().enumerate() {
                     let colour = unit_colour(k);
-                    lines.push(Line::new(format!("{u}"), PlotPoints::from(series(post, z, u))).color(colour).width(1.2));
-                    lines.push(Line::new(format!("{u} prior"), PlotPoints::from(series(prior, z, u))).color(colour).width(1.0).style(LineStyle::dashed_dense()));
+                    lines.push(
+                        Line::new(format!("{u}"), PlotPoints::from(series(post, z, u)))
+                            .color(colour)
+                            .width(1.2),
+                    );
+                    lines.push(
+                        Line::new(format!("{u} prior"), PlotPoints::from(series(prior, z, u)))
+                            .color(colour)
+                            .width(1.0)
+                            .style(LineStyle::dashed_dense()),
+                    );
                 }
                 lines
             };
             let mt = &trace.modules[m];
             ui.strong(MODULE_TITLES[m]);
             ui.columns(2, |cols| {
-                if let Some(s) = plot(&mut cols[0], format!("mu {m}"), "mu", 110.0, pair(&mt.mu_q, &mt.mu_p), Some((-1.0, 1.0))) {
+                if let Some(s) = plot(
+                    &mut cols[0],
+                    format!("mu {m}"),
+                    "mu",
+                    110.0,
+                    pair(&mt.mu_q, &mt.mu_p),
+                    Some((-1.0, 1.0)),
+                ) {
                     seek = Some(s);
                 }
-                if let Some(s) = plot(&mut cols[1], format!("sigma {m}"), "sigma", 110.0, pair(&mt.sigma_q, &mt.sigma_p), Some((0.0, 1.0))) {
+                if let Some(s) = plot(
+                    &mut cols[1],
+                    format!("sigma {m}"),
+                    "sigma",
+                    110.0,
+                    pair(&mt.sigma_q, &mt.sigma_p),
+                    Some((0.0, 1.0)),
+                ) {
                     seek = Some(s);
                 }
             });
             if self.view.show_d {
                 let lines: Vec<Line<'static>> = (0..d.min(units.len().max(1) * 2).min(d))
-                    .map(|u| Line::new(format!("d{u}"), PlotPoints::from(series(&mt.d, d, u))).color(unit_colour(u)).width(1.0))
+                    .map(|u| {
+                        Line::new(format!("d{u}"), PlotPoints::from(series(&mt.d, d, u)))
+                            .color(unit_colour(u))
+                            .width(1.0)
+                    })
                     .collect();
                 if let Some(s) = plot(ui, format!("d {m}"), "d", 90.0, lines, Some((-1.0, 1.0))) {
                     seek = Some(s);
@@ -811,7 +1078,10 @@ impl ExplorerApp {
             (0..trace.steps)
                 .map(|s| {
                     let v = values[s * 28 + dim] as f64;
-                    [s as f64, norm.as_ref().map_or(v, |n| n.proprio_from_model(dim, v))]
+                    [
+                        s as f64,
+                        norm.as_ref().map_or(v, |n| n.proprio_from_model(dim, v)),
+                    ]
                 })
                 .collect()
         };
@@ -820,10 +1090,24 @@ impl ExplorerApp {
             for j in 0..14 {
                 let dim = offset + j;
                 let colour = arm_colour(j);
-                let actual: Vec<[f64; 2]> = (0..len).map(|s| [s as f64, seq.proprio(s)[dim] as f64]).collect();
-                lines.push(Line::new(format!("{dim}"), PlotPoints::from(actual)).color(colour).width(1.2));
+                let actual: Vec<[f64; 2]> = (0..len)
+                    .map(|s| [s as f64, seq.proprio(s)[dim] as f64])
+                    .collect();
+                lines.push(
+                    Line::new(format!("{dim}"), PlotPoints::from(actual))
+                        .color(colour)
+                        .width(1.2),
+                );
                 if trace.steps > 0 {
-                    lines.push(Line::new(format!("{dim} predicted"), PlotPoints::from(raw_pred(&trace.proprio_recon, dim))).color(colour).width(1.0).style(LineStyle::dashed_dense()));
+                    lines.push(
+                        Line::new(
+                            format!("{dim} predicted"),
+                            PlotPoints::from(raw_pred(&trace.proprio_recon, dim)),
+                        )
+                        .color(colour)
+                        .width(1.0)
+                        .style(LineStyle::dashed_dense()),
+                    );
                 }
             }
             if let Some(s) = plot(ui, format!("proprio {offset}"), title, 150.0, lines, None) {
@@ -833,28 +1117,66 @@ impl ExplorerApp {
 
         ui.add_space(8.0);
         ui.heading("Summaries");
-        let fe: Vec<[f64; 2]> = trace.free_energy.iter().enumerate().map(|(s, &v)| [s as f64, v as f64]).collect();
-        let ve: Vec<[f64; 2]> = trace.recon_error.iter().enumerate().map(|(s, e)| [s as f64, e[0] as f64]).collect();
-        let pe: Vec<[f64; 2]> = trace.recon_error.iter().enumerate().map(|(s, e)| [s as f64, e[1] as f64]).collect();
+        let fe: Vec<[f64; 2]> = trace
+            .free_energy
+            .iter()
+            .enumerate()
+            .map(|(s, &v)| [s as f64, v as f64])
+            .collect();
+        let ve: Vec<[f64; 2]> = trace
+            .recon_error
+            .iter()
+            .enumerate()
+            .map(|(s, e)| [s as f64, e[0] as f64])
+            .collect();
+        let pe: Vec<[f64; 2]> = trace
+            .recon_error
+            .iter()
+            .enumerate()
+            .map(|(s, e)| [s as f64, e[1] as f64])
+            .collect();
         ui.columns(2, |cols| {
-            if let Some(s) = plot(&mut cols[0], "fe".into(), "window free energy", 120.0, vec![Line::new("F", PlotPoints::from(fe)).color(Color32::LIGHT_BLUE)], None) {
+            if let Some(s) = plot(
+                &mut cols[0],
+                "fe".into(),
+                "window free energy",
+                120.0,
+                vec![Line::new("F", PlotPoints::from(fe)).color(Color32::LIGHT_BLUE)],
+                None,
+            ) {
                 seek = Some(s);
             }
             let lines = vec![
                 Line::new("vision", PlotPoints::from(ve)).color(Color32::from_rgb(242, 146, 38)),
-                Line::new("proprioception", PlotPoints::from(pe)).color(Color32::from_rgb(118, 172, 152)),
+                Line::new("proprioception", PlotPoints::from(pe))
+                    .color(Color32::from_rgb(118, 172, 152)),
             ];
             cols[1].label(RichText::new("prediction error (mean squared, all dimensions)").small());
-            let r = Plot::new("errors").height(120.0).legend(Legend::default()).include_x(0.0).include_x(len as f64).allow_drag(false).allow_zoom(false).allow_scroll(false).show(&mut cols[1], |pu| {
-                for l in lines {
-                    pu.line(l);
-                }
-                pu.vline(VLine::new("t", t as f64).color(Color32::WHITE).width(1.0));
-            });
-            if r.response.clicked() {
-                if let Some(pos) = r.response.interact_pointer_pos() {
-                    seek = Some(r.transform.value_from_position(pos).x.round().clamp(0.0, (len.max(1) - 1) as f64) as usize);
-                }
+            let cursor = cols[1].visuals().strong_text_color();
+            let r = Plot::new("errors")
+                .height(120.0)
+                .legend(Legend::default())
+                .include_x(0.0)
+                .include_x(len as f64)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .show(&mut cols[1], |pu| {
+                    for l in lines {
+                        pu.line(l);
+                    }
+                    pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
+                });
+            if r.response.clicked()
+                && let Some(pos) = r.response.interact_pointer_pos()
+            {
+                seek = Some(
+                    r.transform
+                        .value_from_position(pos)
+                        .x
+                        .round()
+                        .clamp(0.0, (len.max(1) - 1) as f64) as usize,
+                );
             }
         });
         self.uncertainty_ui(ui, trace);
@@ -867,19 +1189,39 @@ impl ExplorerApp {
     /// change between steps.
     fn uncertainty_ui(&self, ui: &mut egui::Ui, trace: &RunTrace) {
         let summary = uncertainty(trace);
-        ui.label(RichText::new("uncertainty (Fig. 4): mean prior sigma and its mean |change| per step").small());
+        ui.label(
+            RichText::new("uncertainty (Fig. 4): mean prior sigma and its mean |change| per step")
+                .small(),
+        );
         ui.columns(2, |cols| {
-            for (col, (title, pick)) in cols.iter_mut().zip([("mean prior sigma", 0usize), ("mean |change of prior sigma|", 1usize)]) {
+            for (col, (title, pick)) in cols.iter_mut().zip([
+                ("mean prior sigma", 0usize),
+                ("mean |change of prior sigma|", 1usize),
+            ]) {
                 let bars: Vec<Bar> = summary
                     .iter()
                     .enumerate()
-                    .map(|(i, (name, v))| Bar::new(i as f64, [v.0, v.1][pick]).name(name.to_string()).fill(unit_colour(i)))
+                    .map(|(i, (name, v))| {
+                        Bar::new(i as f64, [v.0, v.1][pick])
+                            .name(name.to_string())
+                            .fill(unit_colour(i))
+                    })
                     .collect();
                 col.label(RichText::new(title).small());
-                Plot::new(format!("uncertainty {pick}")).height(100.0).allow_drag(false).allow_zoom(false).allow_scroll(false).show_x(false).show(col, |pu| {
-                    pu.bar_chart(BarChart::new(title, bars).width(0.7));
-                });
-                let text = summary.iter().map(|(n, v)| format!("{n} {:.4}", [v.0, v.1][pick])).collect::<Vec<_>>().join("   ");
+                Plot::new(format!("uncertainty {pick}"))
+                    .height(100.0)
+                    .allow_drag(false)
+                    .allow_zoom(false)
+                    .allow_scroll(false)
+                    .show_x(false)
+                    .show(col, |pu| {
+                        pu.bar_chart(BarChart::new(title, bars).width(0.7));
+                    });
+                let text = summary
+                    .iter()
+                    .map(|(n, v)| format!("{n} {:.4}", [v.0, v.1][pick]))
+                    .collect::<Vec<_>>()
+                    .join("   ");
                 col.label(RichText::new(text).small().monospace());
             }
         });
@@ -894,7 +1236,11 @@ impl ExplorerApp {
             if current != self.last_hash.trim_start_matches('#') && self.bundle.is_some() {
                 // Edited by the user (or the back button): follow it.
                 if let Some(b) = &self.bundle {
-                    self.view = ViewState::from_hash(&current, &self.view, Condition::standard(&b.model.config));
+                    self.view = ViewState::from_hash(
+                        &current,
+                        &self.view,
+                        Condition::standard(&b.model.config),
+                    );
                     self.units_text = format_units(&self.view.units);
                 }
                 self.last_hash = current;
@@ -911,12 +1257,20 @@ impl ExplorerApp {
 
 /// Short text of a condition, e.g. `vision 32+16, proprio off, ablate executive, H 30, 50 it`.
 pub fn condition_label(c: &Condition) -> String {
-    let ablated: Vec<&str> = ModuleId::ALL.iter().filter(|id| c.ablation[id.index()]).map(|id| id.name()).collect();
+    let ablated: Vec<&str> = ModuleId::ALL
+        .iter()
+        .filter(|id| c.ablation[id.index()])
+        .map(|id| id.name())
+        .collect();
     format!(
         "vision levels {}, proprio {}, ablate {}, H {}, {} iterations, lr {}, seed {}",
         c.vision_levels,
         if c.proprio { "on" } else { "off" },
-        if ablated.is_empty() { "none".to_string() } else { ablated.join("+") },
+        if ablated.is_empty() {
+            "none".to_string()
+        } else {
+            ablated.join("+")
+        },
         c.window,
         c.iterations,
         c.lr_milli as f64 / 1000.0,
@@ -933,7 +1287,10 @@ pub fn uncertainty(trace: &RunTrace) -> Vec<(&'static str, (f64, f64))> {
         let s = &trace.modules[m].sigma_p;
         let steps = trace.steps;
         let mean: f64 = s[..steps * z].iter().map(|&v| v as f64).sum::<f64>();
-        let change: f64 = (1..steps).flat_map(|t| (0..z).map(move |u| (t, u))).map(|(t, u)| (s[t * z + u] - s[(t - 1) * z + u]).abs() as f64).sum();
+        let change: f64 = (1..steps)
+            .flat_map(|t| (0..z).map(move |u| (t, u)))
+            .map(|(t, u)| (s[t * z + u] - s[(t - 1) * z + u]).abs() as f64)
+            .sum();
         let n = steps * z;
         let c = steps.saturating_sub(1) * z;
         out.push((name, (mean / n.max(1) as f64, change / c.max(1) as f64)));
@@ -942,7 +1299,13 @@ pub fn uncertainty(trace: &RunTrace) -> Vec<(&'static str, (f64, f64))> {
         all_n += n;
         all_m += c;
     }
-    out.push(("All", (all_mean / all_n.max(1) as f64, all_change / all_m.max(1) as f64)));
+    out.push((
+        "All",
+        (
+            all_mean / all_n.max(1) as f64,
+            all_change / all_m.max(1) as f64,
+        ),
+    ));
     out
 }
 
@@ -954,7 +1317,11 @@ fn unit_colour(k: usize) -> Color32 {
 }
 
 fn arm_colour(joint: usize) -> Color32 {
-    let (hue, j) = if joint < 7 { (0.0 + joint as f32 * 0.025, joint) } else { (0.5 + (joint - 7) as f32 * 0.03, joint - 7) };
+    let (hue, j) = if joint < 7 {
+        (0.0 + joint as f32 * 0.025, joint)
+    } else {
+        (0.5 + (joint - 7) as f32 * 0.03, joint - 7)
+    };
     egui::ecolor::Hsva::new(hue, 0.75, 0.6 + 0.05 * j as f32, 1.0).into()
 }
 
@@ -976,7 +1343,10 @@ impl ExplorerApp {
 pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
     let ctx = egui::Context::default();
     let input = || egui::RawInput {
-        screen_rect: Some(egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1440.0, 920.0))),
+        screen_rect: Some(egui::Rect::from_min_size(
+            egui::Pos2::ZERO,
+            egui::vec2(1440.0, 920.0),
+        )),
         ..Default::default()
     };
     // Let the shown run finish first: scrubbing is measured on computed runs.
@@ -996,5 +1366,7 @@ pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
     times.sort_by(f64::total_cmp);
     let mean = times.iter().sum::<f64>() / times.len() as f64;
     let p95 = times[(times.len() * 95 / 100).min(times.len() - 1)];
-    println!("{frames} frames while scrubbing: mean {mean:.2} ms, 95th percentile {p95:.2} ms per frame (layout + tessellation, one thread)");
+    println!(
+        "{frames} frames while scrubbing: mean {mean:.2} ms, 95th percentile {p95:.2} ms per frame (layout + tessellation, one thread)"
+    );
 }

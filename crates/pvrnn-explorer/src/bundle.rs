@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_core::{Model, Observations};
-use pvrnn_dataset::{inputs::check_layout, proprio_ranges, Dataset, Selection, Split};
+use pvrnn_dataset::{Dataset, Selection, Split, inputs::check_layout, proprio_ranges};
 use serde::Deserialize;
 
 use crate::runs::{Condition, RunKey, RunTrace};
@@ -52,11 +52,16 @@ impl std::fmt::Debug for Bundle {
 impl Bundle {
     /// Checks that the model and the dataset fit together; a model without proprioception
     /// ranges gets the dataset's learning split's.
-    pub fn new(description: String, mut model: Model<f32>, dataset: Dataset) -> Result<Self, String> {
+    pub fn new(
+        description: String,
+        mut model: Model<f32>,
+        dataset: Dataset,
+    ) -> Result<Self, String> {
         if dataset.sequences.is_empty() {
             return Err("the dataset holds no sequences".into());
         }
-        check_layout(&dataset.manifest, &model.config.vision).map_err(|e| format!("the model does not fit the dataset: {e}"))?;
+        check_layout(&dataset.manifest, &model.config.vision)
+            .map_err(|e| format!("the model does not fit the dataset: {e}"))?;
         if model.config.normalisation.is_none() {
             let learn = dataset.select(&Selection::Split(Split::Learn)).map_err(|_| {
                 "the model has no proprioception ranges and the dataset has no learning sequences to take them from".to_string()
@@ -78,18 +83,32 @@ impl Bundle {
         let runs = io::load_runs(&file, &self.model.config).map_err(|e| e.to_string())?;
         let mut added = 0;
         for loaded in runs {
-            let name = loaded
-                .name
-                .or_else(|| self.dataset.sequences.get(loaded.sequence).map(|s| s.info.name.clone()));
-            let (Some(name), Some(condition)) = (name, Condition::of(&loaded.run.settings, &self.model.config)) else {
+            let name = loaded.name.or_else(|| {
+                self.dataset
+                    .sequences
+                    .get(loaded.sequence)
+                    .map(|s| s.info.name.clone())
+            });
+            let (Some(name), Some(condition)) = (
+                name,
+                Condition::of(&loaded.run.settings, &self.model.config),
+            ) else {
                 continue;
             };
-            let Some(seq) = self.dataset.by_name(&name) else { continue };
+            let Some(seq) = self.dataset.by_name(&name) else {
+                continue;
+            };
             if seq.len() != loaded.run.steps() {
                 continue;
             }
             let trace = RunTrace::from_run(&loaded.run, &self.model);
-            self.precomputed.push((RunKey { sequence: name, condition }, trace));
+            self.precomputed.push((
+                RunKey {
+                    sequence: name,
+                    condition,
+                },
+                trace,
+            ));
             added += 1;
         }
         Ok(added)
@@ -97,19 +116,32 @@ impl Bundle {
 
     /// A bundle from its files' bytes, by file name (as downloaded or dropped).
     pub fn from_files(files: &HashMap<String, Vec<u8>>) -> Result<Self, String> {
-        let get = |name: &str| files.get(name).cloned().ok_or_else(|| format!("{name} is missing"));
+        let get = |name: &str| {
+            files
+                .get(name)
+                .cloned()
+                .ok_or_else(|| format!("{name} is missing"))
+        };
         let manifest: BundleManifest = serde_json::from_slice(&get(BUNDLE_MANIFEST)?)
             .map_err(|e| format!("{BUNDLE_MANIFEST} is not a bundle manifest: {e}"))?;
         if manifest.format != BUNDLE_FORMAT {
-            return Err(format!("{BUNDLE_MANIFEST}: format `{}`, expected `{BUNDLE_FORMAT}`", manifest.format));
+            return Err(format!(
+                "{BUNDLE_MANIFEST}: format `{}`, expected `{BUNDLE_FORMAT}`",
+                manifest.format
+            ));
         }
-        let model = io::model_from_bytes(get(&manifest.model)?, &manifest.model).map_err(|e| e.to_string())?;
-        let dataset_json = String::from_utf8(get(&manifest.dataset)?).map_err(|_| format!("{} is not text", manifest.dataset))?;
+        let model = io::model_from_bytes(get(&manifest.model)?, &manifest.model)
+            .map_err(|e| e.to_string())?;
+        let dataset_json = String::from_utf8(get(&manifest.dataset)?)
+            .map_err(|_| format!("{} is not text", manifest.dataset))?;
         let dataset = Dataset::from_parts(&dataset_json, |name| {
-            files.get(name).cloned().ok_or_else(|| pvrnn_dataset::Error::Format {
-                what: name.into(),
-                detail: "missing from the bundle".into(),
-            })
+            files
+                .get(name)
+                .cloned()
+                .ok_or_else(|| pvrnn_dataset::Error::Format {
+                    what: name.into(),
+                    detail: "missing from the bundle".into(),
+                })
         })
         .map_err(|e| e.to_string())?;
         let mut bundle = Self::new(manifest.description, model, dataset)?;
@@ -121,8 +153,8 @@ impl Bundle {
 
     /// The files a bundle manifest names, in download order.
     pub fn files_of(manifest: &BundleManifest, dataset_json: &str) -> Result<Vec<String>, String> {
-        let dataset: pvrnn_dataset::Manifest =
-            serde_json::from_str(dataset_json).map_err(|e| format!("{}: not a dataset manifest: {e}", manifest.dataset))?;
+        let dataset: pvrnn_dataset::Manifest = serde_json::from_str(dataset_json)
+            .map_err(|e| format!("{}: not a dataset manifest: {e}", manifest.dataset))?;
         let mut files = vec![manifest.model.clone()];
         files.extend(dataset.sequences.iter().map(|s| s.file.clone()));
         files.extend(manifest.runs.clone());
@@ -132,10 +164,15 @@ impl Bundle {
     /// Opens a bundle folder, or a dataset folder with a model file beside it.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn open_dir(dir: &std::path::Path) -> Result<Self, String> {
-        let read = |name: &str| std::fs::read(dir.join(name)).map_err(|e| format!("{}: {e}", dir.join(name).display()));
+        let read = |name: &str| {
+            std::fs::read(dir.join(name)).map_err(|e| format!("{}: {e}", dir.join(name).display()))
+        };
         let manifest_path = dir.join(BUNDLE_MANIFEST);
         if !manifest_path.is_file() {
-            return Err(format!("{}: not a bundle folder (no {BUNDLE_MANIFEST}); make one with `pvrnn bundle`", dir.display()));
+            return Err(format!(
+                "{}: not a bundle folder (no {BUNDLE_MANIFEST}); make one with `pvrnn bundle`",
+                dir.display()
+            ));
         }
         let manifest: BundleManifest = serde_json::from_slice(&read(BUNDLE_MANIFEST)?)
             .map_err(|e| format!("{}: {e}", manifest_path.display()))?;
@@ -154,8 +191,15 @@ impl Bundle {
         if let Some(o) = self.observations.get(name) {
             return Ok(o.clone());
         }
-        let seq = self.dataset.by_name(name).ok_or_else(|| format!("no sequence `{name}`"))?;
-        let obs = Arc::new(self.dataset.observations(&[seq], &self.model.config).map_err(|e| e.to_string())?);
+        let seq = self
+            .dataset
+            .by_name(name)
+            .ok_or_else(|| format!("no sequence `{name}`"))?;
+        let obs = Arc::new(
+            self.dataset
+                .observations(&[seq], &self.model.config)
+                .map_err(|e| e.to_string())?,
+        );
         self.observations.insert(name.to_string(), obs.clone());
         Ok(obs)
     }

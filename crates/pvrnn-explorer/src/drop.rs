@@ -5,28 +5,43 @@ use std::collections::HashMap;
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_dataset::Dataset;
 
-use crate::bundle::{Bundle, BUNDLE_MANIFEST};
+use crate::bundle::{BUNDLE_MANIFEST, Bundle};
+
+/// A dropped file: its name, and its bytes or why they could not be read.
+pub type DroppedFile = (String, Result<Vec<u8>, String>);
 
 /// Reads dropped files natively; a dropped folder contributes the files directly in it.
 #[cfg(not(target_arch = "wasm32"))]
-pub fn read_dropped(dropped: &[eframe::egui::DroppedFileHandle]) -> Vec<(String, Result<Vec<u8>, String>)> {
+pub fn read_dropped(dropped: &[eframe::egui::DroppedFileHandle]) -> Vec<DroppedFile> {
     let mut out = Vec::new();
     for f in dropped {
         let path = f.path();
         if path.is_dir() {
             let Ok(entries) = std::fs::read_dir(path) else {
-                out.push((path.display().to_string(), Err("cannot read the folder".into())));
+                out.push((
+                    path.display().to_string(),
+                    Err("cannot read the folder".into()),
+                ));
                 continue;
             };
             for entry in entries.flatten() {
                 let p = entry.path();
                 if p.is_file() {
-                    let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                    out.push((name, std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()))));
+                    let name = p
+                        .file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    out.push((
+                        name,
+                        std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display())),
+                    ));
                 }
             }
         } else {
-            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
             out.push((name, f.bytes()));
         }
     }
@@ -46,7 +61,7 @@ fn kind(file: &TensorFile) -> &'static str {
 
 /// Builds what to show from dropped files, keeping the parts of `current` they do not
 /// replace. Every message names the file that does not fit.
-pub fn assemble(files: Vec<(String, Result<Vec<u8>, String>)>, current: Option<&Bundle>) -> Result<Bundle, String> {
+pub fn assemble(files: Vec<DroppedFile>, current: Option<&Bundle>) -> Result<Bundle, String> {
     let mut bytes: HashMap<String, Vec<u8>> = HashMap::new();
     for (name, data) in files {
         bytes.insert(name.clone(), data.map_err(|e| format!("{name}: {e}"))?);
@@ -58,18 +73,24 @@ pub fn assemble(files: Vec<(String, Result<Vec<u8>, String>)>, current: Option<&
     let mut runs = Vec::new();
     for (name, data) in &bytes {
         if name.ends_with(".safetensors") {
-            let file = TensorFile::from_bytes(data.clone(), name.as_str()).map_err(|e| e.to_string())?;
+            let file =
+                TensorFile::from_bytes(data.clone(), name.as_str()).map_err(|e| e.to_string())?;
             match kind(&file) {
                 "model" => model = Some(io::model_from_file(&file).map_err(|e| e.to_string())?),
                 "runs" => runs.push(name.clone()),
                 "sequence" => {}
-                _ => return Err(format!("{name}: neither a model, a run file, nor a dataset sequence")),
+                _ => {
+                    return Err(format!(
+                        "{name}: neither a model, a run file, nor a dataset sequence"
+                    ));
+                }
             }
         }
     }
     let dataset = match bytes.get(pvrnn_dataset::MANIFEST) {
         Some(json) => {
-            let json = String::from_utf8(json.clone()).map_err(|_| "dataset.json is not text".to_string())?;
+            let json = String::from_utf8(json.clone())
+                .map_err(|_| "dataset.json is not text".to_string())?;
             Dataset::from_parts(&json, |file| {
                 bytes.get(file).cloned().ok_or_else(|| pvrnn_dataset::Error::Format {
                     what: file.into(),
@@ -78,13 +99,20 @@ pub fn assemble(files: Vec<(String, Result<Vec<u8>, String>)>, current: Option<&
             })
             .map_err(|e| e.to_string())?
         }
-        None => current.map(|b| b.dataset.clone()).ok_or("drop a dataset folder (dataset.json and its sequence files) too")?,
+        None => current
+            .map(|b| b.dataset.clone())
+            .ok_or("drop a dataset folder (dataset.json and its sequence files) too")?,
     };
     let model = match model {
         Some(m) => m,
-        None => current.map(|b| (*b.model).clone()).ok_or("drop a model file (.safetensors) too")?,
+        None => current
+            .map(|b| (*b.model).clone())
+            .ok_or("drop a model file (.safetensors) too")?,
     };
-    let description = current.filter(|_| bytes.is_empty()).map(|b| b.description.clone()).unwrap_or_else(|| "dropped files".into());
+    let description = current
+        .filter(|_| bytes.is_empty())
+        .map(|b| b.description.clone())
+        .unwrap_or_else(|| "dropped files".into());
     let mut bundle = Bundle::new(description, model, dataset)?;
     for name in runs {
         bundle.add_runs(bytes[&name].clone(), &name)?;

@@ -7,11 +7,14 @@
 pub mod app;
 pub mod bundle;
 pub mod drop;
+pub mod engine;
 pub mod images;
 pub mod runs;
 pub mod state;
 #[cfg(target_arch = "wasm32")]
 pub mod web;
+#[cfg(target_arch = "wasm32")]
+pub mod worker;
 
 pub use app::ExplorerApp;
 pub use bundle::Bundle;

@@ -8,7 +8,12 @@ fn main() {
     use pvrnn_explorer::{Bundle, ExplorerApp, ViewState};
 
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let value = |flag: &str| args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
     if args.iter().any(|a| a == "--help" || a == "-h") {
         println!(
             "pvrnn-explorer [--bundle DIR] [--view HASH] [--bench-frames N]\n\n\
@@ -21,7 +26,11 @@ fn main() {
     }
     let dir = value("--bundle").map(PathBuf::from).unwrap_or_else(|| {
         let local = PathBuf::from("models/default");
-        if local.is_dir() { local } else { PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models/default") }
+        if local.is_dir() {
+            local
+        } else {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models/default")
+        }
     });
     let bundle = match Bundle::open_dir(&dir) {
         Ok(b) => Some(b),
@@ -32,7 +41,11 @@ fn main() {
     };
     let mut view = ViewState::default();
     if let (Some(hash), Some(b)) = (value("--view"), &bundle) {
-        view = ViewState::from_hash(&hash, &view, pvrnn_explorer::Condition::standard(&b.model.config));
+        view = ViewState::from_hash(
+            &hash,
+            &view,
+            pvrnn_explorer::Condition::standard(&b.model.config),
+        );
     }
     if let Some(frames) = value("--bench-frames") {
         let frames: usize = frames.parse().unwrap_or(300);
@@ -50,7 +63,11 @@ fn main() {
             .with_drag_and_drop(true),
         ..Default::default()
     };
-    let result = eframe::run_native("PV-RNN explorer", options, Box::new(move |_cc| Ok(Box::new(ExplorerApp::new(bundle, view)))));
+    let result = eframe::run_native(
+        "PV-RNN explorer",
+        options,
+        Box::new(move |_cc| Ok(Box::new(ExplorerApp::new(bundle, view)))),
+    );
     if let Err(e) = result {
         eprintln!("cannot open a window: {e}");
         std::process::exit(1);
@@ -62,6 +79,10 @@ fn main() {
     use eframe::wasm_bindgen::JsCast;
     use eframe::web_sys;
 
+    // The same module runs in the inference worker (web/worker.js), which has no window.
+    if web_sys::window().is_none() {
+        return;
+    }
     let start = async {
         let canvas = web_sys::window()
             .and_then(|w| w.document())
@@ -74,11 +95,17 @@ fn main() {
                 eframe::WebOptions::default(),
                 Box::new(|cc| {
                     pvrnn_explorer::web::repaint_on_hash_change(cc.egui_ctx.clone());
-                    Ok(Box::new(pvrnn_explorer::ExplorerApp::new_web("models/default/")))
+                    Ok(Box::new(pvrnn_explorer::ExplorerApp::new_web(
+                        "models/default/",
+                        &cc.egui_ctx,
+                    )))
                 }),
             )
             .await;
-        if let Some(loading) = web_sys::window().and_then(|w| w.document()).and_then(|d| d.get_element_by_id("loading")) {
+        if let Some(loading) = web_sys::window()
+            .and_then(|w| w.document())
+            .and_then(|d| d.get_element_by_id("loading"))
+        {
             loading.remove();
         }
         if let Err(e) = result {

@@ -2,13 +2,16 @@
 //! reproduce every prediction), computed live in slices so the interface never freezes,
 //! and cached.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use pvrnn_core::config::{ModelConfig, ModuleId};
 use pvrnn_core::cpu::readout;
-use pvrnn_core::infer::{InferenceSettings, OnlineInference, Run, StepOutput};
+use pvrnn_core::infer::{InferenceSettings, Run};
 use pvrnn_core::{Ablation, Modality, Model, NoiseMode, Observations, Observed};
+
+pub use crate::engine::Finished;
+use crate::engine::{CompactStep, Engine, Event};
 use serde::{Deserialize, Serialize};
 use web_time::{Duration, Instant};
 
@@ -127,20 +130,19 @@ impl RunTrace {
         }
     }
 
-    pub fn push(&mut self, out: &StepOutput<f32>) {
-        for (m, trace) in self.modules.iter_mut().enumerate() {
-            let s = &out.modules[m];
+    pub fn push(&mut self, step: &CompactStep) {
+        for (trace, s) in self.modules.iter_mut().zip(&step.modules) {
             trace.mu_p.extend_from_slice(&s.mu_p);
             trace.sigma_p.extend_from_slice(&s.sigma_p);
             trace.mu_q.extend_from_slice(&s.mu_q);
             trace.sigma_q.extend_from_slice(&s.sigma_q);
             trace.d.extend_from_slice(&s.d);
-            trace.prior_d.extend_from_slice(&out.prior_d[m]);
+            trace.prior_d.extend_from_slice(&s.prior_d);
         }
-        self.free_energy.push(out.window_free_energy.total as f32);
-        self.recon_error.push(out.recon_error.map(|e| e as f32));
-        self.proprio_recon.extend_from_slice(&out.recon[1]);
-        self.proprio_prior.extend_from_slice(&out.prior_next[1]);
+        self.free_energy.push(step.free_energy);
+        self.recon_error.push(step.recon_error);
+        self.proprio_recon.extend_from_slice(&step.proprio_recon);
+        self.proprio_prior.extend_from_slice(&step.proprio_prior);
         self.steps += 1;
     }
 
@@ -158,10 +160,24 @@ impl RunTrace {
             t.prior_d = r.prior_d.data().to_vec();
         }
         trace.free_energy = run.free_energy.iter().map(|f| f.total as f32).collect();
-        trace.recon_error = run.recon_error.iter().map(|e| e.map(|v| v as f32)).collect();
+        trace.recon_error = run
+            .recon_error
+            .iter()
+            .map(|e| e.map(|v| v as f32))
+            .collect();
         let p = ModuleId::Proprioceptive.index();
-        trace.proprio_recon = readout(&model.params, Modality::Proprioceptive, &trace.modules[p].d, steps);
-        trace.proprio_prior = readout(&model.params, Modality::Proprioceptive, &trace.modules[p].prior_d, steps);
+        trace.proprio_recon = readout(
+            &model.params,
+            Modality::Proprioceptive,
+            &trace.modules[p].d,
+            steps,
+        );
+        trace.proprio_prior = readout(
+            &model.params,
+            Modality::Proprioceptive,
+            &trace.modules[p].prior_d,
+            steps,
+        );
         trace.steps = steps;
         trace
     }
@@ -170,7 +186,11 @@ impl RunTrace {
     pub fn d_at(&self, module: ModuleId, t: usize, prior: bool) -> &[f32] {
         let m = module.index();
         let w = self.d[m];
-        let v = if prior { &self.modules[m].prior_d } else { &self.modules[m].d };
+        let v = if prior {
+            &self.modules[m].prior_d
+        } else {
+            &self.modules[m].d
+        };
         &v[t * w..(t + 1) * w]
     }
 }
@@ -184,47 +204,94 @@ pub struct Entry {
 }
 
 /// Which run: a sequence (by name) under a condition.
-#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct RunKey {
     pub sequence: String,
     pub condition: Condition,
 }
 
-/// Online inference of one sequence under one condition, advanced a slice at a time.
-struct Job {
-    key: RunKey,
-    inference: OnlineInference<f32>,
-    observations: Arc<Observations<f32>>,
-    next: usize,
-    /// Wall time spent computing (slices only, not the frames in between).
-    busy: Duration,
-    started: Instant,
+/// Where runs are computed. The store only sends commands and reads [`Event`]s, so it does
+/// not depend on how (or on which thread) a result was computed.
+#[derive(Debug)]
+pub enum Executor {
+    /// In slices between frames, on the calling thread.
+    Inline(Box<Engine>),
+    /// In a Web Worker, beside the page's thread.
+    #[cfg(target_arch = "wasm32")]
+    Worker(crate::worker::WorkerClient),
 }
 
-/// A finished live run: how many steps, computing time, and wall time.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Finished {
-    pub key: RunKey,
-    pub steps: usize,
-    pub busy: Duration,
-    pub wall: Duration,
+impl Default for Executor {
+    fn default() -> Self {
+        Self::Inline(Box::default())
+    }
 }
 
-/// Updates per slice before the clock is checked.
-const CHUNK: usize = 5;
+impl Executor {
+    fn set_model(&mut self, model: &Arc<Model<f32>>) {
+        match self {
+            Self::Inline(e) => e.set_model(model.clone()),
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.set_model(model),
+        }
+    }
+
+    fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
+        match self {
+            Self::Inline(e) => e.add_observations(name.to_string(), observations),
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.add_observations(name, &observations),
+        }
+    }
+
+    fn run(&mut self, key: &RunKey) {
+        match self {
+            Self::Inline(e) => e.run(key.clone()),
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.run(key),
+        }
+    }
+
+    /// Computes for up to `budget` (inline) or collects what arrived (worker).
+    fn poll(&mut self, budget: Duration) -> Vec<Event> {
+        match self {
+            Self::Inline(e) => e.work(budget),
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.take_events(),
+        }
+    }
+
+    /// Why the executor cannot go on (a worker that failed), if it cannot.
+    fn broken(&mut self) -> Option<String> {
+        match self {
+            Self::Inline(_) => None,
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.failure(),
+        }
+    }
+
+    pub fn is_inline(&self) -> bool {
+        matches!(self, Self::Inline(_))
+    }
+}
+
+/// Gives a sequence's inputs by name.
+pub type ObservationSource<'a> = dyn FnMut(&str) -> Result<Arc<Observations<f32>>, String> + 'a;
 
 /// All runs: cached, being computed, or waiting.
 #[derive(Default)]
 pub struct RunStore {
     entries: HashMap<RunKey, Entry>,
     queue: VecDeque<RunKey>,
-    job: Option<Job>,
-    /// Jobs interrupted by a more urgent run, resumed when their turn comes again.
-    paused: HashMap<RunKey, Job>,
-    /// The run being looked at: it takes over from any other job.
+    /// The run being looked at: it takes over from any other.
     urgent: Option<RunKey>,
     /// Live runs finished since the last `take_finished`.
     finished: Vec<Finished>,
+    executor: Executor,
+    /// The model the executor has, the sequences it has, and what it is computing.
+    executor_model: Option<Arc<Model<f32>>>,
+    provided: HashSet<String>,
+    running: Option<(RunKey, usize)>,
 }
 
 impl std::fmt::Debug for RunStore {
@@ -232,12 +299,20 @@ impl std::fmt::Debug for RunStore {
         f.debug_struct("RunStore")
             .field("runs", &self.entries.len())
             .field("queued", &self.queue.len())
-            .field("computing", &self.job.as_ref().map(|j| &j.key))
+            .field("computing", &self.computing())
+            .field("inline", &self.executor.is_inline())
             .finish()
     }
 }
 
 impl RunStore {
+    pub fn with_executor(executor: Executor) -> Self {
+        Self {
+            executor,
+            ..Self::default()
+        }
+    }
+
     pub fn insert_complete(&mut self, key: RunKey, trace: RunTrace) {
         self.entries.insert(
             key,
@@ -259,7 +334,7 @@ impl RunStore {
         if urgent {
             self.urgent = (!done).then(|| key.clone());
         }
-        let running = self.job.as_ref().is_some_and(|j| j.key == key);
+        let running = self.computing() == Some(&key);
         if done || running || (!urgent && self.queue.contains(&key)) {
             return;
         }
@@ -273,20 +348,26 @@ impl RunStore {
 
     /// Nothing computing or waiting.
     pub fn idle(&self) -> bool {
-        self.job.is_none() && self.queue.is_empty() && self.paused.is_empty()
+        self.running.is_none() && self.queue.is_empty()
     }
 
     pub fn computing(&self) -> Option<&RunKey> {
-        self.job.as_ref().map(|j| &j.key)
+        self.running.as_ref().map(|(k, _)| k)
     }
 
     /// Steps done and total of the run being computed.
     pub fn progress(&self) -> Option<(usize, usize)> {
-        self.job.as_ref().map(|j| (j.next, j.observations.lengths()[0]))
+        let (key, total) = self.running.as_ref()?;
+        Some((self.entries.get(key).map_or(0, |e| e.trace.steps), *total))
     }
 
     pub fn waiting(&self) -> usize {
         self.queue.len()
+    }
+
+    /// Whether runs are computed on this thread.
+    pub fn computes_inline(&self) -> bool {
+        self.executor.is_inline()
     }
 
     /// Live runs finished since last asked.
@@ -294,131 +375,160 @@ impl RunStore {
         std::mem::take(&mut self.finished)
     }
 
-    /// Forgets every run (a new model or dataset).
+    /// Forgets every run (a new model or dataset); the executor stays.
     pub fn clear(&mut self) {
-        *self = Self::default();
+        let executor = std::mem::take(&mut self.executor);
+        *self = Self::with_executor(executor);
     }
 
-    /// Computes for about `budget`; `observations(name)` gives a sequence's inputs.
-    /// Returns whether any work was done.
+    /// Runs what is asked for and takes in results, computing for up to `budget` when inline.
+    /// `observations(name)` gives a sequence's inputs. Returns whether anything happened.
     pub fn work(
         &mut self,
         model: &Arc<Model<f32>>,
         budget: Duration,
-        observations: &mut dyn FnMut(&str) -> Result<Arc<Observations<f32>>, String>,
+        observations: &mut ObservationSource<'_>,
     ) -> bool {
         let start = Instant::now();
+        if let Some(reason) = self.executor.broken() {
+            // Computing in the page is slower, but it works everywhere.
+            self.finished.clear();
+            self.executor = Executor::default();
+            self.restart_executor();
+            self.errors_note(reason);
+        }
+        if !self
+            .executor_model
+            .as_ref()
+            .is_some_and(|m| Arc::ptr_eq(m, model))
+        {
+            self.restart_executor();
+            self.executor.set_model(model);
+            self.executor_model = Some(model.clone());
+        }
         let mut worked = false;
-        // The run being looked at takes over: pause whatever else is computing.
-        if let (Some(urgent), Some(job)) = (&self.urgent, &self.job) {
-            if job.key != *urgent {
-                let job = self.job.take().expect("checked");
-                self.queue.push_back(job.key.clone());
-                self.paused.insert(job.key.clone(), job);
+        loop {
+            self.dispatch(model, observations);
+            let left = budget.saturating_sub(start.elapsed());
+            let events = self.executor.poll(left);
+            worked |= !events.is_empty();
+            for event in events {
+                self.take_event(event);
+            }
+            if !self.executor.is_inline() || self.idle() || start.elapsed() >= budget {
+                break;
             }
         }
-        while start.elapsed() < budget {
-            if self.job.is_none() {
-                let Some(key) = self.queue.pop_front() else { break };
-                if let Some(job) = self.paused.remove(&key) {
-                    self.job = Some(job);
-                    continue;
-                }
-                match self.start(model, key.clone(), observations) {
-                    Ok(job) => {
-                        self.entries.insert(
-                            key,
-                            Entry {
-                                trace: RunTrace::new(&model.config),
-                                complete: false,
-                                error: None,
-                            },
-                        );
-                        self.job = Some(job);
-                    }
-                    Err(e) => {
-                        self.entries.insert(
-                            key,
-                            Entry {
-                                trace: RunTrace::new(&model.config),
-                                complete: true,
-                                error: Some(e),
-                            },
-                        );
-                        continue;
-                    }
-                }
-            }
-            worked = true;
-            let job = self.job.as_mut().expect("started above");
-            let entry = self.entries.get_mut(&job.key).expect("inserted when started");
-            let slice = Instant::now();
-            let result = Self::advance(job, entry);
-            job.busy += slice.elapsed();
-            match result {
-                Ok(true) => {
-                    entry.complete = true;
-                    if self.urgent.as_ref() == Some(&job.key) {
-                        self.urgent = None;
-                    }
-                    self.finished.push(Finished {
-                        key: job.key.clone(),
-                        steps: job.next,
-                        busy: job.busy,
-                        wall: job.started.elapsed(),
-                    });
-                    self.job = None;
-                }
-                Ok(false) => {}
-                Err(e) => {
-                    entry.complete = true;
-                    entry.error = Some(e);
-                    self.job = None;
-                }
-            }
-        }
-        worked
+        // Hand the executor its next run at once rather than a frame later.
+        self.dispatch(model, observations);
+        worked || (self.executor.is_inline() && self.running.is_some())
     }
 
-    fn start(
-        &self,
-        model: &Arc<Model<f32>>,
-        key: RunKey,
-        observations: &mut dyn FnMut(&str) -> Result<Arc<Observations<f32>>, String>,
-    ) -> Result<Job, String> {
-        let obs = observations(&key.sequence)?;
-        let settings = key.condition.settings(&model.config);
-        let inference = OnlineInference::new(model.clone(), settings).map_err(|e| e.to_string())?;
-        Ok(Job {
-            key,
-            inference,
-            observations: obs,
-            next: 0,
-            busy: Duration::ZERO,
-            started: Instant::now(),
-        })
+    /// A fresh executor state: runs it was part way through start again.
+    fn restart_executor(&mut self) {
+        self.entries.retain(|_, e| e.complete);
+        if let Some((key, _)) = self.running.take() {
+            self.queue.push_front(key);
+        }
+        self.provided.clear();
+        self.executor_model = None;
     }
 
-    /// A few updates of the job; `Ok(true)` when the sequence is done.
-    fn advance(job: &mut Job, entry: &mut Entry) -> Result<bool, String> {
-        let len = job.observations.lengths()[0];
-        if job.next >= len {
-            return Ok(true);
+    fn errors_note(&mut self, reason: String) {
+        #[cfg(target_arch = "wasm32")]
+        crate::web::log(&format!(
+            "computing in the page instead of a worker: {reason}"
+        ));
+        #[cfg(not(target_arch = "wasm32"))]
+        let _ = reason;
+    }
+
+    /// Makes the executor run the urgent run, or else the next waiting one.
+    fn dispatch(&mut self, model: &Arc<Model<f32>>, observations: &mut ObservationSource<'_>) {
+        let complete = |s: &Self, k: &RunKey| s.entries.get(k).is_some_and(|e| e.complete);
+        if let Some(u) = &self.urgent
+            && complete(self, u)
+        {
+            self.urgent = None;
         }
-        let inf = &mut job.inference;
-        if !inf.in_step() {
-            let t = job.next;
-            inf.begin_step(
-                job.observations.step(Modality::Exteroceptive, 0, t),
-                job.observations.step(Modality::Proprioceptive, 0, t),
-            )
-            .map_err(|e| e.to_string())?;
+        let want = match (&self.urgent, &self.running) {
+            (Some(u), Some((r, _))) if u != r => {
+                // Paused, not lost: the executor keeps its state and the key waits its turn.
+                let (r, _) = self.running.take().expect("matched");
+                self.queue.push_back(r);
+                u.clone()
+            }
+            (_, Some(_)) => return,
+            (Some(u), None) => u.clone(),
+            (None, None) => loop {
+                let Some(k) = self.queue.pop_front() else {
+                    return;
+                };
+                if !complete(self, &k) {
+                    break k;
+                }
+            },
+        };
+        self.queue.retain(|k| *k != want);
+        let obs = match observations(&want.sequence) {
+            Ok(o) => o,
+            Err(e) => {
+                self.fail(&want, e);
+                return;
+            }
+        };
+        if let Err(e) = obs.check_fits(&model.config) {
+            self.fail(&want, e.to_string());
+            return;
         }
-        if inf.iterate(CHUNK) == 0 {
-            let out = inf.finish_step().map_err(|e| e.to_string())?;
-            entry.trace.push(&out);
-            job.next += 1;
+        if self.provided.insert(want.sequence.clone()) {
+            self.executor.add_observations(&want.sequence, obs.clone());
         }
-        Ok(job.next >= len)
+        self.entries.entry(want.clone()).or_insert_with(|| Entry {
+            trace: RunTrace::new(&model.config),
+            complete: false,
+            error: None,
+        });
+        self.executor.run(&want);
+        self.running = Some((want, obs.lengths()[0]));
+    }
+
+    fn fail(&mut self, key: &RunKey, error: String) {
+        let entry = self.entries.entry(key.clone()).or_insert_with(|| Entry {
+            trace: RunTrace::default(),
+            complete: true,
+            error: None,
+        });
+        entry.complete = true;
+        entry.error = Some(error);
+        if self.urgent.as_ref() == Some(key) {
+            self.urgent = None;
+        }
+        if self.computing() == Some(key) {
+            self.running = None;
+        }
+    }
+
+    fn take_event(&mut self, event: Event) {
+        match event {
+            Event::Step(key, step) => {
+                if let Some(e) = self.entries.get_mut(&key).filter(|e| !e.complete) {
+                    e.trace.push(&step);
+                }
+            }
+            Event::Done(f) => {
+                if let Some(e) = self.entries.get_mut(&f.key) {
+                    e.complete = true;
+                }
+                if self.urgent.as_ref() == Some(&f.key) {
+                    self.urgent = None;
+                }
+                if self.computing() == Some(&f.key) {
+                    self.running = None;
+                }
+                self.finished.push(f);
+            }
+            Event::Failed(key, e) => self.fail(&key, e),
+        }
     }
 }

@@ -83,7 +83,11 @@ pub fn format_units(units: &[usize]) -> String {
             i += 1;
             end = units[i];
         }
-        parts.push(if end > start { format!("{start}-{end}") } else { start.to_string() });
+        parts.push(if end > start {
+            format!("{start}-{end}")
+        } else {
+            start.to_string()
+        });
         i += 1;
     }
     parts.join(",")
@@ -120,14 +124,25 @@ impl ViewState {
         if let Some(c) = &self.condition {
             parts.push(format!("vision={}", c.vision_levels));
             parts.push(format!("proprio={}", c.proprio as u8));
-            parts.push(format!("ablate={}", c.ablation.iter().map(|&a| if a { '1' } else { '0' }).collect::<String>()));
+            parts.push(format!(
+                "ablate={}",
+                c.ablation
+                    .iter()
+                    .map(|&a| if a { '1' } else { '0' })
+                    .collect::<String>()
+            ));
             parts.push(format!("H={}", c.window));
             parts.push(format!("iter={}", c.iterations));
             parts.push(format!("lr={}", c.lr_milli));
             parts.push(format!("seed={}", c.seed));
         }
         parts.push(format!("units={}", format_units(&self.units)));
-        for (key, on) in [("d", self.show_d), ("prior", self.prior_images), ("contours", self.contours), ("maps", self.maps)] {
+        for (key, on) in [
+            ("d", self.show_d),
+            ("prior", self.prior_images),
+            ("contours", self.contours),
+            ("maps", self.maps),
+        ] {
             parts.push(format!("{key}={}", on as u8));
         }
         parts.join("&")
@@ -140,7 +155,9 @@ impl ViewState {
         let mut c = base.condition.unwrap_or(standard);
         let mut condition_given = false;
         for pair in hash.trim_start_matches('#').split('&') {
-            let Some((key, value)) = pair.split_once('=') else { continue };
+            let Some((key, value)) = pair.split_once('=') else {
+                continue;
+            };
             let num = || value.parse::<u64>().ok();
             let flag = || match value {
                 "1" | "true" => Some(true),
@@ -167,13 +184,11 @@ impl ViewState {
                         condition_given = true;
                     }
                 }
-                "ablate" => {
-                    if value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1') {
-                        for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
-                            *slot = ch == '1';
-                        }
-                        condition_given = true;
+                "ablate" if value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1') => {
+                    for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
+                        *slot = ch == '1';
                     }
+                    condition_given = true;
                 }
                 "H" => {
                     if let Some(n) = num().filter(|&n| (1..=10_000).contains(&n)) {
@@ -237,9 +252,19 @@ mod tests {
             ..ViewState::default()
         };
         let hash = v.to_hash();
-        assert!(hash.contains("units=0-2,5,9-10") && hash.contains("ablate=1001"), "{hash}");
+        assert!(
+            hash.contains("units=0-2,5,9-10") && hash.contains("ablate=1001"),
+            "{hash}"
+        );
         let back = ViewState::from_hash(&format!("#{hash}"), &ViewState::default(), standard());
-        assert_eq!(back, ViewState { playing: false, speed: v.speed, ..v });
+        assert_eq!(
+            back,
+            ViewState {
+                playing: false,
+                speed: v.speed,
+                ..v
+            }
+        );
     }
 
     #[test]

@@ -4,28 +4,38 @@ use std::cell::RefCell;
 use std::collections::HashMap;
 use std::rc::Rc;
 
-use eframe::wasm_bindgen::{closure::Closure, JsCast};
+use eframe::wasm_bindgen::{JsCast, closure::Closure};
 use eframe::web_sys;
 
 use crate::app::Status;
-use crate::bundle::{Bundle, BundleManifest, BUNDLE_MANIFEST};
+use crate::bundle::{BUNDLE_MANIFEST, Bundle, BundleManifest};
+use crate::drop::DroppedFile;
 
 pub fn location_hash() -> String {
-    web_sys::window().and_then(|w| w.location().hash().ok()).unwrap_or_default()
+    web_sys::window()
+        .and_then(|w| w.location().hash().ok())
+        .unwrap_or_default()
 }
 
 pub fn set_hash(hash: &str) {
     if let Some(history) = web_sys::window().and_then(|w| w.history().ok()) {
-        let _ = history.replace_state_with_url(&eframe::wasm_bindgen::JsValue::NULL, "", Some(&format!("#{hash}")));
+        let _ = history.replace_state_with_url(
+            &eframe::wasm_bindgen::JsValue::NULL,
+            "",
+            Some(&format!("#{hash}")),
+        );
     }
 }
 
 /// Repaints when the URL hash changes (a pasted link, the back button), so the view follows
 /// it even while the app is idle.
 pub fn repaint_on_hash_change(ctx: eframe::egui::Context) {
-    let Some(window) = web_sys::window() else { return };
+    let Some(window) = web_sys::window() else {
+        return;
+    };
     let listener = Closure::<dyn FnMut()>::new(move || ctx.request_repaint());
-    let _ = window.add_event_listener_with_callback("hashchange", listener.as_ref().unchecked_ref());
+    let _ =
+        window.add_event_listener_with_callback("hashchange", listener.as_ref().unchecked_ref());
     // Lives as long as the page.
     listener.forget();
 }
@@ -36,11 +46,17 @@ pub fn log(text: &str) {
 
 /// Milliseconds since the page started loading.
 pub fn now_ms() -> f64 {
-    web_sys::window().and_then(|w| w.performance()).map_or(0.0, |p| p.now())
+    web_sys::window()
+        .and_then(|w| w.performance())
+        .map_or(0.0, |p| p.now())
 }
 
 /// GETs `url` as bytes, reporting (loaded, total) bytes.
-fn fetch(url: &str, on_progress: impl FnMut(f64, f64) + 'static, on_done: impl FnOnce(Result<Vec<u8>, String>) + 'static) {
+fn fetch(
+    url: &str,
+    on_progress: impl FnMut(f64, f64) + 'static,
+    on_done: impl FnOnce(Result<Vec<u8>, String>) + 'static,
+) {
     let fail = |e: String| e;
     let xhr = match web_sys::XmlHttpRequest::new() {
         Ok(x) => x,
@@ -51,16 +67,23 @@ fn fetch(url: &str, on_progress: impl FnMut(f64, f64) + 'static, on_done: impl F
     }
     xhr.set_response_type(web_sys::XmlHttpRequestResponseType::Arraybuffer);
     let on_progress = RefCell::new(on_progress);
-    let progress = Closure::<dyn FnMut(web_sys::ProgressEvent)>::new(move |e: web_sys::ProgressEvent| {
-        let total = if e.length_computable() { e.total() } else { 0.0 };
-        (on_progress.borrow_mut())(e.loaded(), total);
-    });
+    let progress =
+        Closure::<dyn FnMut(web_sys::ProgressEvent)>::new(move |e: web_sys::ProgressEvent| {
+            let total = if e.length_computable() {
+                e.total()
+            } else {
+                0.0
+            };
+            (on_progress.borrow_mut())(e.loaded(), total);
+        });
     xhr.set_onprogress(Some(progress.as_ref().unchecked_ref()));
     progress.forget();
     let done = Rc::new(RefCell::new(Some(on_done)));
     let (xhr_ok, done_ok, url_ok) = (xhr.clone(), done.clone(), url.to_string());
     let load = Closure::<dyn FnMut()>::new(move || {
-        let Some(callback) = done_ok.borrow_mut().take() else { return };
+        let Some(callback) = done_ok.borrow_mut().take() else {
+            return;
+        };
         let status = xhr_ok.status().unwrap_or(0);
         if !(200..300).contains(&status) {
             return callback(Err(format!("{url_ok}: HTTP {status}")));
@@ -100,7 +123,7 @@ struct Download {
 #[derive(Default)]
 pub struct WebState {
     download: Option<Rc<RefCell<Download>>>,
-    dropped: Rc<RefCell<(usize, Vec<(String, Result<Vec<u8>, String>)>)>>,
+    dropped: Rc<RefCell<(usize, Vec<DroppedFile>)>>,
 }
 
 impl std::fmt::Debug for WebState {
@@ -122,10 +145,14 @@ impl WebState {
         }));
         self.download = Some(d.clone());
         let url = format!("{base}{BUNDLE_MANIFEST}");
-        fetch(&url, |_, _| {}, move |r| match r {
-            Err(e) => d.borrow_mut().error = Some(e),
-            Ok(bytes) => manifest_arrived(d, bytes),
-        });
+        fetch(
+            &url,
+            |_, _| {},
+            move |r| match r {
+                Err(e) => d.borrow_mut().error = Some(e),
+                Ok(bytes) => manifest_arrived(d, bytes),
+            },
+        );
     }
 
     /// Reads files dropped on the page (asynchronously in the browser).
@@ -142,7 +169,7 @@ impl WebState {
     }
 
     /// Dropped files, once all of a drop have been read.
-    pub fn take_dropped(&self) -> Option<Vec<(String, Result<Vec<u8>, String>)>> {
+    pub fn take_dropped(&self) -> Option<Vec<DroppedFile>> {
         let mut q = self.dropped.borrow_mut();
         if q.0 > 0 && q.1.len() == q.0 {
             q.0 = 0;
@@ -161,9 +188,16 @@ impl WebState {
             self.download = None;
             return Some(Err(e));
         }
-        let waiting = d.expected.iter().filter(|f| !d.files.contains_key(*f)).count();
+        let waiting = d
+            .expected
+            .iter()
+            .filter(|f| !d.files.contains_key(*f))
+            .count();
         if d.expected.is_empty() || waiting > 0 {
-            let (loaded, total) = d.progress.values().fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
+            let (loaded, total) = d
+                .progress
+                .values()
+                .fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
             *status = Status::Loading {
                 what: format!(
                     "loading {} ({:.1} / {:.1} MB, {} of {} files)",
@@ -178,7 +212,11 @@ impl WebState {
             return None;
         }
         let result = Bundle::from_files(&d.files);
-        log(&format!("bundle ready after {:.0} ms (page time {:.0} ms)", now_ms() - d.started_ms, now_ms()));
+        log(&format!(
+            "bundle ready after {:.0} ms (page time {:.0} ms)",
+            now_ms() - d.started_ms,
+            now_ms()
+        ));
         drop(d);
         self.download = None;
         Some(result)
@@ -196,36 +234,42 @@ fn manifest_arrived(d: Rc<RefCell<Download>>, bytes: Vec<u8>) {
     d.borrow_mut().files.insert(BUNDLE_MANIFEST.into(), bytes);
     let url = format!("{}{}", d.borrow().base, manifest.dataset);
     let d2 = d.clone();
-    fetch(&url, |_, _| {}, move |r| match r {
-        Err(e) => d2.borrow_mut().error = Some(e),
-        Ok(json) => {
-            let list = std::str::from_utf8(&json)
-                .map_err(|_| "the dataset manifest is not text".to_string())
-                .and_then(|text| Bundle::files_of(&manifest, text));
-            match list {
-                Err(e) => d2.borrow_mut().error = Some(e),
-                Ok(list) => {
-                    d2.borrow_mut().files.insert(manifest.dataset.clone(), json);
-                    d2.borrow_mut().expected = list.clone();
-                    let base = d2.borrow().base.clone();
-                    for file in list {
-                        let (dp, dd, name) = (d2.clone(), d2.clone(), file.clone());
-                        let name2 = file.clone();
-                        fetch(
-                            &format!("{base}{file}"),
-                            move |loaded, total| {
-                                dp.borrow_mut().progress.insert(name.clone(), (loaded, total));
-                            },
-                            move |r| match r {
-                                Err(e) => dd.borrow_mut().error = Some(e),
-                                Ok(bytes) => {
-                                    dd.borrow_mut().files.insert(name2, bytes);
-                                }
-                            },
-                        );
+    fetch(
+        &url,
+        |_, _| {},
+        move |r| match r {
+            Err(e) => d2.borrow_mut().error = Some(e),
+            Ok(json) => {
+                let list = std::str::from_utf8(&json)
+                    .map_err(|_| "the dataset manifest is not text".to_string())
+                    .and_then(|text| Bundle::files_of(&manifest, text));
+                match list {
+                    Err(e) => d2.borrow_mut().error = Some(e),
+                    Ok(list) => {
+                        d2.borrow_mut().files.insert(manifest.dataset.clone(), json);
+                        d2.borrow_mut().expected = list.clone();
+                        let base = d2.borrow().base.clone();
+                        for file in list {
+                            let (dp, dd, name) = (d2.clone(), d2.clone(), file.clone());
+                            let name2 = file.clone();
+                            fetch(
+                                &format!("{base}{file}"),
+                                move |loaded, total| {
+                                    dp.borrow_mut()
+                                        .progress
+                                        .insert(name.clone(), (loaded, total));
+                                },
+                                move |r| match r {
+                                    Err(e) => dd.borrow_mut().error = Some(e),
+                                    Ok(bytes) => {
+                                        dd.borrow_mut().files.insert(name2, bytes);
+                                    }
+                                },
+                            );
+                        }
                     }
                 }
             }
-        }
-    });
+        },
+    );
 }

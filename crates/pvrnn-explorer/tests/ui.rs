@@ -1,12 +1,13 @@
 //! The explorer's interface logic, driven headless with egui_kittest.
+#![cfg(not(target_arch = "wasm32"))]
 
 mod common;
 
 use std::collections::HashMap;
 
-use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
-use pvrnn_core::infer::{run_sequence, InferenceSettings};
+use egui_kittest::kittest::Queryable;
+use pvrnn_core::infer::{InferenceSettings, run_sequence};
 use pvrnn_core::io;
 use pvrnn_explorer::bundle::BUNDLE_MANIFEST;
 use pvrnn_explorer::runs::Condition;
@@ -34,7 +35,10 @@ fn settle(h: &mut Harness<'static, ExplorerApp>) {
 
 #[test]
 fn opens_on_the_first_sequence_and_computes_its_run() {
-    let h = harness(ExplorerApp::new(Some(common::bundle()), ViewState::default()));
+    let h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState::default(),
+    ));
     let app = h.state();
     assert_eq!(app.view().sequence.as_deref(), Some("reach_learn"));
     let run = app.current_run().expect("the shown run exists");
@@ -45,28 +49,48 @@ fn opens_on_the_first_sequence_and_computes_its_run() {
 
 #[test]
 fn toggling_an_ablation_changes_the_predicted_image() {
-    let view = ViewState { t: 7, maps: false, ..ViewState::default() };
+    let view = ViewState {
+        t: 7,
+        maps: false,
+        ..ViewState::default()
+    };
     let mut h = harness(ExplorerApp::new(Some(common::bundle()), view));
     let before = h.state().predicted_vision().unwrap().to_vec();
     h.get_by_label("executive").click();
     h.step();
     settle(&mut h);
     let app = h.state();
-    assert_eq!(app.condition().unwrap().ablation, [true, false, false, false]);
+    assert_eq!(
+        app.condition().unwrap().ablation,
+        [true, false, false, false]
+    );
     let after = app.predicted_vision().unwrap();
     let diff: f32 = before.iter().zip(after).map(|(a, b)| (a - b).abs()).sum();
-    assert!(diff > 1e-3, "the predicted image did not change (sum |diff| = {diff})");
+    assert!(
+        diff > 1e-3,
+        "the predicted image did not change (sum |diff| = {diff})"
+    );
     // Toggling back shows the cached standard run again, without recomputing.
     h.get_by_label("executive").click();
     h.step();
-    assert!(h.state().idle(), "the standard run should come from the cache");
+    assert!(
+        h.state().idle(),
+        "the standard run should come from the cache"
+    );
     h.step();
     assert_eq!(h.state().predicted_vision().unwrap(), before.as_slice());
 }
 
 #[test]
 fn keys_step_and_play_moves_time() {
-    let mut h = harness(ExplorerApp::new(Some(common::bundle()), ViewState { t: 3, maps: false, ..ViewState::default() }));
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            t: 3,
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
     h.key_press(eframe::egui::Key::ArrowRight);
     h.step();
     assert_eq!(h.state().view().t, 4);
@@ -84,7 +108,13 @@ fn keys_step_and_play_moves_time() {
 
 #[test]
 fn vision_condition_and_sequence_pickers() {
-    let mut h = harness(ExplorerApp::new(Some(common::bundle()), ViewState { maps: false, ..ViewState::default() }));
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
     h.get_by_label("proprioception observed").click();
     h.step();
     settle(&mut h);
@@ -93,25 +123,52 @@ fn vision_condition_and_sequence_pickers() {
     assert_eq!(h.state().current_run().unwrap().trace.steps, 12);
     // The view (with its condition) survives a trip through the URL hash.
     let hash = h.state().view().to_hash();
-    let back = ViewState::from_hash(&hash, &ViewState::default(), Condition::standard(&common::config()));
+    let back = ViewState::from_hash(
+        &hash,
+        &ViewState::default(),
+        Condition::standard(&common::config()),
+    );
     assert_eq!(back.condition, h.state().view().condition);
 }
 
 #[test]
 fn contribution_maps_need_and_get_the_ablation_runs() {
-    let h = harness(ExplorerApp::new(Some(common::bundle()), ViewState { t: 5, maps: true, ..ViewState::default() }));
+    let h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            t: 5,
+            maps: true,
+            ..ViewState::default()
+        },
+    ));
     let app = h.state();
     let key = app.current_key().unwrap();
     let standard = key.condition.without_ablation();
     for module in pvrnn_core::ModuleId::ALL {
-        let k = pvrnn_explorer::runs::RunKey { condition: standard.ablating(module), ..key.clone() };
-        let run = app.run(&k).expect("each single-module ablation is computed");
+        let k = pvrnn_explorer::runs::RunKey {
+            condition: standard.ablating(module),
+            ..key.clone()
+        };
+        let run = app
+            .run(&k)
+            .expect("each single-module ablation is computed");
         assert!(run.complete && run.trace.steps == 12);
-        let map = app.contribution_map(module).expect("its contribution map is drawn");
+        let map = app
+            .contribution_map(module)
+            .expect("its contribution map is drawn");
         assert_eq!(map.size, 8);
     }
     // Ablating a module changes the prediction somewhere: its map is not all black.
-    let lit = pvrnn_core::ModuleId::ALL.iter().filter(|&&m| app.contribution_map(m).unwrap().pixels.iter().any(|&p| p > 0)).count();
+    let lit = pvrnn_core::ModuleId::ALL
+        .iter()
+        .filter(|&&m| {
+            app.contribution_map(m)
+                .unwrap()
+                .pixels
+                .iter()
+                .any(|&p| p > 0)
+        })
+        .count();
     assert!(lit >= 1);
 }
 
@@ -123,31 +180,63 @@ fn precomputed_runs_load_instantly() {
     let mut files: HashMap<String, Vec<u8>> = HashMap::new();
     let config = {
         let mut m = model.clone();
-        m.config.normalisation = Some(pvrnn_dataset::proprio_ranges(&dataset.split(Some(pvrnn_dataset::Split::Learn))));
+        m.config.normalisation = Some(pvrnn_dataset::proprio_ranges(
+            &dataset.split(Some(pvrnn_dataset::Split::Learn)),
+        ));
         m.config
     };
-    let with_ranges = pvrnn_core::Model { config: config.clone(), ..model.clone() };
-    files.insert("model.safetensors".into(), io::model_to_bytes(&with_ranges.weights_only()).unwrap());
+    let with_ranges = pvrnn_core::Model {
+        config: config.clone(),
+        ..model.clone()
+    };
+    files.insert(
+        "model.safetensors".into(),
+        io::model_to_bytes(&with_ranges.weights_only()).unwrap(),
+    );
     let dir = tempdir();
     dataset.write(&dir).unwrap();
     for entry in std::fs::read_dir(&dir).unwrap() {
         let p = entry.unwrap().path();
-        files.insert(p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(&p).unwrap());
+        files.insert(
+            p.file_name().unwrap().to_string_lossy().into_owned(),
+            std::fs::read(&p).unwrap(),
+        );
     }
     let seqs: Vec<_> = dataset.sequences.iter().collect();
     let obs = dataset.observations(&seqs, &config).unwrap();
     let arc = std::sync::Arc::new(with_ranges.clone());
     let settings = InferenceSettings::from_config(&config, 0);
-    let runs: Vec<_> = (0..seqs.len()).map(|s| run_sequence(arc.clone(), settings.clone(), &obs, s, false, &mut |_, _| {}).unwrap()).collect();
+    let runs: Vec<_> = (0..seqs.len())
+        .map(|s| {
+            run_sequence(
+                arc.clone(),
+                settings.clone(),
+                &obs,
+                s,
+                false,
+                &mut |_, _| {},
+            )
+            .unwrap()
+        })
+        .collect();
     let names: Vec<String> = seqs.iter().map(|s| s.info.name.clone()).collect();
-    files.insert("runs.safetensors".into(), io::runs_to_bytes(&config, &runs, &[0, 1, 2], Some(&names), true).unwrap());
+    files.insert(
+        "runs.safetensors".into(),
+        io::runs_to_bytes(&config, &runs, &[0, 1, 2], Some(&names), true).unwrap(),
+    );
     files.insert(
         BUNDLE_MANIFEST.into(),
         br#"{"format": "pvrnn-bundle/1", "description": "from files", "model": "model.safetensors", "dataset": "dataset.json", "runs": "runs.safetensors"}"#.to_vec(),
     );
     let bundle = Bundle::from_files(&files).unwrap();
     assert_eq!(bundle.precomputed.len(), 3);
-    let mut app = ExplorerApp::new(Some(bundle), ViewState { maps: false, ..ViewState::default() });
+    let mut app = ExplorerApp::new(
+        Some(bundle),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    );
     // No time to compute: the run is already there, complete.
     app.compute(std::time::Duration::ZERO);
     let run = app.current_run().unwrap();
@@ -162,16 +251,29 @@ fn files_that_do_not_fit_get_a_clear_message() {
     let model = pvrnn_core::Model::<f32>::init(other, 1, 3, 1).unwrap();
     let e = Bundle::new("x".into(), model, common::dataset()).unwrap_err();
     assert!(e.contains("does not fit") && e.contains("[8, 16]"), "{e}");
-    let files = vec![("model.safetensors".to_string(), Ok(b"not safetensors".to_vec()))];
+    let files = vec![(
+        "model.safetensors".to_string(),
+        Ok(b"not safetensors".to_vec()),
+    )];
     let e = pvrnn_explorer::drop::assemble(files, None).unwrap_err();
     assert!(e.contains("model.safetensors"), "{e}");
-    let files = vec![("dataset.json".to_string(), Ok(serde_json::to_vec(&common::dataset().manifest).unwrap()))];
+    let files = vec![(
+        "dataset.json".to_string(),
+        Ok(serde_json::to_vec(&common::dataset().manifest).unwrap()),
+    )];
     let e = pvrnn_explorer::drop::assemble(files, Some(&common::bundle())).unwrap_err();
-    assert!(e.contains("reach_learn.safetensors") && e.contains("not dropped"), "{e}");
+    assert!(
+        e.contains("reach_learn.safetensors") && e.contains("not dropped"),
+        "{e}"
+    );
 }
 
 fn tempdir() -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("explorer-test-{}-{:?}", std::process::id(), std::thread::current().id()));
+    let dir = std::env::temp_dir().join(format!(
+        "explorer-test-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }

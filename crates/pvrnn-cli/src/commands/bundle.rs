@@ -4,9 +4,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use pvrnn_core::infer::{run_sequence, InferenceSettings};
+use pvrnn_core::infer::{InferenceSettings, run_sequence};
 use pvrnn_core::io;
-use pvrnn_dataset::{proprio_ranges, Dataset, Selection, Split};
+use pvrnn_dataset::{Dataset, Selection, Split, proprio_ranges};
 use serde::Serialize;
 
 use crate::util;
@@ -50,13 +50,20 @@ pub fn run(a: Args) -> Result<()> {
         let learn = dataset.select(&Selection::Split(Split::Learn))?;
         model.config.normalisation = Some(proprio_ranges(&learn));
     }
-    let selection = Selection::parse(&a.split).with_context(|| format!("--split {}: expected learn, test or all", a.split))?;
+    let selection = Selection::parse(&a.split)
+        .with_context(|| format!("--split {}: expected learn, test or all", a.split))?;
     let sequences: Vec<_> = dataset.select(&selection)?.into_iter().cloned().collect();
-    let subset = Dataset::new(&dataset.manifest.source, dataset.manifest.cameras.clone(), dataset.manifest.image_size, sequences)?;
+    let subset = Dataset::new(
+        &dataset.manifest.source,
+        dataset.manifest.cameras.clone(),
+        dataset.manifest.image_size,
+        sequences,
+    )?;
     let refs: Vec<_> = subset.sequences.iter().collect();
     let data = subset.observations(&refs, &model.config)?;
 
-    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create", a.out.display()))?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("{}: cannot create", a.out.display()))?;
     let model = Arc::new(model.weights_only());
     io::save_model(&a.out.join("model.safetensors"), &model)?;
     subset.write(&a.out)?;
@@ -67,14 +74,23 @@ pub fn run(a: Args) -> Result<()> {
     let mut runs = Vec::new();
     let mut before = 0u64;
     for s in 0..data.sequences() {
-        let run = run_sequence(model.clone(), settings.clone(), &data, s, false, &mut |done, _| {
-            bar.set_position(before + done as u64)
-        })?;
+        let run = run_sequence(
+            model.clone(),
+            settings.clone(),
+            &data,
+            s,
+            false,
+            &mut |done, _| bar.set_position(before + done as u64),
+        )?;
         before += run.steps() as u64;
         runs.push(run);
     }
     bar.finish();
-    let names: Vec<String> = subset.sequences.iter().map(|s| s.info.name.clone()).collect();
+    let names: Vec<String> = subset
+        .sequences
+        .iter()
+        .map(|s| s.info.name.clone())
+        .collect();
     let ids: Vec<usize> = (0..names.len()).collect();
     // f16 states: the explorer only draws them, and the bundle has to download quickly.
     let bytes = io::runs_to_bytes(&model.config, &runs, &ids, Some(&names), true)?;
@@ -86,7 +102,14 @@ pub fn run(a: Args) -> Result<()> {
         dataset: pvrnn_dataset::MANIFEST,
         runs: "runs.safetensors",
     };
-    io::write_atomic(&a.out.join("bundle.json"), serde_json::to_string_pretty(&manifest)?.as_bytes())?;
-    eprintln!("wrote {} ({} sequences with precomputed runs)", a.out.display(), names.len());
+    io::write_atomic(
+        &a.out.join("bundle.json"),
+        serde_json::to_string_pretty(&manifest)?.as_bytes(),
+    )?;
+    eprintln!(
+        "wrote {} ({} sequences with precomputed runs)",
+        a.out.display(),
+        names.len()
+    );
     Ok(())
 }

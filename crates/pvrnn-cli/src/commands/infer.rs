@@ -93,9 +93,14 @@ pub fn run(a: Args) -> Result<()> {
     let mut done_before = 0u64;
     for &s in &which {
         bar.set_message(format!("sequence {s}"));
-        let run = run_sequence(model.clone(), settings.clone(), &data, s, !a.compact, &mut |done, _| {
-            bar.set_position(done_before + done as u64)
-        })
+        let run = run_sequence(
+            model.clone(),
+            settings.clone(),
+            &data,
+            s,
+            !a.compact,
+            &mut |done, _| bar.set_position(done_before + done as u64),
+        )
         .with_context(|| format!("sequence {s}"))?;
         done_before += run.steps() as u64;
         runs.push(run);

@@ -157,7 +157,8 @@ fn evaluate<T: Real>(
             }
             let n_rows = rows.len() / hl.max(1);
             let small = cfg!(target_arch = "wasm32") && n_rows <= readout::SMALL_ROWS;
-            let pred = readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows);
+            let pred =
+                readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows);
             let dims = config.modality_dims(modality);
             let mut start = 0;
             for (i, count) in per_window.into_iter().enumerate() {

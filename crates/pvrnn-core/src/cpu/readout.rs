@@ -10,7 +10,7 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
-use crate::kernels::{simd, LANES};
+use crate::kernels::{LANES, simd};
 use crate::parallel;
 use crate::params::{Dense, ReadoutParams};
 
@@ -198,7 +198,16 @@ pub(crate) fn output_loss<T: Real>(
                 let x_blk = MatRef::from_row_major_slice(&input[r0 * hl..(r0 + rw) * hl], rw, hl);
                 let tile = &mut tile[..rw * cw];
                 match small {
-                    Some(wt) => small_forward(tile, &input[r0 * hl..(r0 + rw) * hl], rw, hl, wt, dims, c0, cw),
+                    Some(wt) => small_forward(
+                        tile,
+                        &input[r0 * hl..(r0 + rw) * hl],
+                        rw,
+                        hl,
+                        wt,
+                        dims,
+                        c0,
+                        cw,
+                    ),
                     None => faer::linalg::matmul::matmul(
                         MatMut::from_row_major_slice_mut(tile, rw, cw),
                         Accum::Replace,
@@ -286,7 +295,16 @@ const BACKWARD_TILE: (usize, usize) = (2, 16);
 
 /// `y[i, ..cw] = x[i, :] @ wt[:, c0..c0 + cw]` (`wt` = W^T, row stride `dims`). Every output
 /// sums over the hidden units in order, so the tiling does not change a single bit.
-fn small_forward<T: Real>(y: &mut [T], x: &[T], n: usize, hl: usize, wt: &[T], dims: usize, c0: usize, cw: usize) {
+fn small_forward<T: Real>(
+    y: &mut [T],
+    x: &[T],
+    n: usize,
+    hl: usize,
+    wt: &[T],
+    dims: usize,
+    c0: usize,
+    cw: usize,
+) {
     const R: usize = FORWARD_TILE.0;
     const C: usize = FORWARD_TILE.1;
     simd(
@@ -329,7 +347,9 @@ fn forward_tile<T: Real, const R: usize, const C: usize>(
 ) {
     let mut acc = [[T::ZERO; C]; R];
     for j in 0..hl {
-        let w: &[T; C] = wt[j * dims + c..j * dims + c + C].try_into().expect("C columns");
+        let w: &[T; C] = wt[j * dims + c..j * dims + c + C]
+            .try_into()
+            .expect("C columns");
         for q in 0..R {
             let a = x[(i + q) * hl + j];
             for l in 0..C {
@@ -389,7 +409,11 @@ fn backward_tile<T: Real, const C: usize>(
     count: usize,
     j: usize,
 ) {
-    let load = |gx: &[T], q: usize| -> [T; C] { gx[(i + q) * hl + j..(i + q) * hl + j + C].try_into().expect("C units") };
+    let load = |gx: &[T], q: usize| -> [T; C] {
+        gx[(i + q) * hl + j..(i + q) * hl + j + C]
+            .try_into()
+            .expect("C units")
+    };
     let mut a0 = load(gx, 0);
     if count == 2 {
         let mut a1 = load(gx, 1);
@@ -417,7 +441,12 @@ fn backward_tile<T: Real, const C: usize>(
 
 /// Predictions of every output dimension for `n` rows: `tanh(input @ W^T + b)`. With `out_t`
 /// (W^T) and few rows, the small-row kernel replaces faer, as in `output_loss`.
-pub(crate) fn output_predict<T: Real>(out: &Dense<T>, out_t: Option<&[T]>, input: &[T], n: usize) -> Vec<T> {
+pub(crate) fn output_predict<T: Real>(
+    out: &Dense<T>,
+    out_t: Option<&[T]>,
+    input: &[T],
+    n: usize,
+) -> Vec<T> {
     let Some(wt) = out_t.filter(|_| n <= SMALL_ROWS) else {
         return dense_forward(out, input, n, true, true);
     };
@@ -440,13 +469,23 @@ mod tests {
     use super::*;
 
     fn values(n: usize, seed: u32) -> Vec<f32> {
-        (0..n).map(|i| ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) % 1000) as f32 / 500.0 - 1.0).collect()
+        (0..n)
+            .map(|i| {
+                ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) % 1000) as f32 / 500.0
+                    - 1.0
+            })
+            .collect()
     }
 
     /// Odd sizes exercise every remainder path of the register tiles.
     #[test]
     fn small_kernels_match_plain_loops() {
-        for &(n, hl, dims, c0, cw) in &[(7, 37, 40, 3, 29), (1, 5, 9, 0, 9), (4, 16, 8, 0, 8), (64, 20, 33, 1, 17)] {
+        for &(n, hl, dims, c0, cw) in &[
+            (7, 37, 40, 3, 29),
+            (1, 5, 9, 0, 9),
+            (4, 16, 8, 0, 8),
+            (64, 20, 33, 1, 17),
+        ] {
             let x = values(n * hl, 1);
             let wt = values(hl * dims, 2);
             let mut y = vec![0f32; n * cw];
@@ -454,19 +493,28 @@ mod tests {
             for i in 0..n {
                 for c in 0..cw {
                     let want: f32 = (0..hl).map(|j| x[i * hl + j] * wt[j * dims + c0 + c]).sum();
-                    assert!((y[i * cw + c] - want).abs() < 1e-4, "forward ({n},{hl},{cw}) [{i},{c}]");
+                    assert!(
+                        (y[i * cw + c] - want).abs() < 1e-4,
+                        "forward ({n},{hl},{cw}) [{i},{c}]"
+                    );
                 }
             }
             // W's rows for these columns, [cw, hl].
-            let w: Vec<f32> = (0..cw).flat_map(|c| (0..hl).map(|j| wt[j * dims + c0 + c]).collect::<Vec<_>>()).collect();
+            let w: Vec<f32> = (0..cw)
+                .flat_map(|c| (0..hl).map(|j| wt[j * dims + c0 + c]).collect::<Vec<_>>())
+                .collect();
             let e = values(n * cw, 3);
             let start = values(n * hl, 4);
             let mut gx = start.clone();
             small_backward(&mut gx, &e, n, hl, &w, cw);
             for i in 0..n {
                 for j in 0..hl {
-                    let want = start[i * hl + j] + (0..cw).map(|c| e[i * cw + c] * w[c * hl + j]).sum::<f32>();
-                    assert!((gx[i * hl + j] - want).abs() < 1e-4, "backward ({n},{hl},{cw}) [{i},{j}]");
+                    let want = start[i * hl + j]
+                        + (0..cw).map(|c| e[i * cw + c] * w[c * hl + j]).sum::<f32>();
+                    assert!(
+                        (gx[i * hl + j] - want).abs() < 1e-4,
+                        "backward ({n},{hl},{cw}) [{i},{j}]"
+                    );
                 }
             }
         }

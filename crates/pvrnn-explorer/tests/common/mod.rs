@@ -8,14 +8,22 @@ use pvrnn_explorer::Bundle;
 
 pub fn config() -> ModelConfig {
     let mut c = ModelConfig::default();
-    let m = |d, z| ModuleConfig { d, z, tau: [2.0, 4.0] };
+    let m = |d, z| ModuleConfig {
+        d,
+        z,
+        tau: [2.0, 4.0],
+    };
     c.executive = m(6, 3);
     c.associative = m(6, 3);
     c.exteroceptive = m(8, 4);
     c.proprioceptive = m(6, 3);
     c.exteroceptive_readout.hidden = vec![8, 10];
     c.proprioceptive_readout.hidden = vec![8];
-    c.vision = VisionLayout { cameras: 2, channels: 3, resolutions: vec![4, 8] };
+    c.vision = VisionLayout {
+        cameras: 2,
+        channels: 3,
+        resolutions: vec![4, 8],
+    };
     c.inference.window = 4;
     c.inference.iterations = 3;
     c
@@ -35,8 +43,12 @@ pub fn sequence(name: &str, task: &str, split: Split, t: usize, seed: u32) -> Se
         },
         cameras: 2,
         image_size: 8,
-        images: (0..t * 2 * 8 * 8 * 3).map(|i| ((i as u32 * 37 + seed * 11) % 256) as u8).collect(),
-        joints: (0..t * 14).map(|i| (i as f32 * 0.05 + seed as f32).sin()).collect(),
+        images: (0..t * 2 * 8 * 8 * 3)
+            .map(|i| ((i as u32 * 37 + seed * 11) % 256) as u8)
+            .collect(),
+        joints: (0..t * 14)
+            .map(|i| (i as f32 * 0.05 + seed as f32).sin())
+            .collect(),
         torques: (0..t * 14).map(|i| (i as f32 * 0.07).cos() * 3.0).collect(),
         subtask: (0..t).map(|i| (i * 2 / t) as u32).collect(),
     }

@@ -1,0 +1,468 @@
+//! The compute side of the explorer: online inference of one run at a time, advanced in
+//! slices, reporting each finished step as a [`CompactStep`]. It knows nothing of egui or of
+//! the browser, so the same engine runs inline between frames (desktop, tests) and inside a
+//! Web Worker (web), where the page only sees the messages.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use pvrnn_core::config::{ModelConfig, ModuleId};
+use pvrnn_core::infer::{OnlineInference, StepOutput};
+use pvrnn_core::{Modality, Model, Observations};
+use web_time::{Duration, Instant};
+
+use crate::runs::RunKey;
+
+/// One module's states at one step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModuleStep {
+    pub mu_p: Vec<f32>,
+    pub sigma_p: Vec<f32>,
+    pub mu_q: Vec<f32>,
+    pub sigma_q: Vec<f32>,
+    pub d: Vec<f32>,
+    /// d of the one-step-ahead prior prediction.
+    pub prior_d: Vec<f32>,
+}
+
+/// What the views keep of one inference step: the latent states, from which every image is
+/// read out on demand, plus the few numbers that would cost a read-out to recompute.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CompactStep {
+    pub modules: [ModuleStep; 4],
+    /// Free energy of the inference window.
+    pub free_energy: f32,
+    /// Mean squared reconstruction error (vision, proprioception).
+    pub recon_error: [f32; 2],
+    /// Proprioception reconstructed and predicted one step ahead (model units).
+    pub proprio_recon: Vec<f32>,
+    pub proprio_prior: Vec<f32>,
+}
+
+/// Sizes that fix the layout of a [`CompactStep`] as a flat list of numbers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepLayout {
+    pub z: [usize; 4],
+    pub d: [usize; 4],
+    pub proprio: usize,
+}
+
+impl StepLayout {
+    pub fn of(config: &ModelConfig) -> Self {
+        Self {
+            z: ModuleId::ALL.map(|id| config.module(id).z),
+            d: ModuleId::ALL.map(|id| config.module(id).d),
+            proprio: config.proprio_dims,
+        }
+    }
+
+    /// Numbers in one encoded step.
+    pub fn len(&self) -> usize {
+        (0..4).map(|m| 4 * self.z[m] + 2 * self.d[m]).sum::<usize>() + 3 + 2 * self.proprio
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl CompactStep {
+    pub fn from_output(out: &StepOutput<f32>) -> Self {
+        Self {
+            modules: std::array::from_fn(|m| {
+                let s = &out.modules[m];
+                ModuleStep {
+                    mu_p: s.mu_p.clone(),
+                    sigma_p: s.sigma_p.clone(),
+                    mu_q: s.mu_q.clone(),
+                    sigma_q: s.sigma_q.clone(),
+                    d: s.d.clone(),
+                    prior_d: out.prior_d[m].clone(),
+                }
+            }),
+            free_energy: out.window_free_energy.total as f32,
+            recon_error: out.recon_error.map(|e| e as f32),
+            proprio_recon: out.recon[1].clone(),
+            proprio_prior: out.prior_next[1].clone(),
+        }
+    }
+
+    /// Flat encoding, for messages between threads.
+    pub fn to_f32s(&self) -> Vec<f32> {
+        let mut v = Vec::new();
+        for m in &self.modules {
+            for part in [&m.mu_p, &m.sigma_p, &m.mu_q, &m.sigma_q, &m.d, &m.prior_d] {
+                v.extend_from_slice(part);
+            }
+        }
+        v.push(self.free_energy);
+        v.extend_from_slice(&self.recon_error);
+        v.extend_from_slice(&self.proprio_recon);
+        v.extend_from_slice(&self.proprio_prior);
+        v
+    }
+
+    /// Decodes [`Self::to_f32s`]; a length that does not fit the layout is an error.
+    pub fn from_f32s(v: &[f32], layout: &StepLayout) -> Result<Self, String> {
+        if v.len() != layout.len() {
+            return Err(format!(
+                "a step message has {} numbers, the model needs {}",
+                v.len(),
+                layout.len()
+            ));
+        }
+        let mut rest = v;
+        let mut take = |n: usize| {
+            let (head, tail) = rest.split_at(n);
+            rest = tail;
+            head.to_vec()
+        };
+        let modules = std::array::from_fn(|m| ModuleStep {
+            mu_p: take(layout.z[m]),
+            sigma_p: take(layout.z[m]),
+            mu_q: take(layout.z[m]),
+            sigma_q: take(layout.z[m]),
+            d: take(layout.d[m]),
+            prior_d: take(layout.d[m]),
+        });
+        let free_energy = take(1)[0];
+        let e = take(2);
+        Ok(Self {
+            modules,
+            free_energy,
+            recon_error: [e[0], e[1]],
+            proprio_recon: take(layout.proprio),
+            proprio_prior: take(layout.proprio),
+        })
+    }
+}
+
+/// A live run that finished: steps, computing time, and wall time since it started.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Finished {
+    pub key: RunKey,
+    pub steps: usize,
+    pub busy: Duration,
+    pub wall: Duration,
+}
+
+/// What the engine reports.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    /// The next step of a run (steps of one run always arrive in order).
+    Step(RunKey, Box<CompactStep>),
+    Done(Finished),
+    Failed(RunKey, String),
+}
+
+/// Online inference of one sequence under one condition, advanced a slice at a time.
+struct Job {
+    key: RunKey,
+    inference: OnlineInference<f32>,
+    observations: Arc<Observations<f32>>,
+    next: usize,
+    /// Time spent computing (slices only, not the pauses in between).
+    busy: Duration,
+    started: Instant,
+}
+
+/// Inference iterations per slice before the clock is checked.
+const CHUNK: usize = 5;
+
+/// Runs one inference job at a time; a job switched away from is paused, not lost.
+#[derive(Default)]
+pub struct Engine {
+    model: Option<Arc<Model<f32>>>,
+    observations: HashMap<String, Arc<Observations<f32>>>,
+    current: Option<Job>,
+    paused: HashMap<RunKey, Job>,
+    /// Failures found when a run was asked for, reported by the next `work`.
+    failures: Vec<Event>,
+}
+
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine")
+            .field("sequences", &self.observations.len())
+            .field("running", &self.running())
+            .field("paused", &self.paused.len())
+            .finish()
+    }
+}
+
+impl Engine {
+    /// A new model: every job and sequence is forgotten.
+    pub fn set_model(&mut self, model: Arc<Model<f32>>) {
+        *self = Self {
+            model: Some(model),
+            ..Self::default()
+        };
+    }
+
+    pub fn add_observations(&mut self, name: String, observations: Arc<Observations<f32>>) {
+        self.observations.insert(name, observations);
+    }
+
+    pub fn has_observations(&self, name: &str) -> bool {
+        self.observations.contains_key(name)
+    }
+
+    pub fn running(&self) -> Option<&RunKey> {
+        self.current.as_ref().map(|j| &j.key)
+    }
+
+    /// Steps done and total of the running job.
+    pub fn progress(&self) -> Option<(usize, usize)> {
+        self.current
+            .as_ref()
+            .map(|j| (j.next, j.observations.lengths()[0]))
+    }
+
+    /// Makes `key` the running job: the current one is paused, and `key` resumes where it
+    /// stopped or starts.
+    pub fn run(&mut self, key: RunKey) {
+        if self.running() == Some(&key) {
+            return;
+        }
+        if let Some(job) = self.current.take() {
+            self.paused.insert(job.key.clone(), job);
+        }
+        if let Some(job) = self.paused.remove(&key) {
+            self.current = Some(job);
+            return;
+        }
+        match self.start(&key) {
+            Ok(job) => self.current = Some(job),
+            Err(e) => self.failures.push(Event::Failed(key, e)),
+        }
+    }
+
+    fn start(&self, key: &RunKey) -> Result<Job, String> {
+        let model = self.model.as_ref().ok_or("no model is loaded")?;
+        let observations = self
+            .observations
+            .get(&key.sequence)
+            .ok_or_else(|| format!("no observations of sequence `{}`", key.sequence))?
+            .clone();
+        let settings = key.condition.settings(&model.config);
+        let inference = OnlineInference::new(model.clone(), settings).map_err(|e| e.to_string())?;
+        Ok(Job {
+            key: key.clone(),
+            inference,
+            observations,
+            next: 0,
+            busy: Duration::ZERO,
+            started: Instant::now(),
+        })
+    }
+
+    /// Computes the running job for about `budget` (at least one slice) and reports what
+    /// happened.
+    pub fn work(&mut self, budget: Duration) -> Vec<Event> {
+        let mut events = std::mem::take(&mut self.failures);
+        let start = Instant::now();
+        let mut first = true;
+        while let Some(job) = self.current.as_mut() {
+            if !std::mem::take(&mut first) && start.elapsed() >= budget {
+                break;
+            }
+            let slice = Instant::now();
+            let result = advance(job);
+            job.busy += slice.elapsed();
+            match result {
+                Ok(step) => {
+                    if let Some(step) = step {
+                        events.push(Event::Step(job.key.clone(), Box::new(step)));
+                    }
+                    if job.next >= job.observations.lengths()[0] {
+                        events.push(Event::Done(Finished {
+                            key: job.key.clone(),
+                            steps: job.next,
+                            busy: job.busy,
+                            wall: job.started.elapsed(),
+                        }));
+                        self.current = None;
+                    }
+                }
+                Err(e) => {
+                    events.push(Event::Failed(job.key.clone(), e));
+                    self.current = None;
+                }
+            }
+        }
+        events
+    }
+}
+
+/// A few updates of the job, and the step if it finished one.
+fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
+    let inf = &mut job.inference;
+    if !inf.in_step() {
+        let t = job.next;
+        inf.begin_step(
+            job.observations.step(Modality::Exteroceptive, 0, t),
+            job.observations.step(Modality::Proprioceptive, 0, t),
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    if inf.iterate(CHUNK) > 0 {
+        return Ok(None);
+    }
+    let out = inf.finish_step().map_err(|e| e.to_string())?;
+    job.next += 1;
+    Ok(Some(CompactStep::from_output(&out)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runs::Condition;
+    use pvrnn_core::Tensor;
+    use pvrnn_core::config::{ModuleConfig, VisionLayout};
+
+    fn setup() -> (Arc<Model<f32>>, Arc<Observations<f32>>) {
+        let mut config = ModelConfig::default();
+        let m = |d, z| ModuleConfig {
+            d,
+            z,
+            tau: [2.0, 4.0],
+        };
+        config.executive = m(6, 3);
+        config.associative = m(6, 3);
+        config.exteroceptive = m(8, 4);
+        config.proprioceptive = m(6, 3);
+        config.exteroceptive_readout.hidden = vec![8];
+        config.proprioceptive_readout.hidden = vec![8];
+        config.vision = VisionLayout {
+            cameras: 1,
+            channels: 3,
+            resolutions: vec![4],
+        };
+        config.inference.iterations = 3;
+        config.inference.window = 4;
+        let model = Model::<f32>::init(config.clone(), 1, 9, 7).expect("model");
+        let steps = 9;
+        let ext = config.vision.dims();
+        let extero: Vec<f32> = (0..steps * ext)
+            .map(|i| ((i * 37) % 100) as f32 / 60.0 - 0.8)
+            .collect();
+        let proprio: Vec<f32> = (0..steps * config.proprio_dims)
+            .map(|i| ((i * 11) % 50) as f32 / 40.0 - 0.6)
+            .collect();
+        let obs = Observations::new(
+            Tensor::from_vec(&[1, steps, ext], extero).expect("extero"),
+            Tensor::from_vec(&[1, steps, config.proprio_dims], proprio).expect("proprio"),
+            None,
+        )
+        .expect("observations");
+        (Arc::new(model), Arc::new(obs))
+    }
+
+    fn steps_of(events: &[Event], key: &RunKey) -> Vec<CompactStep> {
+        events
+            .iter()
+            .filter_map(|e| match e {
+                Event::Step(k, s) if k == key => Some((**s).clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn run_to_end(engine: &mut Engine) -> Vec<Event> {
+        let mut events = Vec::new();
+        while engine.running().is_some() {
+            events.extend(engine.work(Duration::from_millis(50)));
+        }
+        events
+    }
+
+    #[test]
+    fn a_paused_run_resumes_to_the_same_result() {
+        let (model, obs) = setup();
+        let standard = Condition::standard(&model.config);
+        let a = RunKey {
+            sequence: "s".into(),
+            condition: standard,
+        };
+        let b = RunKey {
+            sequence: "s".into(),
+            condition: Condition {
+                seed: 5,
+                ..standard
+            },
+        };
+
+        let mut engine = Engine::default();
+        engine.set_model(model.clone());
+        engine.add_observations("s".into(), obs.clone());
+        engine.run(a.clone());
+        let whole = run_to_end(&mut engine);
+        assert_eq!(steps_of(&whole, &a).len(), 9);
+        assert!(matches!(whole.last(), Some(Event::Done(f)) if f.key == a && f.steps == 9));
+
+        // Interrupt a after a few steps, run b to the end, then resume a.
+        let mut engine = Engine::default();
+        engine.set_model(model);
+        engine.add_observations("s".into(), obs);
+        engine.run(a.clone());
+        let mut events = Vec::new();
+        while steps_of(&events, &a).len() < 3 {
+            events.extend(engine.work(Duration::ZERO));
+        }
+        engine.run(b.clone());
+        events.extend(run_to_end(&mut engine));
+        engine.run(a.clone());
+        events.extend(run_to_end(&mut engine));
+        assert_eq!(
+            steps_of(&events, &a),
+            steps_of(&whole, &a),
+            "resumed run differs"
+        );
+        assert_eq!(steps_of(&events, &b).len(), 9);
+        assert_ne!(
+            steps_of(&events, &b),
+            steps_of(&whole, &a),
+            "seed must matter"
+        );
+    }
+
+    #[test]
+    fn steps_survive_the_flat_encoding() {
+        let (model, obs) = setup();
+        let key = RunKey {
+            sequence: "s".into(),
+            condition: Condition::standard(&model.config),
+        };
+        let layout = StepLayout::of(&model.config);
+        let mut engine = Engine::default();
+        engine.set_model(model);
+        engine.add_observations("s".into(), obs);
+        engine.run(key.clone());
+        let steps = steps_of(&run_to_end(&mut engine), &key);
+        for s in &steps {
+            let flat = s.to_f32s();
+            assert_eq!(flat.len(), layout.len());
+            assert_eq!(&CompactStep::from_f32s(&flat, &layout).expect("decodes"), s);
+        }
+        let err = CompactStep::from_f32s(&steps[0].to_f32s()[1..], &layout).unwrap_err();
+        assert!(err.contains("numbers"), "{err}");
+    }
+
+    #[test]
+    fn missing_inputs_are_reported_not_panicked() {
+        let (model, _) = setup();
+        let key = RunKey {
+            sequence: "nowhere".into(),
+            condition: Condition::standard(&model.config),
+        };
+        let mut engine = Engine::default();
+        engine.set_model(model);
+        engine.run(key.clone());
+        let events = engine.work(Duration::from_millis(10));
+        assert!(
+            matches!(&events[..], [Event::Failed(k, e)] if *k == key && e.contains("nowhere")),
+            "{events:?}"
+        );
+        assert!(engine.running().is_none());
+    }
+}

@@ -1,0 +1,371 @@
+//! Live inference in a Web Worker, so the page keeps drawing at full rate while a run is
+//! computed beside it. The worker is the same wasm module as the page (`web/worker.js` loads
+//! it and calls [`run_worker`]); it hosts an [`Engine`] and talks in plain messages:
+//!
+//! page → worker: `model {generation, bytes}`, `observations {generation, name, steps,
+//! extero, proprio}`, `run {generation, key}`;
+//! worker → page: `ready`, `step {generation, key, data}`, `done {generation, key, steps,
+//! busy_ms, wall_ms}`, `failed {generation, key, message}`.
+//!
+//! Keys are [`RunKey`]s as JSON, steps are [`CompactStep::to_f32s`]. Messages carry the
+//! generation of the model they belong to, so results that were in flight when a new model
+//! arrived are dropped.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::Arc;
+
+use eframe::wasm_bindgen::{self, JsCast, JsValue, closure::Closure, prelude::wasm_bindgen};
+use eframe::web_sys;
+use js_sys::{Array, Float32Array, Object, Reflect, Uint8Array};
+use pvrnn_core::{Modality, Model, Observations, Tensor, io};
+use web_time::Duration;
+
+use crate::engine::{CompactStep, Engine, Event, Finished, StepLayout};
+use crate::runs::RunKey;
+
+/// Computing time per worker tick; messages from the page are handled between ticks.
+const TICK: Duration = Duration::from_millis(30);
+
+fn message(kind: &str, generation: u32, fields: &[(&str, JsValue)]) -> Object {
+    let m = Object::new();
+    let set = |k: &str, v: &JsValue| {
+        let _ = Reflect::set(&m, &k.into(), v);
+    };
+    set("kind", &kind.into());
+    set("generation", &generation.into());
+    for (k, v) in fields {
+        set(k, v);
+    }
+    m
+}
+
+fn field(m: &JsValue, name: &str) -> JsValue {
+    Reflect::get(m, &name.into()).unwrap_or(JsValue::UNDEFINED)
+}
+
+fn string_field(m: &JsValue, name: &str) -> Result<String, String> {
+    field(m, name)
+        .as_string()
+        .ok_or_else(|| format!("a worker message has no text `{name}`"))
+}
+
+fn number_field(m: &JsValue, name: &str) -> Result<f64, String> {
+    field(m, name)
+        .as_f64()
+        .ok_or_else(|| format!("a worker message has no number `{name}`"))
+}
+
+fn floats(values: &[f32]) -> Float32Array {
+    Float32Array::from(values)
+}
+
+/// Encodes a key as the messages carry it.
+pub fn key_to_text(key: &RunKey) -> String {
+    serde_json::to_string(key).expect("a key is plain data")
+}
+
+pub fn key_from_text(text: &str) -> Result<RunKey, String> {
+    serde_json::from_str(text).map_err(|e| format!("a worker message has a bad run key: {e}"))
+}
+
+/// Worker → page: an engine event as a message (with the buffers to transfer).
+pub fn event_message(event: &Event, generation: u32) -> (Object, Array) {
+    let transfer = Array::new();
+    let m = match event {
+        Event::Step(key, step) => {
+            let data = floats(&step.to_f32s());
+            transfer.push(&data.buffer());
+            message(
+                "step",
+                generation,
+                &[("key", key_to_text(key).into()), ("data", data.into())],
+            )
+        }
+        Event::Done(f) => message(
+            "done",
+            generation,
+            &[
+                ("key", key_to_text(&f.key).into()),
+                ("steps", (f.steps as f64).into()),
+                ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
+                ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
+            ],
+        ),
+        Event::Failed(key, e) => message(
+            "failed",
+            generation,
+            &[("key", key_to_text(key).into()), ("message", e.into())],
+        ),
+    };
+    (m, transfer)
+}
+
+/// Page side: a message from the worker as an engine event.
+pub fn event_from_message(m: &JsValue, layout: &StepLayout) -> Result<Event, String> {
+    let key = key_from_text(&string_field(m, "key")?)?;
+    let ms = |name| number_field(m, name).map(|v| Duration::from_secs_f64(v.max(0.0) / 1e3));
+    match string_field(m, "kind")?.as_str() {
+        "step" => {
+            let data = field(m, "data")
+                .dyn_into::<Float32Array>()
+                .map_err(|_| "a step message has no data")?;
+            Ok(Event::Step(
+                key,
+                Box::new(CompactStep::from_f32s(&data.to_vec(), layout)?),
+            ))
+        }
+        "done" => Ok(Event::Done(Finished {
+            key,
+            steps: number_field(m, "steps")? as usize,
+            busy: ms("busy_ms")?,
+            wall: ms("wall_ms")?,
+        })),
+        "failed" => Ok(Event::Failed(key, string_field(m, "message")?)),
+        other => Err(format!("unknown worker message `{other}`")),
+    }
+}
+
+struct WorkerSide {
+    engine: Engine,
+    generation: u32,
+    scheduled: bool,
+}
+
+/// Worker → itself: a message through this channel runs one tick. Unlike `setTimeout(0)`
+/// it is not clamped to 4 ms, and page messages still get in between ticks.
+struct Ticker {
+    port: web_sys::MessagePort,
+}
+
+/// The worker's entry point (called by `web/worker.js` after the module loaded).
+#[wasm_bindgen]
+pub fn run_worker() -> Result<(), JsValue> {
+    let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().dyn_into()?;
+    let side = Rc::new(RefCell::new(WorkerSide {
+        engine: Engine::default(),
+        generation: 0,
+        scheduled: false,
+    }));
+    let channel = web_sys::MessageChannel::new()?;
+    let ticker = Rc::new(Ticker {
+        port: channel.port2(),
+    });
+
+    let (tick_side, tick_scope, tick_ticker) = (side.clone(), scope.clone(), ticker.clone());
+    let tick = Closure::<dyn FnMut()>::new(move || {
+        let mut s = tick_side.borrow_mut();
+        s.scheduled = false;
+        let events = s.engine.work(TICK);
+        for e in &events {
+            let (m, transfer) = event_message(e, s.generation);
+            let _ = tick_scope.post_message_with_transfer(&m, &transfer);
+        }
+        if s.engine.running().is_some() {
+            s.scheduled = true;
+            let _ = tick_ticker.port.post_message(&JsValue::NULL);
+        }
+    });
+    channel
+        .port1()
+        .set_onmessage(Some(tick.as_ref().unchecked_ref()));
+    tick.forget();
+
+    let on_message =
+        Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
+            let m = e.data();
+            let mut s = side.borrow_mut();
+            if let Err(err) = handle_command(&mut s, &m) {
+                crate::web::log(&format!("worker: {err}"));
+            }
+            if s.engine.running().is_some() && !s.scheduled {
+                s.scheduled = true;
+                let _ = ticker.port.post_message(&JsValue::NULL);
+            }
+        });
+    scope.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
+    on_message.forget();
+    scope.post_message(&message("ready", 0, &[]))
+}
+
+fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
+    let generation = number_field(m, "generation")? as u32;
+    match string_field(m, "kind")?.as_str() {
+        "model" => {
+            let bytes = field(m, "bytes")
+                .dyn_into::<Uint8Array>()
+                .map_err(|_| "a model message has no bytes")?;
+            let model = io::model_from_bytes(bytes.to_vec(), "the model sent to the worker")
+                .map_err(|e| e.to_string())?;
+            s.engine.set_model(Arc::new(model));
+            s.generation = generation;
+        }
+        _ if generation != s.generation => {} // meant for a model already replaced
+        "observations" => {
+            let name = string_field(m, "name")?;
+            let steps = number_field(m, "steps")? as usize;
+            let tensor = |which: &str| -> Result<Tensor<f32>, String> {
+                let data = field(m, which)
+                    .dyn_into::<Float32Array>()
+                    .map_err(|_| format!("no `{which}` data"))?
+                    .to_vec();
+                let dims = data.len() / steps.max(1);
+                Tensor::from_vec(&[1, steps, dims], data).map_err(|e| e.to_string())
+            };
+            let obs = Observations::new(tensor("extero")?, tensor("proprio")?, None)
+                .map_err(|e| e.to_string())?;
+            s.engine.add_observations(name, Arc::new(obs));
+        }
+        "run" => s.engine.run(key_from_text(&string_field(m, "key")?)?),
+        other => return Err(format!("unknown command `{other}`")),
+    }
+    Ok(())
+}
+
+#[derive(Default)]
+struct PageSide {
+    ready: bool,
+    /// Commands posted before the worker was ready.
+    pending: Vec<(Object, Array)>,
+    events: Vec<Event>,
+    failure: Option<String>,
+    generation: u32,
+    layout: Option<StepLayout>,
+}
+
+/// The page's handle on the worker.
+pub struct WorkerClient {
+    worker: web_sys::Worker,
+    side: Rc<RefCell<PageSide>>,
+}
+
+impl std::fmt::Debug for WorkerClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.side.borrow();
+        f.debug_struct("WorkerClient")
+            .field("ready", &s.ready)
+            .field("generation", &s.generation)
+            .finish()
+    }
+}
+
+impl WorkerClient {
+    /// Starts the worker script at `url` (a module worker); `ctx` repaints when results arrive.
+    pub fn spawn(url: &str, ctx: eframe::egui::Context) -> Result<Self, String> {
+        let options = web_sys::WorkerOptions::new();
+        options.set_type(web_sys::WorkerType::Module);
+        let worker = web_sys::Worker::new_with_options(url, &options)
+            .map_err(|e| format!("cannot start {url}: {e:?}"))?;
+        let side = Rc::new(RefCell::new(PageSide::default()));
+
+        let (msg_side, msg_worker) = (side.clone(), worker.clone());
+        let on_message =
+            Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
+                let m = e.data();
+                let mut s = msg_side.borrow_mut();
+                if field(&m, "kind").as_string().as_deref() == Some("ready") {
+                    s.ready = true;
+                    for (m, transfer) in std::mem::take(&mut s.pending) {
+                        let _ = msg_worker.post_message_with_transfer(&m, &transfer);
+                    }
+                    return;
+                }
+                if field(&m, "generation").as_f64() != Some(s.generation as f64) {
+                    return;
+                }
+                let Some(layout) = s.layout else { return };
+                match event_from_message(&m, &layout) {
+                    Ok(event) => s.events.push(event),
+                    Err(err) => s.failure = Some(err),
+                }
+                ctx.request_repaint();
+            });
+        worker.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
+        on_message.forget();
+
+        let err_side = side.clone();
+        let on_error = Closure::<dyn FnMut(web_sys::Event)>::new(move |e: web_sys::Event| {
+            let text = e
+                .dyn_ref::<web_sys::ErrorEvent>()
+                .map_or_else(|| "the worker failed".to_string(), |e| e.message());
+            err_side.borrow_mut().failure = Some(text);
+        });
+        worker.set_onerror(Some(on_error.as_ref().unchecked_ref()));
+        on_error.forget();
+        Ok(Self { worker, side })
+    }
+
+    fn post(&self, m: Object, transfer: Array) {
+        let mut s = self.side.borrow_mut();
+        if s.ready {
+            if let Err(e) = self.worker.post_message_with_transfer(&m, &transfer) {
+                s.failure = Some(format!("cannot message the worker: {e:?}"));
+            }
+        } else {
+            s.pending.push((m, transfer));
+        }
+    }
+
+    pub fn set_model(&mut self, model: &Arc<Model<f32>>) {
+        let generation = {
+            let mut s = self.side.borrow_mut();
+            s.generation += 1;
+            s.layout = Some(StepLayout::of(&model.config));
+            s.events.clear();
+            s.generation
+        };
+        match io::model_to_bytes(model.as_ref()) {
+            Ok(bytes) => {
+                let bytes = Uint8Array::from(&bytes[..]);
+                let transfer = Array::of1(&bytes.buffer());
+                self.post(
+                    message("model", generation, &[("bytes", bytes.into())]),
+                    transfer,
+                );
+            }
+            Err(e) => {
+                self.side.borrow_mut().failure =
+                    Some(format!("cannot send the model to the worker: {e}"))
+            }
+        }
+    }
+
+    pub fn add_observations(&mut self, name: &str, obs: &Observations<f32>) {
+        let generation = self.side.borrow().generation;
+        let extero = floats(obs.tensor(Modality::Exteroceptive).data());
+        let proprio = floats(obs.tensor(Modality::Proprioceptive).data());
+        let transfer = Array::of2(&extero.buffer(), &proprio.buffer());
+        let m = message(
+            "observations",
+            generation,
+            &[
+                ("name", name.into()),
+                ("steps", (obs.steps() as f64).into()),
+                ("extero", extero.into()),
+                ("proprio", proprio.into()),
+            ],
+        );
+        self.post(m, transfer);
+    }
+
+    pub fn run(&mut self, key: &RunKey) {
+        let generation = self.side.borrow().generation;
+        self.post(
+            message("run", generation, &[("key", key_to_text(key).into())]),
+            Array::new(),
+        );
+    }
+
+    pub fn take_events(&mut self) -> Vec<Event> {
+        std::mem::take(&mut self.side.borrow_mut().events)
+    }
+
+    /// Why the worker cannot be used, once it failed.
+    pub fn failure(&mut self) -> Option<String> {
+        let failure = self.side.borrow_mut().failure.take();
+        if failure.is_some() {
+            self.worker.terminate();
+        }
+        failure
+    }
+}

@@ -24,8 +24,9 @@ cargo test -p pvrnn-core --target wasm32-unknown-unknown
 step "the dataset crate and the simulator build for WebAssembly"
 cargo build -p pvrnn-dataset -p caresim --target wasm32-unknown-unknown
 
-step "the explorer's browser glue in headless Chromium"
-CHROMEDRIVER="$(command -v chromedriver)" cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
+step "the explorer's web entry and browser glue in headless Chromium"
+WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
+    cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
 
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release

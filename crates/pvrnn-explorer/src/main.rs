@@ -89,27 +89,20 @@ fn main() {
             .and_then(|d| d.get_element_by_id("explorer"))
             .and_then(|e| e.dyn_into::<web_sys::HtmlCanvasElement>().ok())
             .expect("index.html has a canvas with id `explorer`");
-        let result = eframe::WebRunner::new()
-            .start(
-                canvas,
-                eframe::WebOptions::default(),
-                Box::new(|cc| {
-                    pvrnn_explorer::web::repaint_on_hash_change(cc.egui_ctx.clone());
-                    Ok(Box::new(pvrnn_explorer::ExplorerApp::new_web(
-                        "models/default/",
-                        &cc.egui_ctx,
-                    )))
-                }),
-            )
-            .await;
+        let result = pvrnn_explorer::web::start(canvas, |ctx| {
+            pvrnn_explorer::ExplorerApp::new_web("models/default/", ctx)
+        })
+        .await;
         if let Some(loading) = web_sys::window()
             .and_then(|w| w.document())
             .and_then(|d| d.get_element_by_id("loading"))
         {
             loading.remove();
         }
-        if let Err(e) = result {
-            pvrnn_explorer::web::log(&format!("the explorer failed to start: {e:?}"));
+        match result {
+            // The page's event handlers keep the app running.
+            Ok(_runner) => {}
+            Err(e) => pvrnn_explorer::web::log(&e),
         }
     };
     wasm_bindgen_futures::spawn_local(start);

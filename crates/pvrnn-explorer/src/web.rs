@@ -11,6 +11,28 @@ use crate::app::Status;
 use crate::bundle::{BUNDLE_MANIFEST, Bundle, BundleManifest};
 use crate::drop::DroppedFile;
 
+/// The web entry: starts `make`'s app on `canvas` (following URL hash changes) and returns
+/// the runner once the first frame is set up. `main` passes the page's canvas and the
+/// default bundle; the browser tests pass their own.
+pub async fn start(
+    canvas: web_sys::HtmlCanvasElement,
+    make: impl FnOnce(&eframe::egui::Context) -> crate::ExplorerApp + 'static,
+) -> Result<eframe::WebRunner, String> {
+    let runner = eframe::WebRunner::new();
+    runner
+        .start(
+            canvas,
+            eframe::WebOptions::default(),
+            Box::new(move |cc| {
+                repaint_on_hash_change(cc.egui_ctx.clone());
+                Ok(Box::new(make(&cc.egui_ctx)))
+            }),
+        )
+        .await
+        .map_err(|e| format!("the explorer failed to start: {e:?}"))?;
+    Ok(runner)
+}
+
 pub fn location_hash() -> String {
     web_sys::window()
         .and_then(|w| w.location().hash().ok())

@@ -1,7 +1,14 @@
-//! The explorer's browser glue, in headless Chromium:
-//! `CHROMEDRIVER=/usr/bin/chromedriver cargo test -p pvrnn-explorer --target wasm32-unknown-unknown`
-//! (scripts/test.sh). The whole site is tested by tests/web/smoke.mjs.
+//! The explorer's web entry and browser glue, in headless Chromium (scripts/test.sh):
+//! `WASM_BINDGEN_TEST_WEBDRIVER_JSON=$PWD/tests/web/webdriver.json CHROMEDRIVER=/usr/bin/chromedriver
+//! cargo test -p pvrnn-explorer --target wasm32-unknown-unknown` (the JSON turns on software
+//! WebGL). The built site, with its worker, is tested by tests/web/smoke.mjs.
 #![cfg(target_arch = "wasm32")]
+
+mod common;
+
+use eframe::wasm_bindgen::JsCast;
+use eframe::web_sys;
+use pvrnn_explorer::{ExplorerApp, ViewState};
 
 use pvrnn_explorer::engine::{CompactStep, Event, Finished, ModuleStep, StepLayout};
 use pvrnn_explorer::runs::{Condition, RunKey};
@@ -24,6 +31,71 @@ fn key() -> RunKey {
             seed: 3,
         },
     }
+}
+
+async fn sleep_ms(ms: i32) {
+    let promise = js_sys::Promise::new(&mut |resolve, _| {
+        web_sys::window()
+            .expect("a window")
+            .set_timeout_with_callback_and_timeout_and_arguments_0(&resolve, ms)
+            .expect("setTimeout");
+    });
+    wasm_bindgen_futures::JsFuture::from(promise)
+        .await
+        .expect("timer");
+}
+
+/// The same entry `main` uses, on a test canvas with a tiny bundle: the app starts, draws,
+/// and computes the shown run live (inline here: the test page has no worker script).
+#[wasm_bindgen_test]
+async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
+    let document = web_sys::window()
+        .and_then(|w| w.document())
+        .expect("a document");
+    let canvas: web_sys::HtmlCanvasElement = document
+        .create_element("canvas")
+        .expect("canvas")
+        .dyn_into()
+        .expect("a canvas element");
+    canvas
+        .set_attribute(
+            "style",
+            "position:absolute;left:0;top:0;width:1000px;height:700px",
+        )
+        .expect("style");
+    document
+        .body()
+        .expect("body")
+        .append_child(&canvas)
+        .expect("appended");
+
+    let runner = pvrnn_explorer::web::start(canvas, |_| {
+        ExplorerApp::new(Some(common::bundle()), ViewState::default())
+    })
+    .await
+    .expect("the explorer starts");
+    let complete = |runner: &eframe::WebRunner| {
+        runner
+            .app_mut::<ExplorerApp>()
+            .and_then(|app| app.current_run().map(|e| e.complete))
+            .unwrap_or(false)
+    };
+    for _ in 0..300 {
+        if complete(&runner) || runner.has_panicked() {
+            break;
+        }
+        sleep_ms(100).await;
+    }
+    assert!(
+        runner.panic_summary().is_none(),
+        "the app panicked: {:?}",
+        runner.panic_summary().map(|p| p.message())
+    );
+    let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+    let run = app.current_run().expect("the shown sequence has a run");
+    assert!(run.complete, "the live run did not finish in 30 s");
+    assert_eq!(run.error, None);
+    assert!(run.trace.steps > 0 && run.trace.free_energy.iter().all(|f| f.is_finite()));
 }
 
 #[wasm_bindgen_test]

@@ -13,9 +13,10 @@ use web_time::{Duration, Instant};
 
 use crate::runs::RunKey;
 
-/// One module's states at one step.
+/// One module's states: at one step, or (in a `RunTrace`) at every step so far, row-major
+/// `[steps, width]`.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct ModuleStep {
+pub struct ModuleStates {
     pub mu_p: Vec<f32>,
     pub sigma_p: Vec<f32>,
     pub mu_q: Vec<f32>,
@@ -25,11 +26,23 @@ pub struct ModuleStep {
     pub prior_d: Vec<f32>,
 }
 
+impl ModuleStates {
+    /// Appends `other`'s steps.
+    pub fn extend(&mut self, other: &Self) {
+        self.mu_p.extend_from_slice(&other.mu_p);
+        self.sigma_p.extend_from_slice(&other.sigma_p);
+        self.mu_q.extend_from_slice(&other.mu_q);
+        self.sigma_q.extend_from_slice(&other.sigma_q);
+        self.d.extend_from_slice(&other.d);
+        self.prior_d.extend_from_slice(&other.prior_d);
+    }
+}
+
 /// What the views keep of one inference step: the latent states, from which every image is
 /// read out on demand, plus the few numbers that would cost a read-out to recompute.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CompactStep {
-    pub modules: [ModuleStep; 4],
+    pub modules: [ModuleStates; 4],
     /// Free energy of the inference window.
     pub free_energy: f32,
     /// Mean squared reconstruction error (vision, proprioception).
@@ -71,7 +84,7 @@ impl CompactStep {
         Self {
             modules: std::array::from_fn(|m| {
                 let s = &out.modules[m];
-                ModuleStep {
+                ModuleStates {
                     mu_p: s.mu_p.clone(),
                     sigma_p: s.sigma_p.clone(),
                     mu_q: s.mu_q.clone(),
@@ -117,7 +130,7 @@ impl CompactStep {
             rest = tail;
             head.to_vec()
         };
-        let modules = std::array::from_fn(|m| ModuleStep {
+        let modules = std::array::from_fn(|m| ModuleStates {
             mu_p: take(layout.z[m]),
             sigma_p: take(layout.z[m]),
             mu_q: take(layout.z[m]),

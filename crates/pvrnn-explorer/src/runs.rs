@@ -11,7 +11,7 @@ use pvrnn_core::infer::{InferenceSettings, Run};
 use pvrnn_core::{Ablation, Modality, Model, NoiseMode, Observations, Observed};
 
 pub use crate::engine::Finished;
-use crate::engine::{CompactStep, Engine, Event};
+use crate::engine::{CompactStep, Engine, Event, ModuleStates};
 use serde::{Deserialize, Serialize};
 use web_time::{Duration, Instant};
 
@@ -92,17 +92,6 @@ impl Condition {
     }
 }
 
-/// One module's per-step states, row-major `[steps, width]`.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct ModuleTrace {
-    pub mu_p: Vec<f32>,
-    pub sigma_p: Vec<f32>,
-    pub mu_q: Vec<f32>,
-    pub sigma_q: Vec<f32>,
-    pub d: Vec<f32>,
-    pub prior_d: Vec<f32>,
-}
-
 /// A run in progress or complete: what the views need, growing step by step.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RunTrace {
@@ -110,7 +99,8 @@ pub struct RunTrace {
     /// Latent and recurrent sizes per module.
     pub z: [usize; 4],
     pub d: [usize; 4],
-    pub modules: [ModuleTrace; 4],
+    /// Every module's states, row-major `[steps, width]`.
+    pub modules: [ModuleStates; 4],
     /// Window free energy per step.
     pub free_energy: Vec<f32>,
     /// Mean squared reconstruction error of all dimensions (vision, proprioception).
@@ -132,12 +122,7 @@ impl RunTrace {
 
     pub fn push(&mut self, step: &CompactStep) {
         for (trace, s) in self.modules.iter_mut().zip(&step.modules) {
-            trace.mu_p.extend_from_slice(&s.mu_p);
-            trace.sigma_p.extend_from_slice(&s.sigma_p);
-            trace.mu_q.extend_from_slice(&s.mu_q);
-            trace.sigma_q.extend_from_slice(&s.sigma_q);
-            trace.d.extend_from_slice(&s.d);
-            trace.prior_d.extend_from_slice(&s.prior_d);
+            trace.extend(s);
         }
         self.free_energy.push(step.free_energy);
         self.recon_error.push(step.recon_error);

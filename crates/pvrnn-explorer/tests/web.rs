@@ -10,7 +10,7 @@ use eframe::wasm_bindgen::JsCast;
 use eframe::web_sys;
 use pvrnn_explorer::{ExplorerApp, ViewState};
 
-use pvrnn_explorer::engine::{CompactStep, Event, Finished, ModuleStep, StepLayout};
+use pvrnn_explorer::engine::{CompactStep, Event, Finished, ModuleStates, StepLayout};
 use pvrnn_explorer::runs::{Condition, RunKey};
 use pvrnn_explorer::worker::{event_from_message, event_message};
 use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
@@ -115,7 +115,7 @@ fn worker_messages_round_trip() {
             .collect::<Vec<f32>>()
     };
     let step = CompactStep {
-        modules: std::array::from_fn(|m| ModuleStep {
+        modules: std::array::from_fn(|m| ModuleStates {
             mu_p: next(layout.z[m]),
             sigma_p: next(layout.z[m]),
             mu_q: next(layout.z[m]),

@@ -27,6 +27,10 @@ use crate::runs::RunKey;
 /// Computing time per worker tick; messages from the page are handled between ticks.
 const TICK: Duration = Duration::from_millis(30);
 
+/// How soon the page redraws after a result arrives: often enough to watch a run grow, rarely
+/// enough that drawing does not take the worker's core (it matters with software rendering).
+const REPAINT_EVERY: Duration = Duration::from_millis(100);
+
 fn message(kind: &str, generation: u32, fields: &[(&str, JsValue)]) -> Object {
     let m = Object::new();
     let set = |k: &str, v: &JsValue| {
@@ -278,7 +282,7 @@ impl WorkerClient {
                     Ok(event) => s.events.push(event),
                     Err(err) => s.failure = Some(err),
                 }
-                ctx.request_repaint();
+                ctx.request_repaint_after(REPAINT_EVERY);
             });
         worker.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
         on_message.forget();

@@ -377,10 +377,9 @@ impl RunStore {
         let start = Instant::now();
         if let Some(reason) = self.executor.broken() {
             // Computing in the page is slower, but it works everywhere.
-            self.finished.clear();
             self.executor = Executor::default();
             self.restart_executor();
-            self.errors_note(reason);
+            note_fallback(&reason);
         }
         if !self
             .executor_model
@@ -417,15 +416,6 @@ impl RunStore {
         }
         self.provided.clear();
         self.executor_model = None;
-    }
-
-    fn errors_note(&mut self, reason: String) {
-        #[cfg(target_arch = "wasm32")]
-        crate::web::log(&format!(
-            "computing in the page instead of a worker: {reason}"
-        ));
-        #[cfg(not(target_arch = "wasm32"))]
-        let _ = reason;
     }
 
     /// Makes the executor run the urgent run, or else the next waiting one.
@@ -516,4 +506,14 @@ impl RunStore {
             Event::Failed(key, e) => self.fail(&key, e),
         }
     }
+}
+
+/// Says (in the browser console) why runs are computed in the page rather than a worker.
+fn note_fallback(reason: &str) {
+    #[cfg(target_arch = "wasm32")]
+    crate::web::log(&format!(
+        "computing in the page instead of a worker: {reason}"
+    ));
+    #[cfg(not(target_arch = "wasm32"))]
+    let _ = reason;
 }

@@ -27,11 +27,12 @@ pub enum Error {
         expected: String,
     },
 
-    #[error("{what}: tensor `{name}` has dtype {found}, expected F32")]
+    #[error("{what}: tensor `{name}` has dtype {found}, expected {expected}")]
     Dtype {
         what: String,
         name: String,
         found: String,
+        expected: &'static str,
     },
 
     #[error("{what}: tensor `{name}` holds a non-finite value ({value}) at index {index:?}")]

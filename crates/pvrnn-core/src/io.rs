@@ -107,14 +107,22 @@ impl TensorFile {
         })
     }
 
-    /// An f32 tensor (F16 is widened), checked for shape (`None` = any) and finiteness.
-    pub fn f32(&self, name: &str, shape: Option<&[usize]>) -> Result<Tensor<f32>> {
+    /// A tensor's shape and raw bytes, after checking its dtype is one of `dtypes` and its
+    /// shape is `shape` (`None` = any).
+    fn checked(
+        &self,
+        name: &str,
+        dtypes: &[Dtype],
+        expected: &'static str,
+        shape: Option<&[usize]>,
+    ) -> Result<(&TensorInfo, &[u8])> {
         let info = self.info(name)?;
-        if info.dtype != Dtype::F32 && info.dtype != Dtype::F16 {
+        if !dtypes.contains(&info.dtype) {
             return Err(Error::Dtype {
                 what: self.what.clone(),
                 name: name.into(),
                 found: format!("{:?}", info.dtype),
+                expected,
             });
         }
         if let Some(shape) = shape
@@ -128,7 +136,12 @@ impl TensorFile {
             });
         }
         let (a, b) = info.data_offsets;
-        let raw = &self.bytes[self.data_start + a..self.data_start + b];
+        Ok((info, &self.bytes[self.data_start + a..self.data_start + b]))
+    }
+
+    /// An f32 tensor (F16 is widened), checked for shape (`None` = any) and finiteness.
+    pub fn f32(&self, name: &str, shape: Option<&[usize]>) -> Result<Tensor<f32>> {
+        let (info, raw) = self.checked(name, &[Dtype::F32, Dtype::F16], "F32", shape)?;
         let data: Vec<f32> = if info.dtype == Dtype::F16 {
             raw.chunks_exact(2)
                 .map(|c| half::f16::from_le_bytes([c[0], c[1]]).to_f32())
@@ -159,52 +172,22 @@ impl TensorFile {
 
     /// A U8 tensor (8-bit images), checked for shape (`None` = any); returns shape and bytes.
     pub fn u8(&self, name: &str, shape: Option<&[usize]>) -> Result<(Vec<usize>, Vec<u8>)> {
-        let info = self.info(name)?;
-        if info.dtype != Dtype::U8 {
-            return Err(Error::Dtype {
-                what: self.what.clone(),
-                name: name.into(),
-                found: format!("{:?} (expected U8)", info.dtype),
-            });
-        }
-        if let Some(shape) = shape
-            && info.shape != shape
-        {
-            return Err(Error::Shape {
-                what: self.what.clone(),
-                name: name.into(),
-                found: info.shape.clone(),
-                expected: format!("{shape:?}"),
-            });
-        }
-        let (a, b) = info.data_offsets;
-        Ok((
-            info.shape.clone(),
-            self.bytes[self.data_start + a..self.data_start + b].to_vec(),
-        ))
+        let (info, raw) = self.checked(name, &[Dtype::U8], "U8", shape)?;
+        Ok((info.shape.clone(), raw.to_vec()))
     }
 
     /// An integer tensor (I64 or I32) as `usize`s.
     pub fn indices(&self, name: &str) -> Result<Vec<usize>> {
-        let info = self.info(name)?;
-        let (a, b) = info.data_offsets;
-        let raw = &self.bytes[self.data_start + a..self.data_start + b];
-        let values: Vec<i64> = match info.dtype {
-            Dtype::I64 => raw
-                .chunks_exact(8)
-                .map(|c| i64::from_le_bytes(c.try_into().unwrap()))
-                .collect(),
-            Dtype::I32 => raw
-                .chunks_exact(4)
-                .map(|c| i32::from_le_bytes(c.try_into().unwrap()) as i64)
-                .collect(),
-            other => {
-                return Err(Error::Dtype {
-                    what: self.what.clone(),
-                    name: name.into(),
-                    found: format!("{other:?} (expected I64 or I32)"),
-                });
-            }
+        let (info, raw) = self.checked(name, &[Dtype::I64, Dtype::I32], "I64 or I32", None)?;
+        // I64 or I32, as checked.
+        let values: Vec<i64> = if info.dtype == Dtype::I64 {
+            raw.chunks_exact(8)
+                .map(|c| i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+                .collect()
+        } else {
+            raw.chunks_exact(4)
+                .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as i64)
+                .collect()
         };
         values
             .into_iter()

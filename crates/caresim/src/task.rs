@@ -405,16 +405,7 @@ impl Script {
                             + along * (w.amplitude * stroke(s))
                             + across * (w.drift * min_jerk(s))
                     };
-                    let p = flat(s);
-                    let height = crate::shapes::surface_height(
-                        &self.surface,
-                        p.x,
-                        p.y,
-                        self.bed_top + 0.6,
-                        self.bed_top,
-                    )
-                    .unwrap_or(self.bed_top);
-                    let pos = DVec3::new(p.x, p.y, height + 0.022);
+                    let pos = self.on_surface(flat(s));
                     let velocity = (flat(s + 1e-3) - flat(s - 1e-3)).with_z(0.0);
                     let friction = if velocity.length() > 1e-9 {
                         -velocity.normalize() * 0.5 * w.press
@@ -458,9 +449,13 @@ impl Script {
     /// Where the wiping phase ends.
     fn right_wipe_end(&self) -> DVec3 {
         let w = self.variation.wipe.as_ref().expect("wiping pattern");
-        let (along, across) = self.wipe_dirs;
-        let p = self.wipe_start + across * w.drift;
-        let _ = along;
+        let (_, across) = self.wipe_dirs;
+        self.on_surface(self.wipe_start + across * w.drift)
+    }
+
+    /// The towel-holding hand's position over `p`: on the body's (or the mattress's)
+    /// surface below it, plus the towel's thickness and the hand's clearance.
+    fn on_surface(&self, p: DVec3) -> DVec3 {
         let height = crate::shapes::surface_height(
             &self.surface,
             p.x,

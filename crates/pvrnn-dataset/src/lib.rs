@@ -342,21 +342,10 @@ impl Dataset {
         let text =
             std::fs::read_to_string(&manifest_path).map_err(|e| io_err(&manifest_path, e))?;
         let manifest = parse_manifest(&text, &manifest_path.display().to_string())?;
-        let mut sequences = Vec::with_capacity(manifest.sequences.len());
-        for info in &manifest.sequences {
+        Self::with_sequences(manifest, |info| {
             let path = dir.join(&info.file);
             let bytes = std::fs::read(&path).map_err(|e| io_err(&path, e))?;
-            sequences.push(Sequence::from_bytes(
-                bytes,
-                &path.display().to_string(),
-                info,
-                manifest.cameras.len(),
-                manifest.image_size,
-            )?);
-        }
-        Ok(Self {
-            manifest,
-            sequences,
+            Ok((bytes, path.display().to_string()))
         })
     }
 
@@ -367,12 +356,21 @@ impl Dataset {
         mut fetch: impl FnMut(&str) -> Result<Vec<u8>>,
     ) -> Result<Self> {
         let manifest = parse_manifest(manifest_json, MANIFEST)?;
+        Self::with_sequences(manifest, |info| Ok((fetch(&info.file)?, info.file.clone())))
+    }
+
+    /// Loads every sequence of `manifest`; `read` gives a file's bytes and the name its
+    /// errors should carry.
+    fn with_sequences(
+        manifest: Manifest,
+        mut read: impl FnMut(&SequenceInfo) -> Result<(Vec<u8>, String)>,
+    ) -> Result<Self> {
         let mut sequences = Vec::with_capacity(manifest.sequences.len());
         for info in &manifest.sequences {
-            let bytes = fetch(&info.file)?;
+            let (bytes, name) = read(info)?;
             sequences.push(Sequence::from_bytes(
                 bytes,
-                &info.file,
+                &name,
                 info,
                 manifest.cameras.len(),
                 manifest.image_size,

@@ -34,19 +34,8 @@ pub fn load(
         });
     }
     let dataset = Dataset::open(path)?;
-    let selection = match split {
-        Some(s) => Selection::parse(s)
-            .with_context(|| format!("--split {s}: expected learn, test or all"))?,
-        None => Selection::Split(default_split),
-    };
-    if model.config.normalisation.is_none() {
-        let learn = dataset.select(&Selection::Split(Split::Learn))?;
-        model.config.normalisation = Some(proprio_ranges(&learn));
-        eprintln!(
-            "note: the model has no proprioception ranges; using {}'s learning split",
-            path.display()
-        );
-    }
+    let selection = parse_split(split, default_split)?;
+    ensure_normalisation(model, &dataset, path)?;
     let sequences = dataset.select(&selection)?;
     let observations = dataset
         .observations(&sequences, &model.config)
@@ -55,4 +44,28 @@ pub fn load(
         observations,
         names: Some(sequences.iter().map(|s| s.info.name.clone()).collect()),
     })
+}
+
+/// `--split`: learn, test or all (default `default_split`).
+pub fn parse_split(split: Option<&str>, default_split: Split) -> Result<Selection> {
+    match split {
+        Some(s) => {
+            Selection::parse(s).with_context(|| format!("--split {s}: expected learn, test or all"))
+        }
+        None => Ok(Selection::Split(default_split)),
+    }
+}
+
+/// A model without proprioception ranges gets the dataset's learning-split ranges (the
+/// spec's rule), and a note says so.
+pub fn ensure_normalisation(model: &mut Model<f32>, dataset: &Dataset, path: &Path) -> Result<()> {
+    if model.config.normalisation.is_none() {
+        let learn = dataset.select(&Selection::Split(Split::Learn))?;
+        model.config.normalisation = Some(proprio_ranges(&learn));
+        eprintln!(
+            "note: the model has no proprioception ranges; using {}'s learning split",
+            path.display()
+        );
+    }
+    Ok(())
 }

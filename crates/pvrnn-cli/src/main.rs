@@ -1,6 +1,7 @@
 //! `pvrnn`: the command-line face of the scalable PV-RNN.
 
 mod commands;
+mod condition;
 mod inputs;
 mod util;
 
@@ -38,6 +39,11 @@ enum Command {
     Train(commands::train::Args),
     /// Online inference (sliding-window error regression) on each sequence of the inputs.
     Infer(commands::infer::Args),
+    /// Score online inference on a dataset split against baselines; a report with tables and plots.
+    Evaluate(commands::evaluate::Args),
+    /// Learning curves from a training log; error against iterations from several evaluations.
+    #[command(subcommand)]
+    Report(commands::report::Command),
     /// Time learning and online inference at the paper's scale on random data.
     Bench(commands::bench::Args),
     /// Write the caresim benchmark (repositioning and wiping) as a dataset folder.
@@ -60,6 +66,8 @@ fn main() {
         Command::FreeEnergy(a) => commands::free_energy::run(a),
         Command::Train(a) => commands::train::run(a),
         Command::Infer(a) => commands::infer::run(a),
+        Command::Evaluate(a) => commands::evaluate::run(a),
+        Command::Report(c) => commands::report::run(c),
         Command::Bench(a) => commands::bench::run(a),
         Command::Simulate(a) => commands::simulate::run(a),
         Command::Import(a) => commands::import::run(a),

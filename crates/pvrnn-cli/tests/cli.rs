@@ -514,7 +514,7 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         );
     }
     // A small model sized and scaled by the dataset, the paper's vision layout.
-    std::fs::write(x.path("small.toml"), "[executive]\nd = 6\nz = 2\n[associative]\nd = 6\nz = 2\n[exteroceptive]\nd = 6\nz = 3\n[proprioceptive]\nd = 6\nz = 2\n").unwrap();
+    std::fs::write(x.path("small.toml"), "[executive]\nd = 6\nz = 2\n[associative]\nd = 6\nz = 2\n[exteroceptive]\nd = 6\nz = 3\n[proprioceptive]\nd = 6\nz = 2\n[inference]\nwindow = 5\niterations = 2\n").unwrap();
     let m = x.s("m.safetensors");
     ok(&[
         "init",
@@ -569,6 +569,160 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         "infer", "--model", &run, "--inputs", &ds, "--out", &out, "--split", "later",
     ]);
     assert!(e.contains("--split later"), "{e}");
+
+    // evaluate: the report with its baselines, then the progress table and the curves.
+    let eval = x.s("eval");
+    ok(&[
+        "evaluate",
+        "--model",
+        &run,
+        "--inputs",
+        &ds,
+        "--vision",
+        "16",
+        "--iterations",
+        "2",
+        "--window",
+        "5",
+        "--trials",
+        "2",
+        "--out",
+        &eval,
+    ]);
+    for file in [
+        "summary.json",
+        "summary.md",
+        "per_sequence.csv",
+        "per_step.csv",
+    ] {
+        assert!(x.path("eval").join(file).is_file(), "{file}");
+    }
+    let plots: Vec<String> = std::fs::read_dir(x.path("eval/plots"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        plots.contains(&"error_wiping_650mm_test0.png".to_string()),
+        "{plots:?}"
+    );
+    assert!(
+        plots.contains(&"images_wiping_650mm_test0.png".to_string()),
+        "{plots:?}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(x.path("eval/summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["meta"]["model_iteration"], 2);
+    assert_eq!(summary["trials"], 2);
+    let sources: Vec<&str> = summary["comparisons"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["group"] == "v64" && c["scope"] == "all" && c["pixels"] == "all")
+        .map(|c| c["baseline"].as_str().unwrap())
+        .collect();
+    assert!(
+        sources.contains(&"upsample") && sources.contains(&"previous") && sources.contains(&"mean"),
+        "{sources:?}"
+    );
+    let table = x.s("progress.md");
+    ok(&["report", "table", &eval, "--out", &table]);
+    let md = std::fs::read_to_string(&table).unwrap();
+    assert!(
+        md.contains("### vision 16, proprioception on") && md.contains("| 2 |"),
+        "{md}"
+    );
+    ok(&[
+        "report",
+        "curves",
+        "--log",
+        &x.s("run.log.csv"),
+        "--out",
+        &x.s("curves.png"),
+    ]);
+    let png = std::fs::read(x.path("curves.png")).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 10_000,
+        "{} bytes",
+        png.len()
+    );
+    // bundle: f16 weights, one runs file per condition, and the card with the evaluation.
+    let b = x.s("bundle");
+    ok(&[
+        "bundle",
+        "--model",
+        &run,
+        "--dataset",
+        &ds,
+        "--out",
+        &b,
+        "--conditions",
+        "all/on,16/off",
+        "--evaluation",
+        &eval,
+        "--machine",
+        "the test machine",
+    ]);
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(x.path("bundle/bundle.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        manifest["runs"],
+        serde_json::json!(["runs-all-on.safetensors", "runs-16-off.safetensors"])
+    );
+    assert_eq!(manifest["card"]["iteration"], 2);
+    assert_eq!(manifest["card"]["training_machine"], "the test machine");
+    assert!(manifest["card"]["training_seconds"].as_f64().unwrap() > 0.0);
+    assert_eq!(manifest["card"]["evaluations"].as_array().unwrap().len(), 1);
+    assert!(
+        manifest["card"]["weights"]
+            .as_str()
+            .unwrap()
+            .starts_with("f16 (rounding")
+    );
+    let shipped = std::fs::metadata(x.path("bundle/model.safetensors"))
+        .unwrap()
+        .len() as usize;
+    let full =
+        io::model_to_bytes(&io::load_model(Path::new(&run)).unwrap().weights_only()).unwrap();
+    assert!(
+        shipped * 10 < full.len() * 6,
+        "f16 weights: {shipped} vs {}",
+        full.len()
+    );
+    io::load_model(&x.path("bundle/model.safetensors")).unwrap();
+    let readme = std::fs::read_to_string(x.path("bundle/README.md")).unwrap();
+    assert!(
+        readme.contains("2 iterations") && readme.contains("| recon | v64* | all |"),
+        "{readme}"
+    );
+    let e = fails(&[
+        "bundle",
+        "--model",
+        &run,
+        "--dataset",
+        &ds,
+        "--out",
+        &b,
+        "--conditions",
+        "16",
+    ]);
+    assert!(e.contains("VISION/PROPRIO"), "{e}");
+
+    // A training log is not an evaluation, and an inputs file is not a dataset folder.
+    let e = fails(&["report", "table", &x.s("run.log.csv")]);
+    assert!(e.contains("run.log.csv"), "{e}");
+    let e = fails(&[
+        "evaluate",
+        "--model",
+        &run,
+        "--inputs",
+        &x.s("r.safetensors"),
+        "--out",
+        &eval,
+    ]);
+    assert!(e.contains("dataset folder"), "{e}");
+
     // The paper-sized default model does not fit a dataset of other image sizes, and says so.
     let e = fails(&[
         "free-energy",

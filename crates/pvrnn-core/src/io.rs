@@ -217,6 +217,17 @@ impl OutTensor<'_> {
             Cow::Owned(t.data().iter().map(|v| v.to_f32()).collect()),
         )
     }
+
+    /// The tensor rounded to f16 (to nearest).
+    pub fn f16<T: Real>(t: &Tensor<T>) -> OutTensor<'static> {
+        OutTensor::F16(
+            t.shape().to_vec(),
+            t.data()
+                .iter()
+                .map(|v| half::f16::from_f32(v.to_f32()))
+                .collect(),
+        )
+    }
 }
 
 fn f32_bytes(v: &[f32]) -> Cow<'_, [u8]> {
@@ -331,13 +342,14 @@ fn save(
     write_atomic(path, &to_bytes(tensors, metadata)?)
 }
 
-fn model_tensors<T: Real>(model: &Model<T>) -> BTreeMap<String, OutTensor<'static>> {
+fn model_tensors<T: Real>(model: &Model<T>, half: bool) -> BTreeMap<String, OutTensor<'static>> {
+    let store = if half { OutTensor::f16 } else { OutTensor::f32 };
     let mut out = BTreeMap::new();
     for (name, t, _) in model.params.named() {
-        out.insert(name, OutTensor::f32(t));
+        out.insert(name, store(t));
     }
     for (name, t) in model.adaptive.named() {
-        out.insert(name, OutTensor::f32(t));
+        out.insert(name, store(t));
     }
     out
 }
@@ -352,7 +364,16 @@ fn model_metadata(config: &ModelConfig, format: &str) -> HashMap<String, String>
 /// A model as safetensors bytes.
 pub fn model_to_bytes<T: Real>(model: &Model<T>) -> Result<Vec<u8>> {
     to_bytes(
-        &model_tensors(model),
+        &model_tensors(model, false),
+        model_metadata(&model.config, MODEL_FORMAT),
+    )
+}
+
+/// [`model_to_bytes`] with every tensor rounded to f16: half the size, for shipping a
+/// model whose measured error from the rounding is negligible (loading widens to f32).
+pub fn model_to_bytes_f16<T: Real>(model: &Model<T>) -> Result<Vec<u8>> {
+    to_bytes(
+        &model_tensors(model, true),
         model_metadata(&model.config, MODEL_FORMAT),
     )
 }
@@ -360,7 +381,7 @@ pub fn model_to_bytes<T: Real>(model: &Model<T>) -> Result<Vec<u8>> {
 pub fn save_model<T: Real>(path: &Path, model: &Model<T>) -> Result<()> {
     save(
         path,
-        &model_tensors(model),
+        &model_tensors(model, false),
         model_metadata(&model.config, MODEL_FORMAT),
     )
 }
@@ -445,7 +466,7 @@ pub fn save_checkpoint<T: Real>(
     trainer: &Trainer<T>,
     last: Option<FreeEnergy>,
 ) -> Result<()> {
-    let mut tensors = model_tensors(&trainer.model);
+    let mut tensors = model_tensors(&trainer.model, false);
     for ((name, m), v) in trainable_names(&trainer.model)
         .into_iter()
         .zip(&trainer.optimizer.m)
@@ -477,6 +498,13 @@ pub fn save_checkpoint<T: Real>(
 /// Whether a file is a checkpoint (has learning state).
 pub fn is_checkpoint(file: &TensorFile) -> bool {
     file.metadata("training").is_some()
+}
+
+/// The training iteration a checkpoint was written at (`None` for a plain model file or
+/// unreadable learning state).
+pub fn checkpoint_iteration(file: &TensorFile) -> Option<u64> {
+    let state: TrainingState = serde_json::from_str(file.metadata("training")?).ok()?;
+    Some(state.iteration)
 }
 
 /// Restores a learning run from a checkpoint.
@@ -682,18 +710,64 @@ pub fn save_runs<T: Real>(
 ) -> Result<()> {
     write_atomic(
         path,
-        &runs_to_bytes(config, runs, sequence_ids, sequence_names, false)?,
+        &runs_to_bytes(
+            config,
+            runs,
+            sequence_ids,
+            sequence_names,
+            StateStorage::F32,
+        )?,
     )
 }
 
-/// [`save_runs`] into bytes; `half` stores the per-step states as f16 (half the size, about
-/// three significant digits: enough for viewing, e.g. the explorer's precomputed runs).
+/// How a runs file stores the per-step states (the per-step scalars stay f32).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StateStorage {
+    F32,
+    /// f16: half the size, about 3 significant digits.
+    F16,
+    /// f16 rounded to nearest with only this many of its 10 mantissa bits (the rest zero):
+    /// the same dtype for readers, but far more compressible (gzip), for states that are
+    /// drawn rather than computed with. 6 bits keep the relative error within about 2^-7 = 0.8%.
+    F16Mantissa(u32),
+}
+
+impl StateStorage {
+    /// The value a reader gets back for `v`.
+    pub fn round_trip(self, v: f32) -> f32 {
+        match self {
+            StateStorage::F32 => v,
+            _ => self.to_f16(v).to_f32(),
+        }
+    }
+
+    /// `v` as an f16 (F32 storage writes f32 and does not use this).
+    pub fn to_f16(self, v: f32) -> half::f16 {
+        let h = half::f16::from_f32(v);
+        match self {
+            StateStorage::F16Mantissa(bits) if bits < 10 && h.is_finite() => {
+                let drop = 10 - bits;
+                let raw = h.to_bits();
+                // Round half up on the magnitude; a carry into the exponent is still the
+                // nearest value (and saturates to infinity only beyond f16's range).
+                let rounded =
+                    (raw & 0x7fff).saturating_add(1 << (drop - 1)) & !((1u16 << drop) - 1);
+                half::f16::from_bits((raw & 0x8000) | rounded.min(0x7c00))
+            }
+            _ => h,
+        }
+    }
+}
+
+/// [`save_runs`] into bytes; `storage` chooses how the per-step states are stored (f16:
+/// half the size, about three significant digits: enough for viewing, e.g. the explorer's
+/// precomputed runs).
 pub fn runs_to_bytes<T: Real>(
     config: &ModelConfig,
     runs: &[Run<T>],
     sequence_ids: &[usize],
     sequence_names: Option<&[String]>,
-    half: bool,
+    storage: StateStorage,
 ) -> Result<Vec<u8>> {
     let Some(first) = runs.first() else {
         return Err(Error::InvalidArgument("no inference runs to save".into()));
@@ -711,13 +785,13 @@ pub fn runs_to_bytes<T: Real>(
                 *dst = src.to_f32();
             }
         }
-        let tensor = if half {
+        let tensor = if storage == StateStorage::F32 {
+            OutTensor::F32(vec![s, t_max, width], Cow::Owned(data))
+        } else {
             OutTensor::F16(
                 vec![s, t_max, width],
-                data.iter().map(|&v| half::f16::from_f32(v)).collect(),
+                data.iter().map(|&v| storage.to_f16(v)).collect(),
             )
-        } else {
-            OutTensor::F32(vec![s, t_max, width], Cow::Owned(data))
         };
         tensors.insert(name.clone(), tensor);
     }
@@ -878,4 +952,30 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
         });
     }
     Ok(runs)
+}
+
+#[cfg(test)]
+mod storage_tests {
+    use super::StateStorage;
+
+    #[test]
+    fn a_shortened_mantissa_rounds_to_nearest_and_zeroes_the_dropped_bits() {
+        let six = StateStorage::F16Mantissa(6);
+        for i in 0..20_000 {
+            let v = ((i as f32) * 0.7317).sin() * 3.0 + (i as f32 * 1e-4);
+            let stored = six.to_f16(v);
+            assert_eq!(stored.to_bits() & 0b1111, 0, "{v}");
+            let err = (stored.to_f32() - v).abs();
+            // Half an ulp of a 6-bit mantissa after f16's own rounding (half an ulp of 10
+            // bits), plus f16's absolute precision near zero.
+            assert!(
+                err <= v.abs() * (2f32.powi(-7) + 2f32.powi(-11)) + 1e-7,
+                "{v} -> {stored}"
+            );
+        }
+        // Rounding up carries into the exponent: 1.99 -> 2.
+        assert_eq!(six.to_f16(1.999).to_f32(), 2.0);
+        assert_eq!(six.to_f16(-1.999).to_f32(), -2.0);
+        assert_eq!(StateStorage::F16.to_f16(0.1), half::f16::from_f32(0.1));
+    }
 }

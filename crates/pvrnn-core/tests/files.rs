@@ -49,6 +49,28 @@ fn model_round_trip_is_exact() {
 }
 
 #[test]
+fn an_f16_model_is_half_the_size_and_rounds_each_weight() {
+    // The paper's sizes, so the weights (not the metadata) make up the file.
+    let model = Model::<f32>::init(ModelConfig::default(), 1, 2, 0).unwrap();
+    let full = io::model_to_bytes(&model).unwrap();
+    let half = io::model_to_bytes_f16(&model).unwrap();
+    assert!(
+        half.len() * 10 < full.len() * 6,
+        "{} vs {}",
+        half.len(),
+        full.len()
+    );
+    let back = io::model_from_bytes(half, "m").unwrap();
+    assert_eq!(back.config, model.config);
+    for ((name, a, _), (_, b, _)) in model.params.named().into_iter().zip(back.params.named()) {
+        for (x, y) in a.data().iter().zip(b.data()) {
+            // f16 keeps 11 significant bits.
+            assert!((x - y).abs() <= x.abs() * 1e-3 + 1e-7, "{name}: {x} vs {y}");
+        }
+    }
+}
+
+#[test]
 fn spec_tensor_names_and_config_metadata() {
     let model = Model::<f32>::init(ModelConfig::default(), 1, 2, 0).unwrap();
     let file = TensorFile::from_bytes(io::model_to_bytes(&model).unwrap(), "m").unwrap();

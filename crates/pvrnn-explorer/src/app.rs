@@ -62,6 +62,8 @@ pub struct ExplorerApp {
     last_hash: String,
     /// How the last live run went (shown, and logged in the browser console).
     last_run_note: Option<String>,
+    /// Whether the "About this model" window is open.
+    show_about: bool,
     #[cfg(target_arch = "wasm32")]
     web: crate::web::WebState,
 }
@@ -89,6 +91,7 @@ impl ExplorerApp {
             play_accum: 0.0,
             last_hash: String::new(),
             last_run_note: None,
+            show_about: false,
             #[cfg(target_arch = "wasm32")]
             web: crate::web::WebState::default(),
         };
@@ -333,6 +336,15 @@ impl ExplorerApp {
         egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| self.traces_ui(ui));
         });
+        if let Some(bundle) = &self.bundle {
+            egui::Window::new("About this model")
+                .open(&mut self.show_about)
+                .default_width(620.0)
+                .vscroll(true)
+                .show(&ctx, |ui| {
+                    crate::about::about_ui(ui, &bundle.description, bundle.card.as_ref())
+                });
+        }
         self.sync_hash();
     }
 
@@ -394,6 +406,7 @@ impl ExplorerApp {
         let config = bundle.model.config.clone();
         ui.horizontal_wrapped(|ui| {
             ui.strong("PV-RNN explorer");
+            ui.toggle_value(&mut self.show_about, "About this model");
             ui.separator();
             self.sequence_picker(ui);
             ui.separator();

@@ -1,14 +1,16 @@
 //! What the explorer shows: a model, a dataset, and runs computed in advance.
 //!
-//! A bundle folder (written by `pvrnn bundle`) holds `bundle.json`, the model, the dataset
-//! (manifest and sequence files) and `runs.safetensors`. The same pieces can come from a
-//! folder on disk, from files downloaded in the browser, or from files a user drops.
+//! A bundle folder (written by `pvrnn bundle`) holds `bundle.json` (with the model's card),
+//! the model, the dataset (manifest and sequence files) and one runs file per precomputed
+//! condition. The same pieces can come from a folder on disk, from files downloaded in the
+//! browser, or from files a user drops.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_core::{Model, Observations};
+use pvrnn_dataset::card::ModelCard;
 use pvrnn_dataset::{Dataset, Selection, Split, inputs::check_layout, proprio_ranges};
 use serde::Deserialize;
 
@@ -22,8 +24,26 @@ pub struct BundleManifest {
     pub description: String,
     pub model: String,
     pub dataset: String,
+    /// Runs files (one per precomputed condition); older bundles name a single file.
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub runs: Vec<String>,
+    /// How the model was trained and how it scores (`pvrnn bundle` writes it).
     #[serde(default)]
-    pub runs: Option<String>,
+    pub card: Option<ModelCard>,
+}
+
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum OneOrMany {
+        One(String),
+        Many(Vec<String>),
+    }
+    Ok(match Option::<OneOrMany>::deserialize(d)? {
+        None => Vec::new(),
+        Some(OneOrMany::One(s)) => vec![s],
+        Some(OneOrMany::Many(v)) => v,
+    })
 }
 
 pub const BUNDLE_MANIFEST: &str = "bundle.json";
@@ -32,6 +52,8 @@ pub const BUNDLE_FORMAT: &str = "pvrnn-bundle/1";
 /// A model with the dataset it is explored on.
 pub struct Bundle {
     pub description: String,
+    /// The model's card, when the bundle has one.
+    pub card: Option<ModelCard>,
     pub model: Arc<Model<f32>>,
     pub dataset: Dataset,
     /// Runs computed in advance (e.g. by `pvrnn bundle`).
@@ -70,6 +92,7 @@ impl Bundle {
         }
         Ok(Self {
             description,
+            card: None,
             model: Arc::new(model),
             dataset,
             precomputed: Vec::new(),
@@ -145,7 +168,8 @@ impl Bundle {
         })
         .map_err(|e| e.to_string())?;
         let mut bundle = Self::new(manifest.description, model, dataset)?;
-        if let Some(runs) = &manifest.runs {
+        bundle.card = manifest.card;
+        for runs in &manifest.runs {
             bundle.add_runs(get(runs)?, runs)?;
         }
         Ok(bundle)
@@ -157,7 +181,7 @@ impl Bundle {
             .map_err(|e| format!("{}: not a dataset manifest: {e}", manifest.dataset))?;
         let mut files = vec![manifest.model.clone()];
         files.extend(dataset.sequences.iter().map(|s| s.file.clone()));
-        files.extend(manifest.runs.clone());
+        files.extend(manifest.runs.iter().cloned());
         Ok(files)
     }
 
@@ -179,7 +203,8 @@ impl Bundle {
         let model = io::load_model(&dir.join(&manifest.model)).map_err(|e| e.to_string())?;
         let dataset = Dataset::open(dir).map_err(|e| e.to_string())?;
         let mut bundle = Self::new(manifest.description.clone(), model, dataset)?;
-        if let Some(runs) = &manifest.runs {
+        bundle.card = manifest.card;
+        for runs in &manifest.runs {
             let path = dir.join(runs);
             bundle.add_runs(read(runs)?, &path.display().to_string())?;
         }

@@ -4,6 +4,7 @@
 //! computed live in slices between frames and cached per condition; runs computed in
 //! advance (a bundle from `pvrnn bundle`) show at once. Desktop (eframe) and web (Trunk).
 
+pub mod about;
 pub mod app;
 pub mod bundle;
 pub mod drop;

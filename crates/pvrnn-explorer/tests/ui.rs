@@ -222,7 +222,14 @@ fn precomputed_runs_load_instantly() {
     let names: Vec<String> = seqs.iter().map(|s| s.info.name.clone()).collect();
     files.insert(
         "runs.safetensors".into(),
-        io::runs_to_bytes(&config, &runs, &[0, 1, 2], Some(&names), true).unwrap(),
+        io::runs_to_bytes(
+            &config,
+            &runs,
+            &[0, 1, 2],
+            Some(&names),
+            io::StateStorage::F16,
+        )
+        .unwrap(),
     );
     files.insert(
         BUNDLE_MANIFEST.into(),
@@ -241,6 +248,55 @@ fn precomputed_runs_load_instantly() {
     app.compute(std::time::Duration::ZERO);
     let run = app.current_run().unwrap();
     assert!(run.complete && run.trace.steps == 12);
+
+    // A bundle with one runs file per condition and a model card, as `pvrnn bundle`
+    // writes it: every condition's runs load, and the card shows in "About this model".
+    let mut blind = settings.clone();
+    blind.observed.proprio = false;
+    let runs: Vec<_> = (0..seqs.len())
+        .map(|s| run_sequence(arc.clone(), blind.clone(), &obs, s, false, &mut |_, _| {}).unwrap())
+        .collect();
+    files.insert(
+        "runs-blind.safetensors".into(),
+        io::runs_to_bytes(
+            &config,
+            &runs,
+            &[0, 1, 2],
+            Some(&names),
+            io::StateStorage::F16,
+        )
+        .unwrap(),
+    );
+    let card = pvrnn_dataset::card::ModelCard {
+        iteration: Some(12_345),
+        training_seconds: Some(3600.0),
+        training_machine: Some("a test machine".into()),
+        training_data: "three sequences".into(),
+        ..Default::default()
+    };
+    let manifest = serde_json::json!({
+        "format": "pvrnn-bundle/1", "description": "with a card", "model": "model.safetensors",
+        "dataset": "dataset.json", "runs": ["runs.safetensors", "runs-blind.safetensors"], "card": card,
+    });
+    files.insert(BUNDLE_MANIFEST.into(), manifest.to_string().into_bytes());
+    let bundle = Bundle::from_files(&files).unwrap();
+    assert_eq!(bundle.precomputed.len(), 6);
+    assert_eq!(bundle.card.as_ref(), Some(&card));
+    let mut h = harness(ExplorerApp::new(
+        Some(bundle),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
+    assert!(
+        h.query_by_label("12,345 iterations, 1.0 h on a test machine")
+            .is_none()
+    );
+    h.get_by_label("About this model").click();
+    h.step();
+    h.step();
+    h.get_by_label("12,345 iterations, 1.0 h on a test machine");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -1,15 +1,20 @@
-//! `pvrnn bundle`: a model, a dataset split and precomputed runs, packaged for the explorer.
+//! `pvrnn bundle`: a model, a dataset split, precomputed runs under the standard conditions
+//! and the model's card, packaged for the explorer.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
-use pvrnn_core::infer::{InferenceSettings, run_sequence};
-use pvrnn_core::io;
-use pvrnn_dataset::{Dataset, Selection, Split, proprio_ranges};
+use anyhow::{Context, Result, bail};
+use pvrnn_core::infer::{InferenceSettings, Run, run_sequence};
+use pvrnn_core::io::{self, StateStorage, TensorFile};
+use pvrnn_core::{Modality, Model, ModuleId, Observations, Observed};
+use pvrnn_dataset::card::ModelCard;
+use pvrnn_dataset::{Dataset, Split};
+use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::util;
+use crate::commands::train::log_path;
+use crate::{inputs, util};
 
 /// `bundle.json`: what the explorer opens.
 #[derive(Serialize)]
@@ -18,10 +23,15 @@ struct BundleManifest {
     description: String,
     model: &'static str,
     dataset: &'static str,
-    runs: &'static str,
+    /// One runs file per precomputed condition.
+    runs: Vec<String>,
+    card: ModelCard,
 }
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn bundle --model training/caresim-seed0.safetensors --dataset caresim/ --out models/default \\\n    --evaluation docs/results/evals/iter30000/all --machine \"AMD EPYC 7B13, 2 threads\""
+)]
 pub struct Args {
     /// A trained model (or checkpoint).
     #[arg(long)]
@@ -41,17 +51,144 @@ pub struct Args {
     /// Seed of the precomputed runs' noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Conditions to precompute, as VISION/PROPRIO (vision: all, none, or the lowest
+    /// resolutions such as 16 or 32+16; proprioception: on or off).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "all/on,16/on,16/off,none/on"
+    )]
+    conditions: Vec<String>,
+    /// Store the weights as f32 instead of f16 (f16 halves the download; the bundle
+    /// measures and reports what the rounding changes).
+    #[arg(long)]
+    f32_weights: bool,
+    /// Mantissa bits (of f16's 10) kept for the runs' per-step states: fewer bits compress
+    /// much better; the bundle measures and reports what the rounding changes.
+    #[arg(long, default_value_t = 6, value_parser = clap::value_parser!(u32).range(1..=10))]
+    state_bits: u32,
+    /// `pvrnn evaluate` reports of this model (folders with a summary.json) for the card.
+    #[arg(long)]
+    evaluation: Vec<PathBuf>,
+    /// The training log for the card (default: `<model>.log.csv` when it exists).
+    #[arg(long)]
+    training_log: Option<PathBuf>,
+    /// The machine the model was trained on, for the card (e.g. "AMD EPYC 7B13, 2 threads").
+    #[arg(long)]
+    machine: Option<String>,
+    /// The training data in words, for the card (default: the dataset's source and its
+    /// learning split's size).
+    #[arg(long)]
+    training_data: Option<String>,
+}
+
+/// One VISION/PROPRIO condition and its runs file's name.
+fn parse_condition(text: &str, model: &Model<f32>) -> Result<(Observed, String)> {
+    let Some((vision, proprio)) = text.split_once('/') else {
+        bail!("--conditions: `{text}` is not VISION/PROPRIO (e.g. 16/on)");
+    };
+    let observed = Observed {
+        vision_levels: Observed::parse_vision(vision, &model.config)?,
+        proprio: util::on_off(proprio)
+            .map_err(|e| anyhow::anyhow!("--conditions `{text}`: {e}"))?,
+    };
+    Ok((observed, format!("runs-{vision}-{proprio}.safetensors")))
+}
+
+/// Every sequence's run under one condition.
+fn runs_of(
+    model: &Arc<Model<f32>>,
+    settings: &InferenceSettings,
+    data: &Observations<f32>,
+    what: &str,
+) -> Result<Vec<Run<f32>>> {
+    let total: usize = data.lengths().iter().sum();
+    let bar = util::progress(total as u64, what);
+    // Sequences in parallel: one run's window is too small to keep two cores busy alone.
+    let runs = (0..data.sequences())
+        .into_par_iter()
+        .map(|s| {
+            run_sequence(
+                model.clone(),
+                settings.clone(),
+                data,
+                s,
+                false,
+                &mut |_, _| bar.inc(1),
+            )
+        })
+        .collect::<pvrnn_core::Result<Vec<_>>>()?;
+    bar.finish();
+    Ok(runs)
+}
+
+/// Vision reconstruction MSE of a run of `data`'s first sequence, read out from its states
+/// `d` as a reader gets them back from `storage`.
+fn stored_state_vision_error(
+    model: &Model<f32>,
+    run: &Run<f32>,
+    data: &Observations<f32>,
+    storage: StateStorage,
+) -> f64 {
+    let d: Vec<f32> = run.modules[ModuleId::Exteroceptive.index()]
+        .d
+        .data()
+        .iter()
+        .map(|&v| storage.round_trip(v))
+        .collect();
+    let steps = run.steps();
+    let recon = pvrnn_core::cpu::readout(&model.params, Modality::Exteroceptive, &d, steps);
+    let dims = data.dims(Modality::Exteroceptive);
+    let sum: f64 = (0..steps)
+        .flat_map(|t| {
+            recon[t * dims..(t + 1) * dims]
+                .iter()
+                .zip(data.step(Modality::Exteroceptive, 0, t))
+        })
+        .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
+        .sum();
+    sum / (steps * dims) as f64
+}
+
+fn mean_recon_error(run: &Run<f32>, modality: usize) -> f64 {
+    run.recon_error.iter().map(|e| e[modality]).sum::<f64>() / run.steps().max(1) as f64
+}
+
+/// (iteration, free energy, seconds) of the log row at `iteration` (or the last before it).
+fn training_row(log: &Path, iteration: Option<u64>) -> Result<Option<(f64, f64)>> {
+    let text = std::fs::read_to_string(log)
+        .with_context(|| format!("{}: cannot read the training log", log.display()))?;
+    let mut found = None;
+    for line in text.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let (Some(i), Some(total), Some(seconds)) = (
+            cells.first().and_then(|c| c.parse::<u64>().ok()),
+            cells.get(1).and_then(|c| c.parse::<f64>().ok()),
+            cells.last().and_then(|c| c.parse::<f64>().ok()),
+        ) else {
+            bail!("{}: `{line}` is not a training log row", log.display());
+        };
+        if iteration.is_some_and(|want| i > want) {
+            break;
+        }
+        found = Some((total, seconds));
+    }
+    Ok(found)
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut model = io::load_model(&a.model)?;
+    let file = TensorFile::open(&a.model)?;
+    let mut model = io::model_from_file(&file)?;
+    let iteration = io::checkpoint_iteration(&file);
+    drop(file);
     let dataset = Dataset::open(&a.dataset)?;
-    if model.config.normalisation.is_none() {
-        let learn = dataset.select(&Selection::Split(Split::Learn))?;
-        model.config.normalisation = Some(proprio_ranges(&learn));
-    }
-    let selection = Selection::parse(&a.split)
-        .with_context(|| format!("--split {}: expected learn, test or all", a.split))?;
+    inputs::ensure_normalisation(&mut model, &dataset, &a.dataset)?;
+    let conditions: Vec<(Observed, String)> = a
+        .conditions
+        .iter()
+        .map(|c| parse_condition(c, &model))
+        .collect::<Result<_>>()?;
+    let selection = inputs::parse_split(Some(&a.split), Split::Test)?;
     let sequences: Vec<_> = dataset.select(&selection)?.into_iter().cloned().collect();
     let subset = Dataset::new(
         &dataset.manifest.source,
@@ -61,55 +198,145 @@ pub fn run(a: Args) -> Result<()> {
     )?;
     let refs: Vec<_> = subset.sequences.iter().collect();
     let data = subset.observations(&refs, &model.config)?;
+    let learning = dataset
+        .select(&pvrnn_dataset::Selection::Split(Split::Learn))
+        .map_or(0, |s| s.len());
+
+    // Inference needs the weights only: the learning sequences' adaptive variables (A) do
+    // not take part in online inference on new sequences.
+    let full = Arc::new(model.weights_only());
+    let (model_bytes, weights) = if a.f32_weights {
+        (io::model_to_bytes(&*full)?, "f32".to_string())
+    } else {
+        (io::model_to_bytes_f16(&*full)?, String::new())
+    };
+    // The runs are computed with exactly the weights that ship.
+    let shipped = Arc::new(io::model_from_bytes(
+        model_bytes.clone(),
+        "the bundled model",
+    )?);
+    let mut settings = InferenceSettings::from_config(&shipped.config, a.seed);
 
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create", a.out.display()))?;
-    let model = Arc::new(model.weights_only());
-    io::save_model(&a.out.join("model.safetensors"), &model)?;
+    io::write_atomic(&a.out.join("model.safetensors"), &model_bytes)?;
     subset.write(&a.out)?;
-
-    let settings = InferenceSettings::from_config(&model.config, a.seed);
-    let total: usize = data.lengths().iter().sum();
-    let bar = util::progress(total as u64, "runs");
-    let mut runs = Vec::new();
-    let mut before = 0u64;
-    for s in 0..data.sequences() {
-        let run = run_sequence(
-            model.clone(),
-            settings.clone(),
-            &data,
-            s,
-            false,
-            &mut |done, _| bar.set_position(before + done as u64),
-        )?;
-        before += run.steps() as u64;
-        runs.push(run);
-    }
-    bar.finish();
     let names: Vec<String> = subset
         .sequences
         .iter()
         .map(|s| s.info.name.clone())
         .collect();
     let ids: Vec<usize> = (0..names.len()).collect();
-    // f16 states: the explorer only draws them, and the bundle has to download quickly.
-    let bytes = io::runs_to_bytes(&model.config, &runs, &ids, Some(&names), true)?;
-    io::write_atomic(&a.out.join("runs.safetensors"), &bytes)?;
+    let storage = StateStorage::F16Mantissa(a.state_bits);
+    let mut run_files = Vec::new();
+    let mut first_runs = None;
+    for (observed, file) in &conditions {
+        settings.observed = *observed;
+        let runs = runs_of(&shipped, &settings, &data, file)?;
+        // Rounded f16 states: the explorer draws them and reads images out of `d`, and the
+        // bundle has to download quickly.
+        let bytes = io::runs_to_bytes(&shipped.config, &runs, &ids, Some(&names), storage)?;
+        io::write_atomic(&a.out.join(file), &bytes)?;
+        run_files.push(file.clone());
+        first_runs.get_or_insert(runs);
+    }
+
+    // What f16 weights change: the first condition's first sequence, run again in f32.
+    let weights = if weights.is_empty() {
+        let (observed, _) = &conditions[0];
+        settings.observed = *observed;
+        let first_sequence = data.select(&[0])?;
+        let f32_run = runs_of(&full, &settings, &first_sequence, "f16 check")?.remove(0);
+        let f16_run = &first_runs.as_ref().expect("at least one condition")[0];
+        let change =
+            |m: usize| (mean_recon_error(f16_run, m) / mean_recon_error(&f32_run, m) - 1.0) * 100.0;
+        format!(
+            "f16 (rounding the weights changes the mean reconstruction error of {} by {:+.2}% (vision) and {:+.2}% (proprioception), measured on one run)",
+            names[0],
+            change(0),
+            change(1)
+        )
+    } else {
+        weights
+    };
+    eprintln!("weights: {weights}");
+    // What the rounded states change: the vision read-out of the first run's d.
+    let first = &first_runs.as_ref().expect("at least one condition")[0];
+    let one = data.select(&[0])?;
+    let exact = stored_state_vision_error(&shipped, first, &one, StateStorage::F32);
+    let rounded = stored_state_vision_error(&shipped, first, &one, storage);
+    let states = format!(
+        "per-step states as f16 with {} of 10 mantissa bits (changes the vision reconstruction error read out of {}'s states by {:+.3}%)",
+        a.state_bits,
+        names[0],
+        (rounded / exact - 1.0) * 100.0
+    );
+    eprintln!("runs: {states}");
+
+    let log = a.training_log.clone().unwrap_or_else(|| log_path(&a.model));
+    let trained = if a.training_log.is_some() || log.is_file() {
+        training_row(&log, iteration)?
+    } else {
+        None
+    };
+    let mut evaluations = Vec::new();
+    for dir in &a.evaluation {
+        let path = if dir.is_dir() {
+            dir.join("summary.json")
+        } else {
+            dir.clone()
+        };
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        evaluations.push(pvrnn_eval::progress::card_evaluation(
+            &text,
+            &path.display().to_string(),
+        )?);
+    }
+    let card = ModelCard {
+        iteration,
+        training_seconds: trained.map(|t| t.1),
+        training_machine: a.machine.clone(),
+        training_data: a.training_data.clone().unwrap_or_else(|| {
+            format!(
+                "{} ({learning} learning sequences)",
+                dataset.manifest.source
+            )
+        }),
+        free_energy: trained.map(|t| t.0),
+        weights: format!("{weights}; {states}"),
+        evaluations,
+    };
+    let title = if a.description.is_empty() {
+        "PV-RNN model".to_string()
+    } else {
+        a.description.clone()
+    };
+    let mut readme = card.markdown(&title);
+    readme.push_str(&format!(
+        "\nPrecomputed runs (seed {}): {}.\n\nWritten by `pvrnn bundle`; open with `pvrnn-explorer --bundle {}`.\n",
+        a.seed,
+        run_files.join(", "),
+        a.out.display()
+    ));
+    io::write_atomic(&a.out.join("README.md"), readme.as_bytes())?;
     let manifest = BundleManifest {
         format: "pvrnn-bundle/1",
         description: a.description,
         model: "model.safetensors",
         dataset: pvrnn_dataset::MANIFEST,
-        runs: "runs.safetensors",
+        runs: run_files,
+        card,
     };
     io::write_atomic(
         &a.out.join("bundle.json"),
         serde_json::to_string_pretty(&manifest)?.as_bytes(),
     )?;
     eprintln!(
-        "wrote {} ({} sequences with precomputed runs)",
+        "wrote {} ({} sequences, {} precomputed conditions)",
         a.out.display(),
-        names.len()
+        names.len(),
+        conditions.len()
     );
     Ok(())
 }

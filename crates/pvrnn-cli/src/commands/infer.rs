@@ -2,9 +2,10 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use pvrnn_core::infer::{InferenceSettings, run_sequence};
-use pvrnn_core::{Ablation, NoiseMode, Observed, io};
+use pvrnn_core::infer::run_sequence;
+use pvrnn_core::io;
 
+use crate::condition::ConditionArgs;
 use crate::{inputs, util};
 use pvrnn_dataset::Split;
 
@@ -26,29 +27,8 @@ pub struct Args {
     /// Which sequences (comma-separated indices); default all.
     #[arg(long, value_delimiter = ',')]
     sequences: Option<Vec<usize>>,
-    /// Vision observed: all, none, or the lowest resolutions, e.g. 16 or 32+16.
-    #[arg(long, default_value = "all")]
-    vision: String,
-    /// Proprioception observed: on or off.
-    #[arg(long, default_value = "on", value_parser = util::on_off, action = clap::ArgAction::Set)]
-    proprio: bool,
-    /// Modules whose z is set to 0 (comma-separated: executive, associative, exteroceptive, proprioceptive).
-    #[arg(long, default_value = "none")]
-    ablate: String,
-    /// Window length H (default: the model's configuration, 30).
-    #[arg(long)]
-    window: Option<usize>,
-    /// Updates per step (default 50).
-    #[arg(long)]
-    iterations: Option<usize>,
-    /// Learning rate of the window's adaptive variables (default 1.0).
-    #[arg(long)]
-    lr: Option<f64>,
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// eps = 0.
-    #[arg(long)]
-    zero_noise: bool,
+    #[command(flatten)]
+    condition: ConditionArgs,
     /// Leave out the full read-outs (`recon.*`, `prior.*`: two vision vectors per step);
     /// they are the read-outs of the stored `d` and `prior_d`.
     #[arg(long)]
@@ -62,25 +42,7 @@ pub fn run(a: Args) -> Result<()> {
     let model = Arc::new(model);
     data.check_fits(&model.config)?;
     let config = &model.config;
-    let mut settings = InferenceSettings::from_config(config, a.seed);
-    settings.observed = Observed {
-        vision_levels: Observed::parse_vision(&a.vision, config)?,
-        proprio: a.proprio,
-    };
-    settings.ablation = Ablation::parse(&a.ablate)?;
-    if let Some(h) = a.window {
-        settings.window = h;
-    }
-    if let Some(n) = a.iterations {
-        settings.iterations = n;
-    }
-    if let Some(lr) = a.lr {
-        settings.optimizer.lr = lr;
-    }
-    if a.zero_noise {
-        settings.noise = NoiseMode::Zero;
-    }
-    settings.validate(config)?;
+    let settings = a.condition.settings(config)?;
     let which: Vec<usize> = a
         .sequences
         .unwrap_or_else(|| (0..data.sequences()).collect());

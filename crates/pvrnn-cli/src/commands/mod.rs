@@ -1,8 +1,10 @@
 pub mod bench;
 pub mod bundle;
+pub mod evaluate;
 pub mod free_energy;
 pub mod import;
 pub mod infer;
 pub mod init;
+pub mod report;
 pub mod simulate;
 pub mod train;

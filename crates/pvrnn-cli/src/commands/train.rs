@@ -27,11 +27,17 @@ pub struct Args {
     /// it is also a model file. A CSV log goes next to it (`<out>.log.csv`).
     #[arg(long)]
     out: PathBuf,
-    /// Total iterations (default: the configuration's `train.iterations`, the paper's 100,000).
+    /// Total iterations, counted from the start of the run also with --resume (default: the
+    /// configuration's `train.iterations`, the paper's 100,000).
     #[arg(long)]
     iterations: Option<u64>,
+    /// Write the checkpoint every this many iterations (it is overwritten).
     #[arg(long, default_value_t = 100)]
     checkpoint_every: u64,
+    /// Also keep a copy of the checkpoint every this many iterations, as
+    /// `<out stem>.iter<N>.safetensors` beside --out (for evaluating a run as it goes).
+    #[arg(long)]
+    keep_every: Option<u64>,
     /// Seed of the noise draws.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -49,27 +55,44 @@ pub struct Args {
     overwrite: bool,
 }
 
-fn log_path(out: &Path) -> PathBuf {
+pub fn log_path(out: &Path) -> PathBuf {
     out.with_extension("log.csv")
 }
 
+/// Where `--keep-every` keeps the checkpoint of `iteration`: `run.safetensors` ->
+/// `run.iter10000.safetensors`.
+pub fn kept_path(out: &Path, iteration: u64) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.iter{iteration}.safetensors"))
+}
+
+/// `seconds`: wall time of the run so far, summed over resumed runs.
 const LOG_HEADER: &str = "iteration,total,accuracy_exteroceptive,accuracy_proprioceptive,complexity_executive,complexity_associative,complexity_exteroceptive,complexity_proprioceptive,seconds";
 
-/// Keeps the log rows of iterations before `iteration` (later rows were not checkpointed).
-fn truncate_log(path: &Path, iteration: u64) -> Result<()> {
+/// Keeps the log rows of iterations before `iteration` (later rows were not checkpointed)
+/// and returns the `seconds` of the last kept row, so a resumed run's clock continues.
+fn truncate_log(path: &Path, iteration: u64) -> Result<f64> {
     let mut kept = String::from(LOG_HEADER);
     kept.push('\n');
+    let mut seconds = 0.0;
     if let Ok(text) = std::fs::read_to_string(path) {
         for line in text.lines().skip(1) {
             let it: Option<u64> = line.split(',').next().and_then(|s| s.parse().ok());
             if it.is_some_and(|i| i < iteration) {
                 kept.push_str(line);
                 kept.push('\n');
+                seconds = line
+                    .rsplit(',')
+                    .next()
+                    .and_then(|s| s.parse().ok())
+                    .unwrap_or(seconds);
             }
         }
     }
     io::write_atomic(path, kept.as_bytes())?;
-    Ok(())
+    Ok(seconds)
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -109,11 +132,12 @@ pub fn run(a: Args) -> Result<()> {
         a.checkpoint_every >= 1,
         "--checkpoint-every must be at least 1"
     );
+    anyhow::ensure!(a.keep_every != Some(0), "--keep-every must be at least 1");
     let total = a
         .iterations
         .unwrap_or(trainer.model.config.train.iterations);
     let log = log_path(&a.out);
-    truncate_log(&log, trainer.iteration)?;
+    let seconds_before = truncate_log(&log, trainer.iteration)?;
     let mut log_file = std::fs::OpenOptions::new()
         .append(true)
         .open(&log)
@@ -123,7 +147,7 @@ pub fn run(a: Args) -> Result<()> {
     {
         let flag = interrupted.clone();
         ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
-            .context("cannot install the Ctrl-C handler")?;
+            .context("cannot install the Ctrl-C / SIGTERM handler")?;
     }
 
     let bar = util::progress(total, "train");
@@ -143,15 +167,22 @@ pub fn run(a: Args) -> Result<()> {
             report.complexity.associative,
             report.complexity.exteroceptive,
             report.complexity.proprioceptive,
-            start.elapsed().as_secs_f64()
+            seconds_before + start.elapsed().as_secs_f64()
         )?;
         last = Some(report);
         bar.set_position(trainer.iteration);
         bar.set_message(format!("F {:.4}", report.total));
         let stop = interrupted.load(Ordering::SeqCst);
-        if trainer.iteration % a.checkpoint_every == 0 || trainer.iteration == total || stop {
+        let keep = a.keep_every.is_some_and(|k| trainer.iteration % k == 0);
+        if trainer.iteration % a.checkpoint_every == 0 || trainer.iteration == total || stop || keep
+        {
             log_file.flush()?;
             io::save_checkpoint(&a.out, &trainer, last)?;
+        }
+        if keep {
+            let kept = kept_path(&a.out, trainer.iteration);
+            io::save_checkpoint(&kept, &trainer, last)?;
+            bar.println(format!("kept {}", kept.display()));
         }
         if stop {
             bar.abandon();

@@ -10,7 +10,7 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
-use crate::kernels::{LANES, simd};
+use crate::kernels::{LANES, prefetch, simd};
 use crate::parallel;
 use crate::params::{Dense, ReadoutParams};
 
@@ -20,6 +20,8 @@ const ROW_BLOCK: usize = 512;
 /// results do not either.
 const GROUP_COLUMNS: usize = 768;
 const MAX_GROUPS: usize = 16;
+/// How many rows ahead the output layer prefetches its targets.
+const TARGET_PREFETCH_ROWS: usize = 6;
 
 /// `out [n, w] = act(input [n, k] @ W^T + b)`.
 fn dense_forward<T: Real>(
@@ -218,6 +220,11 @@ pub(crate) fn output_loss<T: Real>(
                     ),
                 }
                 for i in 0..rw {
+                    // The targets are read once per pass, a short run of each distant row:
+                    // fetch a later row's run while this one computes, or the loads stall.
+                    if let Some(ahead) = targets.get(r0 + i + TARGET_PREFETCH_ROWS) {
+                        prefetch(&ahead[c0..c0 + cw]);
+                    }
                     let row = &mut tile[i * cw..(i + 1) * cw];
                     if let Some(b) = bias {
                         for (v, &bi) in row.iter_mut().zip(&b[c0..c0 + cw]) {

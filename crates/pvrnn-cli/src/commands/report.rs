@@ -1,0 +1,74 @@
+//! `pvrnn report`: learning curves from a training log, and the error-against-iterations
+//! table from several evaluations of one run.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use pvrnn_eval::{plots, progress};
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Command {
+    /// Learning curves (every free-energy term against the iteration) from a training log.
+    #[command(
+        after_help = "Example:\n  pvrnn report curves --log training/caresim-seed0.log.csv --out docs/results/curves.png"
+    )]
+    Curves {
+        /// A `pvrnn train` log (`<out>.log.csv`).
+        #[arg(long)]
+        log: PathBuf,
+        /// PNG to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Title of the plot (default: the log's file name).
+        #[arg(long)]
+        title: Option<String>,
+    },
+    /// Error against training iterations: one Markdown table per condition from the
+    /// `summary.json` of several `pvrnn evaluate` runs on checkpoints of one training run.
+    #[command(
+        after_help = "Example:\n  pvrnn report table eval/iter*/*/ --out docs/results/progress.md"
+    )]
+    Table {
+        /// Evaluation folders (each holding a summary.json) or summary.json files.
+        #[arg(required = true)]
+        evaluations: Vec<PathBuf>,
+        /// Write the tables here instead of printing them.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+pub fn run(command: Command) -> Result<()> {
+    match command {
+        Command::Curves { log, out, title } => {
+            let text = std::fs::read_to_string(&log)
+                .with_context(|| format!("{}: cannot read the training log", log.display()))?;
+            let title = title.unwrap_or_else(|| format!("learning curves: {}", log.display()));
+            plots::training_curves(&text, &title, &out)
+                .with_context(|| format!("{}", log.display()))?;
+            eprintln!("wrote {}", out.display());
+        }
+        Command::Table { evaluations, out } => {
+            let mut read = Vec::new();
+            for path in evaluations {
+                let file = if path.is_dir() {
+                    path.join("summary.json")
+                } else {
+                    path
+                };
+                let text = std::fs::read_to_string(&file)
+                    .with_context(|| format!("{}: cannot read", file.display()))?;
+                read.push(progress::read_summary(&text, &file.display().to_string())?);
+            }
+            let md = progress::markdown(&read);
+            match out {
+                Some(path) => {
+                    pvrnn_core::io::write_atomic(&path, md.as_bytes())?;
+                    eprintln!("wrote {}", path.display());
+                }
+                None => print!("{md}"),
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,61 @@
+//! The inference condition flags `infer` and `evaluate` share.
+
+use anyhow::Result;
+use pvrnn_core::infer::InferenceSettings;
+use pvrnn_core::{Ablation, ModelConfig, NoiseMode, Observed};
+
+use crate::util;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct ConditionArgs {
+    /// Vision observed: all, none, or the lowest resolutions, e.g. 16 or 32+16.
+    #[arg(long, default_value = "all")]
+    pub vision: String,
+    /// Proprioception observed: on or off.
+    #[arg(long, default_value = "on", value_parser = util::on_off, action = clap::ArgAction::Set)]
+    pub proprio: bool,
+    /// Modules whose z is set to 0 (comma-separated: executive, associative, exteroceptive, proprioceptive).
+    #[arg(long, default_value = "none")]
+    pub ablate: String,
+    /// Window length H (default: the model's configuration, 30).
+    #[arg(long)]
+    pub window: Option<usize>,
+    /// Updates per step (default: the model's configuration, 50).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Learning rate of the window's adaptive variables (default: the model's configuration, 1.0).
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Seed of the noise draws.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// eps = 0.
+    #[arg(long)]
+    pub zero_noise: bool,
+}
+
+impl ConditionArgs {
+    /// The inference settings these flags give for a model.
+    pub fn settings(&self, config: &ModelConfig) -> Result<InferenceSettings> {
+        let mut settings = InferenceSettings::from_config(config, self.seed);
+        settings.observed = Observed {
+            vision_levels: Observed::parse_vision(&self.vision, config)?,
+            proprio: self.proprio,
+        };
+        settings.ablation = Ablation::parse(&self.ablate)?;
+        if let Some(h) = self.window {
+            settings.window = h;
+        }
+        if let Some(n) = self.iterations {
+            settings.iterations = n;
+        }
+        if let Some(lr) = self.lr {
+            settings.optimizer.lr = lr;
+        }
+        if self.zero_noise {
+            settings.noise = NoiseMode::Zero;
+        }
+        settings.validate(config)?;
+        Ok(settings)
+    }
+}

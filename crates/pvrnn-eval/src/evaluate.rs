@@ -1,0 +1,415 @@
+//! Runs an evaluation: online inference (exactly `pvrnn infer`) on every sequence of a
+//! split, several noise trials each, every step scored against the truth; the baselines of
+//! each sequence scored by the same code.
+
+use std::sync::Arc;
+
+use pvrnn_core::infer::{InferenceSettings, OnlineInference};
+use pvrnn_core::{Modality, Model, Observations};
+use pvrnn_dataset::{Dataset, Selection, Split};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::groups::{Group, groups};
+use crate::metrics::{StepErrors, change_mask, score, upsampled_vision};
+use crate::{Error, Result};
+
+/// What is predicted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, PartialOrd, Ord)]
+#[serde(rename_all = "lowercase")]
+pub enum Target {
+    /// x_t: the posterior reconstruction of the current step (all dimensions, observed or not).
+    Recon,
+    /// x_{t+1}: the one-step prior prediction made at step t.
+    Next,
+}
+
+/// Who predicts it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, PartialOrd, Ord)]
+#[serde(rename_all = "lowercase")]
+pub enum Source {
+    Model,
+    /// The current step as the prediction of the next one (true values, also of
+    /// dimensions the model does not observe).
+    Previous,
+    /// The mean learning-split input (image and posture).
+    Mean,
+    /// Bilinear upsampling of the highest observed resolution to the unobserved ones.
+    Upsample,
+}
+
+impl Target {
+    pub const ALL: [Target; 2] = [Target::Recon, Target::Next];
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::Recon => "recon",
+            Target::Next => "next",
+        }
+    }
+}
+
+impl Source {
+    pub const ALL: [Source; 4] = [
+        Source::Model,
+        Source::Previous,
+        Source::Mean,
+        Source::Upsample,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Source::Model => "model",
+            Source::Previous => "previous",
+            Source::Mean => "mean",
+            Source::Upsample => "upsample",
+        }
+    }
+}
+
+/// Everything an evaluation depends on besides the model and the data.
+#[derive(Clone, Debug)]
+pub struct EvalSettings {
+    /// The inference condition; trial k uses noise seed `seed + k`.
+    pub inference: InferenceSettings,
+    pub trials: usize,
+    /// A pixel "changes" when a channel moves by more than this many 8-bit levels.
+    pub change_threshold: f64,
+    /// Time steps shown in each sequence's picture of actual vs predicted images.
+    pub image_columns: usize,
+}
+
+/// One sequence's identity as the report shows it.
+#[derive(Clone, Debug, Serialize)]
+pub struct SequenceMeta {
+    pub name: String,
+    pub task: String,
+    pub bed_height_mm: Option<f64>,
+    pub length: usize,
+    /// Per step, an index into `subtask_names`.
+    #[serde(skip)]
+    pub subtask: Vec<u32>,
+    pub subtask_names: Vec<String>,
+}
+
+/// One source's errors for one target over a sequence's steps (`None` where undefined,
+/// e.g. the step after the last).
+#[derive(Clone, Debug)]
+pub struct Series {
+    pub source: Source,
+    pub target: Target,
+    /// The noise trial (model series only).
+    pub trial: Option<usize>,
+    pub steps: Vec<Option<StepErrors>>,
+}
+
+/// Vision vectors of a few steps of trial 0, for pictures.
+#[derive(Clone, Debug, Default)]
+pub struct ImageSamples {
+    pub steps: Vec<usize>,
+    pub actual: Vec<Vec<f32>>,
+    pub recon: Vec<Vec<f32>>,
+    /// The prior prediction of the step, made one step before (none at the first step).
+    pub predicted: Vec<Option<Vec<f32>>>,
+    /// The upsampling baseline's reconstruction (when the condition has one).
+    pub upsampled: Vec<Option<Vec<f32>>>,
+}
+
+#[derive(Clone, Debug)]
+pub struct SequenceResult {
+    pub meta: SequenceMeta,
+    pub series: Vec<Series>,
+    pub images: ImageSamples,
+}
+
+/// A finished evaluation.
+#[derive(Clone, Debug)]
+pub struct Evaluation {
+    pub settings: EvalSettings,
+    pub groups: Vec<Group>,
+    pub sequences: Vec<SequenceResult>,
+    /// Vision resolutions, ascending, and camera names (for pictures).
+    pub resolutions: Vec<usize>,
+    pub cameras: Vec<String>,
+}
+
+/// Mean normalised input (vision, proprioception) over every step of the learning split.
+pub fn learning_mean(dataset: &Dataset, model: &Model<f32>) -> Result<[Vec<f32>; 2]> {
+    let learn = dataset.select(&Selection::Split(Split::Learn))?;
+    let config = &model.config;
+    let mut sums = [
+        vec![0f64; config.vision.dims()],
+        vec![0f64; config.proprio_dims],
+    ];
+    let mut steps = 0usize;
+    for seq in learn {
+        let obs = dataset.observations(&[seq], config)?;
+        for t in 0..seq.len() {
+            for m in Modality::ALL {
+                for (s, &v) in sums[m.index()].iter_mut().zip(obs.step(m, 0, t)) {
+                    *s += v as f64;
+                }
+            }
+        }
+        steps += seq.len();
+    }
+    Ok(sums.map(|s| s.into_iter().map(|v| (v / steps as f64) as f32).collect()))
+}
+
+/// Per step, the vision dimensions that changed from the previous step (none at t = 0).
+type ChangeMasks = Vec<Option<Vec<bool>>>;
+
+/// Evaluates `model` on `selection` of `dataset`. `progress` is called with each finished
+/// inference step.
+pub fn evaluate(
+    model: Arc<Model<f32>>,
+    dataset: &Dataset,
+    selection: &Selection,
+    settings: &EvalSettings,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Evaluation> {
+    let config = &model.config;
+    if settings.trials == 0 {
+        return Err(Error::Invalid("at least one trial is needed".into()));
+    }
+    settings.inference.validate(config)?;
+    let manifest = &dataset.manifest;
+    if manifest.joints.len() + manifest.torques.len() != config.proprio_dims {
+        return Err(Error::Invalid(format!(
+            "the dataset has {} joint angles and {} torques, the model {} proprioceptive dimensions",
+            manifest.joints.len(),
+            manifest.torques.len(),
+            config.proprio_dims
+        )));
+    }
+    let sequences = dataset.select(selection)?;
+    let data = dataset.observations(&sequences, config)?;
+    data.check_fits(config)?;
+    let mean = learning_mean(dataset, &model)?;
+    let groups = groups(
+        config,
+        &manifest.cameras,
+        manifest.joints.len(),
+        manifest.torques.len(),
+        &settings.inference.observed,
+    );
+    let threshold = (settings.change_threshold / 255.0 * 1.8) as f32;
+    let vision_levels = settings.inference.observed.vision_levels;
+
+    // Per sequence: change masks (masks[t]: from t-1 to t) and the baselines' series.
+    let prepared: Vec<(ChangeMasks, Vec<Series>)> = (0..sequences.len())
+        .into_par_iter()
+        .map(|s| {
+            let len = data.lengths()[s];
+            let x = |t: usize| {
+                [
+                    data.step(Modality::Exteroceptive, s, t),
+                    data.step(Modality::Proprioceptive, s, t),
+                ]
+            };
+            let masks: ChangeMasks = (0..len)
+                .map(|t| {
+                    (t > 0).then(|| change_mask(&config.vision, x(t - 1)[0], x(t)[0], threshold))
+                })
+                .collect();
+            let mut series = Vec::new();
+            let mean_ref = [mean[0].as_slice(), mean[1].as_slice()];
+            series.push(Series {
+                source: Source::Mean,
+                target: Target::Recon,
+                trial: None,
+                steps: (0..len)
+                    .map(|t| Some(score(&groups, mean_ref, x(t), masks[t].as_deref())))
+                    .collect(),
+            });
+            series.push(Series {
+                source: Source::Mean,
+                target: Target::Next,
+                trial: None,
+                steps: (0..len)
+                    .map(|t| {
+                        (t + 1 < len)
+                            .then(|| score(&groups, mean_ref, x(t + 1), masks[t + 1].as_deref()))
+                    })
+                    .collect(),
+            });
+            series.push(Series {
+                source: Source::Previous,
+                target: Target::Next,
+                trial: None,
+                steps: (0..len)
+                    .map(|t| {
+                        (t + 1 < len)
+                            .then(|| score(&groups, x(t), x(t + 1), masks[t + 1].as_deref()))
+                    })
+                    .collect(),
+            });
+            if vision_levels > 0 && vision_levels < config.vision.resolutions.len() {
+                series.push(Series {
+                    source: Source::Upsample,
+                    target: Target::Recon,
+                    trial: None,
+                    steps: (0..len)
+                        .map(|t| {
+                            let up = upsampled_vision(&config.vision, x(t)[0], vision_levels)
+                                .expect("some levels observed, some not");
+                            Some(score(&groups, [&up, x(t)[1]], x(t), masks[t].as_deref()))
+                        })
+                        .collect(),
+                });
+            }
+            (masks, series)
+        })
+        .collect();
+
+    let jobs: Vec<(usize, usize)> = (0..sequences.len())
+        .flat_map(|s| (0..settings.trials).map(move |k| (s, k)))
+        .collect();
+    let runs: Vec<(usize, [Series; 2], Option<ImageSamples>)> = jobs
+        .par_iter()
+        .map(|&(s, trial)| {
+            run_trial(
+                &model,
+                &data,
+                s,
+                trial,
+                settings,
+                &groups,
+                &prepared[s].0,
+                progress,
+            )
+            .map(|(series, images)| (s, series, images))
+        })
+        .collect::<Result<_>>()?;
+
+    let mut results: Vec<SequenceResult> = sequences
+        .iter()
+        .zip(prepared)
+        .map(|(seq, (_, baselines))| SequenceResult {
+            meta: SequenceMeta {
+                name: seq.info.name.clone(),
+                task: seq.info.task.clone(),
+                bed_height_mm: seq.info.bed_height_mm,
+                length: seq.len(),
+                subtask: seq.subtask.clone(),
+                subtask_names: seq.info.subtasks.clone(),
+            },
+            series: baselines,
+            images: ImageSamples::default(),
+        })
+        .collect();
+    for (s, series, images) in runs {
+        results[s].series.extend(series);
+        if let Some(images) = images {
+            results[s].images = images;
+        }
+    }
+    for (s, r) in results.iter_mut().enumerate() {
+        fill_baseline_images(&mut r.images, &data, s, config, vision_levels);
+    }
+    Ok(Evaluation {
+        settings: settings.clone(),
+        groups,
+        sequences: results,
+        resolutions: config.vision.resolutions.clone(),
+        cameras: manifest.cameras.clone(),
+    })
+}
+
+/// Steps shown in pictures: `n` evenly spaced over `len`.
+fn image_steps(len: usize, n: usize) -> Vec<usize> {
+    if n <= 1 || len <= 1 {
+        return vec![0];
+    }
+    let mut v: Vec<usize> = (0..n).map(|i| i * (len - 1) / (n - 1)).collect();
+    v.dedup();
+    v
+}
+
+fn run_trial(
+    model: &Arc<Model<f32>>,
+    data: &Observations<f32>,
+    s: usize,
+    trial: usize,
+    settings: &EvalSettings,
+    groups: &[Group],
+    masks: &[Option<Vec<bool>>],
+    progress: &(dyn Fn() + Sync),
+) -> Result<([Series; 2], Option<ImageSamples>)> {
+    let mut inference_settings: InferenceSettings = settings.inference.clone();
+    inference_settings.noise = match inference_settings.noise {
+        pvrnn_core::NoiseMode::Sampled { seed } => pvrnn_core::NoiseMode::Sampled {
+            seed: seed.wrapping_add(trial as u64),
+        },
+        zero => zero,
+    };
+    let mut inference = OnlineInference::new(model.clone(), inference_settings)?;
+    let len = data.lengths()[s];
+    let x = |t: usize| {
+        [
+            data.step(Modality::Exteroceptive, s, t),
+            data.step(Modality::Proprioceptive, s, t),
+        ]
+    };
+    let mut recon = Vec::with_capacity(len);
+    let mut next = Vec::with_capacity(len);
+    let keep_images = trial == 0;
+    let shown = image_steps(len, settings.image_columns);
+    let mut images = ImageSamples::default();
+    let mut last_prior: Option<Vec<f32>> = None;
+    for t in 0..len {
+        let out = inference.step(x(t)[0], x(t)[1])?;
+        recon.push(Some(score(
+            groups,
+            [&out.recon[0], &out.recon[1]],
+            x(t),
+            masks[t].as_deref(),
+        )));
+        next.push((t + 1 < len).then(|| {
+            score(
+                groups,
+                [&out.prior_next[0], &out.prior_next[1]],
+                x(t + 1),
+                masks[t + 1].as_deref(),
+            )
+        }));
+        if keep_images && shown.contains(&t) {
+            images.steps.push(t);
+            images.actual.push(x(t)[0].to_vec());
+            images.recon.push(out.recon[0].clone());
+            images.predicted.push(last_prior.take());
+        }
+        if keep_images {
+            last_prior = Some(out.prior_next[0].clone());
+        }
+        progress();
+    }
+    let series = |target, steps| Series {
+        source: Source::Model,
+        target,
+        trial: Some(trial),
+        steps,
+    };
+    Ok((
+        [series(Target::Recon, recon), series(Target::Next, next)],
+        keep_images.then_some(images),
+    ))
+}
+
+fn fill_baseline_images(
+    images: &mut ImageSamples,
+    data: &Observations<f32>,
+    s: usize,
+    config: &pvrnn_core::ModelConfig,
+    vision_levels: usize,
+) {
+    images.upsampled = images
+        .steps
+        .iter()
+        .map(|&t| {
+            upsampled_vision(
+                &config.vision,
+                data.step(Modality::Exteroceptive, s, t),
+                vision_levels,
+            )
+        })
+        .collect();
+}

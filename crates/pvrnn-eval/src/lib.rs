@@ -1,0 +1,55 @@
+//! Evaluation of a trained scalable PV-RNN: online inference (exactly `pvrnn infer`) on
+//! every sequence of a dataset split under one condition, several noise trials each; errors
+//! per modality group (each vision resolution and camera, joint angles, torques), for the
+//! reconstruction of the current step and the prediction of the next, over all pixels and
+//! over the pixels that change; the same errors of honest baselines (previous step, mean
+//! learning input, bilinear upsampling), computed by the same code; and a report.
+//!
+//! - [`groups`]: which dimensions a figure covers.
+//! - [`metrics`]: squared errors (one function for model and baselines), change masks,
+//!   upsampling.
+//! - [`evaluate`]: the runs.
+//! - [`report`]: aggregation (per trial, then mean ± SE) and the JSON, Markdown and CSV files.
+//! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
+//!   images), and training curves from a training log.
+//! - [`progress`]: error against training iterations, from several evaluations.
+
+pub mod evaluate;
+pub mod groups;
+pub mod metrics;
+pub mod plots;
+pub mod progress;
+pub mod report;
+
+use std::path::Path;
+
+pub use evaluate::{EvalSettings, Evaluation, Source, Target, evaluate};
+pub use report::{ReportMeta, write_report};
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Core(#[from] pvrnn_core::Error),
+    #[error(transparent)]
+    Dataset(#[from] pvrnn_dataset::Error),
+    #[error("{0}")]
+    Invalid(String),
+    #[error("{path}: {detail}")]
+    File { path: String, detail: String },
+    #[error(transparent)]
+    Csv(#[from] csv::Error),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Writes a file atomically (temporary file, then rename), creating its folder.
+pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::File {
+            path: dir.display().to_string(),
+            detail: format!("cannot create: {e}"),
+        })?;
+    }
+    pvrnn_core::io::write_atomic(path, bytes)?;
+    Ok(())
+}

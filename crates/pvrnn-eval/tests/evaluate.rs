@@ -1,0 +1,325 @@
+//! `evaluate` end to end on a small model and dataset: the model's errors agree with the
+//! core's own reconstruction error, the baselines equal their definitions, and the report
+//! files and the progress table come out.
+
+use std::sync::Arc;
+
+use pvrnn_core::config::{ModuleConfig, VisionLayout};
+use pvrnn_core::infer::{InferenceSettings, run_sequence};
+use pvrnn_core::{Modality, Model, ModelConfig, Observed};
+use pvrnn_dataset::{Dataset, Selection, Sequence, SequenceInfo, Split, proprio_ranges};
+use pvrnn_eval::report::{self, Pixels};
+use pvrnn_eval::{EvalSettings, ReportMeta, Source, Target, evaluate, plots, progress};
+
+const T: usize = 10;
+
+/// A sequence whose left camera shows a bright pixel moving one place per step (the right
+/// camera is static), with smooth proprioception.
+fn sequence(name: &str, task: &str, split: Split, phase: usize) -> Sequence {
+    let mut images = vec![40u8; T * 2 * 4 * 4 * 3];
+    for t in 0..T {
+        let pixel = (t + phase) % 16;
+        let at = (t * 2 * 16 + pixel) * 3;
+        images[at..at + 3].copy_from_slice(&[250, 200, 10]);
+    }
+    Sequence {
+        info: SequenceInfo {
+            name: name.into(),
+            file: format!("{name}.safetensors"),
+            task: task.into(),
+            bed_height_mm: Some(650.0),
+            split,
+            seed: None,
+            length: T,
+            subtasks: vec!["reach".into(), "wipe".into()],
+        },
+        cameras: 2,
+        image_size: 4,
+        images,
+        joints: (0..T * 14)
+            .map(|i| (i as f32 * 0.1 + phase as f32).sin())
+            .collect(),
+        torques: (0..T * 14)
+            .map(|i| (i as f32 * 0.05).cos() * (1 + phase) as f32)
+            .collect(),
+        subtask: (0..T).map(|t| (t * 2 / T) as u32).collect(),
+    }
+}
+
+fn dataset() -> Dataset {
+    let seqs = vec![
+        sequence("r_learn0", "repositioning", Split::Learn, 0),
+        sequence("r_learn1", "repositioning", Split::Learn, 3),
+        sequence("w_learn0", "wiping", Split::Learn, 5),
+        sequence("r_test0", "repositioning", Split::Test, 1),
+        sequence("w_test0", "wiping", Split::Test, 7),
+    ];
+    Dataset::new("test", vec!["left".into(), "right".into()], 4, seqs).unwrap()
+}
+
+fn model(ds: &Dataset) -> Model<f32> {
+    let mut c = ModelConfig::default();
+    let m = |d, z, tau: [f64; 2]| ModuleConfig { d, z, tau };
+    c.executive = m(6, 2, c.executive.tau);
+    c.associative = m(6, 2, c.associative.tau);
+    c.exteroceptive = m(6, 3, c.exteroceptive.tau);
+    c.proprioceptive = m(6, 2, c.proprioceptive.tau);
+    c.exteroceptive_readout.hidden = vec![6, 8];
+    c.proprioceptive_readout.hidden = vec![6];
+    c.vision = VisionLayout {
+        cameras: 2,
+        channels: 3,
+        resolutions: vec![2, 4],
+    };
+    c.inference.window = 4;
+    c.inference.iterations = 3;
+    c.normalisation = Some(proprio_ranges(&ds.split(Some(Split::Learn))));
+    Model::init(c, 3, T, 7).unwrap()
+}
+
+fn settings(model: &Model<f32>, vision_levels: usize, trials: usize) -> EvalSettings {
+    let mut inference = InferenceSettings::from_config(&model.config, 11);
+    inference.observed = Observed {
+        vision_levels,
+        proprio: true,
+    };
+    EvalSettings {
+        inference,
+        trials,
+        change_threshold: 8.0,
+        image_columns: 4,
+    }
+}
+
+#[test]
+fn errors_match_the_core_and_baselines_match_their_definitions() {
+    let ds = dataset();
+    let model = Arc::new(model(&ds));
+    let test = Selection::Split(Split::Test);
+    let eval = evaluate(model.clone(), &ds, &test, &settings(&model, 1, 2), &|| {}).unwrap();
+    let names: Vec<&str> = eval.groups.iter().map(|g| g.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "v2", "v2_left", "v2_right", "v4", "v4_left", "v4_right", "joints", "torques"
+        ]
+    );
+    assert!(eval.groups[0].observed && !eval.groups[3].observed && eval.groups[6].observed);
+
+    // The model's reconstruction errors, pooled over both levels, are the core's own
+    // per-step reconstruction error of trial 0.
+    let data = ds
+        .observations(&ds.select(&test).unwrap(), &model.config)
+        .unwrap();
+    let run = run_sequence(
+        model.clone(),
+        settings(&model, 1, 1).inference,
+        &data,
+        1,
+        false,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let seq = &eval.sequences[1];
+    assert_eq!(seq.meta.name, "w_test0");
+    let recon0 = seq
+        .series
+        .iter()
+        .find(|s| s.source == Source::Model && s.target == Target::Recon && s.trial == Some(0))
+        .unwrap();
+    for t in 0..T {
+        let e = recon0.steps[t].as_ref().unwrap();
+        let (sum, count) = [0, 3].iter().fold((0.0, 0), |(s, c), &g| {
+            (s + e.all[g].sum, c + e.all[g].count)
+        });
+        let mse = sum / count as f64;
+        assert!(
+            (mse - run.recon_error[t][0]).abs() <= 1e-6 * mse.max(1e-6),
+            "step {t}: {mse} vs {}",
+            run.recon_error[t][0]
+        );
+        let (psum, pcount) =
+            (6..8).fold((0.0, 0), |(s, c), g| (s + e.all[g].sum, c + e.all[g].count));
+        assert!((psum / pcount as f64 - run.recon_error[t][1]).abs() < 1e-6);
+    }
+    // A second trial uses other noise, so its errors differ.
+    let recon1 = seq
+        .series
+        .iter()
+        .find(|s| s.source == Source::Model && s.target == Target::Recon && s.trial == Some(1))
+        .unwrap();
+    assert_ne!(recon0.steps[5], recon1.steps[5]);
+
+    // The previous-frame baseline: step t's input as the prediction of t + 1.
+    let previous = seq
+        .series
+        .iter()
+        .find(|s| s.source == Source::Previous)
+        .unwrap();
+    let x = |t: usize| data.step(Modality::Exteroceptive, 1, t);
+    let layout = &model.config.vision;
+    let v4 = layout.level_offset(1)..layout.dims();
+    let n4 = v4.len() as f64;
+    let expect: f64 = v4
+        .clone()
+        .map(|d| (x(3)[d] as f64 - x(4)[d] as f64).powi(2))
+        .sum::<f64>()
+        / n4;
+    let got = previous.steps[3].as_ref().unwrap().all[3].mse().unwrap();
+    assert!((got - expect).abs() < 1e-9, "{got} vs {expect}");
+    assert!(previous.steps[T - 1].is_none(), "no step after the last");
+    // Only the left camera moves: its changing pixels are the two lit places (the old
+    // and the new), the right camera has none.
+    let e = previous.steps[3].as_ref().unwrap();
+    assert_eq!(e.changing[4].count, 2 * 3);
+    assert_eq!(e.changing[5].count, 0);
+    assert!((e.changing[4].mse().unwrap() - e.all[4].sum / 6.0).abs() < 1e-9);
+
+    // The mean baseline: the mean learning input.
+    let mean = pvrnn_eval::evaluate::learning_mean(&ds, &model).unwrap();
+    let mean_recon = seq
+        .series
+        .iter()
+        .find(|s| s.source == Source::Mean && s.target == Target::Recon)
+        .unwrap();
+    let expect: f64 = v4
+        .clone()
+        .map(|d| (mean[0][d] as f64 - x(2)[d] as f64).powi(2))
+        .sum::<f64>()
+        / n4;
+    assert!((mean_recon.steps[2].as_ref().unwrap().all[3].mse().unwrap() - expect).abs() < 1e-9);
+
+    // Upsampling only when some levels are observed and some not.
+    assert!(seq.series.iter().any(|s| s.source == Source::Upsample));
+    let all = evaluate(model.clone(), &ds, &test, &settings(&model, 2, 1), &|| {}).unwrap();
+    assert!(
+        all.sequences
+            .iter()
+            .all(|s| s.series.iter().all(|x| x.source != Source::Upsample))
+    );
+
+    // Figures: the model averages sequences x trials, a baseline the sequences.
+    let values = report::trial_values(&eval);
+    let figures = report::figures(&eval, &values);
+    let model_v4 = figures
+        .iter()
+        .find(|f| {
+            f.scope == "all"
+                && f.source == Source::Model
+                && f.target == Target::Recon
+                && f.group == "v4"
+                && f.pixels == Pixels::All
+        })
+        .unwrap();
+    assert_eq!(model_v4.n, 4);
+    assert!(model_v4.se.is_some());
+    let up = figures
+        .iter()
+        .find(|f| {
+            f.scope == "task:wiping"
+                && f.source == Source::Upsample
+                && f.group == "v4"
+                && f.pixels == Pixels::All
+        })
+        .unwrap();
+    assert_eq!(up.n, 1);
+    // No upsampling figure for the observed level, no previous-frame reconstruction.
+    assert!(
+        !figures
+            .iter()
+            .any(|f| f.source == Source::Upsample && f.group == "v2")
+    );
+    assert!(
+        !figures
+            .iter()
+            .any(|f| f.source == Source::Previous && f.target == Target::Recon)
+    );
+    let comparisons = report::comparisons(&eval, &figures);
+    let c = comparisons
+        .iter()
+        .find(|c| {
+            c.scope == "all"
+                && c.group == "v4"
+                && c.baseline == Source::Upsample
+                && c.pixels == Pixels::All
+        })
+        .unwrap();
+    assert_eq!(c.model_better, c.model < c.baseline_value);
+    assert!((c.ratio - model_v4.mean / c.baseline_value).abs() < 1e-12);
+}
+
+#[test]
+fn reports_plots_and_the_progress_table_are_written() {
+    let ds = dataset();
+    let model = Arc::new(model(&ds));
+    let eval = evaluate(
+        model.clone(),
+        &ds,
+        &Selection::Split(Split::Test),
+        &settings(&model, 1, 2),
+        &|| {},
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut meta = ReportMeta {
+        model: "m.safetensors".into(),
+        model_iteration: Some(1000),
+        dataset: "ds".into(),
+        split: "test".into(),
+        seconds: 1.5,
+        threads: 2,
+    };
+    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
+    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    assert!(
+        md.contains("2 sequences") && md.contains("2 inference trials"),
+        "{md}"
+    );
+    assert!(md.contains("| v4* |") && md.contains("upsample"), "{md}");
+    let per_step = std::fs::read_to_string(dir.path().join("per_step.csv")).unwrap();
+    // Model: 2 sequences x 2 trials x (T recon + T - 1 next); baselines: mean (T + T - 1),
+    // previous (T - 1), upsample (T) per sequence.
+    assert_eq!(
+        per_step.lines().count(),
+        1 + 2 * 2 * (2 * T - 1) + 2 * (4 * T - 2)
+    );
+    assert!(
+        per_step
+            .lines()
+            .next()
+            .unwrap()
+            .ends_with("v4_right_changing")
+    );
+    for name in ["error_r_test0.png", "images_w_test0.png"] {
+        let img = image::open(dir.path().join("plots").join(name))
+            .unwrap()
+            .to_rgb8();
+        // Something was drawn: the picture is not one colour.
+        let first = *img.get_pixel(0, 0);
+        assert!(img.pixels().any(|p| *p != first), "{name} is blank");
+    }
+
+    // Progress: two evaluations of the same condition give a table with the change.
+    let text = std::fs::read_to_string(dir.path().join("summary.json")).unwrap();
+    let a = progress::read_summary(&text, "a").unwrap();
+    assert_eq!(a.iteration, 1000);
+    assert_eq!(a.condition, "vision 2, proprioception on");
+    let mut b = a.clone();
+    b.iteration = 2000;
+    b.model = a.model.iter().map(|v| v.map(|x| x * 0.9)).collect();
+    assert!((progress::max_relative_change(&a, &b).unwrap() - 0.1).abs() < 1e-9);
+    let table = progress::markdown(&[b, a]);
+    assert!(
+        table.contains("| 1000 |") && table.contains("| 2000 |") && table.contains("10.0%"),
+        "{table}"
+    );
+    assert!(table.find("| 1000 |") < table.find("| 2000 |"));
+    assert!(table.contains("best baseline"));
+    meta.model_iteration = None;
+    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
+    let text = std::fs::read_to_string(dir.path().join("summary.json")).unwrap();
+    let e = progress::read_summary(&text, "b").unwrap_err().to_string();
+    assert!(e.contains("iteration"), "{e}");
+    assert!(progress::read_summary("{}", "c").is_err());
+}

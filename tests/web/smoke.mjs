@@ -4,7 +4,7 @@
 //   node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N]
 //
 // With --live-seconds N it also opens a condition that is not precomputed (16x16 vision
-// plus proprioception) and waits up to N seconds for the live run's speed in the console.
+// plus proprioception with the executive module ablated) and waits up to N seconds for the live run's speed in the console.
 import { createRequire } from 'node:module';
 import { inflateSync } from 'node:zlib';
 import { writeFileSync } from 'node:fs';
@@ -104,7 +104,7 @@ try {
   if (colours.size < 50 || std < 5) fail('the canvas is blank');
 
   if (liveSeconds > 0) {
-    await page.evaluate(() => { location.hash = 'vision=1&proprio=1&maps=0&t=0'; });
+    await page.evaluate(() => { location.hash = 'vision=1&proprio=1&ablate=1000&maps=0&t=0'; });
     const until = Date.now() + liveSeconds * 1000;
     let live;
     while (!(live = logs.find((l) => l.includes('computed live'))) && Date.now() < until) await page.waitForTimeout(500);

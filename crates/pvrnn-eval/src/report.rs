@@ -521,74 +521,33 @@ fn markdown(
             if pixels == Pixels::Changing {
                 let _ = writeln!(md, "\nChanging pixels only:\n");
             }
-            let _ = writeln!(
-                md,
-                "| group | recon: model | upsample | mean | next: model | previous | mean |"
-            );
-            let _ = writeln!(md, "|---|---|---|---|---|---|---|");
+            comparison_header(&mut md, "group");
             for group in eval.groups.iter().filter(|g| is_summary_group(g)) {
                 if pixels == Pixels::Changing && !group.is_vision() {
                     continue;
                 }
-                let f = |t, s| find(figures, &scope, t, s, &group.name, pixels);
-                let _ = writeln!(
-                    md,
-                    "| {}{} | {} | {} | {} | {} | {} | {} |",
-                    group.name,
-                    if group.observed { "" } else { "*" },
-                    cell(f(Target::Recon, Source::Model)),
-                    cell(f(Target::Recon, Source::Upsample)),
-                    cell(f(Target::Recon, Source::Mean)),
-                    cell(f(Target::Next, Source::Model)),
-                    cell(f(Target::Next, Source::Previous)),
-                    cell(f(Target::Next, Source::Mean)),
-                );
+                comparison_row(&mut md, &group_label(group), |t, s| {
+                    find(figures, &scope, t, s, &group.name, pixels)
+                });
             }
         }
         let _ = writeln!(md);
     }
 
     let _ = writeln!(md, "## Per sequence ({top}, all pixels)\n");
-    let _ = writeln!(
-        md,
-        "| sequence | recon: model | upsample | mean | next: model | previous | mean |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|");
+    comparison_header(&mut md, "sequence");
     for s in &eval.sequences {
         let scope = format!("sequence:{}", s.meta.name);
-        let f = |t, src| find(figures, &scope, t, src, &top, Pixels::All);
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} | {} |",
-            s.meta.name,
-            cell(f(Target::Recon, Source::Model)),
-            cell(f(Target::Recon, Source::Upsample)),
-            cell(f(Target::Recon, Source::Mean)),
-            cell(f(Target::Next, Source::Model)),
-            cell(f(Target::Next, Source::Previous)),
-            cell(f(Target::Next, Source::Mean)),
-        );
+        comparison_row(&mut md, &s.meta.name, |t, src| {
+            find(figures, &scope, t, src, &top, Pixels::All)
+        });
     }
     let _ = writeln!(md, "\n## Per camera (all sequences, all pixels)\n");
-    let _ = writeln!(
-        md,
-        "| group | recon: model | upsample | mean | next: model | previous | mean |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|");
+    comparison_header(&mut md, "group");
     for group in eval.groups.iter().filter(|g| !is_summary_group(g)) {
-        let f = |t, s| find(figures, "all", t, s, &group.name, Pixels::All);
-        let _ = writeln!(
-            md,
-            "| {}{} | {} | {} | {} | {} | {} | {} |",
-            group.name,
-            if group.observed { "" } else { "*" },
-            cell(f(Target::Recon, Source::Model)),
-            cell(f(Target::Recon, Source::Upsample)),
-            cell(f(Target::Recon, Source::Mean)),
-            cell(f(Target::Next, Source::Model)),
-            cell(f(Target::Next, Source::Previous)),
-            cell(f(Target::Next, Source::Mean)),
-        );
+        comparison_row(&mut md, &group_label(group), |t, s| {
+            find(figures, "all", t, s, &group.name, Pixels::All)
+        });
     }
     let _ = writeln!(
         md,
@@ -596,6 +555,38 @@ fn markdown(
          `per_step.csv` (every step), `plots/` (error over time, actual vs predicted images)."
     );
     md
+}
+
+/// The header of a table of the model beside its baselines, one row per `first` column.
+fn comparison_header(md: &mut String, first: &str) {
+    let _ = writeln!(
+        md,
+        "| {first} | recon: model | upsample | mean | next: model | previous | mean |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|");
+}
+
+/// One row of that table; `figure` finds the mean (± SE) of a target and source.
+fn comparison_row<'a>(
+    md: &mut String,
+    label: &str,
+    figure: impl Fn(Target, Source) -> Option<&'a Figure>,
+) {
+    let _ = writeln!(
+        md,
+        "| {label} | {} | {} | {} | {} | {} | {} |",
+        cell(figure(Target::Recon, Source::Model)),
+        cell(figure(Target::Recon, Source::Upsample)),
+        cell(figure(Target::Recon, Source::Mean)),
+        cell(figure(Target::Next, Source::Model)),
+        cell(figure(Target::Next, Source::Previous)),
+        cell(figure(Target::Next, Source::Mean)),
+    );
+}
+
+/// A group's name, starred when it was not observed.
+fn group_label(group: &Group) -> String {
+    format!("{}{}", group.name, if group.observed { "" } else { "*" })
 }
 
 fn csv_bytes(rows: impl FnOnce(&mut csv::Writer<Vec<u8>>) -> csv::Result<()>) -> Result<Vec<u8>> {

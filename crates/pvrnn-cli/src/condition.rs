@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use pvrnn_core::infer::InferenceSettings;
-use pvrnn_core::{Ablation, ModelConfig, NoiseMode, Observed};
+use pvrnn_core::{Ablation, AblationMode, ModelConfig, NoiseMode, Observed};
 
 use crate::util;
 
@@ -17,6 +17,11 @@ pub struct ConditionArgs {
     /// Modules whose z is set to 0 (comma-separated: executive, associative, exteroceptive, proprioceptive).
     #[arg(long, default_value = "none")]
     pub ablate: String,
+    /// When --ablate applies: `readout` (inference runs as standard, then each step's final
+    /// pass is read out again with z = 0: the paper's contribution maps) or `inference`
+    /// (z = 0 during every inference iteration, so other modules may compensate).
+    #[arg(long, default_value = "readout", value_parser = ["readout", "inference"])]
+    pub ablation_mode: String,
     /// Window length H (default: the model's configuration, 30).
     #[arg(long)]
     pub window: Option<usize>,
@@ -43,6 +48,7 @@ impl ConditionArgs {
             proprio: self.proprio,
         };
         settings.ablation = Ablation::parse(&self.ablate)?;
+        settings.ablation_mode = AblationMode::parse(&self.ablation_mode)?;
         if let Some(h) = self.window {
             settings.window = h;
         }
@@ -56,6 +62,6 @@ impl ConditionArgs {
             settings.noise = NoiseMode::Zero;
         }
         settings.validate(config)?;
-        Ok(settings)
+        Ok(settings.canonical())
     }
 }

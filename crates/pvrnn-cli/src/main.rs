@@ -41,6 +41,8 @@ enum Command {
     Infer(commands::infer::Args),
     /// Score online inference on a dataset split against baselines; a report with tables and plots.
     Evaluate(commands::evaluate::Args),
+    /// Run one of the paper's experiments (plan, resumable jobs, statistics, report; Slurm).
+    Experiment(commands::experiment::Args),
     /// Learning curves from a training log; error against iterations from several evaluations.
     #[command(subcommand)]
     Report(commands::report::Command),
@@ -67,6 +69,7 @@ fn main() {
         Command::Train(a) => commands::train::run(a),
         Command::Infer(a) => commands::infer::run(a),
         Command::Evaluate(a) => commands::evaluate::run(a),
+        Command::Experiment(a) => commands::experiment::run(a),
         Command::Report(c) => commands::report::run(c),
         Command::Bench(a) => commands::bench::run(a),
         Command::Simulate(a) => commands::simulate::run(a),

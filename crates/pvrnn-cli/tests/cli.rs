@@ -772,3 +772,121 @@ fn import_reads_recordings_into_a_dataset() {
     let e = fails(&["import", "--from", &x.s("recordings"), "--out", &x.s("ds2")]);
     assert!(e.contains("frame 1 is missing"), "{e}");
 }
+
+/// `pvrnn experiment`: plan + run + report in one command at smoke scale, a second run
+/// skips everything, scales never mix, and the cluster scripts come out.
+#[test]
+fn experiment_plans_runs_and_reports_at_smoke_scale() {
+    let x = Scratch::new();
+    pvrnn_dataset::synthetic::caresim_like(&[650], 3, 1, 24)
+        .unwrap()
+        .write(&x.path("ds"))
+        .unwrap();
+    let (ds, out) = (x.s("ds"), x.s("unc"));
+    let e = fails(&["experiment", "uncertainty", "--out", &out]);
+    assert!(e.contains("--dataset"), "{e}");
+    ok(&[
+        "--threads",
+        "2",
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "smoke",
+        "--dataset",
+        &ds,
+        "--out",
+        &out,
+    ]);
+    let md = std::fs::read_to_string(x.path("unc/report/report.md")).unwrap();
+    assert!(
+        md.contains("# Experiment: uncertainty (smoke scale)") && md.contains("paired t-tests"),
+        "{md}"
+    );
+    let before = std::fs::metadata(x.path("unc/networks/smoke-train-net0.safetensors"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let again = pvrnn(&[
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "smoke",
+        "--out",
+        &out,
+    ]);
+    assert!(again.status.success());
+    assert!(
+        !String::from_utf8_lossy(&again.stderr).contains("started"),
+        "nothing left to run"
+    );
+    assert_eq!(
+        std::fs::metadata(x.path("unc/networks/smoke-train-net0.safetensors"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        before
+    );
+    // A second experiment sharing the networks folder trains nothing.
+    let shared = x.s("shared");
+    ok(&[
+        "experiment",
+        "uncertainty",
+        "--dataset",
+        &ds,
+        "--out",
+        &x.s("u1"),
+        "--networks",
+        &shared,
+    ]);
+    let second = pvrnn(&[
+        "experiment",
+        "robustness",
+        "--dataset",
+        &ds,
+        "--out",
+        &x.s("r1"),
+        "--networks",
+        &shared,
+    ]);
+    assert!(second.status.success());
+    let log = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        log.contains("train-net0") && !log.contains("iteration 1/"),
+        "{log}"
+    );
+    let e = fails(&[
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "paper",
+        "--out",
+        &out,
+    ]);
+    assert!(e.contains("smoke") && e.contains("another --out"), "{e}");
+    ok(&[
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "smoke",
+        "--out",
+        &out,
+        "--emit",
+        "slurm",
+    ]);
+    let submit = std::fs::read_to_string(x.path("unc/slurm/submit.sh")).unwrap();
+    assert!(
+        submit.contains("report.sbatch") && !submit.contains("--array"),
+        "all done: {submit}"
+    );
+    let e = fails(&[
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "smoke",
+        "--out",
+        &out,
+        "--job",
+        "999",
+    ]);
+    assert!(e.contains("999"), "{e}");
+}

@@ -146,6 +146,37 @@ impl VisionLayout {
     }
 }
 
+/// What each modality's accuracy term is divided by when only part of it is observed
+/// (spec, [decided] "Accuracy under partial observation").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AccuracyNormalisation {
+    /// The number of observed dimensions (the spec's default): every observed condition
+    /// weighs its accuracy like full observation does.
+    #[default]
+    Observed,
+    /// The modality's full dimension: fewer observed pixels weigh less against the
+    /// complexity terms.
+    Full,
+}
+
+impl AccuracyNormalisation {
+    pub fn name(self) -> &'static str {
+        match self {
+            AccuracyNormalisation::Observed => "observed",
+            AccuracyNormalisation::Full => "full",
+        }
+    }
+
+    /// The divisor of a modality's summed squared error: `observed` of `dims` dimensions.
+    pub fn divisor(self, observed: usize, dims: usize) -> usize {
+        match self {
+            AccuracyNormalisation::Observed => observed,
+            AccuracyNormalisation::Full => dims,
+        }
+    }
+}
+
 /// Which half of a module's units gets the smaller time constant.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -257,6 +288,8 @@ pub struct ModelConfig {
     pub proprio_dims: usize,
     /// W: weight of every module's complexity term.
     pub kl_weight: f64,
+    /// [decided] Divisor of each modality's accuracy under partial observation.
+    pub accuracy_normalisation: AccuracyNormalisation,
     /// [decided] The prior has no bias (eqs. 5-6).
     pub prior_bias: bool,
     /// [decided] The first half of a module's units gets the smaller tau.
@@ -302,6 +335,7 @@ impl Default for ModelConfig {
             },
             proprio_dims: 28,
             kl_weight: 0.005,
+            accuracy_normalisation: AccuracyNormalisation::Observed,
             prior_bias: false,
             tau_order: TauOrder::FastFirst,
             recurrent_bias_variance: 10.0,

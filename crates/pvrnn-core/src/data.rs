@@ -221,6 +221,43 @@ impl Observed {
     }
 }
 
+/// When an ablated module's z is 0 (spec, "Conditions a user can set at inference").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AblationMode {
+    /// Inference runs as standard; the final pass of each step is then read out again with
+    /// the module's z = 0 (same a's, eps and held state). The paper's contribution maps
+    /// (Figs 2B, 3B): what the module adds to the prediction the network actually made.
+    #[default]
+    Readout,
+    /// z = 0 during every inference iteration too, so the other modules may compensate.
+    Inference,
+}
+
+impl AblationMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            AblationMode::Readout => "readout",
+            AblationMode::Inference => "inference",
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<Self> {
+        match text {
+            "readout" => Ok(AblationMode::Readout),
+            "inference" => Ok(AblationMode::Inference),
+            other => Err(Error::InvalidArgument(format!(
+                "unknown ablation mode `{other}` (readout or inference)"
+            ))),
+        }
+    }
+
+    /// Runs written before the two modes existed ablated during inference.
+    pub fn legacy() -> Self {
+        AblationMode::Inference
+    }
+}
+
 /// Modules whose latent z is set to 0 when generating.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Ablation(pub [bool; 4]);
@@ -238,6 +275,22 @@ impl Ablation {
     }
     pub fn contains(&self, id: ModuleId) -> bool {
         self.0[id.index()]
+    }
+    pub fn is_none(&self) -> bool {
+        !self.0.iter().any(|&a| a)
+    }
+    /// e.g. `executive+proprioceptive`, or `none`.
+    pub fn label(&self) -> String {
+        let names: Vec<&str> = ModuleId::ALL
+            .iter()
+            .filter(|id| self.contains(**id))
+            .map(|id| id.name())
+            .collect();
+        if names.is_empty() {
+            "none".into()
+        } else {
+            names.join("+")
+        }
     }
     /// Parses a comma-separated list of module names (or `none`).
     pub fn parse(text: &str) -> Result<Self> {

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use crate::backend::{Backend, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window};
 use crate::config::{Modality, ModelConfig, ModuleId, RAdamConfig, validate_radam};
 use crate::cpu::{CpuBackend, prior_preactivations};
-use crate::data::{Ablation, Observations, Observed};
+use crate::data::{Ablation, AblationMode, Observations, Observed};
 use crate::error::{Error, Result};
 use crate::free_energy::FreeEnergy;
 use crate::noise::{NoiseMode, Stream};
@@ -39,6 +39,10 @@ pub struct InferenceSettings {
     pub reset_moments_each_step: bool,
     pub observed: Observed,
     pub ablation: Ablation,
+    /// When the ablation applies; files written before the modes existed ablated during
+    /// inference.
+    #[serde(default = "AblationMode::legacy")]
+    pub ablation_mode: AblationMode,
     pub noise: NoiseMode,
 }
 
@@ -52,8 +56,32 @@ impl InferenceSettings {
             reset_moments_each_step: config.inference.reset_moments_each_step,
             observed: Observed::all(config),
             ablation: Ablation::none(),
+            ablation_mode: AblationMode::default(),
             noise: NoiseMode::Sampled { seed },
         }
+    }
+
+    /// The same settings with the ablation mode reset when nothing is ablated (the mode
+    /// then changes nothing), so equal runs compare equal.
+    pub fn canonical(mut self) -> Self {
+        if self.ablation.is_none() {
+            self.ablation_mode = AblationMode::default();
+        }
+        self
+    }
+
+    /// The ablation in force during the inference iterations.
+    pub fn inference_ablation(&self) -> Ablation {
+        match self.ablation_mode {
+            AblationMode::Inference => self.ablation,
+            AblationMode::Readout => Ablation::none(),
+        }
+    }
+
+    /// The ablation applied only when the final pass is read out again.
+    fn readout_only_ablation(&self) -> Option<Ablation> {
+        (self.ablation_mode == AblationMode::Readout && !self.ablation.is_none())
+            .then_some(self.ablation)
     }
 
     pub fn validate(&self, config: &ModelConfig) -> Result<()> {
@@ -83,7 +111,9 @@ pub struct ModuleStep<T> {
     pub d: Vec<T>,
 }
 
-/// What online inference reports after step t.
+/// What online inference reports after step t. With a `readout` ablation, the read-outs,
+/// the module states and the prior prediction come from the ablated re-read of the final
+/// pass, and the free-energy terms from the standard pass that inference optimised.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepOutput<T> {
     /// 0-based index of the step.
@@ -102,6 +132,9 @@ pub struct StepOutput<T> {
     pub window_free_energy: FreeEnergy,
     /// The newest step's accuracy terms (observed dimensions), per modality.
     pub step_accuracy: [f64; 2],
+    /// The reconstruction re-read with each of [`OnlineInference::set_readout_ablations`]'s
+    /// ablations (in that order), per modality.
+    pub ablated_recon: Vec<[Vec<T>; 2]>,
 }
 
 #[derive(Debug)]
@@ -130,6 +163,8 @@ pub struct OnlineInference<T: Real> {
     steps_done: usize,
     optimizer: RAdam<T>,
     pending: Option<Pending>,
+    /// Extra read-outs of every step's final pass (contribution maps in one run).
+    readout_ablations: Vec<Ablation>,
 }
 
 impl<T: Real> OnlineInference<T> {
@@ -157,6 +192,7 @@ impl<T: Real> OnlineInference<T> {
             steps_done: 0,
             optimizer,
             pending: None,
+            readout_ablations: Vec::new(),
             loaded: backend.load(&model.params, config),
             model,
             settings,
@@ -165,6 +201,13 @@ impl<T: Real> OnlineInference<T> {
 
     pub fn settings(&self) -> &InferenceSettings {
         &self.settings
+    }
+
+    /// Also re-reads every step's final pass with each of these ablations (one extra pass
+    /// each, no effect on the inference): `StepOutput::ablated_recon`. This is how one run
+    /// gives every module's `readout` contribution map.
+    pub fn set_readout_ablations(&mut self, ablations: Vec<Ablation>) {
+        self.readout_ablations = ablations;
     }
     pub fn model(&self) -> &Arc<Model<T>> {
         &self.model
@@ -254,6 +297,7 @@ impl<T: Real> OnlineInference<T> {
     fn window_pass(
         &self,
         eps: &[Vec<T>; 4],
+        ablation: Ablation,
         grads: Grads,
         full: FullOutputs,
     ) -> crate::backend::WindowResult<T> {
@@ -275,7 +319,7 @@ impl<T: Real> OnlineInference<T> {
         };
         let request = Request {
             observed: self.settings.observed,
-            ablation: self.settings.ablation,
+            ablation,
             grads,
             full_outputs: full,
         };
@@ -312,7 +356,8 @@ impl<T: Real> OnlineInference<T> {
                 &[t, (done + k) as u64],
                 self.window_len(),
             );
-            let result = self.window_pass(&eps, Grads::Adaptive, FullOutputs::None);
+            let ablation = self.settings.inference_ablation();
+            let result = self.window_pass(&eps, ablation, Grads::Adaptive, FullOutputs::None);
             let (Some(g_mu), Some(g_sigma)) = (result.grad_a_mu, result.grad_a_sigma) else {
                 unreachable!("adaptive gradients requested")
             };
@@ -352,8 +397,23 @@ impl<T: Real> OnlineInference<T> {
         let len = self.window_len();
         let config = self.model.config.clone();
         let eps = self.eps(Stream::InferFinal, &[t as u64], len);
-        let result = self.window_pass(&eps, Grads::None, FullOutputs::LastStep);
+        let ablation = self.settings.inference_ablation();
+        let result = self.window_pass(&eps, ablation, Grads::None, FullOutputs::LastStep);
         let trace = &result.trace;
+        let ablated_recon: Vec<[Vec<T>; 2]> = self
+            .readout_ablations
+            .iter()
+            .map(|a| {
+                self.window_pass(&eps, *a, Grads::None, FullOutputs::LastStep)
+                    .outputs
+            })
+            .collect();
+        // A `readout` ablation: the same pass re-read with z = 0; what the step reports.
+        let readout = self
+            .settings
+            .readout_only_ablation()
+            .map(|a| self.window_pass(&eps, a, Grads::None, FullOutputs::LastStep));
+        let reported = readout.as_ref().unwrap_or(&result);
 
         let mut accuracy = [0.0; 2];
         for (sum, per_step) in accuracy.iter_mut().zip(&result.accuracy) {
@@ -368,13 +428,27 @@ impl<T: Real> OnlineInference<T> {
             )));
         }
         let step_accuracy = [result.accuracy[0][len - 1], result.accuracy[1][len - 1]];
-        let modules = last_step_states(trace, &config);
-        for m in 0..4 {
-            let d = config.module(ModuleId::ALL[m]).d;
-            self.last_h[m] = trace.modules[m].h[(len - 1) * d..len * d].to_vec();
-            self.last_d[m] = trace.modules[m].d[(len - 1) * d..len * d].to_vec();
-        }
-        let recon = result.outputs;
+        let modules = last_step_states(&reported.trace, &config);
+        let last_state = |tr: &Trace<T>, field: fn(&crate::backend::ModuleTrace<T>) -> &Vec<T>| {
+            std::array::from_fn::<Vec<T>, 4, _>(|m| {
+                let d = config.module(ModuleId::ALL[m]).d;
+                field(&tr.modules[m])[(len - 1) * d..len * d].to_vec()
+            })
+        };
+        // Inference continues from the standard pass ...
+        self.last_h = last_state(trace, |m| &m.h);
+        self.last_d = last_state(trace, |m| &m.d);
+        // ... and the prior prediction starts from the state the step reports.
+        let (prior_next, prior_d) = match &readout {
+            Some(r) => self.prior_prediction(
+                t,
+                &last_state(&r.trace, |m| &m.h),
+                &last_state(&r.trace, |m| &m.d),
+                self.settings.ablation,
+            ),
+            None => self.prior_prediction(t, &self.last_h, &self.last_d, ablation),
+        };
+        let recon = reported.outputs.clone();
         let recon_error: [f64; 2] = std::array::from_fn(|i| {
             let n = recon[i].len().max(1) as f64;
             recon[i]
@@ -384,7 +458,6 @@ impl<T: Real> OnlineInference<T> {
                 .sum::<f64>()
                 / n
         });
-        let (prior_next, prior_d) = self.prior_prediction(t);
 
         // Slide: once the window is full, the state after its oldest step is held and that
         // step leaves the window.
@@ -417,20 +490,27 @@ impl<T: Real> OnlineInference<T> {
             recon_error,
             window_free_energy,
             step_accuracy,
+            ablated_recon,
         })
     }
 
     /// x^_{t+1} from the prior: one generation step from the state after step t with
     /// z = mu_p + sigma_p * eps; also the modules' d in that step.
-    fn prior_prediction(&self, t: usize) -> ([Vec<T>; 2], [Vec<T>; 4]) {
+    fn prior_prediction(
+        &self,
+        t: usize,
+        last_h: &[Vec<T>; 4],
+        last_d: &[Vec<T>; 4],
+        ablation: Ablation,
+    ) -> ([Vec<T>; 2], [Vec<T>; 4]) {
         let (pre_mu, pre_sigma) = prior_preactivations(
             &self.model.params,
-            std::array::from_fn(|m| self.last_d[m].as_slice()),
+            std::array::from_fn(|m| last_d[m].as_slice()),
         );
         let eps = self.eps(Stream::InferPrior, &[t as u64], 1);
         let window = Window {
             len: 1,
-            h0: Some(std::array::from_fn(|m| self.last_h[m].as_slice())),
+            h0: Some(std::array::from_fn(|m| last_h[m].as_slice())),
             posterior: Posterior::Adaptive {
                 a_mu: std::array::from_fn(|m| pre_mu[m].as_slice()),
                 a_sigma: std::array::from_fn(|m| pre_sigma[m].as_slice()),
@@ -443,7 +523,7 @@ impl<T: Real> OnlineInference<T> {
                 vision_levels: 0,
                 proprio: false,
             },
-            ablation: self.settings.ablation,
+            ablation,
             grads: Grads::None,
             full_outputs: FullOutputs::LastStep,
         };

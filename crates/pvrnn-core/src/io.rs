@@ -845,7 +845,8 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
     };
     let settings: InferenceSettings = file
         .metadata("settings")
-        .and_then(|s| serde_json::from_str(s).ok())
+        .and_then(|s| serde_json::from_str::<InferenceSettings>(s).ok())
+        .map(InferenceSettings::canonical)
         .ok_or_else(|| bad("no valid `settings` metadata: not a pvrnn inference file"))?;
     let names: Option<Vec<String>> = match file.metadata("sequence_names") {
         Some(text) => {

@@ -31,7 +31,7 @@ pub mod tensor;
 pub mod train;
 
 pub use config::{Modality, ModelConfig, ModuleId};
-pub use data::{Ablation, Observations, Observed};
+pub use data::{Ablation, AblationMode, Observations, Observed};
 pub use error::{Error, Result};
 pub use free_energy::FreeEnergy;
 pub use noise::NoiseMode;

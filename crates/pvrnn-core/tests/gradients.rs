@@ -11,7 +11,7 @@ use wasm_bindgen_test::wasm_bindgen_test as test;
 
 use common::{random_observations, tiny_config, tiny_model, uniform};
 use pvrnn_core::backend::{Backend, FullOutputs, Grads, Posterior, Request, Window};
-use pvrnn_core::config::{ModelConfig, ModuleId};
+use pvrnn_core::config::{AccuracyNormalisation, ModelConfig, ModuleId};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::params::Role;
@@ -201,13 +201,14 @@ fn inference_window_gradients_match_finite_differences() {
         })
         .collect();
 
-    for (observed, ablation) in [
+    for (observed, ablation, normalisation) in [
         (
             Observed {
                 vision_levels: 1,
                 proprio: false,
             },
             Ablation::of(&[ModuleId::Associative]),
+            AccuracyNormalisation::Observed,
         ),
         (
             Observed {
@@ -215,6 +216,15 @@ fn inference_window_gradients_match_finite_differences() {
                 proprio: true,
             },
             Ablation::of(&[ModuleId::Exteroceptive]),
+            AccuracyNormalisation::Observed,
+        ),
+        (
+            Observed {
+                vision_levels: 1,
+                proprio: true,
+            },
+            Ablation::none(),
+            AccuracyNormalisation::Full,
         ),
         (
             Observed {
@@ -222,8 +232,11 @@ fn inference_window_gradients_match_finite_differences() {
                 proprio: true,
             },
             Ablation::none(),
+            AccuracyNormalisation::Observed,
         ),
     ] {
+        let mut config = config.clone();
+        config.accuracy_normalisation = normalisation;
         let evaluate = |a_mu: &[Vec<f64>], a_sigma: &[Vec<f64>], grads: Grads| {
             let window = Window {
                 len,
@@ -273,7 +286,7 @@ fn inference_window_gradients_match_finite_differences() {
                     let numeric = (plus - minus) / (2.0 * H);
                     assert!(
                         (numeric - grad).abs() <= tolerance(grad),
-                        "{observed:?} {ablation:?} module {m} {} [{i}]: analytic {grad:e} numeric {numeric:e}",
+                        "{observed:?} {ablation:?} {normalisation:?} module {m} {} [{i}]: analytic {grad:e} numeric {numeric:e}",
                         if which == 0 { "a_mu" } else { "a_sigma" }
                     );
                 }
@@ -320,4 +333,60 @@ fn unobserved_outputs_get_no_weight_gradient() {
     let observed_rows = config.vision.observed_dims(1);
     assert!(w[..observed_rows * hidden].iter().any(|&v| v != 0.0));
     assert!(w[observed_rows * hidden..].iter().all(|&v| v == 0.0));
+}
+
+/// `accuracy_normalisation = "full"` divides the vision error by all 32,256-style dimensions
+/// instead of the observed ones: the same sum, scaled by observed / full.
+#[test]
+fn full_accuracy_normalisation_scales_by_the_observed_fraction() {
+    let config = tiny_config();
+    let model = tiny_model(config.clone(), 1, 3, 6);
+    let data = random_observations::<f64>(&config, 1, 3, 8);
+    let eps: Vec<Vec<f64>> = ModuleId::ALL
+        .iter()
+        .map(|id| vec![0.0; 3 * config.module(*id).z])
+        .collect();
+    let observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let accuracy = |normalisation| {
+        let mut config = config.clone();
+        config.accuracy_normalisation = normalisation;
+        let window = Window {
+            len: 3,
+            h0: None,
+            posterior: Posterior::Adaptive {
+                a_mu: std::array::from_fn(|m| model.adaptive.a_mu[m].data()),
+                a_sigma: std::array::from_fn(|m| model.adaptive.a_sigma[m].data()),
+            },
+            eps: std::array::from_fn(|m| eps[m].as_slice()),
+            targets: pvrnn_core::Modality::ALL
+                .map(|mo| (0..3).map(|t| data.step(mo, 0, t)).collect()),
+        };
+        let request = Request {
+            observed,
+            ablation: Ablation::none(),
+            grads: Grads::None,
+            full_outputs: FullOutputs::None,
+        };
+        let mut r = CpuBackend
+            .load(&model.params, &config)
+            .evaluate(&[window], &request);
+        r.windows.remove(0).accuracy
+    };
+    let by_observed = accuracy(AccuracyNormalisation::Observed);
+    let by_full = accuracy(AccuracyNormalisation::Full);
+    let fraction = config.vision.observed_dims(1) as f64
+        / config.modality_dims(pvrnn_core::Modality::Exteroceptive) as f64;
+    for t in 0..3 {
+        let expected = by_observed[0][t] * fraction;
+        assert!(
+            (by_full[0][t] - expected).abs() <= 1e-12 * expected.abs(),
+            "step {t}"
+        );
+        // Proprioception is fully observed: both divisors are the same.
+        assert_eq!(by_full[1][t], by_observed[1][t]);
+    }
+    assert!(fraction < 1.0);
 }

@@ -13,7 +13,8 @@ use pvrnn_core::config::ModuleConfig;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{
-    Ablation, Modality, Model, ModelConfig, ModuleId, NoiseMode, Observations, Observed,
+    Ablation, AblationMode, Modality, Model, ModelConfig, ModuleId, NoiseMode, Observations,
+    Observed,
 };
 
 fn learning_config() -> ModelConfig {
@@ -213,17 +214,18 @@ fn same_seed_same_result_and_zero_noise_ignores_seed() {
 fn ablating_a_module_changes_the_prediction() {
     let (trainer, data, _, _) = trained(60);
     let model = Arc::new(trainer.model);
-    let run = |ablation| {
+    let run = |ablation, mode| {
         let mut s = InferenceSettings::from_config(&model.config, 3);
         s.window = 6;
         s.iterations = 5;
         s.noise = NoiseMode::Zero;
         s.ablation = ablation;
+        s.ablation_mode = mode;
         run_sequence(model.clone(), s, &data, 0, true, &mut |_, _| {}).unwrap()
     };
-    let standard = run(Ablation::none());
+    let standard = run(Ablation::none(), AblationMode::Readout);
     for id in ModuleId::ALL {
-        let ablated = run(Ablation::of(&[id]));
+        let ablated = run(Ablation::of(&[id]), AblationMode::Inference);
         let diff: f32 = standard.recon.as_ref().unwrap()[0]
             .data()
             .iter()
@@ -232,6 +234,94 @@ fn ablating_a_module_changes_the_prediction() {
             .sum();
         assert!(diff > 1e-3, "ablating {} changed nothing", id.name());
     }
+}
+
+/// `readout` ablation leaves the inference as it is (same free energy at every step) and
+/// changes only what is read out; `inference` ablation changes the inference itself. The
+/// extra read-outs of one standard run equal the `readout` runs, module by module.
+#[test]
+fn readout_ablation_rereads_the_standard_inference() {
+    let (trainer, data, _, _) = trained(60);
+    let model = Arc::new(trainer.model);
+    let settings = |ablation, mode| {
+        let mut s = InferenceSettings::from_config(&model.config, 5);
+        s.window = 4;
+        s.iterations = 4;
+        s.ablation = ablation;
+        s.ablation_mode = mode;
+        s
+    };
+    let run = |ablation, mode| {
+        run_sequence(
+            model.clone(),
+            settings(ablation, mode),
+            &data,
+            1,
+            true,
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    let standard = run(Ablation::none(), AblationMode::Readout);
+    // One standard run with every module's read-out ablation.
+    let mut inference = OnlineInference::new(
+        model.clone(),
+        settings(Ablation::none(), AblationMode::Readout),
+    )
+    .unwrap();
+    let singles: Vec<Ablation> = ModuleId::ALL
+        .iter()
+        .map(|id| Ablation::of(&[*id]))
+        .collect();
+    inference.set_readout_ablations(singles.clone());
+    let steps: Vec<_> = (0..data.lengths()[1])
+        .map(|t| {
+            inference
+                .step(
+                    data.step(Modality::Exteroceptive, 1, t),
+                    data.step(Modality::Proprioceptive, 1, t),
+                )
+                .unwrap()
+        })
+        .collect();
+    for (i, ablation) in singles.into_iter().enumerate() {
+        let readout = run(ablation, AblationMode::Readout);
+        let during = run(ablation, AblationMode::Inference);
+        assert_eq!(readout.free_energy, standard.free_energy, "{ablation:?}");
+        assert_ne!(during.free_energy, standard.free_energy, "{ablation:?}");
+        let recon = readout.recon.as_ref().unwrap();
+        // A module feeds only its own read-out and the modules below it.
+        assert!(
+            recon != standard.recon.as_ref().unwrap(),
+            "{ablation:?} changed no read-out"
+        );
+        for (t, step) in steps.iter().enumerate() {
+            let w = recon[0].shape()[1];
+            assert_eq!(
+                step.ablated_recon[i][0],
+                recon[0].data()[t * w..(t + 1) * w],
+                "{ablation:?} step {t}"
+            );
+            let w = recon[1].shape()[1];
+            assert_eq!(
+                step.ablated_recon[i][1],
+                recon[1].data()[t * w..(t + 1) * w],
+                "{ablation:?} step {t}"
+            );
+            assert_eq!(step.window_free_energy, standard.free_energy[t]);
+        }
+    }
+    // Files from before the two modes ablated during inference.
+    let mut json = serde_json::to_value(settings(
+        Ablation::of(&[ModuleId::Executive]),
+        AblationMode::Readout,
+    ))
+    .unwrap();
+    json.as_object_mut().unwrap().remove("ablation_mode");
+    let old: InferenceSettings = serde_json::from_value(json).unwrap();
+    assert_eq!(old.ablation_mode, AblationMode::Inference);
+    let plain = settings(Ablation::none(), AblationMode::Inference).canonical();
+    assert_eq!(plain.ablation_mode, AblationMode::Readout);
 }
 
 #[test]

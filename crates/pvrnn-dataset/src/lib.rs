@@ -21,6 +21,7 @@ pub mod import;
 pub mod inputs;
 pub mod preview;
 pub mod resample;
+pub mod synthetic;
 
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};

@@ -301,6 +301,8 @@ pub struct Condition {
     pub vision: String,
     pub proprio: bool,
     pub ablation: Vec<String>,
+    /// `readout` or `inference` (meaningful only with an ablation).
+    pub ablation_mode: String,
     pub window: usize,
     pub iterations: usize,
     pub lr: f64,
@@ -329,6 +331,7 @@ impl Condition {
                 .filter(|m| s.ablation.contains(**m))
                 .map(|m| m.name().to_string())
                 .collect(),
+            ablation_mode: s.ablation_mode.name().to_string(),
             window: s.window,
             iterations: s.iterations,
             lr: s.optimizer.lr,
@@ -348,7 +351,11 @@ impl Condition {
             if self.ablation.is_empty() {
                 "no ablation".to_string()
             } else {
-                format!("{} ablated", self.ablation.join("+"))
+                format!(
+                    "{} ablated ({} mode)",
+                    self.ablation.join("+"),
+                    self.ablation_mode
+                )
             }
         )
     }

@@ -5,9 +5,9 @@ use std::collections::HashMap;
 
 use eframe::egui::{self, Color32, RichText, TextureHandle, TextureOptions};
 use egui_plot::{Bar, BarChart, Legend, Line, LineStyle, Plot, PlotPoints, VLine};
-use pvrnn_core::Modality;
 use pvrnn_core::config::ModuleId;
 use pvrnn_core::cpu::readout;
+use pvrnn_core::{AblationMode, Modality};
 use web_time::{Duration, Instant};
 
 use crate::bundle::Bundle;
@@ -196,7 +196,7 @@ impl ExplorerApp {
     pub fn current_key(&self) -> Option<RunKey> {
         Some(RunKey {
             sequence: self.view.sequence.clone()?,
-            condition: self.condition()?,
+            condition: self.condition()?.canonical(),
         })
     }
 
@@ -244,7 +244,7 @@ impl ExplorerApp {
             for id in ModuleId::ALL {
                 self.store.request(
                     RunKey {
-                        condition: base.ablating(id),
+                        condition: key.condition.ablating(id),
                         ..key.clone()
                     },
                     false,
@@ -456,6 +456,27 @@ impl ExplorerApp {
             for id in ModuleId::ALL {
                 ui.checkbox(&mut c.ablation[id.index()], id.name());
             }
+            let l = ui.label("mode");
+            egui::ComboBox::from_id_salt("ablation mode")
+                .selected_text(c.ablation_mode.name())
+                .show_ui(ui, |ui| {
+                    for (mode, tip) in [
+                        (
+                            AblationMode::Readout,
+                            "inference runs as standard; each step is read out again with z = 0 (the paper's contribution maps)",
+                        ),
+                        (
+                            AblationMode::Inference,
+                            "z = 0 during the whole inference, so the other modules may compensate",
+                        ),
+                    ] {
+                        ui.selectable_value(&mut c.ablation_mode, mode, mode.name())
+                            .on_hover_text(tip);
+                    }
+                })
+                .response
+                .labelled_by(l.id)
+                .on_hover_text("when an ablation (and the contribution maps) applies");
             ui.separator();
             let l = ui.label("H");
             ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
@@ -729,7 +750,7 @@ impl ExplorerApp {
         let map_keys: Vec<RunKey> = ModuleId::ALL
             .iter()
             .map(|&id| RunKey {
-                condition: base.ablating(id),
+                condition: key.condition.ablating(id),
                 ..key.clone()
             })
             .collect();
@@ -950,7 +971,13 @@ impl ExplorerApp {
             }
         });
         if self.view.maps {
-            ui.weak("brighter = larger |standard - ablated| prediction (x4)");
+            let mode = self
+                .condition()
+                .map_or(AblationMode::default(), |c| c.ablation_mode);
+            ui.weak(format!(
+                "brighter = larger |standard - ablated| prediction (x4); {} ablation",
+                mode.name()
+            ));
         }
     }
 
@@ -1282,7 +1309,7 @@ pub fn condition_label(c: &Condition) -> String {
         if ablated.is_empty() {
             "none".to_string()
         } else {
-            ablated.join("+")
+            format!("{} ({})", ablated.join("+"), c.ablation_mode.name())
         },
         c.window,
         c.iterations,

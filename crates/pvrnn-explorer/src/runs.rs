@@ -8,7 +8,7 @@ use std::sync::Arc;
 use pvrnn_core::config::{ModelConfig, ModuleId};
 use pvrnn_core::cpu::readout;
 use pvrnn_core::infer::{InferenceSettings, Run};
-use pvrnn_core::{Ablation, Modality, Model, NoiseMode, Observations, Observed};
+use pvrnn_core::{Ablation, AblationMode, Modality, Model, NoiseMode, Observations, Observed};
 
 pub use crate::engine::Finished;
 use crate::engine::{CompactStep, Engine, Event, ModuleStates};
@@ -23,6 +23,10 @@ pub struct Condition {
     pub proprio: bool,
     /// Modules whose z is set to 0.
     pub ablation: [bool; 4],
+    /// When the ablation applies (readout: re-read the standard inference; inference: z = 0
+    /// throughout). Meaningless without an ablation: [`Condition::canonical`] resets it.
+    #[serde(default)]
+    pub ablation_mode: AblationMode,
     /// H.
     pub window: u16,
     pub iterations: u16,
@@ -38,6 +42,7 @@ impl Condition {
             vision_levels: config.vision.resolutions.len() as u8,
             proprio: true,
             ablation: [false; 4],
+            ablation_mode: AblationMode::default(),
             window: config.inference.window as u16,
             iterations: config.inference.iterations as u16,
             lr_milli: (config.inference.optimizer.lr * 1000.0).round() as u32,
@@ -52,10 +57,24 @@ impl Condition {
             proprio: self.proprio,
         };
         s.ablation = Ablation(self.ablation);
+        s.ablation_mode = self.ablation_mode;
         s.window = (self.window as usize).max(1);
         s.iterations = self.iterations as usize;
         s.optimizer.lr = (self.lr_milli.max(1) as f64) / 1000.0;
-        s
+        s.canonical()
+    }
+
+    /// The same condition with the ablation mode reset when nothing is ablated, so one
+    /// run has one key.
+    pub fn canonical(self) -> Self {
+        if self.ablation.iter().any(|&a| a) {
+            self
+        } else {
+            Self {
+                ablation_mode: AblationMode::default(),
+                ..self
+            }
+        }
     }
 
     /// The condition a run was computed under, if it is one the explorer can express.
@@ -68,15 +87,16 @@ impl Condition {
             vision_levels: settings.observed.vision_levels as u8,
             proprio: settings.observed.proprio,
             ablation: settings.ablation.0,
+            ablation_mode: settings.ablation_mode,
             window: settings.window as u16,
             iterations: settings.iterations as u16,
             lr_milli: (settings.optimizer.lr * 1000.0).round() as u32,
             seed,
         };
-        (c.settings(config) == *settings).then_some(c)
+        (c.settings(config) == settings.clone().canonical()).then_some(c.canonical())
     }
 
-    /// The same condition with exactly one module ablated.
+    /// The same condition (and ablation mode) with exactly one module ablated.
     pub fn ablating(&self, module: ModuleId) -> Self {
         let mut c = *self;
         c.ablation = [false; 4];
@@ -89,6 +109,7 @@ impl Condition {
             ablation: [false; 4],
             ..*self
         }
+        .canonical()
     }
 }
 

@@ -131,6 +131,7 @@ impl ViewState {
                     .map(|&a| if a { '1' } else { '0' })
                     .collect::<String>()
             ));
+            parts.push(format!("amode={}", c.ablation_mode.name()));
             parts.push(format!("H={}", c.window));
             parts.push(format!("iter={}", c.iterations));
             parts.push(format!("lr={}", c.lr_milli));
@@ -190,6 +191,12 @@ impl ViewState {
                     }
                     condition_given = true;
                 }
+                "amode" => {
+                    if let Ok(mode) = pvrnn_core::AblationMode::parse(value) {
+                        c.ablation_mode = mode;
+                        condition_given = true;
+                    }
+                }
                 "H" => {
                     if let Some(n) = num().filter(|&n| (1..=10_000).contains(&n)) {
                         c.window = n as u16;
@@ -238,6 +245,7 @@ mod tests {
         c.vision_levels = 1;
         c.proprio = false;
         c.ablation = [true, false, false, true];
+        c.ablation_mode = pvrnn_core::AblationMode::Inference;
         c.iterations = 20;
         c.seed = 7;
         let v = ViewState {
@@ -253,7 +261,9 @@ mod tests {
         };
         let hash = v.to_hash();
         assert!(
-            hash.contains("units=0-2,5,9-10") && hash.contains("ablate=1001"),
+            hash.contains("units=0-2,5,9-10")
+                && hash.contains("ablate=1001")
+                && hash.contains("amode=inference"),
             "{hash}"
         );
         let back = ViewState::from_hash(&format!("#{hash}"), &ViewState::default(), standard());

@@ -25,6 +25,7 @@ fn key() -> RunKey {
             vision_levels: 1,
             proprio: true,
             ablation: [false, true, false, false],
+            ablation_mode: pvrnn_core::AblationMode::Inference,
             window: 30,
             iterations: 50,
             lr_milli: 90,

@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod bundle;
 pub mod evaluate;
+pub mod experiment;
 pub mod free_energy;
 pub mod import;
 pub mod infer;

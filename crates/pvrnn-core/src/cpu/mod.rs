@@ -117,7 +117,10 @@ fn evaluate<T: Real>(
             // faer is as fast at 16x16 and much faster at full vision.
             let small = cfg!(target_arch = "wasm32") && n <= readout::SMALL_ROWS && !all_grads;
             let out_t = small.then(|| model.out_t(mi));
-            let loss = readout::output_loss(&r.out, out_t, top, n, k, &targets, all_grads);
+            let divisor = config
+                .accuracy_normalisation
+                .divisor(k, config.modality_dims(modality));
+            let loss = readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads);
             accuracy[mi] = loss.row_loss;
             if want_grads {
                 let (g_input, layer_grads) =

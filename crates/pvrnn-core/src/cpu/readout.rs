@@ -139,7 +139,7 @@ fn column_sums<T: Real>(m: &[T], cols: usize) -> Vec<T> {
 /// Loss and gradients of the output layer on its first `k` (observed) outputs.
 #[derive(Debug)]
 pub(crate) struct OutputLoss<T> {
-    /// Per row: (1/k) * sum 1/2 (x - y)^2.
+    /// Per row: (1/divisor) * sum 1/2 (x - y)^2.
     pub(crate) row_loss: Vec<f64>,
     /// d F / d input, `[n, hidden]`.
     pub(crate) grad_in: Vec<T>,
@@ -148,7 +148,8 @@ pub(crate) struct OutputLoss<T> {
     pub(crate) grad_b: Option<Vec<T>>,
 }
 
-/// The fused, tiled output layer. `targets[r]` holds at least `k` values.
+/// The fused, tiled output layer. `targets[r]` holds at least `k` values; each row's
+/// summed squared error is divided by `divisor` (k, or the modality's full dimension).
 /// `out_t` is the output weight transposed (`[hidden, dims]`); with it, few rows and no
 /// weight gradients (online inference) use the small-row kernels instead of faer.
 pub(crate) fn output_loss<T: Real>(
@@ -157,6 +158,7 @@ pub(crate) fn output_loss<T: Real>(
     input: &[T],
     n: usize,
     k: usize,
+    divisor: usize,
     targets: &[&[T]],
     weight_grads: bool,
 ) -> OutputLoss<T> {
@@ -165,7 +167,7 @@ pub(crate) fn output_loss<T: Real>(
     let small = out_t.filter(|_| n <= SMALL_ROWS && !weight_grads);
     let w = out.weight.data();
     let bias = out.bias.as_ref().map(|b| b.data());
-    let scale = T::from_f64(1.0 / k as f64);
+    let scale = T::from_f64(1.0 / divisor as f64);
     // Groups split the columns in whole vector-width units.
     let units = k.div_ceil(LANES);
     let groups = k.div_ceil(GROUP_COLUMNS).clamp(1, MAX_GROUPS.min(units));
@@ -281,7 +283,7 @@ pub(crate) fn output_loss<T: Real>(
         grad_w.extend(gw);
         grad_b.extend(gb);
     }
-    let half_over_k = 0.5 / k as f64;
+    let half_over_k = 0.5 / divisor as f64;
     OutputLoss {
         row_loss: sse.into_iter().map(|s| s * half_over_k).collect(),
         grad_in,

@@ -1,0 +1,189 @@
+//! `pvrnn experiment`: plan, run (resumably, in parallel, or one job for a cluster) and
+//! report one of the paper's experiments.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use pvrnn_experiment::run::{Event, Interrupted};
+use pvrnn_experiment::slurm::SlurmOptions;
+use pvrnn_experiment::{Experiment, Plan, Scale, report};
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn experiment robustness --scale smoke --dataset data/caresim --out runs/robustness-smoke\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --report"
+)]
+pub struct Args {
+    /// hierarchy (Figs 2-3), uncertainty (Fig 4), robustness (Fig 5) or interference (Fig 6).
+    #[arg(value_parser = ["hierarchy", "uncertainty", "robustness", "interference"])]
+    experiment: String,
+    /// smoke (minutes; tests the machinery), reduced (about 12 h of 2-core training) or
+    /// paper (5 networks x 100,000 iterations, 5 trials).
+    #[arg(long, default_value = "smoke", value_parser = ["smoke", "reduced", "paper"])]
+    scale: String,
+    /// The experiment's folder: plan.json, networks/, results/, report/.
+    #[arg(long)]
+    out: PathBuf,
+    /// The caresim dataset folder (`pvrnn simulate`); needed to create the plan.
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Jobs run at once (each uses the --threads pool).
+    #[arg(long, default_value_t = 1)]
+    jobs: usize,
+    /// Run only this job of the plan (a cluster array task); its dependencies must be done.
+    #[arg(long, conflicts_with_all = ["report", "emit"])]
+    job: Option<usize>,
+    /// Only rebuild the report from the results there are.
+    #[arg(long, conflicts_with = "emit")]
+    report: bool,
+    /// Write cluster scripts for the jobs not done yet instead of running them.
+    #[arg(long, value_parser = ["slurm"])]
+    emit: Option<String>,
+    /// A trained checkpoint to use as network 0 (reduced scale: the campaign's
+    /// `training/caresim-seed0.iter10000.safetensors` is that network's exact training).
+    #[arg(long)]
+    reuse: Option<PathBuf>,
+    /// A folder for the trained networks shared by experiments at the same scale
+    /// (hierarchy, uncertainty and robustness train the same networks; default DIR/networks).
+    #[arg(long)]
+    networks: Option<PathBuf>,
+    /// Slurm: the `pvrnn` executable on the cluster.
+    #[arg(long, default_value = "pvrnn")]
+    slurm_pvrnn: String,
+    /// Slurm: time limit of a training task and of an inference task.
+    #[arg(long, default_value = "24:00:00")]
+    slurm_train_time: String,
+    #[arg(long, default_value = "02:00:00")]
+    slurm_infer_time: String,
+    /// Slurm: CPUs per task.
+    #[arg(long, default_value_t = 4)]
+    slurm_cpus: usize,
+    /// Slurm: extra `#SBATCH` options, e.g. `--partition=cpu` (repeatable).
+    #[arg(long)]
+    slurm_option: Vec<String>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let experiment = Experiment::parse(&a.experiment).expect("clap checks the name");
+    let scale = Scale::parse(&a.scale).expect("clap checks the scale");
+    let plan = if Plan::path(&a.out).is_file() {
+        let plan = Plan::load(&a.out)?;
+        plan.check_matches(experiment, scale)?;
+        if a.reuse.is_some() || a.networks.is_some() {
+            bail!(
+                "--reuse and --networks apply when the plan is created; {} already has one",
+                a.out.display()
+            );
+        }
+        plan
+    } else {
+        let Some(dataset) = &a.dataset else {
+            bail!(
+                "{} has no plan yet: pass --dataset (a caresim folder from `pvrnn simulate`) to create it",
+                a.out.display()
+            );
+        };
+        let mut plan = Plan::new(experiment, scale, dataset, a.reuse.as_deref())?;
+        if let Some(dir) = &a.networks {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            plan.networks_dir = Some(std::fs::canonicalize(dir)?);
+        }
+        plan.save(&a.out)?;
+        eprintln!(
+            "planned {} at {} scale: {} jobs, about {:.1} h of 2-core training ({})",
+            experiment.name(),
+            scale.name(),
+            plan.jobs.len(),
+            plan.design.estimated_training_hours,
+            Plan::path(&a.out).display()
+        );
+        plan
+    };
+    if a.emit.is_some() {
+        let script = pvrnn_experiment::slurm::emit(
+            &a.out,
+            &SlurmOptions {
+                pvrnn: a.slurm_pvrnn,
+                train_time: a.slurm_train_time,
+                infer_time: a.slurm_infer_time,
+                cpus: a.slurm_cpus,
+                extra: a.slurm_option,
+            },
+        )?;
+        eprintln!(
+            "wrote {}; submit with `bash {}`",
+            script.display(),
+            script.display()
+        );
+        return Ok(());
+    }
+    if !a.report {
+        let stop = Arc::new(AtomicBool::new(false));
+        {
+            let flag = stop.clone();
+            ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
+                .context("cannot install the Ctrl-C / SIGTERM handler")?;
+        }
+        let total = plan.jobs.len();
+        let done_before = (0..total).filter(|&i| plan.is_done(&a.out, i)).count();
+        let bar = crate::util::progress(total as u64, "jobs");
+        bar.set_position(done_before as u64);
+        let tty = std::io::stderr().is_terminal();
+        let last_line = std::sync::Mutex::new(Instant::now());
+        let events = |e: Event<'_>| match e {
+            Event::Started { id, name } => {
+                if !tty {
+                    eprintln!("job {id} ({name}) started");
+                }
+            }
+            Event::Finished { id, name, seconds } => {
+                bar.inc(1);
+                let line = format!("job {id} ({name}) done in {seconds:.1} s");
+                if tty {
+                    bar.println(line)
+                } else {
+                    eprintln!("{line}")
+                }
+            }
+            Event::Training {
+                id,
+                done,
+                total,
+                free_energy,
+            } => {
+                bar.set_message(format!(
+                    "job {id}: iteration {done}/{total}, F {free_energy:.4}"
+                ));
+                if let Ok(mut t) = last_line.lock()
+                    && !tty
+                    && t.elapsed().as_secs() >= 30
+                {
+                    *t = Instant::now();
+                    eprintln!("job {id}: iteration {done}/{total}, F {free_energy:.4}");
+                }
+            }
+            Event::Inferring { id, done, total } => {
+                bar.set_message(format!("job {id}: step {done}/{total}"));
+            }
+        };
+        let result = pvrnn_experiment::run::run(&a.out, a.jobs, a.job, &stop, &events);
+        bar.finish_and_clear();
+        if let Err(e) = result {
+            if e.downcast_ref::<Interrupted>().is_some() {
+                eprintln!("interrupted: checkpoints written; run the same command again to resume");
+                std::process::exit(130);
+            }
+            return Err(e);
+        }
+        if a.job.is_some() {
+            return Ok(());
+        }
+    }
+    let dir = report::write(&a.out)?;
+    eprintln!("report: {}", dir.join("report.md").display());
+    Ok(())
+}

@@ -1,0 +1,16 @@
+//! The paper's experiments as plans of independent, resumable jobs.
+//!
+//! - [`plan`]: experiments, scales and their designs; the manifest `plan.json` of jobs.
+//! - [`run`]: running jobs (trainings resume from their checkpoints; inference runs write
+//!   one result file each, atomically).
+//! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
+//! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
+//! - [`slurm`]: the same plan as Slurm job arrays.
+
+pub mod plan;
+pub mod report;
+pub mod run;
+pub mod slurm;
+pub mod stats;
+
+pub use plan::{Design, Experiment, Job, JobKind, Plan, Scale};

@@ -1,0 +1,564 @@
+//! An experiment's manifest (`plan.json`): its design at one scale and its independent jobs
+//! (trainings, then inference runs that read the trained networks). Every job writes one
+//! result file atomically; a job is done when its result file exists.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail, ensure};
+use pvrnn_dataset::{Dataset, Split};
+use serde::{Deserialize, Serialize};
+
+pub const FORMAT: &str = "pvrnn-experiment/1";
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Experiment {
+    /// Figs 2-3: contribution maps per module; the executive module's latent change near
+    /// subtask boundaries.
+    Hierarchy,
+    /// Fig 4: prior sigma and its change per module and task.
+    Uncertainty,
+    /// Fig 5: vision 64 / 32+16 / 16 x proprioception on / off.
+    Robustness,
+    /// Fig 6: one task's 9 sequences plus 0 / 3 / 6 / 9 of the other.
+    Interference,
+}
+
+impl Experiment {
+    pub const ALL: [Experiment; 4] = [
+        Experiment::Hierarchy,
+        Experiment::Uncertainty,
+        Experiment::Robustness,
+        Experiment::Interference,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Experiment::Hierarchy => "hierarchy",
+            Experiment::Uncertainty => "uncertainty",
+            Experiment::Robustness => "robustness",
+            Experiment::Interference => "interference",
+        }
+    }
+    pub fn parse(text: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|e| e.name() == text)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Scale {
+    /// End to end in minutes on 2 cores: tiny trainings on truncated sequences. Tests the
+    /// machinery; its numbers mean nothing.
+    Smoke,
+    /// The largest design that fits about 12 hours of 2-core training in total.
+    Reduced,
+    /// The paper's design: 5 networks x 100,000 iterations, 5 trials per test sequence.
+    Paper,
+}
+
+impl Scale {
+    pub fn name(self) -> &'static str {
+        match self {
+            Scale::Smoke => "smoke",
+            Scale::Reduced => "reduced",
+            Scale::Paper => "paper",
+        }
+    }
+    pub fn parse(text: &str) -> Option<Self> {
+        [Scale::Smoke, Scale::Reduced, Scale::Paper]
+            .into_iter()
+            .find(|s| s.name() == text)
+    }
+}
+
+/// The numbers of a design at one scale.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Design {
+    pub networks: usize,
+    /// Learning iterations per network.
+    pub train_iterations: u64,
+    pub checkpoint_every: u64,
+    /// Noise trials per test sequence and network.
+    pub trials: usize,
+    /// Training sequences cut to their first steps (smoke only; None = whole).
+    pub train_steps: Option<usize>,
+    /// Test sequences per task (None = all) and their first steps (None = whole).
+    pub test_sequences_per_task: Option<usize>,
+    pub test_steps: Option<usize>,
+    /// Inference window H and updates per step (None = the model's configuration).
+    pub inference_window: Option<usize>,
+    pub inference_iterations: Option<usize>,
+    /// Interference: the tasks whose 9 sequences are kept while the other task's are added.
+    pub primary_tasks: Vec<String>,
+    /// Interference: how many of the other task's learning sequences are added.
+    pub added: Vec<usize>,
+    /// Estimated single-run training time on 2 cores (0.57 s per paper-scale iteration).
+    pub estimated_training_hours: f64,
+    pub note: String,
+}
+
+/// Seconds per learning iteration over the 18 whole caresim sequences on 2 cores (AMD
+/// EPYC, `pvrnn bench`); training time scales with the number of steps.
+const SECONDS_PER_ITERATION_18: f64 = 0.57;
+
+impl Design {
+    pub fn of(experiment: Experiment, scale: Scale) -> Self {
+        let interference = experiment == Experiment::Interference;
+        let mut d = match scale {
+            Scale::Smoke => Design {
+                networks: 2,
+                train_iterations: 20,
+                checkpoint_every: 10,
+                trials: 2,
+                train_steps: Some(24),
+                test_sequences_per_task: Some(1),
+                test_steps: Some(10),
+                inference_window: Some(4),
+                inference_iterations: Some(4),
+                primary_tasks: vec!["repositioning".into()],
+                added: vec![0, 3, 6, 9],
+                estimated_training_hours: 0.0,
+                note: "machinery test: 20 iterations on the first 24 steps of each sequence; the numbers mean nothing".into(),
+            },
+            Scale::Reduced => Design {
+                networks: 3,
+                train_iterations: if interference { 5_000 } else { 10_000 },
+                checkpoint_every: 200,
+                trials: 2,
+                train_steps: None,
+                test_sequences_per_task: None,
+                test_steps: None,
+                inference_window: None,
+                inference_iterations: None,
+                primary_tasks: vec!["repositioning".into()],
+                added: vec![0, 3, 6, 9],
+                estimated_training_hours: 0.0,
+                note: if interference {
+                    "about 12 h of 2-core training: 3 networks x 4 conditions x 5,000 iterations, repositioning as the primary task; networks are not trained to convergence".into()
+                } else {
+                    "about 12 h of 2-core training: 3 networks x 10,000 iterations on all 18 learning sequences (network 0 may reuse the campaign's 10,000-iteration checkpoint, which is the same training); 2 trials".into()
+                },
+            },
+            Scale::Paper => Design {
+                networks: 5,
+                train_iterations: 100_000,
+                checkpoint_every: 500,
+                trials: 5,
+                train_steps: None,
+                test_sequences_per_task: None,
+                test_steps: None,
+                inference_window: None,
+                inference_iterations: None,
+                primary_tasks: vec!["repositioning".into(), "wiping".into()],
+                added: vec![0, 3, 6, 9],
+                estimated_training_hours: 0.0,
+                note: "the paper's design: 5 networks x 100,000 iterations, 5 trials per test sequence".into(),
+            },
+        };
+        let per_network_steps: f64 = if interference {
+            d.primary_tasks.len() as f64
+                * d.added.iter().map(|&k| (9 + k) as f64 / 18.0).sum::<f64>()
+        } else {
+            1.0
+        };
+        let length = d.train_steps.map_or(1.0, |s| (s as f64 / 300.0).min(1.0));
+        d.estimated_training_hours = d.networks as f64
+            * per_network_steps
+            * length
+            * d.train_iterations as f64
+            * SECONDS_PER_ITERATION_18
+            / 3600.0;
+        d
+    }
+}
+
+/// What a job computes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum JobKind {
+    /// Learning one network on `sequences` (names in the dataset's learning split).
+    Train {
+        network: usize,
+        /// Training condition, e.g. `all 18` or `repositioning 9 + wiping 3`.
+        condition: String,
+        sequences: Vec<String>,
+        seed: u64,
+        iterations: u64,
+        /// A trained checkpoint used instead of training (same seed, data and
+        /// iterations), copied in when the job runs.
+        reuse: Option<PathBuf>,
+    },
+    /// Online inference of one test sequence by one trained network under one condition.
+    Infer {
+        network: usize,
+        /// The training job whose network this reads.
+        train_job: usize,
+        /// Training condition of that network (interference) or `all 18`.
+        training: String,
+        sequence: String,
+        task: String,
+        trial: usize,
+        /// Vision levels observed (lowest first) and proprioception.
+        vision_levels: usize,
+        proprio: bool,
+        /// Also the `readout` ablation of each module (contribution maps).
+        maps: bool,
+    },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Job {
+    pub id: usize,
+    pub name: String,
+    #[serde(flatten)]
+    pub kind: JobKind,
+    /// Jobs that must be done first.
+    pub after: Vec<usize>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub format: String,
+    pub experiment: Experiment,
+    pub scale: Scale,
+    pub design: Design,
+    /// The dataset folder (absolute).
+    pub dataset: PathBuf,
+    /// Proprioception ranges of all 18 learning sequences: one normalisation for every
+    /// training condition, so networks trained on subsets stay comparable.
+    pub ranges_from: String,
+    /// Where the trained networks go (absolute); None = `DIR/networks`. Experiments at the
+    /// same scale that name the same folder share their networks (hierarchy, uncertainty
+    /// and robustness train the same ones): a network trained by one is reused by the next.
+    #[serde(default)]
+    pub networks_dir: Option<PathBuf>,
+    pub jobs: Vec<Job>,
+}
+
+/// Vision conditions of the robustness experiment: (label, levels observed).
+pub const VISION_CONDITIONS: [(&str, usize); 3] = [("64 (all)", 3), ("32+16", 2), ("16", 1)];
+
+impl Plan {
+    pub fn path(dir: &Path) -> PathBuf {
+        dir.join("plan.json")
+    }
+
+    /// Where job `id` writes its result.
+    pub fn result_path(&self, dir: &Path, id: usize) -> PathBuf {
+        let job = &self.jobs[id];
+        match job.kind {
+            JobKind::Train { .. } => dir.join("results").join(format!("{}.json", job.name)),
+            JobKind::Infer { .. } => dir
+                .join("results")
+                .join(format!("{}.safetensors", job.name)),
+        }
+    }
+
+    /// A training job's running checkpoint (the trained network once the job is done).
+    /// The scale is part of the name, so a shared folder never mixes scales.
+    pub fn checkpoint_path(&self, dir: &Path, id: usize) -> PathBuf {
+        self.networks_dir
+            .clone()
+            .unwrap_or_else(|| dir.join("networks"))
+            .join(format!(
+                "{}-{}.safetensors",
+                self.scale.name(),
+                self.jobs[id].name
+            ))
+    }
+
+    pub fn is_done(&self, dir: &Path, id: usize) -> bool {
+        self.result_path(dir, id).is_file()
+    }
+
+    pub fn load(dir: &Path) -> Result<Self> {
+        let path = Self::path(dir);
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("{}: cannot read the experiment's plan", path.display()))?;
+        let plan: Plan = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a valid experiment plan", path.display()))?;
+        ensure!(
+            plan.format == FORMAT,
+            "{}: format `{}`, expected `{FORMAT}`",
+            path.display(),
+            plan.format
+        );
+        for job in &plan.jobs {
+            ensure!(
+                job.after.iter().all(|&a| a < job.id) && plan.jobs[job.id].id == job.id,
+                "{}: job {} has invalid dependencies",
+                path.display(),
+                job.id
+            );
+        }
+        Ok(plan)
+    }
+
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let text = serde_json::to_string_pretty(self)?;
+        pvrnn_core::io::write_atomic(&Self::path(dir), text.as_bytes())?;
+        Ok(())
+    }
+
+    /// Plans `experiment` at `scale` on a caresim-style dataset (tasks `repositioning` and
+    /// `wiping`, 9 learning and some test sequences each).
+    pub fn new(
+        experiment: Experiment,
+        scale: Scale,
+        dataset_dir: &Path,
+        reuse: Option<&Path>,
+    ) -> Result<Self> {
+        let dataset = Dataset::open(dataset_dir)?;
+        let design = Design::of(experiment, scale);
+        let dataset_dir = std::fs::canonicalize(dataset_dir)
+            .with_context(|| format!("cannot resolve {}", dataset_dir.display()))?;
+        let learn: Vec<&pvrnn_dataset::SequenceInfo> = dataset
+            .manifest
+            .sequences
+            .iter()
+            .filter(|s| s.split == Split::Learn)
+            .collect();
+        let of_task = |task: &str, split: Split| -> Vec<String> {
+            dataset
+                .manifest
+                .sequences
+                .iter()
+                .filter(|s| s.task == task && s.split == split)
+                .map(|s| s.name.clone())
+                .collect()
+        };
+        let tasks = ["repositioning", "wiping"];
+        for task in tasks {
+            ensure!(
+                !of_task(task, Split::Learn).is_empty() && !of_task(task, Split::Test).is_empty(),
+                "{}: the experiments need learning and test sequences of the task `{task}` (a caresim dataset)",
+                dataset_dir.display()
+            );
+        }
+        if let Some(path) = reuse {
+            ensure!(
+                experiment != Experiment::Interference,
+                "--reuse: the interference experiment trains on subsets; there is nothing to reuse"
+            );
+            let file = pvrnn_core::io::TensorFile::open(path)?;
+            let iteration = pvrnn_core::io::checkpoint_iteration(&file);
+            ensure!(
+                iteration == Some(design.train_iterations),
+                "--reuse {}: a checkpoint at iteration {:?}, the {} design trains {} iterations",
+                path.display(),
+                iteration,
+                scale.name(),
+                design.train_iterations
+            );
+        }
+        let mut jobs: Vec<Job> = Vec::new();
+        let mut push = |name: String, kind: JobKind, after: Vec<usize>| -> usize {
+            let id = jobs.len();
+            jobs.push(Job {
+                id,
+                name,
+                kind,
+                after,
+            });
+            id
+        };
+        // Trainings: (job id, network, training condition, primary task if any).
+        let mut trainings: Vec<(usize, usize, String, Option<String>, String)> = Vec::new();
+        if experiment == Experiment::Interference {
+            for primary in &design.primary_tasks {
+                let other = tasks
+                    .iter()
+                    .find(|t| *t != primary)
+                    .expect("two tasks")
+                    .to_string();
+                let kept = of_task(primary, Split::Learn);
+                let extra = added_sequences(&dataset, &other, &design.added)?;
+                for (&k, added) in design.added.iter().zip(extra) {
+                    let condition = format!("{primary} {} + {other} {k}", kept.len());
+                    for network in 0..design.networks {
+                        let mut sequences = kept.clone();
+                        sequences.extend(added.iter().cloned());
+                        let name = format!("{primary}-plus{k}-net{network}");
+                        let id = push(
+                            format!("train-{name}"),
+                            JobKind::Train {
+                                network,
+                                condition: condition.clone(),
+                                sequences,
+                                seed: network as u64,
+                                iterations: design.train_iterations,
+                                reuse: None,
+                            },
+                            Vec::new(),
+                        );
+                        trainings.push((
+                            id,
+                            network,
+                            condition.clone(),
+                            Some(primary.clone()),
+                            name,
+                        ));
+                    }
+                }
+            }
+        } else {
+            let all: Vec<String> = learn.iter().map(|s| s.name.clone()).collect();
+            let condition = format!("all {}", all.len());
+            for network in 0..design.networks {
+                let reuse = (network == 0)
+                    .then(|| reuse.map(Path::to_path_buf))
+                    .flatten();
+                let reuse = match reuse {
+                    Some(p) => Some(
+                        std::fs::canonicalize(&p)
+                            .with_context(|| format!("cannot resolve {}", p.display()))?,
+                    ),
+                    None => None,
+                };
+                let id = push(
+                    format!("train-net{network}"),
+                    JobKind::Train {
+                        network,
+                        condition: condition.clone(),
+                        sequences: all.clone(),
+                        seed: network as u64,
+                        iterations: design.train_iterations,
+                        reuse,
+                    },
+                    Vec::new(),
+                );
+                trainings.push((
+                    id,
+                    network,
+                    condition.clone(),
+                    None,
+                    format!("net{network}"),
+                ));
+            }
+        }
+        let conditions: Vec<(String, usize, bool)> = match experiment {
+            Experiment::Robustness => VISION_CONDITIONS
+                .iter()
+                .flat_map(|&(label, levels)| {
+                    [true, false].map(|p| {
+                        (
+                            format!("vision {label}, proprio {}", if p { "on" } else { "off" }),
+                            levels,
+                            p,
+                        )
+                    })
+                })
+                .collect(),
+            _ => vec![("everything observed".to_string(), 3, true)],
+        };
+        let maps = experiment == Experiment::Hierarchy;
+        for (train_id, network, training, primary, train_name) in &trainings {
+            let test_tasks: Vec<&str> = match primary {
+                Some(p) => vec![p.as_str()],
+                None => tasks.to_vec(),
+            };
+            for task in test_tasks {
+                let mut tests = of_task(task, Split::Test);
+                if let Some(k) = design.test_sequences_per_task {
+                    tests.truncate(k);
+                }
+                for sequence in tests {
+                    for (c, (_, levels, proprio)) in conditions.iter().enumerate() {
+                        for trial in 0..design.trials {
+                            push(
+                                format!("infer-{train_name}-{sequence}-c{c}-trial{trial}"),
+                                JobKind::Infer {
+                                    network: *network,
+                                    train_job: *train_id,
+                                    training: training.clone(),
+                                    sequence: sequence.clone(),
+                                    task: task.to_string(),
+                                    trial,
+                                    vision_levels: *levels,
+                                    proprio: *proprio,
+                                    maps,
+                                },
+                                vec![*train_id],
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        Ok(Plan {
+            format: FORMAT.into(),
+            experiment,
+            scale,
+            design,
+            dataset: dataset_dir,
+            ranges_from: format!("all {} learning sequences of the dataset", learn.len()),
+            networks_dir: None,
+            jobs,
+        })
+    }
+
+    /// The label of a robustness condition.
+    pub fn condition_label(vision_levels: usize, proprio: bool) -> String {
+        let vision = VISION_CONDITIONS
+            .iter()
+            .find(|c| c.1 == vision_levels)
+            .map_or_else(|| format!("{vision_levels} levels"), |c| c.0.to_string());
+        format!(
+            "vision {vision}, proprio {}",
+            if proprio { "on" } else { "off" }
+        )
+    }
+
+    /// Checks that an existing plan is the one asked for: results of different
+    /// experiments or scales are never mixed.
+    pub fn check_matches(&self, experiment: Experiment, scale: Scale) -> Result<()> {
+        if self.experiment != experiment || self.scale != scale {
+            bail!(
+                "the folder holds the {} experiment at {} scale, not {} at {}: use another --out",
+                self.experiment.name(),
+                self.scale.name(),
+                experiment.name(),
+                scale.name()
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The other task's learning sequences added for each count: `k / 3` per bed height (3 = one
+/// per height, 6 = two per height), the same for every network. Heights in order, the
+/// sequences of a height in name order.
+fn added_sequences(dataset: &Dataset, task: &str, counts: &[usize]) -> Result<Vec<Vec<String>>> {
+    let mut by_height: std::collections::BTreeMap<i64, Vec<String>> = Default::default();
+    for s in &dataset.manifest.sequences {
+        if s.task == task && s.split == Split::Learn {
+            let height = s.bed_height_mm.map_or(0, |h| h.round() as i64);
+            by_height.entry(height).or_default().push(s.name.clone());
+        }
+    }
+    for names in by_height.values_mut() {
+        names.sort();
+    }
+    let heights = by_height.len().max(1);
+    counts
+        .iter()
+        .map(|&k| {
+            ensure!(
+                k % heights == 0,
+                "cannot add {k} {task} sequences evenly over {heights} bed heights"
+            );
+            let per = k / heights;
+            let mut out = Vec::new();
+            for names in by_height.values() {
+                ensure!(
+                    names.len() >= per,
+                    "only {} {task} learning sequences at one bed height; {per} needed",
+                    names.len()
+                );
+                out.extend(names[..per].iter().cloned());
+            }
+            Ok(out)
+        })
+        .collect()
+}

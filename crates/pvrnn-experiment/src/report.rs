@@ -1,0 +1,755 @@
+//! Reports rebuilt from the result files alone: per trial -> per network (mean over trials,
+//! then over test sequences) -> mean ± SE over networks, the paper's statistics, figures.
+//! The scale is stamped on every table and figure title.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use pvrnn_core::{AblationMode, ModuleId};
+use pvrnn_eval::plots::{Bar, bar_chart, write_png};
+use pvrnn_eval::report::sig;
+use rand::{RngExt, SeedableRng};
+use serde::Serialize;
+use serde_json::{Value, json};
+
+use crate::plan::{Experiment, JobKind, Plan, VISION_CONDITIONS};
+use crate::run::{InferResult, TrainResult, read_infer_result, read_train_result};
+use crate::stats::{self, Blocked2, Contrast, Effect, mean_se};
+
+/// Steps on either side of a subtask boundary that count as "near" it.
+pub const BOUNDARY_HALF_WIDTH: usize = 3;
+/// Permutations of the boundary test.
+pub const PERMUTATIONS: usize = 2000;
+
+struct Results {
+    trains: Vec<TrainResult>,
+    infers: Vec<(InferResult, Option<Vec<Vec<f32>>>)>,
+    done: usize,
+    total: usize,
+}
+
+fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
+    let mut r = Results {
+        trains: Vec::new(),
+        infers: Vec::new(),
+        done: 0,
+        total: plan.jobs.len(),
+    };
+    for job in &plan.jobs {
+        if !plan.is_done(dir, job.id) {
+            continue;
+        }
+        r.done += 1;
+        let path = plan.result_path(dir, job.id);
+        match job.kind {
+            JobKind::Train { .. } => r.trains.push(read_train_result(&path)?),
+            JobKind::Infer { .. } => r.infers.push(read_infer_result(&path)?),
+        }
+    }
+    Ok(r)
+}
+
+/// Per network: the mean over test sequences of the mean over trials of `value`, for the
+/// results `keep` selects.
+fn per_network(
+    infers: &[(InferResult, Option<Vec<Vec<f32>>>)],
+    keep: &dyn Fn(&InferResult) -> bool,
+    value: &dyn Fn(&InferResult) -> Option<f64>,
+) -> BTreeMap<usize, f64> {
+    let mut by_seq: BTreeMap<(usize, String), Vec<f64>> = BTreeMap::new();
+    for (r, _) in infers {
+        if let Some(v) = value(r).filter(|v| keep(r) && v.is_finite()) {
+            by_seq
+                .entry((r.network, r.sequence.clone()))
+                .or_default()
+                .push(v);
+        }
+    }
+    let mut by_net: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for ((net, _), trials) in by_seq {
+        by_net.entry(net).or_default().push(mean_se(&trials).0);
+    }
+    by_net
+        .into_iter()
+        .map(|(n, seqs)| (n, mean_se(&seqs).0))
+        .collect()
+}
+
+fn mean_se_text(values: &[f64]) -> String {
+    match mean_se(values) {
+        (m, Some(se)) => format!("{} ± {}", sig(m), sig(se)),
+        (m, None) if values.is_empty() => {
+            let _ = m;
+            "–".into()
+        }
+        (m, None) => sig(m),
+    }
+}
+
+fn bar(label: &str, values: &[f64]) -> Bar {
+    let (mean, se) = mean_se(values);
+    Bar {
+        label: label.into(),
+        mean: if values.is_empty() { f64::NAN } else { mean },
+        se,
+    }
+}
+
+fn p_text(p: Option<f64>) -> String {
+    p.map_or("–".into(), |p| {
+        if p < 1e-4 {
+            "< 0.0001".into()
+        } else {
+            format!("{p:.4}")
+        }
+    })
+}
+
+fn effects_table(out: &mut String, effects: &[Effect]) {
+    out.push_str("| effect | F | df | p | partial η² |\n|---|---|---|---|---|\n");
+    for e in effects {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {}, {} | {} | {} |",
+            e.effect,
+            sig(e.f),
+            e.df1,
+            e.df2,
+            p_text(e.p),
+            sig(e.partial_eta_squared)
+        );
+    }
+}
+
+fn contrasts_table(out: &mut String, contrasts: &[Contrast]) {
+    out.push_str("| contrast | rank difference | t | df | p | p (Holm) | Cohen's d |\n|---|---|---|---|---|---|---|\n");
+    for c in contrasts {
+        let _ = writeln!(
+            out,
+            "| {} vs {} | {} | {} | {} | {} | {} | {} |",
+            c.a,
+            c.b,
+            sig(c.rank_difference),
+            sig(c.t),
+            c.df,
+            p_text(c.p),
+            p_text(c.p_holm),
+            sig(c.cohen_d)
+        );
+    }
+}
+
+/// Rebuilds `DIR/report/` (report.md, summary.json, figures) from the results.
+pub fn write(dir: &Path) -> Result<PathBuf> {
+    let plan = Plan::load(dir)?;
+    let results = collect(&plan, dir)?;
+    let out_dir = dir.join("report");
+    std::fs::create_dir_all(&out_dir)?;
+    let stamp = format!("{} scale", plan.scale.name());
+    let mut md = String::new();
+    let _ = writeln!(md, "# Experiment: {} ({stamp})\n", plan.experiment.name());
+    let d = &plan.design;
+    let _ = writeln!(
+        md,
+        "Scale **{}**: {}. Networks: {}, learning iterations: {}, trials per test sequence: {}, inference window: {}, updates per step: {}, test steps: {}. Estimated training time: {:.1} h on 2 cores. Proprioception ranges: {}. Dataset: `{}`.\n",
+        plan.scale.name(),
+        d.note,
+        d.networks,
+        d.train_iterations,
+        d.trials,
+        d.inference_window
+            .map_or("model's (30)".into(), |v| v.to_string()),
+        d.inference_iterations
+            .map_or("model's (50)".into(), |v| v.to_string()),
+        d.test_steps
+            .map_or("whole sequences".into(), |v| format!("first {v}")),
+        d.estimated_training_hours,
+        plan.ranges_from,
+        plan.dataset.display()
+    );
+    if results.done < results.total {
+        let _ = writeln!(
+            md,
+            "**Partial**: {} of {} jobs done; the numbers below use the finished ones.\n",
+            results.done, results.total
+        );
+    }
+    md.push_str("## Learning curves\n\nHow flat each network's learning curve ended: the relative change of the mean free energy from the second-to-last to the last tenth of its iterations (negative = still falling).\n\n| network | training | iterations | final F | last-tenth change | time |\n|---|---|---|---|---|---|\n");
+    for t in &results.trains {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} |",
+            t.network,
+            t.condition,
+            t.iterations,
+            t.final_free_energy.map_or("–".into(), sig),
+            t.last_tenth_change
+                .map_or("–".into(), |c| format!("{:+.2}%", c * 100.0)),
+            match &t.reused {
+                Some(p) => format!("reused `{p}`"),
+                None => format!("{:.0} s", t.seconds),
+            }
+        );
+    }
+    md.push('\n');
+    let mut summary = json!({
+        "format": "pvrnn-experiment-report/1",
+        "experiment": plan.experiment.name(),
+        "scale": plan.scale.name(),
+        "design": plan.design,
+        "jobs_done": results.done,
+        "jobs_total": results.total,
+        "trainings": results.trains,
+    });
+    let body = match plan.experiment {
+        Experiment::Hierarchy => hierarchy(&results, &out_dir, &stamp, &mut md)?,
+        Experiment::Uncertainty => uncertainty(&results, &out_dir, &stamp, &mut md)?,
+        Experiment::Robustness => robustness(&results, &out_dir, &stamp, &mut md)?,
+        Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
+    };
+    summary["results"] = body;
+    pvrnn_core::io::write_atomic(&out_dir.join("report.md"), md.as_bytes())?;
+    pvrnn_core::io::write_atomic(
+        &out_dir.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
+    Ok(out_dir)
+}
+
+fn module_names() -> Vec<String> {
+    ModuleId::ALL.iter().map(|m| m.name().to_string()).collect()
+}
+
+fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
+    let mode = AblationMode::Readout;
+    let _ = writeln!(
+        md,
+        "## Contribution maps ({stamp})\n\nPer module: the mean |standard − ablated| reconstruction of the top-resolution images, with the module's z = 0 (`{}` ablation: inference runs as standard, then each step is read out again). Everything observed. Mean ± SE over networks (each the mean over test sequences of the mean over trials).\n",
+        mode.name()
+    );
+    md.push_str("| module | mean contribution |\n|---|---|\n");
+    let mut contributions = BTreeMap::new();
+    for (m, name) in module_names().iter().enumerate() {
+        let nets: Vec<f64> = per_network(&r.infers, &|_| true, &|x| x.map_means.map(|v| v[m]))
+            .into_values()
+            .collect();
+        let _ = writeln!(md, "| {name} | {} |", mean_se_text(&nets));
+        contributions.insert(name.clone(), nets);
+    }
+    // The maps: averaged over every result (a balanced design weighs networks equally).
+    let maps: Vec<&Vec<Vec<f32>>> = r.infers.iter().filter_map(|(_, m)| m.as_ref()).collect();
+    if let Some(first) = maps.first() {
+        let width = first[0].len();
+        let mut mean = vec![vec![0f64; width]; 4];
+        for m in &maps {
+            for (acc, v) in mean.iter_mut().zip(m.iter()) {
+                for (a, b) in acc.iter_mut().zip(v) {
+                    *a += *b as f64 / maps.len() as f64;
+                }
+            }
+        }
+        let path = out.join("contribution_maps.png");
+        write_maps(&path, &mean)?;
+        let _ = writeln!(
+            md,
+            "\n![contribution maps]({}): one row per module (executive, associative, exteroceptive, proprioceptive), left and right camera; brightness = mean |standard − ablated| per pixel, one scale for all.\n",
+            path.file_name()
+                .map_or(String::new(), |f| f.to_string_lossy().into_owned())
+        );
+    }
+    // The executive module near subtask boundaries.
+    let (per_net, observed, p) = boundary_test(&r.infers);
+    let _ = writeln!(
+        md,
+        "## Executive latent change near subtask boundaries ({stamp})\n\nMean |Δμ_q| of the executive module per step, within ±{BOUNDARY_HALF_WIDTH} steps of a subtask boundary minus elsewhere; per network, then over networks. Permutation test: each run's series circularly shifted against its subtask labels, {PERMUTATIONS} permutations, one-sided (larger near boundaries).\n"
+    );
+    let nets: Vec<f64> = per_net.values().copied().collect();
+    match observed {
+        Some(obs) => {
+            let _ = writeln!(
+                md,
+                "Near − elsewhere: {} (over networks); permutation p = {}.\n",
+                mean_se_text(&nets),
+                p_text(p)
+            );
+            let _ = obs;
+        }
+        None => md.push_str(
+            "No test run has a subtask boundary with steps on both sides: nothing to test.\n\n",
+        ),
+    }
+    Ok(json!({
+        "ablation_mode": mode.name(),
+        "contribution_per_network": contributions,
+        "executive_boundary": {
+            "half_width": BOUNDARY_HALF_WIDTH,
+            "near_minus_elsewhere_per_network": per_net,
+            "permutations": PERMUTATIONS,
+            "p": p,
+        },
+    }))
+}
+
+/// Writes the four modules' maps (rows) for each camera (columns) as one PNG.
+fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
+    // Top-resolution layout: cameras x (r x r x 3).
+    let per_pixel: Vec<Vec<f64>> = maps
+        .iter()
+        .map(|m| m.chunks(3).map(|c| c.iter().sum::<f64>() / 3.0).collect())
+        .collect();
+    let pixels = per_pixel[0].len();
+    let (cameras, r) = [2usize, 1]
+        .into_iter()
+        .find_map(|c| {
+            let side = ((pixels / c) as f64).sqrt().round() as usize;
+            (side * side * c == pixels).then_some((c, side))
+        })
+        .unwrap_or((1, 1));
+    let max = per_pixel
+        .iter()
+        .flatten()
+        .fold(0.0f64, |a, b| a.max(*b))
+        .max(1e-12);
+    let scale = 3;
+    let gap = 4;
+    let width = cameras * (r * scale + gap);
+    let height = 4 * (r * scale + gap);
+    let mut rgb = vec![255u8; width * height * 3];
+    for (m, map) in per_pixel.iter().enumerate() {
+        for c in 0..cameras {
+            for y in 0..r * scale {
+                for x in 0..r * scale {
+                    let v = map[c * r * r + (y / scale) * r + x / scale] / max;
+                    let level = (255.0 * (1.0 - v.clamp(0.0, 1.0))) as u8;
+                    let px = c * (r * scale + gap) + x;
+                    let py = m * (r * scale + gap) + y;
+                    let i = (py * width + px) * 3;
+                    rgb[i..i + 3].copy_from_slice(&[level, level, 255]);
+                }
+            }
+        }
+    }
+    write_png(path, width as u32, height as u32, rgb)?;
+    Ok(())
+}
+
+/// Near-minus-elsewhere executive change per network, its mean over networks, and the
+/// permutation p-value.
+fn boundary_test(
+    infers: &[(InferResult, Option<Vec<Vec<f32>>>)],
+) -> (BTreeMap<usize, f64>, Option<f64>, Option<f64>) {
+    // Per run: the change series (index t-1 = step t) and its near-boundary mask.
+    let runs: Vec<(&InferResult, Vec<bool>)> = infers
+        .iter()
+        .map(|(r, _)| {
+            let steps = r.subtask.len();
+            let boundaries: Vec<usize> = (1..steps)
+                .filter(|&t| r.subtask[t] != r.subtask[t - 1])
+                .collect();
+            let mask: Vec<bool> = (1..steps)
+                .map(|t| {
+                    boundaries
+                        .iter()
+                        .any(|&b| t.abs_diff(b) <= BOUNDARY_HALF_WIDTH)
+                })
+                .collect();
+            (r, mask)
+        })
+        .filter(|(r, mask)| {
+            mask.len() == r.executive_change.len()
+                && mask.iter().any(|&m| m)
+                && mask.iter().any(|&m| !m)
+        })
+        .collect();
+    if runs.is_empty() {
+        return (BTreeMap::new(), None, None);
+    }
+    let statistic = |shift: &dyn Fn(usize) -> usize| -> (BTreeMap<usize, f64>, f64) {
+        let mut by_seq: BTreeMap<(usize, String), Vec<f64>> = BTreeMap::new();
+        for (i, (r, mask)) in runs.iter().enumerate() {
+            let n = mask.len();
+            let s = shift(i) % n;
+            let (mut near, mut far) = (Vec::new(), Vec::new());
+            for (t, v) in r.executive_change.iter().enumerate() {
+                if mask[(t + s) % n] {
+                    near.push(*v)
+                } else {
+                    far.push(*v)
+                }
+            }
+            by_seq
+                .entry((r.network, r.sequence.clone()))
+                .or_default()
+                .push(mean_se(&near).0 - mean_se(&far).0);
+        }
+        let mut by_net: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+        for ((net, _), v) in by_seq {
+            by_net.entry(net).or_default().push(mean_se(&v).0);
+        }
+        let nets: BTreeMap<usize, f64> = by_net
+            .into_iter()
+            .map(|(n, v)| (n, mean_se(&v).0))
+            .collect();
+        let overall = mean_se(&nets.values().copied().collect::<Vec<_>>()).0;
+        (nets, overall)
+    };
+    let (per_net, observed) = statistic(&|_| 0);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed);
+    let mut at_least = 0usize;
+    for _ in 0..PERMUTATIONS {
+        let shifts: Vec<usize> = runs
+            .iter()
+            .map(|(_, m)| rng.random_range(1..m.len().max(2)))
+            .collect();
+        if statistic(&|i| shifts[i]).1 >= observed {
+            at_least += 1;
+        }
+    }
+    let p = (1 + at_least) as f64 / (1 + PERMUTATIONS) as f64;
+    (per_net, Some(observed), Some(p))
+}
+
+#[derive(Serialize)]
+struct TaskComparison {
+    module: String,
+    measure: String,
+    repositioning: Vec<f64>,
+    wiping: Vec<f64>,
+    paired_t: Option<stats::PairedT>,
+}
+
+fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
+    let _ = writeln!(
+        md,
+        "## Prior uncertainty per module and task ({stamp})\n\nMean prior σ and mean |Δσ_p| between steps, everything observed; per network, then mean ± SE over networks; paired t-tests (repositioning vs wiping) across networks.\n"
+    );
+    md.push_str("| module | measure | repositioning | wiping | t | df | p | d_z |\n|---|---|---|---|---|---|---|---|\n");
+    let mut comparisons = Vec::new();
+    for (label, measure) in [
+        ("prior sigma", 0),
+        ("mean absolute change of prior sigma", 1),
+    ] {
+        let mut groups = Vec::new();
+        for (m, name) in module_names().iter().enumerate() {
+            let of = |task: &'static str| {
+                per_network(&r.infers, &|x| x.task == task, &|x| {
+                    Some(if measure == 0 {
+                        x.sigma_p[m]
+                    } else {
+                        x.sigma_p_change[m]
+                    })
+                })
+            };
+            let (a, b) = (of("repositioning"), of("wiping"));
+            let paired: Vec<usize> = a.keys().filter(|k| b.contains_key(k)).copied().collect();
+            let av: Vec<f64> = paired.iter().map(|k| a[k]).collect();
+            let bv: Vec<f64> = paired.iter().map(|k| b[k]).collect();
+            let t = stats::paired_t(&av, &bv);
+            let _ = writeln!(
+                md,
+                "| {name} | {label} | {} | {} | {} | {} | {} | {} |",
+                mean_se_text(&av),
+                mean_se_text(&bv),
+                t.as_ref().map_or("–".into(), |t| sig(t.t)),
+                t.as_ref().map_or("–".into(), |t| t.df.to_string()),
+                p_text(t.as_ref().and_then(|t| t.p)),
+                t.as_ref().map_or("–".into(), |t| sig(t.cohen_dz)),
+            );
+            groups.push((
+                name.clone(),
+                vec![bar("repositioning", &av), bar("wiping", &bv)],
+            ));
+            comparisons.push(TaskComparison {
+                module: name.clone(),
+                measure: label.into(),
+                repositioning: av,
+                wiping: bv,
+                paired_t: t,
+            });
+        }
+        let file = if measure == 0 {
+            "sigma_p.png"
+        } else {
+            "sigma_p_change.png"
+        };
+        bar_chart(
+            &out.join(file),
+            &format!("{label} per module ({stamp})"),
+            label,
+            &["repositioning".into(), "wiping".into()],
+            &groups,
+        )?;
+        let _ = writeln!(md, "\n![{label}]({file})\n");
+        if measure == 0 {
+            md.push_str("| module | measure | repositioning | wiping | t | df | p | d_z |\n|---|---|---|---|---|---|---|---|\n");
+        }
+    }
+    Ok(json!({ "comparisons": comparisons }))
+}
+
+fn robustness(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
+    let top = r
+        .infers
+        .first()
+        .and_then(|(x, _)| {
+            x.errors
+                .keys()
+                .filter_map(|k| k.strip_prefix("vision")?.parse::<usize>().ok())
+                .max()
+        })
+        .unwrap_or(64);
+    let key = format!("vision{top}");
+    let _ = writeln!(
+        md,
+        "## Reconstruction error of the {top}x{top} images under degraded input ({stamp})\n\nMSE (model units) of the posterior reconstruction of the full-resolution images, observed or not; per network, then mean ± SE over networks. The accuracy term divides each modality's error by its *observed* dimensions (the spec's default; configuration field `accuracy_normalisation`).\n"
+    );
+    let vision: Vec<String> = VISION_CONDITIONS.iter().map(|c| c.0.to_string()).collect();
+    let proprio = ["on".to_string(), "off".to_string()];
+    let mut cells: Vec<Vec<BTreeMap<usize, f64>>> = Vec::new();
+    md.push_str("| vision | proprio on | proprio off |\n|---|---|---|\n");
+    let mut groups = Vec::new();
+    for (label, levels) in VISION_CONDITIONS {
+        let mut row = Vec::new();
+        let mut bars = Vec::new();
+        for p in [true, false] {
+            let nets = per_network(
+                &r.infers,
+                &|x| x.condition == Plan::condition_label(levels, p),
+                &|x| x.errors.get(&key).copied(),
+            );
+            bars.push(bar(
+                if p { "proprio on" } else { "proprio off" },
+                &nets.values().copied().collect::<Vec<_>>(),
+            ));
+            row.push(nets);
+        }
+        let _ = writeln!(
+            md,
+            "| {label} | {} | {} |",
+            mean_se_text(&row[0].values().copied().collect::<Vec<_>>()),
+            mean_se_text(&row[1].values().copied().collect::<Vec<_>>())
+        );
+        groups.push((format!("vision {label}"), bars));
+        cells.push(row);
+    }
+    bar_chart(
+        &out.join("robustness.png"),
+        &format!("{top}x{top} reconstruction error ({stamp})"),
+        "MSE",
+        &["proprio on".into(), "proprio off".into()],
+        &groups,
+    )?;
+    md.push_str("\n![robustness](robustness.png)\n\n");
+    // Networks with every cell.
+    let networks: Vec<usize> = cells[0][0]
+        .keys()
+        .filter(|n| {
+            cells
+                .iter()
+                .all(|row| row.iter().all(|c| c.contains_key(n)))
+        })
+        .copied()
+        .collect();
+    let design = Blocked2 {
+        y: networks
+            .iter()
+            .map(|n| {
+                cells
+                    .iter()
+                    .map(|row| row.iter().map(|c| c[n]).collect())
+                    .collect()
+            })
+            .collect(),
+        a_levels: vision.clone(),
+        b_levels: proprio.iter().map(|p| format!("proprio {p}")).collect(),
+    };
+    let art = stats::art_two_way(&design);
+    match &art {
+        Some(a) => {
+            let _ = writeln!(
+                md,
+                "### Two-way ART ANOVA (vision × proprioception, network as block, {} networks)\n",
+                a.blocks
+            );
+            let mut effects = a.effects.clone();
+            for (e, name) in
+                effects
+                    .iter_mut()
+                    .zip(["vision", "proprioception", "vision × proprioception"])
+            {
+                e.effect = name.into();
+            }
+            effects_table(md, &effects);
+            md.push_str("\n### ART-C contrasts (Holm within each family)\n\nVision levels:\n\n");
+            contrasts_table(md, &a.a_contrasts);
+            md.push_str("\nCells:\n\n");
+            contrasts_table(md, &a.cell_contrasts);
+            md.push('\n');
+        }
+        None => md.push_str("Too few complete networks (at least 2) for the ANOVA.\n\n"),
+    }
+    Ok(json!({
+        "error": key,
+        "accuracy_normalisation": "observed",
+        "cells": cells,
+        "art": art,
+    }))
+}
+
+fn interference(
+    plan: &Plan,
+    r: &Results,
+    out: &Path,
+    stamp: &str,
+    md: &mut String,
+) -> Result<Value> {
+    let top = 64;
+    type Measure<'a> = (&'a str, &'a dyn Fn(&InferResult) -> Option<f64>);
+    let measures: [Measure<'_>; 3] = [
+        ("vision", &|x| {
+            x.errors.get(&format!("vision{top}")).copied()
+        }),
+        ("proprioception", &|x| x.errors.get("proprio").copied()),
+        ("pooled", &|x| {
+            Some((x.errors.get(&format!("vision{top}"))? + x.errors.get("proprio")?) / 2.0)
+        }),
+    ];
+    let _ = writeln!(
+        md,
+        "## Multitask interference ({stamp})\n\nEach primary task's 9 learning sequences plus 0 / 3 / 6 / 9 of the other task's (3 = one per bed height, 6 = two), one normalisation for all; errors of the primary task's test sequences (reconstruction MSE, everything observed; vision = the {top}x{top} images; pooled = mean of vision and proprioception). Per network, mean ± SE over networks; one-way ART ANOVA over the conditions (independent networks), Holm-corrected ART-C contrasts, Cohen's d of the raw errors.\n"
+    );
+    let mut json_out = serde_json::Map::new();
+    for primary in &plan.design.primary_tasks {
+        let conditions: Vec<String> = {
+            let mut c: Vec<String> = r
+                .trains
+                .iter()
+                .filter(|t| t.condition.starts_with(primary.as_str()))
+                .map(|t| t.condition.clone())
+                .collect();
+            c.dedup();
+            c
+        };
+        let _ = writeln!(md, "### Primary task: {primary}\n");
+        md.push_str("| training | vision | proprioception | pooled |\n|---|---|---|---|\n");
+        let mut per_measure: Vec<Vec<Vec<f64>>> = vec![Vec::new(); measures.len()];
+        for c in &conditions {
+            let mut row = format!("| {c} |");
+            for (k, (_, f)) in measures.iter().enumerate() {
+                let nets: Vec<f64> = per_network(&r.infers, &|x| &x.training == c, *f)
+                    .into_values()
+                    .collect();
+                let _ = write!(row, " {} |", mean_se_text(&nets));
+                per_measure[k].push(nets);
+            }
+            md.push_str(&row);
+            md.push('\n');
+        }
+        let groups: Vec<(String, Vec<Bar>)> = measures
+            .iter()
+            .enumerate()
+            .map(|(k, (name, _))| {
+                (
+                    name.to_string(),
+                    conditions
+                        .iter()
+                        .zip(&per_measure[k])
+                        .map(|(c, v)| bar(c, v))
+                        .collect(),
+                )
+            })
+            .collect();
+        let file = format!("interference_{primary}.png");
+        bar_chart(
+            &out.join(&file),
+            &format!("{primary}: error by training condition ({stamp})"),
+            "MSE",
+            &conditions,
+            &groups,
+        )?;
+        let _ = writeln!(md, "\n![{primary}]({file})\n");
+        let mut tests = serde_json::Map::new();
+        for (k, (name, _)) in measures.iter().enumerate() {
+            match stats::art_one_way(&conditions, &per_measure[k]) {
+                Some(a) => {
+                    let _ = writeln!(md, "{name}:\n");
+                    effects_table(md, std::slice::from_ref(&a.effect));
+                    md.push('\n');
+                    contrasts_table(md, &a.contrasts);
+                    md.push('\n');
+                    tests.insert(name.to_string(), serde_json::to_value(&a)?);
+                }
+                None => {
+                    let _ = writeln!(
+                        md,
+                        "{name}: too few networks per condition for the ANOVA.\n"
+                    );
+                }
+            }
+        }
+        json_out.insert(
+            primary.clone(),
+            json!({ "conditions": conditions, "per_network": per_measure, "art": tests }),
+        );
+    }
+    Ok(Value::Object(json_out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_with(
+        network: usize,
+        sequence: &str,
+        near_bump: f64,
+    ) -> (InferResult, Option<Vec<Vec<f32>>>) {
+        let steps = 60;
+        let subtask: Vec<u32> = (0..steps).map(|t| (t / 20) as u32).collect();
+        let executive_change = (1..steps)
+            .map(|t: usize| {
+                let near = [20usize, 40]
+                    .iter()
+                    .any(|b| t.abs_diff(*b) <= BOUNDARY_HALF_WIDTH);
+                0.1 + 0.01 * ((t * 7919) % 13) as f64 + if near { near_bump } else { 0.0 }
+            })
+            .collect();
+        (
+            InferResult {
+                job: String::new(),
+                network,
+                training: "all 18".into(),
+                sequence: sequence.into(),
+                task: "wiping".into(),
+                trial: 0,
+                condition: String::new(),
+                steps,
+                errors: BTreeMap::new(),
+                sigma_p: [1.0; 4],
+                sigma_p_change: [0.0; 4],
+                executive_change,
+                subtask,
+                map_means: None,
+            },
+            None,
+        )
+    }
+
+    #[test]
+    fn boundary_test_detects_change_at_subtask_boundaries_only_when_there_is_some() {
+        let bumped: Vec<_> = (0..3)
+            .flat_map(|n| [run_with(n, "a", 0.2), run_with(n, "b", 0.2)])
+            .collect();
+        let (per_net, observed, p) = boundary_test(&bumped);
+        assert_eq!(per_net.len(), 3);
+        assert!((observed.unwrap() - 0.2).abs() < 0.05, "{observed:?}");
+        assert!(p.unwrap() < 0.01, "{p:?}");
+        let flat: Vec<_> = (0..3)
+            .flat_map(|n| [run_with(n, "a", 0.0), run_with(n, "b", 0.0)])
+            .collect();
+        let (_, _, p) = boundary_test(&flat);
+        assert!(p.unwrap() > 0.05, "{p:?}");
+    }
+}

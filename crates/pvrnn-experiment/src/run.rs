@@ -1,0 +1,696 @@
+//! Running an experiment's jobs: trainings (resumable from their checkpoint, which is
+//! written every `checkpoint_every` iterations and on interruption) and inference runs
+//! (each scored into one result file). Jobs whose result exists are skipped, so running
+//! again continues where a killed run stopped.
+
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow, bail, ensure};
+use pvrnn_core::infer::{InferenceSettings, OnlineInference};
+use pvrnn_core::io::{self, OutTensor, TensorFile};
+use pvrnn_core::train::Trainer;
+use pvrnn_core::{Ablation, Model, ModelConfig, ModuleId, NoiseMode, Observed};
+use pvrnn_dataset::{Dataset, Sequence, proprio_ranges};
+use serde::{Deserialize, Serialize};
+
+use crate::plan::{Design, JobKind, Plan};
+
+/// What a running experiment reports.
+#[derive(Debug)]
+pub enum Event<'a> {
+    Started {
+        id: usize,
+        name: &'a str,
+    },
+    /// A training's progress: iterations done of total, and the last free energy.
+    Training {
+        id: usize,
+        done: u64,
+        total: u64,
+        free_energy: f64,
+    },
+    /// An inference run's progress: steps done of total.
+    Inferring {
+        id: usize,
+        done: usize,
+        total: usize,
+    },
+    Finished {
+        id: usize,
+        name: &'a str,
+        seconds: f64,
+    },
+}
+
+/// Stopped on request (Ctrl-C, SIGTERM); checkpoints are written.
+#[derive(Debug)]
+pub struct Interrupted;
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "interrupted; running the same command again resumes")
+    }
+}
+impl std::error::Error for Interrupted {}
+
+/// The result of a training job.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainResult {
+    pub job: String,
+    pub network: usize,
+    pub condition: String,
+    pub sequences: usize,
+    pub iterations: u64,
+    pub final_free_energy: Option<f64>,
+    /// Training seconds (summed over resumed runs; 0 for a reused checkpoint).
+    pub seconds: f64,
+    /// Relative change of the mean free energy between the second-to-last and the last
+    /// tenth of the iterations: how flat the learning curve ended.
+    pub last_tenth_change: Option<f64>,
+    pub reused: Option<String>,
+}
+
+/// The result of an inference job (metadata `result` of its safetensors file; contribution
+/// maps as the tensor `maps` [4 modules, top-level vision dims]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct InferResult {
+    pub job: String,
+    pub network: usize,
+    pub training: String,
+    pub sequence: String,
+    pub task: String,
+    pub trial: usize,
+    pub condition: String,
+    pub steps: usize,
+    /// Mean over steps of the reconstruction's MSE (model units, all dimensions of the
+    /// group, observed or not): `vision<r>` per resolution, `joints`, `torques`,
+    /// `proprio`.
+    pub errors: BTreeMap<String, f64>,
+    /// Per module: the mean prior sigma and the mean |change of prior sigma| between steps.
+    pub sigma_p: [f64; 4],
+    pub sigma_p_change: [f64; 4],
+    /// Per step t >= 1: mean |mu_q(t) - mu_q(t-1)| of the executive module.
+    pub executive_change: Vec<f64>,
+    /// Subtask index per step.
+    pub subtask: Vec<u32>,
+    /// Per module: the mean |standard - ablated| of the top-resolution images (readout
+    /// ablation), when maps were asked for.
+    pub map_means: Option<[f64; 4]>,
+}
+
+/// Datasets and trained networks shared by the jobs of one process.
+#[derive(Default)]
+struct Cache {
+    dataset: Mutex<Option<Arc<Dataset>>>,
+}
+
+impl Cache {
+    fn dataset(&self, dir: &Path) -> Result<Arc<Dataset>> {
+        let mut slot = self.dataset.lock().map_err(|_| anyhow!("a job panicked"))?;
+        if let Some(d) = slot.as_ref() {
+            return Ok(d.clone());
+        }
+        let d = Arc::new(Dataset::open(dir)?);
+        *slot = Some(d.clone());
+        Ok(d)
+    }
+}
+
+/// A sequence cut to its first `steps` steps.
+fn truncated(seq: &Sequence, steps: Option<usize>) -> Sequence {
+    let Some(steps) = steps.filter(|&s| s < seq.len()) else {
+        return seq.clone();
+    };
+    let mut s = seq.clone();
+    let per_step = |len: usize| len / seq.len().max(1);
+    s.images.truncate(steps * per_step(seq.images.len()));
+    s.joints.truncate(steps * per_step(seq.joints.len()));
+    s.torques.truncate(steps * per_step(seq.torques.len()));
+    s.subtask.truncate(steps);
+    s.info.length = steps;
+    s
+}
+
+fn sequences<'a>(dataset: &'a Dataset, names: &[String]) -> Result<Vec<&'a Sequence>> {
+    names
+        .iter()
+        .map(|n| {
+            dataset.by_name(n).ok_or_else(|| {
+                anyhow!("the dataset has no sequence `{n}` (the plan was made for another dataset)")
+            })
+        })
+        .collect()
+}
+
+/// Runs every job not done yet, `parallel` at a time, in dependency order. With `only`,
+/// runs that one job (its dependencies must be done).
+pub fn run(
+    dir: &Path,
+    parallel: usize,
+    only: Option<usize>,
+    stop: &AtomicBool,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let plan = Plan::load(dir)?;
+    let cache = Cache::default();
+    if let Some(id) = only {
+        ensure!(
+            id < plan.jobs.len(),
+            "--job {id}: the plan has jobs 0..{}",
+            plan.jobs.len().saturating_sub(1)
+        );
+        let missing: Vec<usize> = plan.jobs[id]
+            .after
+            .iter()
+            .copied()
+            .filter(|&a| !plan.is_done(dir, a))
+            .collect();
+        ensure!(
+            missing.is_empty(),
+            "job {id} needs jobs {missing:?} done first"
+        );
+        if !plan.is_done(dir, id) {
+            run_job(&plan, dir, id, &cache, stop, events)?;
+        }
+        return Ok(());
+    }
+    let state: Mutex<(Vec<bool>, Vec<bool>)> = Mutex::new((
+        (0..plan.jobs.len()).map(|i| plan.is_done(dir, i)).collect(),
+        vec![false; plan.jobs.len()],
+    ));
+    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    let next = || -> Option<usize> {
+        let mut s = state.lock().ok()?;
+        let (done, taken) = &mut *s;
+        let id = (0..plan.jobs.len())
+            .find(|&i| !done[i] && !taken[i] && plan.jobs[i].after.iter().all(|&a| done[a]))?;
+        taken[id] = true;
+        Some(id)
+    };
+    std::thread::scope(|scope| {
+        for _ in 0..parallel.max(1) {
+            scope.spawn(|| {
+                loop {
+                    if stop.load(Ordering::SeqCst)
+                        || failure.lock().map(|f| f.is_some()).unwrap_or(true)
+                    {
+                        return;
+                    }
+                    let Some(id) = next() else {
+                        // Nothing ready: finished, or waiting on jobs other workers run.
+                        let pending = state
+                            .lock()
+                            .map(|s| s.1.iter().zip(&s.0).any(|(t, d)| *t && !d))
+                            .unwrap_or(false);
+                        if !pending {
+                            return;
+                        }
+                        std::thread::sleep(std::time::Duration::from_millis(50));
+                        continue;
+                    };
+                    match run_job(&plan, dir, id, &cache, stop, events) {
+                        Ok(()) => {
+                            if let Ok(mut s) = state.lock() {
+                                s.0[id] = true;
+                            }
+                        }
+                        Err(e) => {
+                            if let Ok(mut f) = failure.lock() {
+                                f.get_or_insert(
+                                    e.context(format!("job {id} ({})", plan.jobs[id].name)),
+                                );
+                            }
+                            if let Ok(mut s) = state.lock() {
+                                s.1[id] = false;
+                            }
+                            return;
+                        }
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = failure
+        .into_inner()
+        .map_err(|_| anyhow!("a job panicked"))?
+    {
+        return Err(e);
+    }
+    if stop.load(Ordering::SeqCst) {
+        return Err(Interrupted.into());
+    }
+    Ok(())
+}
+
+fn run_job(
+    plan: &Plan,
+    dir: &Path,
+    id: usize,
+    cache: &Cache,
+    stop: &AtomicBool,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let job = &plan.jobs[id];
+    events(Event::Started {
+        id,
+        name: &job.name,
+    });
+    let start = Instant::now();
+    match &job.kind {
+        JobKind::Train { .. } => train(plan, dir, id, cache, stop, events)?,
+        JobKind::Infer { .. } => infer(plan, dir, id, cache, events)?,
+    }
+    events(Event::Finished {
+        id,
+        name: &job.name,
+        seconds: start.elapsed().as_secs_f64(),
+    });
+    Ok(())
+}
+
+const LOG_HEADER: &str = "iteration,total,seconds";
+
+/// The training log beside a checkpoint (`net.safetensors` -> `net.log.csv`).
+pub fn log_path(checkpoint: &Path) -> PathBuf {
+    checkpoint.with_extension("log.csv")
+}
+
+/// Relative change of the mean of the last tenth of `values` against the tenth before.
+pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
+    let tenth = values.len() / 10;
+    if tenth == 0 {
+        return None;
+    }
+    let n = values.len();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let before = mean(&values[n - 2 * tenth..n - tenth]);
+    let last = mean(&values[n - tenth..]);
+    (before != 0.0).then(|| (last - before) / before.abs())
+}
+
+/// Free energy per iteration from a log (this crate's or `pvrnn train`'s: iteration, total,
+/// ...), up to `iterations`.
+fn log_totals(path: &Path, iterations: u64) -> Vec<f64> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
+    text.lines()
+        .skip(1)
+        .filter_map(|line| {
+            let mut fields = line.split(',');
+            let it: u64 = fields.next()?.parse().ok()?;
+            let total: f64 = fields.next()?.parse().ok()?;
+            (it < iterations).then_some(total)
+        })
+        .collect()
+}
+
+fn train(
+    plan: &Plan,
+    dir: &Path,
+    id: usize,
+    cache: &Cache,
+    stop: &AtomicBool,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let job = &plan.jobs[id];
+    let JobKind::Train {
+        network,
+        condition,
+        sequences: names,
+        seed,
+        iterations,
+        reuse,
+    } = &job.kind
+    else {
+        unreachable!("a training job")
+    };
+    let checkpoint = plan.checkpoint_path(dir, id);
+    let log = log_path(&checkpoint);
+    std::fs::create_dir_all(checkpoint.parent().expect("a folder"))
+        .with_context(|| format!("cannot create {}", checkpoint.display()))?;
+    if let Some(source) = reuse {
+        let bytes = std::fs::read(source)
+            .with_context(|| format!("{}: cannot read the reused checkpoint", source.display()))?;
+        let file = TensorFile::from_bytes(bytes.clone(), source.display().to_string())?;
+        ensure!(
+            io::checkpoint_iteration(&file) == Some(*iterations),
+            "{}: not a checkpoint at iteration {iterations}",
+            source.display()
+        );
+        io::write_atomic(&checkpoint, &bytes)?;
+        // The campaign's log: beside the checkpoint, or of the run a kept copy came from.
+        let stem = source
+            .file_stem()
+            .map_or(String::new(), |s| s.to_string_lossy().into_owned());
+        let run_stem = stem.split(".iter").next().unwrap_or(&stem).to_string();
+        let totals = [
+            log_path(source),
+            source.with_file_name(format!("{run_stem}.log.csv")),
+        ]
+        .iter()
+        .map(|p| log_totals(p, *iterations))
+        .find(|t| !t.is_empty())
+        .unwrap_or_default();
+        return write_train_result(
+            plan,
+            dir,
+            id,
+            TrainResult {
+                job: job.name.clone(),
+                network: *network,
+                condition: condition.clone(),
+                sequences: names.len(),
+                iterations: *iterations,
+                final_free_energy: totals.last().copied(),
+                seconds: 0.0,
+                last_tenth_change: last_tenth_change(&totals),
+                reused: Some(source.display().to_string()),
+            },
+        );
+    }
+    let dataset = cache.dataset(&plan.dataset)?;
+    let chosen: Vec<Sequence> = sequences(&dataset, names)?
+        .into_iter()
+        .map(|s| truncated(s, plan.design.train_steps))
+        .collect();
+    let chosen_refs: Vec<&Sequence> = chosen.iter().collect();
+    let mut trainer = if checkpoint.is_file() {
+        io::load_checkpoint(&checkpoint)
+            .with_context(|| format!("{}: cannot resume", checkpoint.display()))?
+    } else {
+        let mut config = ModelConfig::default();
+        // One normalisation for every training condition: all learning sequences.
+        let all_learn = dataset.split(Some(pvrnn_dataset::Split::Learn));
+        config.normalisation = Some(proprio_ranges(&all_learn));
+        let steps = chosen.iter().map(Sequence::len).max().unwrap_or(0);
+        let model = Model::<f32>::init(config, chosen.len(), steps, *seed)?;
+        Trainer::new(model, NoiseMode::Sampled { seed: *seed })
+    };
+    let data = dataset.observations(&chosen_refs, &trainer.model.config)?;
+    pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
+    // Keep the log rows the checkpoint covers.
+    let mut kept = String::from(LOG_HEADER);
+    kept.push('\n');
+    let mut seconds_before = 0.0;
+    if let Ok(text) = std::fs::read_to_string(&log) {
+        for line in text.lines().skip(1) {
+            let mut f = line.split(',');
+            if f.next()
+                .and_then(|v| v.parse::<u64>().ok())
+                .is_some_and(|i| i < trainer.iteration)
+            {
+                seconds_before = f
+                    .nth(1)
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(seconds_before);
+                kept.push_str(line);
+                kept.push('\n');
+            }
+        }
+    }
+    io::write_atomic(&log, kept.as_bytes())?;
+    let mut log_file = std::fs::OpenOptions::new().append(true).open(&log)?;
+    let start = Instant::now();
+    while trainer.iteration < *iterations {
+        let it = trainer.iteration;
+        let report = trainer.step(&data)?;
+        writeln!(
+            log_file,
+            "{it},{},{:.3}",
+            report.total,
+            seconds_before + start.elapsed().as_secs_f64()
+        )?;
+        events(Event::Training {
+            id,
+            done: trainer.iteration,
+            total: *iterations,
+            free_energy: report.total,
+        });
+        let stopping = stop.load(Ordering::SeqCst);
+        if trainer.iteration % plan.design.checkpoint_every.max(1) == 0
+            || trainer.iteration == *iterations
+            || stopping
+        {
+            log_file.flush()?;
+            io::save_checkpoint(&checkpoint, &trainer, Some(report))?;
+        }
+        if stopping {
+            return Err(Interrupted.into());
+        }
+    }
+    let totals = log_totals(&log, *iterations);
+    let seconds = std::fs::read_to_string(&log)
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .last()
+                .and_then(|l| l.rsplit(',').next()?.parse().ok())
+        })
+        .unwrap_or(0.0);
+    write_train_result(
+        plan,
+        dir,
+        id,
+        TrainResult {
+            job: job.name.clone(),
+            network: *network,
+            condition: condition.clone(),
+            sequences: names.len(),
+            iterations: trainer.iteration,
+            final_free_energy: totals.last().copied(),
+            seconds,
+            last_tenth_change: last_tenth_change(&totals),
+            reused: None,
+        },
+    )
+}
+
+fn write_train_result(plan: &Plan, dir: &Path, id: usize, result: TrainResult) -> Result<()> {
+    let path = plan.result_path(dir, id);
+    std::fs::create_dir_all(path.parent().expect("a folder"))?;
+    io::write_atomic(&path, serde_json::to_string_pretty(&result)?.as_bytes())?;
+    Ok(())
+}
+
+/// The inference settings of a job under the design.
+pub fn job_settings(
+    design: &Design,
+    config: &ModelConfig,
+    trial: usize,
+    vision_levels: usize,
+    proprio: bool,
+) -> InferenceSettings {
+    let mut s = InferenceSettings::from_config(config, trial as u64);
+    if let Some(h) = design.inference_window {
+        s.window = h;
+    }
+    if let Some(n) = design.inference_iterations {
+        s.iterations = n;
+    }
+    s.observed = Observed {
+        vision_levels: vision_levels.min(config.vision.resolutions.len()),
+        proprio,
+    };
+    s
+}
+
+fn mse(a: &[f32], b: &[f32]) -> f64 {
+    let n = a.len().max(1) as f64;
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / n
+}
+
+fn infer(
+    plan: &Plan,
+    dir: &Path,
+    id: usize,
+    cache: &Cache,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let job = &plan.jobs[id];
+    let JobKind::Infer {
+        network,
+        train_job,
+        training,
+        sequence,
+        task,
+        trial,
+        vision_levels,
+        proprio,
+        maps,
+    } = &job.kind
+    else {
+        unreachable!("an inference job")
+    };
+    let model = Arc::new(io::load_model(&plan.checkpoint_path(dir, *train_job))?);
+    let config = model.config.clone();
+    let dataset = cache.dataset(&plan.dataset)?;
+    let seq = truncated(
+        sequences(&dataset, std::slice::from_ref(sequence))?[0],
+        plan.design.test_steps,
+    );
+    let data = dataset.observations(&[&seq], &config)?;
+    let settings = job_settings(&plan.design, &config, *trial, *vision_levels, *proprio);
+    let mut inference = OnlineInference::new(model, settings)?;
+    if *maps {
+        inference
+            .set_readout_ablations(ModuleId::ALL.iter().map(|m| Ablation::of(&[*m])).collect());
+    }
+    let layout = &config.vision;
+    let levels = layout.resolutions.len();
+    let top = (layout.level_offset(levels - 1), layout.level_offset(levels));
+    let joints = config.proprio_dims / 2;
+    let mut sums: BTreeMap<String, f64> = BTreeMap::new();
+    let mut map_sums = vec![vec![0f64; top.1 - top.0]; if *maps { 4 } else { 0 }];
+    let mut sigma = [0.0; 4];
+    let mut sigma_change = [0.0; 4];
+    let mut previous: Option<([Vec<f32>; 4], Vec<f32>)> = None;
+    let mut executive_change = Vec::new();
+    let steps = seq.len();
+    for t in 0..steps {
+        let x = data.step(pvrnn_core::Modality::Exteroceptive, 0, t);
+        let p = data.step(pvrnn_core::Modality::Proprioceptive, 0, t);
+        let out = inference.step(x, p)?;
+        for level in 0..levels {
+            let (a, b) = (layout.level_offset(level), layout.level_offset(level + 1));
+            *sums
+                .entry(format!("vision{}", layout.resolutions[level]))
+                .or_default() += mse(&out.recon[0][a..b], &x[a..b]);
+        }
+        *sums.entry("joints".into()).or_default() += mse(&out.recon[1][..joints], &p[..joints]);
+        *sums.entry("torques".into()).or_default() += mse(&out.recon[1][joints..], &p[joints..]);
+        *sums.entry("proprio".into()).or_default() += mse(&out.recon[1], p);
+        for (m, module) in out.modules.iter().enumerate() {
+            let n = module.sigma_p.len().max(1) as f64;
+            sigma[m] += module.sigma_p.iter().map(|v| *v as f64).sum::<f64>() / n;
+            if let Some((prev_sigma, _)) = &previous {
+                sigma_change[m] += module
+                    .sigma_p
+                    .iter()
+                    .zip(&prev_sigma[m])
+                    .map(|(a, b)| (a - b).abs() as f64)
+                    .sum::<f64>()
+                    / n;
+            }
+        }
+        let exec = &out.modules[ModuleId::Executive.index()].mu_q;
+        if let Some((_, prev_exec)) = &previous {
+            executive_change.push(
+                exec.iter()
+                    .zip(prev_exec)
+                    .map(|(a, b)| (a - b).abs() as f64)
+                    .sum::<f64>()
+                    / exec.len().max(1) as f64,
+            );
+        }
+        for (m, ablated) in out.ablated_recon.iter().enumerate() {
+            for ((sum, a), b) in map_sums[m]
+                .iter_mut()
+                .zip(&ablated[0][top.0..top.1])
+                .zip(&out.recon[0][top.0..top.1])
+            {
+                *sum += (a - b).abs() as f64;
+            }
+        }
+        previous = Some((
+            std::array::from_fn(|m| out.modules[m].sigma_p.clone()),
+            exec.clone(),
+        ));
+        events(Event::Inferring {
+            id,
+            done: t + 1,
+            total: steps,
+        });
+    }
+    let n = steps.max(1) as f64;
+    let changes = steps.saturating_sub(1).max(1) as f64;
+    let maps_mean: Vec<Vec<f32>> = map_sums
+        .iter()
+        .map(|m| m.iter().map(|v| (v / n) as f32).collect())
+        .collect();
+    let result = InferResult {
+        job: job.name.clone(),
+        network: *network,
+        training: training.clone(),
+        sequence: sequence.clone(),
+        task: task.clone(),
+        trial: *trial,
+        condition: Plan::condition_label(*vision_levels, *proprio),
+        steps,
+        errors: sums.into_iter().map(|(k, v)| (k, v / n)).collect(),
+        sigma_p: sigma.map(|v| v / n),
+        sigma_p_change: sigma_change.map(|v| v / changes),
+        executive_change,
+        subtask: seq.subtask.clone(),
+        map_means: maps.then(|| {
+            std::array::from_fn(|m| {
+                maps_mean[m].iter().map(|v| *v as f64).sum::<f64>()
+                    / maps_mean[m].len().max(1) as f64
+            })
+        }),
+    };
+    let mut tensors = BTreeMap::new();
+    if *maps {
+        let width = top.1 - top.0;
+        tensors.insert(
+            "maps".to_string(),
+            OutTensor::F32(vec![4, width], maps_mean.concat().into()),
+        );
+    }
+    let metadata = HashMap::from([
+        (
+            "format".to_string(),
+            "pvrnn-experiment-result/1".to_string(),
+        ),
+        ("result".to_string(), serde_json::to_string(&result)?),
+    ]);
+    let path = plan.result_path(dir, id);
+    std::fs::create_dir_all(path.parent().expect("a folder"))?;
+    io::write_atomic(&path, &io::to_bytes(&tensors, metadata)?)?;
+    Ok(())
+}
+
+/// Reads an inference job's result (and its maps, if any).
+pub fn read_infer_result(path: &Path) -> Result<(InferResult, Option<Vec<Vec<f32>>>)> {
+    let file = TensorFile::open(path)?;
+    let result: InferResult = file
+        .metadata("result")
+        .and_then(|t| serde_json::from_str(t).ok())
+        .ok_or_else(|| {
+            anyhow!(
+                "{}: not an experiment result (no valid `result` metadata)",
+                path.display()
+            )
+        })?;
+    let maps = if file.contains("maps") {
+        let t = file.f32("maps", None)?;
+        let shape = t.shape().to_vec();
+        if shape.len() != 2 || shape[0] != 4 {
+            bail!(
+                "{}: `maps` has shape {shape:?}, expected [4, n]",
+                path.display()
+            );
+        }
+        Some(t.data().chunks(shape[1]).map(<[f32]>::to_vec).collect())
+    } else {
+        None
+    };
+    Ok((result, maps))
+}
+
+/// Reads a training job's result.
+pub fn read_train_result(path: &Path) -> Result<TrainResult> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a training result", path.display()))
+}

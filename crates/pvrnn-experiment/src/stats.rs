@@ -1,0 +1,569 @@
+//! The statistics of the paper's figures: paired t-tests, Holm's correction, the aligned
+//! rank transform (ART) ANOVA for a two-factor design blocked by network and for one
+//! between-networks factor, ART-C contrasts, and a permutation test helper.
+//!
+//! ART (Wobbrock et al. 2011): for each effect, the responses are aligned (residuals of the
+//! full factorial cell means plus that effect's estimate), ranked, and analysed by the
+//! ordinary ANOVA of the design, of which only that effect's F test is read. ART-C (Elkin
+//! et al. 2021): pairwise contrasts on the responses aligned and ranked for the factor the
+//! contrast compares (for cells: for the combined factor, i.e. the ranks of the raw data).
+//! Networks are the blocks (random intercepts): with one value per network and cell the
+//! mixed model's F tests are those of the randomised complete block ANOVA used here.
+
+use serde::Serialize;
+use statrs::distribution::{ContinuousCDF, FisherSnedecor, StudentsT};
+
+/// Mean and standard error (None for fewer than two values).
+pub fn mean_se(values: &[f64]) -> (f64, Option<f64>) {
+    pvrnn_eval::report::mean_se(values)
+}
+
+/// Two-sided p-value of a t statistic.
+pub fn t_p_value(t: f64, df: f64) -> Option<f64> {
+    if df.is_nan() || df <= 0.0 || t.is_nan() {
+        return None;
+    }
+    if t.is_infinite() {
+        return Some(0.0);
+    }
+    let dist = StudentsT::new(0.0, 1.0, df).ok()?;
+    Some((2.0 * dist.sf(t.abs())).min(1.0))
+}
+
+/// Upper-tail p-value of an F statistic.
+pub fn f_p_value(f: f64, df1: f64, df2: f64) -> Option<f64> {
+    if df1.is_nan() || df2.is_nan() || df1 <= 0.0 || df2 <= 0.0 || f.is_nan() {
+        return None;
+    }
+    if f.is_infinite() {
+        return Some(0.0);
+    }
+    let dist = FisherSnedecor::new(df1, df2).ok()?;
+    Some(dist.sf(f.max(0.0)))
+}
+
+/// A paired t-test of `a` against `b` (same networks, same order).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct PairedT {
+    pub n: usize,
+    pub mean_difference: f64,
+    pub t: f64,
+    pub df: f64,
+    pub p: Option<f64>,
+    /// Cohen's d_z: mean difference / SD of the differences.
+    pub cohen_dz: f64,
+}
+
+pub fn paired_t(a: &[f64], b: &[f64]) -> Option<PairedT> {
+    if a.len() != b.len() || a.len() < 2 {
+        return None;
+    }
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let t = if sd > 0.0 {
+        mean / (sd / n.sqrt())
+    } else if mean == 0.0 {
+        0.0
+    } else {
+        f64::INFINITY.copysign(mean)
+    };
+    Some(PairedT {
+        n: d.len(),
+        mean_difference: mean,
+        t,
+        df: n - 1.0,
+        p: t_p_value(t, n - 1.0),
+        cohen_dz: if sd > 0.0 { mean / sd } else { 0.0 },
+    })
+}
+
+/// Holm's step-down adjustment of a family of p-values (same order as given).
+pub fn holm(p: &[f64]) -> Vec<f64> {
+    let m = p.len();
+    let mut order: Vec<usize> = (0..m).collect();
+    order.sort_by(|&i, &j| p[i].total_cmp(&p[j]));
+    let mut adjusted = vec![0.0; m];
+    let mut running = 0.0f64;
+    for (rank, &i) in order.iter().enumerate() {
+        running = running.max(((m - rank) as f64 * p[i]).min(1.0));
+        adjusted[i] = running;
+    }
+    adjusted
+}
+
+/// Ranks 1..n with ties given their average rank.
+pub fn ranks(values: &[f64]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    order.sort_by(|&i, &j| values[i].total_cmp(&values[j]));
+    let mut out = vec![0.0; values.len()];
+    let mut start = 0;
+    while start < order.len() {
+        let mut end = start + 1;
+        while end < order.len() && values[order[end]] == values[order[start]] {
+            end += 1;
+        }
+        let average = (start + end + 1) as f64 / 2.0;
+        for &i in &order[start..end] {
+            out[i] = average;
+        }
+        start = end;
+    }
+    out
+}
+
+/// One effect's F test.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Effect {
+    pub effect: String,
+    pub f: f64,
+    pub df1: f64,
+    pub df2: f64,
+    pub p: Option<f64>,
+    /// SS_effect / (SS_effect + SS_error) of the ranked, aligned data.
+    pub partial_eta_squared: f64,
+}
+
+/// A pairwise contrast (ART-C).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Contrast {
+    pub a: String,
+    pub b: String,
+    /// Mean rank of `a` minus mean rank of `b` (aligned ranks).
+    pub rank_difference: f64,
+    pub t: f64,
+    pub df: f64,
+    pub p: Option<f64>,
+    /// Holm-adjusted within the family of contrasts reported together.
+    pub p_holm: Option<f64>,
+    /// Cohen's d of the raw values (a - b over their pooled SD).
+    pub cohen_d: f64,
+}
+
+/// Values of a blocked two-factor design: `y[block][i][j]`, one value per block and cell.
+#[derive(Clone, Debug)]
+pub struct Blocked2 {
+    pub y: Vec<Vec<Vec<f64>>>,
+    pub a_levels: Vec<String>,
+    pub b_levels: Vec<String>,
+}
+
+/// The two-way ART ANOVA with its contrasts.
+#[derive(Clone, Debug, Serialize)]
+pub struct ArtTwoWay {
+    pub blocks: usize,
+    pub effects: Vec<Effect>,
+    /// Pairwise contrasts of the first factor's levels, Holm-adjusted together.
+    pub a_contrasts: Vec<Contrast>,
+    /// Pairwise contrasts of the second factor's levels.
+    pub b_contrasts: Vec<Contrast>,
+    /// Pairwise contrasts of all cells, Holm-adjusted together.
+    pub cell_contrasts: Vec<Contrast>,
+}
+
+struct Anova2 {
+    ss: [f64; 3],
+    ss_error: f64,
+    df: [f64; 3],
+    df_error: f64,
+    a_means: Vec<f64>,
+    b_means: Vec<f64>,
+    cell_means: Vec<Vec<f64>>,
+}
+
+fn anova_blocked(y: &[Vec<Vec<f64>>]) -> Anova2 {
+    let (n, a, b) = (y.len(), y[0].len(), y[0][0].len());
+    let all: Vec<f64> = y.iter().flatten().flatten().copied().collect();
+    let grand = all.iter().sum::<f64>() / all.len() as f64;
+    let block_means: Vec<f64> = y
+        .iter()
+        .map(|blk| blk.iter().flatten().sum::<f64>() / (a * b) as f64)
+        .collect();
+    let cell_means: Vec<Vec<f64>> = (0..a)
+        .map(|i| {
+            (0..b)
+                .map(|j| y.iter().map(|blk| blk[i][j]).sum::<f64>() / n as f64)
+                .collect()
+        })
+        .collect();
+    let a_means: Vec<f64> = cell_means
+        .iter()
+        .map(|r| r.iter().sum::<f64>() / b as f64)
+        .collect();
+    let b_means: Vec<f64> = (0..b)
+        .map(|j| cell_means.iter().map(|r| r[j]).sum::<f64>() / a as f64)
+        .collect();
+    let ss_total: f64 = all.iter().map(|v| (v - grand).powi(2)).sum();
+    let ss_block = (a * b) as f64 * block_means.iter().map(|m| (m - grand).powi(2)).sum::<f64>();
+    let ss_a = (n * b) as f64 * a_means.iter().map(|m| (m - grand).powi(2)).sum::<f64>();
+    let ss_b = (n * a) as f64 * b_means.iter().map(|m| (m - grand).powi(2)).sum::<f64>();
+    let mut ss_ab = 0.0;
+    for i in 0..a {
+        for j in 0..b {
+            ss_ab += (cell_means[i][j] - a_means[i] - b_means[j] + grand).powi(2);
+        }
+    }
+    ss_ab *= n as f64;
+    let ss_error = (ss_total - ss_block - ss_a - ss_b - ss_ab).max(0.0);
+    Anova2 {
+        ss: [ss_a, ss_b, ss_ab],
+        ss_error,
+        df: [(a - 1) as f64, (b - 1) as f64, ((a - 1) * (b - 1)) as f64],
+        df_error: ((n - 1) * (a * b - 1)) as f64,
+        a_means,
+        b_means,
+        cell_means,
+    }
+}
+
+fn effect(name: &str, ss: f64, df: f64, ss_error: f64, df_error: f64) -> Effect {
+    let ms_error = ss_error / df_error;
+    let f = if ms_error > 0.0 {
+        (ss / df) / ms_error
+    } else if ss > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    };
+    Effect {
+        effect: name.to_string(),
+        f,
+        df1: df,
+        df2: df_error,
+        p: f_p_value(f, df, df_error),
+        partial_eta_squared: if ss + ss_error > 0.0 {
+            ss / (ss + ss_error)
+        } else {
+            0.0
+        },
+    }
+}
+
+fn cohen_d(a: &[f64], b: &[f64]) -> f64 {
+    let var = |v: &[f64]| {
+        let (m, _) = mean_se(v);
+        v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len().max(2) - 1) as f64
+    };
+    let pooled = (((a.len() - 1) as f64 * var(a) + (b.len() - 1) as f64 * var(b))
+        / ((a.len() + b.len()).max(3) - 2) as f64)
+        .sqrt();
+    let diff = mean_se(a).0 - mean_se(b).0;
+    if pooled > 0.0 { diff / pooled } else { 0.0 }
+}
+
+/// Pairwise contrasts of `means` (mean ranks) with `count` values each, error `ms`, `df`,
+/// Holm-adjusted together; `raw[i]` are level i's raw values for Cohen's d.
+fn pairwise(
+    labels: &[String],
+    means: &[f64],
+    count: &[usize],
+    ms: f64,
+    df: f64,
+    raw: &[Vec<f64>],
+) -> Vec<Contrast> {
+    let mut out = Vec::new();
+    for i in 0..means.len() {
+        for j in i + 1..means.len() {
+            let diff = means[i] - means[j];
+            let se = (ms * (1.0 / count[i] as f64 + 1.0 / count[j] as f64)).sqrt();
+            let t = if se > 0.0 {
+                diff / se
+            } else if diff == 0.0 {
+                0.0
+            } else {
+                f64::INFINITY.copysign(diff)
+            };
+            out.push(Contrast {
+                a: labels[i].clone(),
+                b: labels[j].clone(),
+                rank_difference: diff,
+                t,
+                df,
+                p: t_p_value(t, df),
+                p_holm: None,
+                cohen_d: cohen_d(&raw[i], &raw[j]),
+            });
+        }
+    }
+    let ps: Vec<f64> = out.iter().map(|c| c.p.unwrap_or(1.0)).collect();
+    for (c, adjusted) in out.iter_mut().zip(holm(&ps)) {
+        c.p_holm = c.p.map(|_| adjusted);
+    }
+    out
+}
+
+fn reshape(values: &[f64], n: usize, a: usize, b: usize) -> Vec<Vec<Vec<f64>>> {
+    (0..n)
+        .map(|k| {
+            (0..a)
+                .map(|i| (0..b).map(|j| values[(k * a + i) * b + j]).collect())
+                .collect()
+        })
+        .collect()
+}
+
+/// The two-way ART ANOVA (factors A and B, blocks = networks) and its ART-C contrasts.
+pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
+    let y = &design.y;
+    let n = y.len();
+    let a = design.a_levels.len();
+    let b = design.b_levels.len();
+    if n < 2
+        || a < 2
+        || b < 1
+        || y.iter()
+            .any(|blk| blk.len() != a || blk.iter().any(|r| r.len() != b))
+    {
+        return None;
+    }
+    let raw = anova_blocked(y);
+    let grand = raw.a_means.iter().sum::<f64>() / a as f64;
+    let flat = |f: &dyn Fn(usize, usize, usize) -> f64| -> Vec<f64> {
+        let mut v = Vec::with_capacity(n * a * b);
+        for k in 0..n {
+            for i in 0..a {
+                for j in 0..b {
+                    v.push(f(k, i, j));
+                }
+            }
+        }
+        v
+    };
+    let residual = |k: usize, i: usize, j: usize| y[k][i][j] - raw.cell_means[i][j];
+    let aligned: [Vec<f64>; 3] = [
+        flat(&|k, i, j| residual(k, i, j) + raw.a_means[i] - grand),
+        flat(&|k, i, j| residual(k, i, j) + raw.b_means[j] - grand),
+        flat(&|k, i, j| {
+            residual(k, i, j) + raw.cell_means[i][j] - raw.a_means[i] - raw.b_means[j] + grand
+        }),
+    ];
+    let names = ["A", "B", "A:B"];
+    let mut effects = Vec::new();
+    let mut ranked = Vec::new();
+    for (e, values) in aligned.iter().enumerate() {
+        let r = reshape(&ranks(values), n, a, b);
+        let an = anova_blocked(&r);
+        if b > 1 || e == 0 {
+            effects.push(effect(
+                names[e],
+                an.ss[e],
+                an.df[e],
+                an.ss_error,
+                an.df_error,
+            ));
+        }
+        ranked.push(an);
+    }
+    let raw_a: Vec<Vec<f64>> = (0..a)
+        .map(|i| y.iter().flat_map(|blk| blk[i].iter().copied()).collect())
+        .collect();
+    let raw_b: Vec<Vec<f64>> = (0..b)
+        .map(|j| {
+            y.iter()
+                .flat_map(|blk| blk.iter().map(move |r| r[j]))
+                .collect()
+        })
+        .collect();
+    let ms = |an: &Anova2| an.ss_error / an.df_error;
+    let a_contrasts = pairwise(
+        &design.a_levels,
+        &ranked[0].a_means,
+        &vec![n * b; a],
+        ms(&ranked[0]),
+        ranked[0].df_error,
+        &raw_a,
+    );
+    let b_contrasts = if b > 1 {
+        pairwise(
+            &design.b_levels,
+            &ranked[1].b_means,
+            &vec![n * a; b],
+            ms(&ranked[1]),
+            ranked[1].df_error,
+            &raw_b,
+        )
+    } else {
+        Vec::new()
+    };
+    // Cells: the combined factor's alignment is the raw data less a constant.
+    let cells = a * b;
+    let cell_ranks = reshape(&ranks(&flat(&|k, i, j| y[k][i][j])), n, 1, cells);
+    let cell_values: Vec<Vec<Vec<f64>>> = cell_ranks
+        .iter()
+        .map(|blk| blk[0].iter().map(|v| vec![*v]).collect())
+        .collect();
+    let cell_anova = anova_blocked(&cell_values);
+    let cell_labels: Vec<String> = (0..a)
+        .flat_map(|i| (0..b).map(move |j| (i, j)))
+        .map(|(i, j)| format!("{} / {}", design.a_levels[i], design.b_levels[j]))
+        .collect();
+    let raw_cells: Vec<Vec<f64>> = (0..a)
+        .flat_map(|i| (0..b).map(move |j| (i, j)))
+        .map(|(i, j)| y.iter().map(|blk| blk[i][j]).collect())
+        .collect();
+    let cell_contrasts = if b > 1 {
+        pairwise(
+            &cell_labels,
+            &cell_anova.a_means,
+            &vec![n; cells],
+            ms(&cell_anova),
+            cell_anova.df_error,
+            &raw_cells,
+        )
+    } else {
+        Vec::new()
+    };
+    Some(ArtTwoWay {
+        blocks: n,
+        effects,
+        a_contrasts,
+        b_contrasts,
+        cell_contrasts,
+    })
+}
+
+/// The one-way ART ANOVA between independent groups (e.g. networks trained under
+/// different conditions): for one factor the alignment is the identity, so this is the
+/// ANOVA of the ranks; pairwise ART-C contrasts Holm-adjusted together.
+#[derive(Clone, Debug, Serialize)]
+pub struct ArtOneWay {
+    pub effect: Effect,
+    pub contrasts: Vec<Contrast>,
+}
+
+pub fn art_one_way(labels: &[String], groups: &[Vec<f64>]) -> Option<ArtOneWay> {
+    let k = groups.len();
+    let total: usize = groups.iter().map(Vec::len).sum();
+    if k < 2 || groups.iter().any(Vec::is_empty) || total <= k {
+        return None;
+    }
+    let all: Vec<f64> = groups.iter().flatten().copied().collect();
+    let r = ranks(&all);
+    let mut start = 0;
+    let mut rank_groups = Vec::new();
+    for g in groups {
+        rank_groups.push(r[start..start + g.len()].to_vec());
+        start += g.len();
+    }
+    let grand = r.iter().sum::<f64>() / total as f64;
+    let means: Vec<f64> = rank_groups.iter().map(|g| mean_se(g).0).collect();
+    let ss_between: f64 = rank_groups
+        .iter()
+        .zip(&means)
+        .map(|(g, m)| g.len() as f64 * (m - grand).powi(2))
+        .sum();
+    let ss_within: f64 = rank_groups
+        .iter()
+        .zip(&means)
+        .map(|(g, m)| g.iter().map(|v| (v - m).powi(2)).sum::<f64>())
+        .sum();
+    let (df1, df2) = ((k - 1) as f64, (total - k) as f64);
+    let mut effect = effect("condition", ss_between, df1, ss_within, df2);
+    // One factor: partial eta squared is eta squared.
+    effect.partial_eta_squared = if ss_between + ss_within > 0.0 {
+        ss_between / (ss_between + ss_within)
+    } else {
+        0.0
+    };
+    let counts: Vec<usize> = groups.iter().map(Vec::len).collect();
+    let contrasts = pairwise(labels, &means, &counts, ss_within / df2, df2, groups);
+    Some(ArtOneWay { effect, contrasts })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paired_t_matches_a_hand_computation() {
+        // Differences 1, 2, 3, 4: mean 2.5, SD 1.2910, t = 3.873 with 3 df, p = 0.0305.
+        let t = paired_t(&[2.0, 4.0, 6.0, 8.0], &[1.0, 2.0, 3.0, 4.0]).unwrap();
+        assert!((t.t - 3.872983).abs() < 1e-5, "{t:?}");
+        assert!((t.p.unwrap() - 0.030466).abs() < 1e-4, "{t:?}");
+        assert_eq!(t.df, 3.0);
+    }
+
+    #[test]
+    fn holm_adjusts_step_down() {
+        let adjusted = holm(&[0.01, 0.04, 0.03]);
+        for (a, e) in adjusted.iter().zip([0.03, 0.06, 0.06]) {
+            assert!((a - e).abs() < 1e-12, "{adjusted:?}");
+        }
+        assert_eq!(holm(&[0.5, 0.9]), vec![1.0, 1.0]);
+    }
+
+    #[test]
+    fn ties_get_average_ranks() {
+        assert_eq!(ranks(&[3.0, 1.0, 3.0, 2.0]), vec![3.5, 1.0, 3.5, 2.0]);
+    }
+
+    #[test]
+    fn f_p_value_matches_tables() {
+        // F(2, 10) = 4.10 is the 5% critical value.
+        assert!((f_p_value(4.1028, 2.0, 10.0).unwrap() - 0.05).abs() < 1e-3);
+    }
+
+    /// A design with a strong effect of A and a block effect only: ART finds A, not B or
+    /// A:B, and the contrasts order the levels.
+    #[test]
+    fn art_two_way_finds_the_effect_that_is_there() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut y = Vec::new();
+        for k in 0..6 {
+            let block = k as f64 * 0.37;
+            let mut rows = Vec::new();
+            for i in 0..3 {
+                let mut row = Vec::new();
+                for j in 0..2 {
+                    // A: 0, 5, 10; seeded uniform noise; B and A:B: none.
+                    let _ = j;
+                    let noise: f64 = rng.random_range(-0.5..0.5);
+                    row.push(i as f64 * 5.0 + block + noise);
+                }
+                rows.push(row);
+            }
+            y.push(rows);
+        }
+        let design = Blocked2 {
+            y,
+            a_levels: vec!["a0".into(), "a1".into(), "a2".into()],
+            b_levels: vec!["b0".into(), "b1".into()],
+        };
+        let art = art_two_way(&design).unwrap();
+        assert_eq!(art.effects.len(), 3);
+        assert!(art.effects[0].p.unwrap() < 1e-6, "{:?}", art.effects[0]);
+        assert!(art.effects[1].p.unwrap() > 0.05, "{:?}", art.effects[1]);
+        assert!(art.effects[2].p.unwrap() > 0.05, "{:?}", art.effects[2]);
+        assert_eq!(art.effects[0].df1, 2.0);
+        assert_eq!(art.effects[0].df2, 25.0);
+        assert_eq!(art.a_contrasts.len(), 3);
+        assert!(
+            art.a_contrasts
+                .iter()
+                .all(|c| c.rank_difference < 0.0 && c.p_holm.unwrap() < 0.01)
+        );
+        assert_eq!(art.cell_contrasts.len(), 15);
+    }
+
+    #[test]
+    fn one_way_art_is_the_anova_of_ranks() {
+        let labels: Vec<String> = ["x", "y", "z"].map(String::from).to_vec();
+        let groups = vec![
+            vec![1.0, 2.0, 3.0],
+            vec![4.0, 5.0, 6.0],
+            vec![7.0, 8.0, 9.0],
+        ];
+        let art = art_one_way(&labels, &groups).unwrap();
+        // Ranks = values: SS_between = 3 * (9 + 0 + 9) = 54, SS_within = 6, F = 27 / 1 = 27.
+        assert!((art.effect.f - 27.0).abs() < 1e-9, "{:?}", art.effect);
+        assert_eq!((art.effect.df1, art.effect.df2), (2.0, 6.0));
+        assert!((art.effect.partial_eta_squared - 0.9).abs() < 1e-12);
+        assert_eq!(art.contrasts.len(), 3);
+        // x vs z: difference -6, SE sqrt(1 * 2/3).
+        let xz = &art.contrasts[1];
+        assert!((xz.t + 6.0 / (2.0f64 / 3.0).sqrt()).abs() < 1e-9, "{xz:?}");
+        assert!(art_one_way(&labels[..1], &groups[..1]).is_none());
+    }
+}

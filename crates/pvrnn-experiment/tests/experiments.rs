@@ -1,0 +1,216 @@
+//! The experiments end to end at smoke scale on a small synthetic dataset: planning,
+//! running, interruption and resume, reports, cluster scripts.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use pvrnn_experiment::run::{Event, Interrupted, read_train_result};
+use pvrnn_experiment::{Experiment, JobKind, Plan, Scale, report, slurm};
+
+fn dataset(dir: &Path) {
+    pvrnn_dataset::synthetic::caresim_like(&[590, 650, 710], 3, 1, 30)
+        .unwrap()
+        .write(dir)
+        .unwrap();
+}
+
+#[test]
+fn robustness_runs_resumes_after_interruption_and_reports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let out = tmp.path().join("robustness");
+    let plan = Plan::new(Experiment::Robustness, Scale::Smoke, &data, None).unwrap();
+    plan.save(&out).unwrap();
+    // 2 networks; 2 tasks x 1 test sequence x 6 conditions x 2 trials each.
+    assert_eq!(plan.jobs.len(), 2 + 2 * 2 * 6 * 2);
+    assert!(
+        plan.check_matches(Experiment::Robustness, Scale::Paper)
+            .is_err()
+    );
+
+    // Stop during the first training: its checkpoint is written at the iteration reached.
+    let stop = AtomicBool::new(false);
+    let events = |e: Event<'_>| {
+        if let Event::Training { done: 7, .. } = e {
+            stop.store(true, Ordering::SeqCst);
+        }
+    };
+    let e = pvrnn_experiment::run::run(&out, 1, None, &stop, &events).unwrap_err();
+    assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
+    let checkpoint = plan.checkpoint_path(&out, 0);
+    let file = pvrnn_core::io::TensorFile::open(&checkpoint).unwrap();
+    assert_eq!(pvrnn_core::io::checkpoint_iteration(&file), Some(7));
+    assert!(!plan.is_done(&out, 0));
+
+    // Running again resumes it and does everything else, two jobs at a time.
+    let go = AtomicBool::new(false);
+    pvrnn_experiment::run::run(&out, 2, None, &go, &|_| {}).unwrap();
+    assert!((0..plan.jobs.len()).all(|i| plan.is_done(&out, i)));
+    let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
+    assert_eq!(trained.iterations, 20);
+    let log = std::fs::read_to_string(checkpoint.with_extension("log.csv")).unwrap();
+    let iterations: Vec<u64> = log
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(
+        iterations,
+        (0..20).collect::<Vec<_>>(),
+        "one log row per iteration"
+    );
+
+    let dir = report::write(&out).unwrap();
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(
+        md.contains("smoke scale") && md.contains("Two-way ART ANOVA"),
+        "{md}"
+    );
+    assert!(
+        md.contains("observed"),
+        "the report names the accuracy normalisation"
+    );
+    assert!(dir.join("robustness.png").is_file());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["scale"], "smoke");
+    assert_eq!(
+        summary["results"]["art"]["effects"]
+            .as_array()
+            .unwrap()
+            .len(),
+        3
+    );
+    // Every cell has both networks.
+    for row in summary["results"]["cells"].as_array().unwrap() {
+        for cell in row.as_array().unwrap() {
+            assert_eq!(cell.as_object().unwrap().len(), 2);
+        }
+    }
+
+    // One job for a cluster task: a done job is skipped; cluster scripts cover the rest.
+    pvrnn_experiment::run::run(&out, 1, Some(5), &go, &|_| panic!("job 5 is done")).unwrap();
+    std::fs::remove_file(plan.result_path(&out, 9)).unwrap();
+    let submit = slurm::emit(
+        &out,
+        &slurm::SlurmOptions {
+            pvrnn: "/opt/pvrnn".into(),
+            train_time: "10:00:00".into(),
+            infer_time: "01:00:00".into(),
+            cpus: 4,
+            extra: vec!["--partition=cpu".into()],
+        },
+    )
+    .unwrap();
+    let script = std::fs::read_to_string(&submit).unwrap();
+    assert!(
+        script.contains("--array=9 infer.sbatch") && !script.contains("train.sbatch"),
+        "{script}"
+    );
+    let infer = std::fs::read_to_string(out.join("slurm/infer.sbatch")).unwrap();
+    assert!(infer.contains("--job \"$SLURM_ARRAY_TASK_ID\"") && infer.contains("--partition=cpu"));
+}
+
+#[test]
+fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    for experiment in [Experiment::Hierarchy, Experiment::Uncertainty] {
+        let out = tmp.path().join(experiment.name());
+        Plan::new(experiment, Scale::Smoke, &data, None)
+            .unwrap()
+            .save(&out)
+            .unwrap();
+        pvrnn_experiment::run::run(&out, 1, None, &AtomicBool::new(false), &|_| {}).unwrap();
+        let dir = report::write(&out).unwrap();
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
+                .unwrap();
+        match experiment {
+            Experiment::Hierarchy => {
+                assert!(dir.join("contribution_maps.png").is_file());
+                assert_eq!(summary["results"]["ablation_mode"], "readout");
+                let c = &summary["results"]["contribution_per_network"];
+                // The proprioceptive module feeds no image; the exteroceptive one does.
+                assert!(
+                    c["proprioceptive"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .all(|v| v == 0.0)
+                );
+                assert!(
+                    c["exteroceptive"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .all(|v| v.as_f64().unwrap() > 0.0)
+                );
+            }
+            _ => {
+                let comparisons = summary["results"]["comparisons"].as_array().unwrap();
+                assert_eq!(comparisons.len(), 8);
+                assert!(comparisons.iter().all(|c| c["paired_t"]["df"] == 1.0));
+                assert!(dir.join("sigma_p.png").is_file());
+            }
+        }
+    }
+}
+
+#[test]
+fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let plan = Plan::new(Experiment::Interference, Scale::Paper, &data, None).unwrap();
+    let trains: Vec<(&str, &Vec<String>)> = plan
+        .jobs
+        .iter()
+        .filter_map(|j| match &j.kind {
+            JobKind::Train {
+                condition,
+                sequences,
+                ..
+            } => Some((condition.as_str(), sequences)),
+            _ => None,
+        })
+        .collect();
+    // 2 primary tasks x 4 conditions x 5 networks.
+    assert_eq!(trains.len(), 40);
+    let plus3: Vec<&Vec<String>> = trains
+        .iter()
+        .filter(|(c, _)| *c == "repositioning 9 + wiping 3")
+        .map(|t| t.1)
+        .collect();
+    assert_eq!(plus3.len(), 5);
+    assert!(plus3.iter().all(|s| *s == plus3[0]));
+    let added: Vec<&String> = plus3[0]
+        .iter()
+        .filter(|s| s.starts_with("wiping"))
+        .collect();
+    assert_eq!(
+        added,
+        [
+            "wiping_590mm_learn0",
+            "wiping_650mm_learn0",
+            "wiping_710mm_learn0"
+        ]
+    );
+    assert!(
+        trains
+            .iter()
+            .any(|(c, s)| *c == "wiping 9 + repositioning 9" && s.len() == 18)
+    );
+    // A checkpoint to reuse must match the design's training.
+    assert!(
+        Plan::new(
+            Experiment::Interference,
+            Scale::Reduced,
+            &data,
+            Some(Path::new("x"))
+        )
+        .is_err()
+    );
+}

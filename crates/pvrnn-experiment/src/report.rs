@@ -78,12 +78,11 @@ fn per_network(
 }
 
 fn mean_se_text(values: &[f64]) -> String {
+    if values.is_empty() {
+        return "–".into();
+    }
     match mean_se(values) {
         (m, Some(se)) => format!("{} ± {}", sig(m), sig(se)),
-        (m, None) if values.is_empty() => {
-            let _ = m;
-            "–".into()
-        }
         (m, None) => sig(m),
     }
 }
@@ -267,14 +266,13 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
     );
     let nets: Vec<f64> = per_net.values().copied().collect();
     match observed {
-        Some(obs) => {
+        Some(_) => {
             let _ = writeln!(
                 md,
                 "Near − elsewhere: {} (over networks); permutation p = {}.\n",
                 mean_se_text(&nets),
                 p_text(p)
             );
-            let _ = obs;
         }
         None => md.push_str(
             "No test run has a subtask boundary with steps on both sides: nothing to test.\n\n",

@@ -10,6 +10,7 @@ fn main() {
         split: pvrnn_dataset::Split::Learn,
         index: 0,
         seed: 7,
+        variability: 1.0,
     };
     let mut sim = Simulation::new(spec);
     let n = sim.len();

@@ -12,6 +12,7 @@ fn score(mount: Mount) -> (f64, f64) {
                 split: pvrnn_dataset::Split::Learn,
                 index: 0,
                 seed: 3,
+                variability: 1.0,
             };
             let mut sim = Simulation::with_robot(spec, Robot::with_mount(mount));
             for _ in 0..sim.len() {

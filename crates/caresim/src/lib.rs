@@ -27,9 +27,11 @@ pub mod scene;
 pub mod shapes;
 pub mod sim;
 pub mod task;
+pub mod variability;
 
-pub use sim::{IMAGE_SIZE, Simulation, StepRecord, TrialSpec, simulate};
+pub use sim::{IMAGE_SIZE, Simulation, StepRecord, TrialSpec, simulate, simulate_with};
 pub use task::Task;
+pub use variability::Variability;
 
 use pvrnn_dataset::Split;
 
@@ -38,13 +40,14 @@ pub const BED_HEIGHTS_MM: [u32; 3] = [590, 650, 710];
 
 /// Which trials make a dataset. The default is the paper's: per task, 3 learning and 1
 /// test sequence per bed height (9 + 3 per task, 24 in all).
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct DatasetSpec {
     pub seed: u64,
     pub tasks: Vec<Task>,
     pub bed_heights_mm: Vec<u32>,
     pub learn_per_height: usize,
     pub test_per_height: usize,
+    pub variability: Variability,
 }
 
 impl Default for DatasetSpec {
@@ -55,6 +58,7 @@ impl Default for DatasetSpec {
             bed_heights_mm: BED_HEIGHTS_MM.to_vec(),
             learn_per_height: 3,
             test_per_height: 1,
+            variability: Variability::PAPER,
         }
     }
 }
@@ -86,6 +90,7 @@ impl DatasetSpec {
                             split,
                             index,
                             seed,
+                            variability: self.variability.of(task),
                         });
                     }
                 }

@@ -23,7 +23,7 @@ const JOINT_NOISE: f64 = 2e-4;
 const TORQUE_NOISE: f64 = 0.05;
 
 /// Which trial to simulate.
-#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct TrialSpec {
     pub task: Task,
     pub bed_height_mm: u32,
@@ -31,6 +31,9 @@ pub struct TrialSpec {
     /// Trial number within its task, height and split.
     pub index: usize,
     pub seed: u64,
+    /// The task's variability factor (1 = the default benchmark; see
+    /// [`crate::variability`]).
+    pub variability: f64,
 }
 
 impl TrialSpec {
@@ -80,7 +83,7 @@ impl Simulation {
     }
 
     pub fn with_robot(spec: TrialSpec, robot: Robot) -> Self {
-        let variation = Variation::draw(spec.task, spec.seed);
+        let variation = Variation::draw(spec.task, spec.seed, spec.variability);
         let bed_top = spec.bed_height_mm as f64 / 1000.0;
         let body = Mannequin::new(scene::HIPS, bed_top, variation.posture);
         let towel = variation.wipe.as_ref().map(|w| {
@@ -250,6 +253,12 @@ impl Simulation {
 
 /// Simulates a whole trial into a dataset sequence, with each step's state.
 pub fn simulate(spec: &TrialSpec) -> (Sequence, Vec<StepRecord>) {
+    simulate_with(spec, false)
+}
+
+/// [`simulate`], and with `robot_free` each frame rendered also without the robot (the
+/// ground truth of what the arms hide; the rendering with the robot is unchanged).
+pub fn simulate_with(spec: &TrialSpec, robot_free: bool) -> (Sequence, Vec<StepRecord>) {
     let mut sim = Simulation::new(spec.clone());
     let t = sim.len();
     let frame = IMAGE_SIZE * IMAGE_SIZE * 3;
@@ -258,10 +267,16 @@ pub fn simulate(spec: &TrialSpec) -> (Sequence, Vec<StepRecord>) {
     let mut torques = Vec::with_capacity(t * 14);
     let mut subtask = Vec::with_capacity(t);
     let mut records = Vec::with_capacity(t);
+    let mut without_robot = robot_free.then(|| Vec::with_capacity(t * 2 * frame));
     for _ in 0..t {
         let record = sim.step();
         for cam in 0..2 {
             images.extend(sim.render(cam, true, IMAGE_SIZE, SUPERSAMPLE).rgb);
+        }
+        if let Some(hidden) = without_robot.as_mut() {
+            for cam in 0..2 {
+                hidden.extend(sim.render(cam, false, IMAGE_SIZE, SUPERSAMPLE).rgb);
+            }
         }
         let (j, tq) = sim.sensors(&record);
         joints.extend(j);
@@ -287,6 +302,7 @@ pub fn simulate(spec: &TrialSpec) -> (Sequence, Vec<StepRecord>) {
         joints,
         torques,
         subtask,
+        images_without_robot: without_robot,
     };
     (seq, records)
 }

@@ -69,6 +69,31 @@ impl SimRng {
     }
 }
 
+/// A trial's random choices with their spread around the centre scaled by the task's
+/// variability factor. Each choice takes the same draws whatever the factor, so the rest of
+/// the trial stays in step; a factor of exactly 1 gives the unscaled values bit for bit.
+struct Spread<'a> {
+    rng: &'a mut SimRng,
+    factor: f64,
+}
+
+impl Spread<'_> {
+    fn uniform(&mut self) -> f64 {
+        let u = self.rng.uniform();
+        if self.factor == 1.0 {
+            u
+        } else {
+            0.5 + self.factor * (u - 0.5)
+        }
+    }
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.uniform()
+    }
+    fn normal(&mut self) -> f64 {
+        self.factor * self.rng.normal()
+    }
+}
+
 /// Smooth, low-frequency hand wobble, like a teleoperator's.
 #[derive(Clone, Debug)]
 struct Jitter {
@@ -125,8 +150,13 @@ pub struct Variation {
 }
 
 impl Variation {
-    pub fn draw(task: Task, seed: u64) -> Self {
-        let mut rng = SimRng::new(seed);
+    /// The trial of `seed`, its spread scaled by `variability` (see [`crate::variability`]).
+    pub fn draw(task: Task, seed: u64, variability: f64) -> Self {
+        let mut raw_rng = SimRng::new(seed);
+        let mut rng = Spread {
+            rng: &mut raw_rng,
+            factor: variability,
+        };
         // Each subtask's share varies by `spread`; the whole trial stays near 300 steps
         // (+-10%), like the paper's sequences.
         let (nominal, spread) = task.timing();
@@ -153,10 +183,11 @@ impl Variation {
             towel_offset: [rng.range(-0.08, 0.12), rng.range(-0.05, 0.04)],
             towel_yaw: rng.range(-0.5, 0.5),
         });
-        let amplitude = if task == Task::Wiping { 0.006 } else { 0.003 };
+        // Jitter's size scales; its frequencies and phases are not a spread.
+        let amplitude = variability * if task == Task::Wiping { 0.006 } else { 0.003 };
         let jitter = [
-            Jitter::new(&mut rng, amplitude),
-            Jitter::new(&mut rng, amplitude),
+            Jitter::new(&mut raw_rng, amplitude),
+            Jitter::new(&mut raw_rng, amplitude),
         ];
         Self {
             durations,

@@ -498,6 +498,22 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     ]);
     let dataset = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();
     assert_eq!(dataset.sequences.len(), 2);
+    // The default: the paper's variability, no robot-free renders.
+    assert_eq!(dataset.manifest.source, "caresim (seed 4)");
+    assert!(
+        dataset
+            .sequences
+            .iter()
+            .all(|s| s.images_without_robot.is_none())
+    );
+    let e = fails(&[
+        "simulate",
+        "--out",
+        &x.s("bad"),
+        "--variability",
+        "cooking=1",
+    ]);
+    assert!(e.contains("unknown task `cooking`"), "{e}");
     for s in &dataset.sequences {
         let stem = pvrnn_dataset::file_stem(&s.info.name);
         assert!(
@@ -754,6 +770,7 @@ fn import_reads_recordings_into_a_dataset() {
         joints: vec![0.1; 3 * 14],
         torques: vec![1.5; 3 * 14],
         subtask: vec![0; 3],
+        images_without_robot: None,
     };
     let cams = vec!["left".to_string(), "right".to_string()];
     pvrnn_dataset::import::write_recording(&seq, &cams, &x.path("recordings").join("trial_a"))
@@ -853,6 +870,47 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
     assert!(
         log.contains("train-net0") && !log.contains("iteration 1/"),
         "{log}"
+    );
+    // Hierarchy on data with robot-free renders scores the hidden pixels beside baselines.
+    ok(&[
+        "experiment",
+        "hierarchy",
+        "--dataset",
+        &ds,
+        "--out",
+        &x.s("h1"),
+        "--networks",
+        &shared,
+    ]);
+    let md = std::fs::read_to_string(x.path("h1/report/report.md")).unwrap();
+    assert!(
+        md.contains("## Occlusion") && md.contains("| last seen vs hidden body |"),
+        "{md}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(x.path("h1/report/summary.json")).unwrap())
+            .unwrap();
+    assert!(
+        summary.to_string().contains("model vs hidden body"),
+        "{summary}"
+    );
+    // Networks learned on one dataset are not reused for another.
+    let mut other = pvrnn_dataset::synthetic::caresim_like(&[650], 3, 1, 24).unwrap();
+    other.manifest.source = "synthetic (matched variability)".into();
+    other.write(&x.path("ds-other")).unwrap();
+    let e = fails(&[
+        "experiment",
+        "uncertainty",
+        "--dataset",
+        &x.s("ds-other"),
+        "--out",
+        &x.s("u2"),
+        "--networks",
+        &shared,
+    ]);
+    assert!(
+        e.contains("learned other data") && e.contains("another --networks"),
+        "{e}"
     );
     let e = fails(&[
         "experiment",

@@ -142,6 +142,7 @@ pub fn import_sequence(
         joints,
         torques,
         subtask,
+        images_without_robot: None,
     };
     seq.validate(&dir.display().to_string())?;
     Ok(seq)

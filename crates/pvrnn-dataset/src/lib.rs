@@ -154,6 +154,9 @@ pub struct Sequence {
     pub torques: Vec<f32>,
     /// `[T]`
     pub subtask: Vec<u32>,
+    /// `[T, cameras, S, S, 3]`: the same frames rendered without the robot, where a
+    /// simulator can (caresim's `--robot-free`), so that what the arms hide can be scored.
+    pub images_without_robot: Option<Vec<u8>>,
 }
 
 impl Sequence {
@@ -177,6 +180,22 @@ impl Sequence {
         v
     }
 
+    /// The same sequence seen without the robot (its robot-free renders as the images), if
+    /// it has them.
+    pub fn without_robot(&self) -> Option<Sequence> {
+        let images = self.images_without_robot.clone()?;
+        Some(Sequence {
+            info: self.info.clone(),
+            cameras: self.cameras,
+            image_size: self.image_size,
+            images,
+            joints: self.joints.clone(),
+            torques: self.torques.clone(),
+            subtask: self.subtask.clone(),
+            images_without_robot: None,
+        })
+    }
+
     /// Checks sizes and values; `what` names the sequence in errors.
     pub fn validate(&self, what: &str) -> Result<()> {
         let t = self.info.length;
@@ -198,6 +217,13 @@ impl Sequence {
         expect("joints", self.joints.len(), t * 14)?;
         expect("torques", self.torques.len(), t * 14)?;
         expect("subtask", self.subtask.len(), t)?;
+        if let Some(hidden) = &self.images_without_robot {
+            expect(
+                "images_without_robot",
+                hidden.len(),
+                self.images.len() / t.max(1) * t,
+            )?;
+        }
         if t == 0 {
             return Err(format_err(what, "the sequence has no steps"));
         }
@@ -251,6 +277,12 @@ impl Sequence {
             "subtask".to_string(),
             OutTensor::I64(vec![t], self.subtask.iter().map(|&x| x as i64).collect()),
         );
+        if let Some(hidden) = &self.images_without_robot {
+            tensors.insert(
+                "images_without_robot".to_string(),
+                OutTensor::U8(vec![t, self.cameras, s, s, 3], Cow::Borrowed(hidden)),
+            );
+        }
         let meta = HashMap::from([
             ("format".to_string(), format!("{FORMAT}/sequence")),
             (
@@ -271,7 +303,13 @@ impl Sequence {
     ) -> Result<Self> {
         let file = TensorFile::from_bytes(bytes, what)?;
         let t = info.length;
-        let (_, images) = file.u8("images", Some(&[t, cameras, image_size, image_size, 3]))?;
+        let shape = [t, cameras, image_size, image_size, 3];
+        let (_, images) = file.u8("images", Some(&shape))?;
+        let images_without_robot = if file.contains("images_without_robot") {
+            Some(file.u8("images_without_robot", Some(&shape))?.1)
+        } else {
+            None
+        };
         let joints = file.f32("joints", Some(&[t, 14]))?.into_data();
         let torques = file.f32("torques", Some(&[t, 14]))?.into_data();
         let subtask: Vec<u32> = file
@@ -287,6 +325,7 @@ impl Sequence {
             joints,
             torques,
             subtask,
+            images_without_robot,
         };
         seq.validate(what)?;
         Ok(seq)
@@ -484,6 +523,7 @@ mod tests {
                 .map(|i| (i as f32 * 0.02).cos() * seed as f32)
                 .collect(),
             subtask: (0..t).map(|i| (i * 2 / t) as u32).collect(),
+            images_without_robot: None,
         }
     }
 

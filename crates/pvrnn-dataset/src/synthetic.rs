@@ -6,7 +6,8 @@ use crate::{Dataset, Result, Sequence, SequenceInfo, Split, file_stem};
 
 /// `learn_per_height` learning and `test_per_height` test sequences of `steps` steps for
 /// each task (`repositioning`, `wiping`) and bed height; two 64x64 cameras; three subtasks
-/// of equal length.
+/// of equal length. In the test sequences a dark bar (the "arm") sweeps across the images,
+/// and their robot-free renders are the images without it.
 pub fn caresim_like(
     heights_mm: &[u32],
     learn_per_height: usize,
@@ -29,6 +30,8 @@ pub fn caresim_like(
                             as f32
                             * 0.37;
                     let mut images = Vec::with_capacity(steps * 2 * size * size * 3);
+                    let test = split == Split::Test;
+                    let mut without_robot = test.then(|| Vec::with_capacity(images.capacity()));
                     for t in 0..steps {
                         let s = t as f32 / steps as f32;
                         for camera in 0..2 {
@@ -43,7 +46,16 @@ pub fn caresim_like(
                                                     + phase
                                                     + camera as f32)
                                                     .sin();
-                                        images.push((v * 255.0) as u8);
+                                        let body = (v * 255.0) as u8;
+                                        let arm = x + 12 >= 8 + 40 * t / steps.max(1)
+                                            && x < 8 + 40 * t / steps.max(1)
+                                            && y < 40;
+                                        if let Some(hidden) = without_robot.as_mut() {
+                                            hidden.push(body);
+                                            images.push(if arm { 30 } else { body });
+                                        } else {
+                                            images.push(body);
+                                        }
                                     }
                                 }
                             }
@@ -74,6 +86,7 @@ pub fn caresim_like(
                         joints,
                         torques,
                         subtask: (0..steps).map(|t| (3 * t / steps.max(1)) as u32).collect(),
+                        images_without_robot: without_robot,
                     });
                 }
             }

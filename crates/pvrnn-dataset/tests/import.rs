@@ -33,6 +33,7 @@ fn sequence(t: usize) -> Sequence {
             .map(|i| (i as f32 * 0.031).cos() * 4.5)
             .collect(),
         subtask: (0..t).map(|i| (i * 3 / t) as u32).collect(),
+        images_without_robot: None,
     }
 }
 

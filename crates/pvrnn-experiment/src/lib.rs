@@ -3,10 +3,12 @@
 //! - [`plan`]: experiments, scales and their designs; the manifest `plan.json` of jobs.
 //! - [`run`]: running jobs (trainings resume from their checkpoints; inference runs write
 //!   one result file each, atomically).
+//! - [`occlusion`]: scoring what the model makes of body parts the arms hide.
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
 //! - [`slurm`]: the same plan as Slurm job arrays.
 
+pub mod occlusion;
 pub mod plan;
 pub mod report;
 pub mod run;

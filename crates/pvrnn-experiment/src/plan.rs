@@ -224,6 +224,9 @@ pub struct Plan {
     pub design: Design,
     /// The dataset folder (absolute).
     pub dataset: PathBuf,
+    /// The dataset's own description (e.g. `caresim (seed 0, variability matched ...)`).
+    #[serde(default)]
+    pub dataset_source: String,
     /// Proprioception ranges of all 18 learning sequences: one normalisation for every
     /// training condition, so networks trained on subsets stay comparable.
     pub ranges_from: String,
@@ -265,6 +268,48 @@ impl Plan {
                 self.scale.name(),
                 self.jobs[id].name
             ))
+    }
+
+    /// Makes `networks` this plan's networks folder. A shared folder remembers the data its
+    /// networks learned (`data.json`: the dataset's source and learning sequences), so a
+    /// plan on other data (another seed or variability setting) cannot reuse them.
+    pub fn claim_networks_dir(&mut self, networks: &Path) -> Result<()> {
+        std::fs::create_dir_all(networks)
+            .with_context(|| format!("cannot create {}", networks.display()))?;
+        let networks = std::fs::canonicalize(networks)?;
+        let dataset = Dataset::open(&self.dataset)?;
+        let learned: Vec<serde_json::Value> = dataset
+            .manifest
+            .sequences
+            .iter()
+            .filter(|s| s.split == Split::Learn)
+            .map(|s| serde_json::json!({"name": s.name, "seed": s.seed, "length": s.length}))
+            .collect();
+        let claim = serde_json::json!({
+            "dataset": dataset.manifest.source,
+            "learning_sequences": learned,
+        });
+        let path = networks.join("data.json");
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let held: serde_json::Value = serde_json::from_str(&text)
+                    .with_context(|| format!("{}: not valid JSON", path.display()))?;
+                ensure!(
+                    held == claim,
+                    "{}: its networks learned other data (dataset `{}`) than {} (dataset `{}`); use another --networks folder",
+                    networks.display(),
+                    held["dataset"].as_str().unwrap_or("?"),
+                    self.dataset.display(),
+                    dataset.manifest.source
+                );
+            }
+            Err(_) => pvrnn_core::io::write_atomic(
+                &path,
+                serde_json::to_string_pretty(&claim)?.as_bytes(),
+            )?,
+        }
+        self.networks_dir = Some(networks);
+        Ok(())
     }
 
     pub fn is_done(&self, dir: &Path, id: usize) -> bool {
@@ -493,6 +538,7 @@ impl Plan {
             design,
             dataset: dataset_dir,
             ranges_from: format!("all {} learning sequences of the dataset", learn.len()),
+            dataset_source: dataset.manifest.source.clone(),
             networks_dir: None,
             jobs,
         })

@@ -14,6 +14,7 @@ use rand::{RngExt, SeedableRng};
 use serde::Serialize;
 use serde_json::{Value, json};
 
+use crate::occlusion::OcclusionScores;
 use crate::plan::{Experiment, JobKind, Plan, VISION_CONDITIONS};
 use crate::run::{InferResult, TrainResult, read_infer_result, read_train_result};
 use crate::stats::{self, Blocked2, Contrast, Effect, mean_se};
@@ -152,7 +153,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
     let d = &plan.design;
     let _ = writeln!(
         md,
-        "Scale **{}**: {}. Networks: {}, learning iterations: {}, trials per test sequence: {}, inference window: {}, updates per step: {}, test steps: {}. Estimated training time: {:.1} h on 2 cores. Proprioception ranges: {}. Dataset: `{}`.\n",
+        "Scale **{}**: {}. Networks: {}, learning iterations: {}, trials per test sequence: {}, inference window: {}, updates per step: {}, test steps: {}. Estimated training time: {:.1} h on 2 cores. Proprioception ranges: {}. Dataset: `{}` ({}).\n",
         plan.scale.name(),
         d.note,
         d.networks,
@@ -166,7 +167,12 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
             .map_or("whole sequences".into(), |v| format!("first {v}")),
         d.estimated_training_hours,
         plan.ranges_from,
-        plan.dataset.display()
+        plan.dataset.display(),
+        if plan.dataset_source.is_empty() {
+            "source not recorded"
+        } else {
+            &plan.dataset_source
+        }
     );
     if results.done < results.total {
         let _ = writeln!(
@@ -278,9 +284,11 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
             "No test run has a subtask boundary with steps on both sides: nothing to test.\n\n",
         ),
     }
+    let occlusion = occlusion_section(r, stamp, md);
     Ok(json!({
         "ablation_mode": mode.name(),
         "contribution_per_network": contributions,
+        "occlusion": occlusion,
         "executive_boundary": {
             "half_width": BOUNDARY_HALF_WIDTH,
             "near_minus_elsewhere_per_network": per_net,
@@ -288,6 +296,77 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
             "p": p,
         },
     }))
+}
+
+/// Body parts the arms hide, scored against the robot-free renders: the model beside the
+/// mean-image and last-seen baselines, per network, with paired t-tests across networks.
+fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
+    let _ = writeln!(
+        md,
+        "## Occlusion: what the model makes of hidden body parts ({stamp})\n"
+    );
+    if r.infers.iter().all(|(x, _)| x.occlusion.is_none()) {
+        md.push_str(
+            "The test sequences have no robot-free renders: simulate the dataset with `pvrnn simulate --robot-free` to score occlusion.\n\n",
+        );
+        return Value::Null;
+    }
+    let _ = writeln!(
+        md,
+        "On top-resolution pixels the arms hide (observed and robot-free image differ by more than {} in a channel, model units), MSE against the robot-free image; everything observed. Baselines from the observations alone: the mean learning image, and each pixel's last unhidden observation. Per network (mean over trials, then test sequences), then mean ± SE over networks; paired t-tests across networks.\n",
+        crate::occlusion::HIDDEN_THRESHOLD
+    );
+    type Pick = fn(&OcclusionScores) -> f64;
+    let rows: [(&str, Pick); 5] = [
+        ("model vs hidden body", |o| o.model),
+        ("mean image vs hidden body", |o| o.mean_image),
+        ("last seen vs hidden body", |o| o.last_seen),
+        ("model vs observed (the arm)", |o| o.model_vs_observed),
+        ("share of values hidden", |o| o.hidden_share),
+    ];
+    let per_net: Vec<BTreeMap<usize, f64>> = rows
+        .iter()
+        .map(|(_, pick)| per_network(&r.infers, &|_| true, &|x| x.occlusion.as_ref().map(pick)))
+        .collect();
+    md.push_str("| measure | mean ± SE |\n|---|---|\n");
+    for ((label, _), nets) in rows.iter().zip(&per_net) {
+        let values: Vec<f64> = nets.values().copied().collect();
+        let _ = writeln!(md, "| {label} | {} |", mean_se_text(&values));
+    }
+    let mut tests = BTreeMap::new();
+    md.push_str("\n| model vs | mean difference (model − baseline) | t | df | p | d_z |\n|---|---|---|---|---|---|\n");
+    for (name, b) in [("mean image", 1), ("last seen", 2)] {
+        let nets: Vec<usize> = per_net[0].keys().copied().collect();
+        let a: Vec<f64> = nets.iter().map(|n| per_net[0][n]).collect();
+        let base: Vec<f64> = nets
+            .iter()
+            .filter_map(|n| per_net[b].get(n).copied())
+            .collect();
+        let t = stats::paired_t(&a, &base);
+        match &t {
+            Some(t) => {
+                let _ = writeln!(
+                    md,
+                    "| {name} | {} | {} | {} | {} | {} |",
+                    sig(t.mean_difference),
+                    sig(t.t),
+                    t.df,
+                    p_text(t.p),
+                    sig(t.cohen_dz)
+                );
+            }
+            None => {
+                let _ = writeln!(md, "| {name} | – (fewer than 2 networks) | | | | |");
+            }
+        }
+        tests.insert(name, t);
+    }
+    md.push('\n');
+    json!({
+        "threshold": crate::occlusion::HIDDEN_THRESHOLD,
+        "per_network": rows.iter().zip(&per_net).map(|((l, _), n)| (l.to_string(), n.clone())).collect::<BTreeMap<_, _>>(),
+        "paired_t": tests,
+    })
 }
 
 /// Writes the four modules' maps (rows) for each camera (columns) as one PNG.
@@ -730,6 +809,7 @@ mod tests {
                 executive_change,
                 subtask,
                 map_means: None,
+                occlusion: None,
             },
             None,
         )

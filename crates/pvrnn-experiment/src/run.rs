@@ -18,6 +18,7 @@ use pvrnn_core::{Ablation, Model, ModelConfig, ModuleId, NoiseMode, Observed};
 use pvrnn_dataset::{Dataset, Sequence, proprio_ranges};
 use serde::{Deserialize, Serialize};
 
+use crate::occlusion::{OcclusionScorer, OcclusionScores};
 use crate::plan::{Design, JobKind, Plan};
 
 /// What a running experiment reports.
@@ -101,6 +102,10 @@ pub struct InferResult {
     /// Per module: the mean |standard - ablated| of the top-resolution images (readout
     /// ablation), when maps were asked for.
     pub map_means: Option<[f64; 4]>,
+    /// Hidden body parts scored against the robot-free renders (maps runs on data that has
+    /// them).
+    #[serde(default)]
+    pub occlusion: Option<OcclusionScores>,
 }
 
 /// Datasets and trained networks shared by the jobs of one process.
@@ -129,6 +134,9 @@ fn truncated(seq: &Sequence, steps: Option<usize>) -> Sequence {
     let mut s = seq.clone();
     let per_step = |len: usize| len / seq.len().max(1);
     s.images.truncate(steps * per_step(seq.images.len()));
+    if let Some(hidden) = s.images_without_robot.as_mut() {
+        hidden.truncate(steps * per_step(seq.images.len()));
+    }
     s.joints.truncate(steps * per_step(seq.joints.len()));
     s.torques.truncate(steps * per_step(seq.torques.len()));
     s.subtask.truncate(steps);
@@ -540,7 +548,7 @@ fn infer(
     );
     let data = dataset.observations(&[&seq], &config)?;
     let settings = job_settings(&plan.design, &config, *trial, *vision_levels, *proprio);
-    let mut inference = OnlineInference::new(model, settings)?;
+    let mut inference = OnlineInference::new(model.clone(), settings)?;
     if *maps {
         inference
             .set_readout_ablations(ModuleId::ALL.iter().map(|m| Ablation::of(&[*m])).collect());
@@ -555,11 +563,28 @@ fn infer(
     let mut sigma_change = [0.0; 4];
     let mut previous: Option<([Vec<f32>; 4], Vec<f32>)> = None;
     let mut executive_change = Vec::new();
+    // Occlusion: the run's robot-free inputs and the scorer, where the data has them.
+    let mut occlusion = match seq.without_robot().filter(|_| *maps) {
+        Some(hidden) => {
+            let truth = dataset.observations(&[&hidden], &config)?;
+            let mean = pvrnn_eval::evaluate::learning_mean(&dataset, &model)?;
+            Some((truth, OcclusionScorer::new(mean[0][top.0..top.1].to_vec())))
+        }
+        None => None,
+    };
     let steps = seq.len();
     for t in 0..steps {
         let x = data.step(pvrnn_core::Modality::Exteroceptive, 0, t);
         let p = data.step(pvrnn_core::Modality::Proprioceptive, 0, t);
         let out = inference.step(x, p)?;
+        if let Some((truth, scorer)) = occlusion.as_mut() {
+            let truth = truth.step(pvrnn_core::Modality::Exteroceptive, 0, t);
+            scorer.step(
+                &x[top.0..top.1],
+                &truth[top.0..top.1],
+                &out.recon[0][top.0..top.1],
+            );
+        }
         for level in 0..levels {
             let (a, b) = (layout.level_offset(level), layout.level_offset(level + 1));
             *sums
@@ -637,6 +662,7 @@ fn infer(
                     / maps_mean[m].len().max(1) as f64
             })
         }),
+        occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
     };
     let mut tensors = BTreeMap::new();
     if *maps {

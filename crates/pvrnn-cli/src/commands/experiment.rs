@@ -88,9 +88,7 @@ pub fn run(a: Args) -> Result<()> {
         };
         let mut plan = Plan::new(experiment, scale, dataset, a.reuse.as_deref())?;
         if let Some(dir) = &a.networks {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("cannot create {}", dir.display()))?;
-            plan.networks_dir = Some(std::fs::canonicalize(dir)?);
+            plan.claim_networks_dir(dir)?;
         }
         plan.save(&a.out)?;
         eprintln!(

@@ -29,6 +29,17 @@ pub struct Args {
     /// Bed heights in mm (paper: 590, 650, 710).
     #[arg(long, value_delimiter = ',', default_values_t = caresim::BED_HEIGHTS_MM)]
     heights: Vec<u32>,
+    /// How much trials of a task differ: `paper` (wiping varies more than repositioning),
+    /// `matched` (wiping shrunk to repositioning's trajectory spread: the control for the
+    /// uncertainty and interference experiments), or factors such as
+    /// `repositioning=1,wiping=0.5` (0 = every trial nominal, 1 = paper, at most 2).
+    #[arg(long, default_value = "paper", value_parser = caresim::Variability::parse)]
+    variability: caresim::Variability,
+    /// Also render every test frame without the robot (stored as `images_without_robot` in
+    /// the test sequences' files), so that the hierarchy experiment can score what the
+    /// model makes of body parts the arms hide. About a quarter more simulation time.
+    #[arg(long)]
+    robot_free: bool,
     /// Skip the contact sheets and animations.
     #[arg(long)]
     no_previews: bool,
@@ -53,6 +64,7 @@ pub fn run(a: Args) -> Result<()> {
         bed_heights_mm: a.heights.clone(),
         learn_per_height: a.learn_per_height,
         test_per_height: a.test_per_height,
+        variability: a.variability,
     };
     let trials = spec.trials();
     anyhow::ensure!(
@@ -64,14 +76,25 @@ pub fn run(a: Args) -> Result<()> {
     let sequences: Vec<_> = trials
         .par_iter()
         .map(|trial| {
-            let (seq, _) = caresim::simulate(trial);
+            let robot_free = a.robot_free && trial.split == pvrnn_dataset::Split::Test;
+            let (seq, _) = caresim::simulate_with(trial, robot_free);
             bar.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
             seq
         })
         .collect();
     bar.finish();
+    // The default source text stays as it was (the trained models' data is byte-identical).
+    let source = if a.variability == caresim::Variability::PAPER {
+        format!("caresim (seed {})", a.seed)
+    } else {
+        format!(
+            "caresim (seed {}, variability {})",
+            a.seed,
+            a.variability.describe()
+        )
+    };
     let dataset = Dataset::new(
-        &format!("caresim (seed {})", a.seed),
+        &source,
         vec!["left".into(), "right".into()],
         caresim::IMAGE_SIZE,
         sequences,

@@ -819,6 +819,12 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
         md.contains("# Experiment: uncertainty (smoke scale)") && md.contains("paired t-tests"),
         "{md}"
     );
+    // The networks' logs have `pvrnn train`'s columns (terms per modality and module).
+    let log = std::fs::read_to_string(x.path("unc/networks/smoke-train-net0.log.csv")).unwrap();
+    assert!(
+        log.starts_with(pvrnn_eval::training_log::HEADER) && log.lines().count() > 2,
+        "{log}"
+    );
     let before = std::fs::metadata(x.path("unc/networks/smoke-train-net0.safetensors"))
         .unwrap()
         .modified()

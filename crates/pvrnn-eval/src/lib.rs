@@ -13,6 +13,7 @@
 //! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
 //!   images), and training curves from a training log.
 //! - [`progress`]: error against training iterations, from several evaluations.
+//! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
 
 pub mod evaluate;
 pub mod groups;
@@ -20,6 +21,7 @@ pub mod metrics;
 pub mod plots;
 pub mod progress;
 pub mod report;
+pub mod training_log;
 
 use std::path::Path;
 

@@ -4,8 +4,8 @@
 //! again continues where a killed run stopped.
 
 use std::collections::{BTreeMap, HashMap};
-use std::io::Write;
-use std::path::{Path, PathBuf};
+
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -17,6 +17,8 @@ use pvrnn_core::train::Trainer;
 use pvrnn_core::{Ablation, Model, ModelConfig, ModuleId, NoiseMode, Observed};
 use pvrnn_dataset::{Dataset, Sequence, proprio_ranges};
 use serde::{Deserialize, Serialize};
+
+use pvrnn_eval::training_log::{self, TrainingLog};
 
 use crate::occlusion::{OcclusionScorer, OcclusionScores};
 use crate::plan::{Design, JobKind, Plan};
@@ -281,12 +283,7 @@ fn run_job(
     Ok(())
 }
 
-const LOG_HEADER: &str = "iteration,total,seconds";
-
-/// The training log beside a checkpoint (`net.safetensors` -> `net.log.csv`).
-pub fn log_path(checkpoint: &Path) -> PathBuf {
-    checkpoint.with_extension("log.csv")
-}
+pub use pvrnn_eval::training_log::path_for as log_path;
 
 /// Relative change of the mean of the last tenth of `values` against the tenth before.
 pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
@@ -299,23 +296,6 @@ pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
     let before = mean(&values[n - 2 * tenth..n - tenth]);
     let last = mean(&values[n - tenth..]);
     (before != 0.0).then(|| (last - before) / before.abs())
-}
-
-/// Free energy per iteration from a log (this crate's or `pvrnn train`'s: iteration, total,
-/// ...), up to `iterations`.
-fn log_totals(path: &Path, iterations: u64) -> Vec<f64> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Vec::new();
-    };
-    text.lines()
-        .skip(1)
-        .filter_map(|line| {
-            let mut fields = line.split(',');
-            let it: u64 = fields.next()?.parse().ok()?;
-            let total: f64 = fields.next()?.parse().ok()?;
-            (it < iterations).then_some(total)
-        })
-        .collect()
 }
 
 fn train(
@@ -362,7 +342,7 @@ fn train(
             source.with_file_name(format!("{run_stem}.log.csv")),
         ]
         .iter()
-        .map(|p| log_totals(p, *iterations))
+        .map(|p| training_log::totals(p, *iterations))
         .find(|t| !t.is_empty())
         .unwrap_or_default();
         return write_train_result(
@@ -402,38 +382,11 @@ fn train(
     };
     let data = dataset.observations(&chosen_refs, &trainer.model.config)?;
     pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
-    // Keep the log rows the checkpoint covers.
-    let mut kept = String::from(LOG_HEADER);
-    kept.push('\n');
-    let mut seconds_before = 0.0;
-    if let Ok(text) = std::fs::read_to_string(&log) {
-        for line in text.lines().skip(1) {
-            let mut f = line.split(',');
-            if f.next()
-                .and_then(|v| v.parse::<u64>().ok())
-                .is_some_and(|i| i < trainer.iteration)
-            {
-                seconds_before = f
-                    .nth(1)
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(seconds_before);
-                kept.push_str(line);
-                kept.push('\n');
-            }
-        }
-    }
-    io::write_atomic(&log, kept.as_bytes())?;
-    let mut log_file = std::fs::OpenOptions::new().append(true).open(&log)?;
-    let start = Instant::now();
+    let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
     while trainer.iteration < *iterations {
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
-        writeln!(
-            log_file,
-            "{it},{},{:.3}",
-            report.total,
-            seconds_before + start.elapsed().as_secs_f64()
-        )?;
+        log_file.append(it, &report)?;
         events(Event::Training {
             id,
             done: trainer.iteration,
@@ -452,15 +405,8 @@ fn train(
             return Err(Interrupted.into());
         }
     }
-    let totals = log_totals(&log, *iterations);
-    let seconds = std::fs::read_to_string(&log)
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .last()
-                .and_then(|l| l.rsplit(',').next()?.parse().ok())
-        })
-        .unwrap_or(0.0);
+    let totals = training_log::totals(&log, *iterations);
+    let seconds = training_log::seconds(&log).unwrap_or(0.0);
     write_train_result(
         plan,
         dir,

@@ -1,8 +1,6 @@
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use pvrnn_core::train::Trainer;
@@ -10,6 +8,7 @@ use pvrnn_core::{FreeEnergy, NoiseMode, io};
 
 use crate::{inputs, util};
 use pvrnn_dataset::Split;
+use pvrnn_eval::training_log::TrainingLog;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -55,9 +54,7 @@ pub struct Args {
     overwrite: bool,
 }
 
-pub fn log_path(out: &Path) -> PathBuf {
-    out.with_extension("log.csv")
-}
+pub use pvrnn_eval::training_log::path_for as log_path;
 
 /// Where `--keep-every` keeps the checkpoint of `iteration`: `run.safetensors` ->
 /// `run.iter10000.safetensors`.
@@ -66,33 +63,6 @@ pub fn kept_path(out: &Path, iteration: u64) -> PathBuf {
         .file_stem()
         .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
     out.with_file_name(format!("{stem}.iter{iteration}.safetensors"))
-}
-
-/// `seconds`: wall time of the run so far, summed over resumed runs.
-const LOG_HEADER: &str = "iteration,total,accuracy_exteroceptive,accuracy_proprioceptive,complexity_executive,complexity_associative,complexity_exteroceptive,complexity_proprioceptive,seconds";
-
-/// Keeps the log rows of iterations before `iteration` (later rows were not checkpointed)
-/// and returns the `seconds` of the last kept row, so a resumed run's clock continues.
-fn truncate_log(path: &Path, iteration: u64) -> Result<f64> {
-    let mut kept = String::from(LOG_HEADER);
-    kept.push('\n');
-    let mut seconds = 0.0;
-    if let Ok(text) = std::fs::read_to_string(path) {
-        for line in text.lines().skip(1) {
-            let it: Option<u64> = line.split(',').next().and_then(|s| s.parse().ok());
-            if it.is_some_and(|i| i < iteration) {
-                kept.push_str(line);
-                kept.push('\n');
-                seconds = line
-                    .rsplit(',')
-                    .next()
-                    .and_then(|s| s.parse().ok())
-                    .unwrap_or(seconds);
-            }
-        }
-    }
-    io::write_atomic(path, kept.as_bytes())?;
-    Ok(seconds)
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -137,11 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         .iterations
         .unwrap_or(trainer.model.config.train.iterations);
     let log = log_path(&a.out);
-    let seconds_before = truncate_log(&log, trainer.iteration)?;
-    let mut log_file = std::fs::OpenOptions::new()
-        .append(true)
-        .open(&log)
-        .with_context(|| format!("{}: cannot open log", log.display()))?;
+    let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {
@@ -152,23 +118,11 @@ pub fn run(a: Args) -> Result<()> {
 
     let bar = util::progress(total, "train");
     bar.set_position(trainer.iteration);
-    let start = Instant::now();
     let mut last: Option<FreeEnergy> = None;
     while trainer.iteration < total {
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
-        writeln!(
-            log_file,
-            "{it},{},{},{},{},{},{},{},{:.3}",
-            report.total,
-            report.accuracy.exteroceptive,
-            report.accuracy.proprioceptive,
-            report.complexity.executive,
-            report.complexity.associative,
-            report.complexity.exteroceptive,
-            report.complexity.proprioceptive,
-            seconds_before + start.elapsed().as_secs_f64()
-        )?;
+        log_file.append(it, &report)?;
         last = Some(report);
         bar.set_position(trainer.iteration);
         bar.set_message(format!("F {:.4}", report.total));

@@ -15,6 +15,9 @@ cargo fmt --all -- --check
 step "cargo clippy"
 cargo clippy --workspace --all-targets -- -D warnings
 
+step "cargo clippy for WebAssembly (the explorer's web code)"
+cargo clippy -p pvrnn-explorer --target wasm32-unknown-unknown --all-targets -- -D warnings
+
 step "native tests"
 cargo test --workspace
 

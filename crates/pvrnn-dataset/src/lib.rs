@@ -35,8 +35,10 @@ pub use inputs::{Selection, proprio_ranges};
 /// Manifest format identifier.
 pub const FORMAT: &str = "pvrnn-dataset/1";
 pub const MANIFEST: &str = "dataset.json";
+/// Joint angles per step (two 7-joint arms); as many torques follow them.
+pub const JOINTS: usize = 14;
 /// Joint angles and torques per step.
-pub const PROPRIO_DIMS: usize = 28;
+pub const PROPRIO_DIMS: usize = 2 * JOINTS;
 
 /// Names of the 14 joints, left arm then right arm.
 pub fn joint_names() -> Vec<String> {

@@ -14,6 +14,7 @@ use crate::bundle::Bundle;
 use crate::images::{self, Rgb};
 use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
+use pvrnn_dataset::JOINTS;
 
 /// Time given to online inference per frame.
 const COMPUTE_BUDGET: Duration = Duration::from_millis(14);
@@ -129,36 +130,13 @@ impl ExplorerApp {
         if !self.last_hash.is_empty() {
             self.view = ViewState::from_hash(&self.last_hash, &self.view, standard);
         }
-        let valid = self
-            .view
-            .sequence
-            .as_ref()
-            .is_some_and(|s| bundle.dataset.by_name(s).is_some());
-        if !valid {
-            if self.view.sequence.is_some() {
-                self.view.t = 0;
-            }
-            self.view.sequence = bundle
-                .dataset
-                .sequences
-                .first()
-                .map(|s| s.info.name.clone());
-        }
-        let len = self
-            .view
-            .sequence
-            .as_ref()
-            .and_then(|s| bundle.dataset.by_name(s))
-            .map_or(1, |s| s.len());
-        self.view.t = self.view.t.min(len.saturating_sub(1));
-        if let Some(c) = &mut self.view.condition {
-            c.vision_levels = c
-                .vision_levels
-                .min(bundle.model.config.vision.resolutions.len() as u8);
-        }
+        let notes = self.view.sanitize(&bundle);
         self.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
-        self.status = Status::Info(if bundle.description.is_empty() {
+        let notes: Vec<String> = bundle.notes.iter().cloned().chain(notes).collect();
+        self.status = Status::Info(if !notes.is_empty() {
+            notes.join("; ")
+        } else if bundle.description.is_empty() {
             format!("{} sequences", bundle.dataset.sequences.len())
         } else {
             bundle.description.clone()
@@ -168,6 +146,27 @@ impl ExplorerApp {
 
     pub fn view(&self) -> &ViewState {
         &self.view
+    }
+
+    /// Shows the view a URL hash describes (as the web page does when its hash changes).
+    pub fn apply_hash(&mut self, hash: &str) {
+        let Some(b) = &self.bundle else {
+            self.last_hash = hash.to_string();
+            return;
+        };
+        self.view = ViewState::from_hash(hash, &self.view, Condition::standard(&b.model.config));
+        self.units_text = format_units(&self.view.units);
+        self.sanitize_view();
+    }
+
+    /// Keeps the view within what the bundle can show; says what it changed.
+    fn sanitize_view(&mut self) {
+        if let Some(b) = &self.bundle {
+            let notes = self.view.sanitize(b);
+            if !notes.is_empty() {
+                self.status = Status::Info(notes.join("; "));
+            }
+        }
     }
     pub fn view_mut(&mut self) -> &mut ViewState {
         &mut self.view
@@ -255,8 +254,14 @@ impl ExplorerApp {
             return false;
         };
         let model = bundle.model.clone();
-        self.store
-            .work(&model, budget, &mut |name| bundle.observations(name))
+        let worked = self
+            .store
+            .work(&model, budget, &mut |name| bundle.observations(name));
+        let notes = self.store.take_notes();
+        if !notes.is_empty() {
+            self.status = Status::Info(notes.join("; "));
+        }
+        worked
     }
 
     /// Handles files dropped on the window: a bundle, a model, a dataset, runs.
@@ -300,6 +305,7 @@ impl ExplorerApp {
             egui::CentralPanel::default().show(ui, |ui| self.empty_ui(ui));
             return;
         }
+        self.sanitize_view();
         self.keyboard(&ctx);
         self.advance_playback(dt);
         // Inline runs advance only while frames are drawn; a worker's results repaint when
@@ -485,7 +491,7 @@ impl ExplorerApp {
             ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
                 .labelled_by(l.id);
             let l = ui.label("lr");
-            let mut lr = c.lr_milli as f64 / 1000.0;
+            let mut lr = c.lr();
             if ui
                 .add(
                     egui::DragValue::new(&mut lr)
@@ -495,7 +501,7 @@ impl ExplorerApp {
                 .labelled_by(l.id)
                 .changed()
             {
-                c.lr_milli = (lr * 1000.0).round().max(1.0) as u32;
+                c.set_lr(lr);
             }
             let l = ui.label("seed");
             ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
@@ -1114,10 +1120,12 @@ impl ExplorerApp {
         ui.heading("Proprioception");
         ui.weak("actual solid, predicted (posterior reconstruction) dashed; left arm warm colours, right arm cool");
         let norm = bundle.model.config.normalisation.clone();
+        // Bundle::new checked that the model's proprioception is the data's.
+        let dims = bundle.model.config.proprio_dims;
         let raw_pred = |values: &[f32], dim: usize| -> Vec<[f64; 2]> {
             (0..trace.steps)
                 .map(|s| {
-                    let v = values[s * 28 + dim] as f64;
+                    let v = values[s * dims + dim] as f64;
                     [
                         s as f64,
                         norm.as_ref().map_or(v, |n| n.proprio_from_model(dim, v)),
@@ -1125,9 +1133,9 @@ impl ExplorerApp {
                 })
                 .collect()
         };
-        for (title, offset) in [("joint angles (rad)", 0usize), ("torques (N m)", 14usize)] {
+        for (title, offset) in [("joint angles (rad)", 0), ("torques (N m)", JOINTS)] {
             let mut lines = Vec::new();
-            for j in 0..14 {
+            for j in 0..JOINTS {
                 let dim = offset + j;
                 let colour = arm_colour(j);
                 let actual: Vec<[f64; 2]> = (0..len)
@@ -1275,14 +1283,7 @@ impl ExplorerApp {
             let current = current.trim_start_matches('#').to_string();
             if current != self.last_hash.trim_start_matches('#') && self.bundle.is_some() {
                 // Edited by the user (or the back button): follow it.
-                if let Some(b) = &self.bundle {
-                    self.view = ViewState::from_hash(
-                        &current,
-                        &self.view,
-                        Condition::standard(&b.model.config),
-                    );
-                    self.units_text = format_units(&self.view.units);
-                }
+                self.apply_hash(&current);
                 self.last_hash = current;
                 return;
             }
@@ -1313,7 +1314,7 @@ pub fn condition_label(c: &Condition) -> String {
         },
         c.window,
         c.iterations,
-        c.lr_milli as f64 / 1000.0,
+        c.lr(),
         c.seed
     )
 }

@@ -58,6 +58,8 @@ pub struct Bundle {
     pub dataset: Dataset,
     /// Runs computed in advance (e.g. by `pvrnn bundle`).
     pub precomputed: Vec<(RunKey, RunTrace)>,
+    /// What loading it left out and why (shown in the status line).
+    pub notes: Vec<String>,
     observations: HashMap<String, Arc<Observations<f32>>>,
 }
 
@@ -84,6 +86,15 @@ impl Bundle {
         }
         check_layout(&dataset.manifest, &model.config.vision)
             .map_err(|e| format!("the model does not fit the dataset: {e}"))?;
+        if model.config.proprio_dims != pvrnn_dataset::PROPRIO_DIMS {
+            return Err(format!(
+                "the model does not fit the dataset: it has {} proprioceptive dimensions, the data {} ({} joint angles and {} torques)",
+                model.config.proprio_dims,
+                pvrnn_dataset::PROPRIO_DIMS,
+                pvrnn_dataset::JOINTS,
+                pvrnn_dataset::JOINTS
+            ));
+        }
         if model.config.normalisation.is_none() {
             let learn = dataset.select(&Selection::Split(Split::Learn)).map_err(|_| {
                 "the model has no proprioception ranges and the dataset has no learning sequences to take them from".to_string()
@@ -96,32 +107,49 @@ impl Bundle {
             model: Arc::new(model),
             dataset,
             precomputed: Vec::new(),
+            notes: Vec::new(),
             observations: HashMap::new(),
         })
     }
 
-    /// Adds runs from a runs file; runs of unknown sequences or conditions are skipped.
+    /// Adds runs from a runs file. Runs that cannot be shown (an unknown sequence, a
+    /// condition the explorer cannot express, a length that differs from the sequence's) are
+    /// skipped, and a note says which and why.
     pub fn add_runs(&mut self, bytes: Vec<u8>, what: &str) -> Result<usize, String> {
         let file = TensorFile::from_bytes(bytes, what).map_err(|e| e.to_string())?;
         let runs = io::load_runs(&file, &self.model.config).map_err(|e| e.to_string())?;
         let mut added = 0;
-        for loaded in runs {
-            let name = loaded.name.or_else(|| {
+        let mut skipped = Vec::new();
+        for (index, loaded) in runs.into_iter().enumerate() {
+            let name = loaded.name.clone().or_else(|| {
                 self.dataset
                     .sequences
                     .get(loaded.sequence)
                     .map(|s| s.info.name.clone())
             });
-            let (Some(name), Some(condition)) = (
-                name,
-                Condition::of(&loaded.run.settings, &self.model.config),
-            ) else {
+            let Some(name) = name else {
+                skipped.push(format!(
+                    "run {index}: sequence {} is not in the data",
+                    loaded.sequence
+                ));
                 continue;
             };
             let Some(seq) = self.dataset.by_name(&name) else {
+                skipped.push(format!("run {index}: no sequence `{name}` in the data"));
+                continue;
+            };
+            let Some(condition) = Condition::of(&loaded.run.settings, &self.model.config) else {
+                skipped.push(format!(
+                    "run {index} ({name}): its settings (e.g. noise off) are not a condition the explorer can show"
+                ));
                 continue;
             };
             if seq.len() != loaded.run.steps() {
+                skipped.push(format!(
+                    "run {index} ({name}): {} steps, the sequence has {}",
+                    loaded.run.steps(),
+                    seq.len()
+                ));
                 continue;
             }
             let trace = RunTrace::from_run(&loaded.run, &self.model);
@@ -133,6 +161,14 @@ impl Bundle {
                 trace,
             ));
             added += 1;
+        }
+        if !skipped.is_empty() {
+            self.notes.push(format!(
+                "{what}: {} of {} runs skipped: {}",
+                skipped.len(),
+                skipped.len() + added,
+                skipped.join("; ")
+            ));
         }
         Ok(added)
     }

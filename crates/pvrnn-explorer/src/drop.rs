@@ -1,6 +1,6 @@
 //! Files a user drops on the window: a bundle, a model, a dataset, runs, in any mix.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_dataset::Dataset;
@@ -62,21 +62,30 @@ fn kind(file: &TensorFile) -> &'static str {
 /// Builds what to show from dropped files, keeping the parts of `current` they do not
 /// replace. Every message names the file that does not fit.
 pub fn assemble(files: Vec<DroppedFile>, current: Option<&Bundle>) -> Result<Bundle, String> {
-    let mut bytes: HashMap<String, Vec<u8>> = HashMap::new();
+    // Sorted by name, so what is read and what an error names never depend on hash order.
+    let mut bytes: BTreeMap<String, Vec<u8>> = BTreeMap::new();
     for (name, data) in files {
         bytes.insert(name.clone(), data.map_err(|e| format!("{name}: {e}"))?);
     }
     if bytes.contains_key(BUNDLE_MANIFEST) {
-        return Bundle::from_files(&bytes);
+        return Bundle::from_files(&bytes.into_iter().collect());
     }
-    let mut model = None;
+    let mut model: Option<(String, _)> = None;
     let mut runs = Vec::new();
     for (name, data) in &bytes {
         if name.ends_with(".safetensors") {
             let file =
                 TensorFile::from_bytes(data.clone(), name.as_str()).map_err(|e| e.to_string())?;
             match kind(&file) {
-                "model" => model = Some(io::model_from_file(&file).map_err(|e| e.to_string())?),
+                "model" => {
+                    if let Some((first, _)) = &model {
+                        return Err(format!(
+                            "{first} and {name} are both models: drop one model at a time"
+                        ));
+                    }
+                    let m = io::model_from_file(&file).map_err(|e| e.to_string())?;
+                    model = Some((name.clone(), m));
+                }
                 "runs" => runs.push(name.clone()),
                 "sequence" => {}
                 _ => {
@@ -104,7 +113,7 @@ pub fn assemble(files: Vec<DroppedFile>, current: Option<&Bundle>) -> Result<Bun
             .ok_or("drop a dataset folder (dataset.json and its sequence files) too")?,
     };
     let model = match model {
-        Some(m) => m,
+        Some((_, m)) => m,
         None => current
             .map(|b| (*b.model).clone())
             .ok_or("drop a model file (.safetensors) too")?,

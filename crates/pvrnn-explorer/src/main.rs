@@ -100,9 +100,12 @@ fn main() {
             loading.remove();
         }
         match result {
-            // The page's event handlers keep the app running.
-            Ok(_runner) => {}
-            Err(e) => pvrnn_explorer::web::log(&e),
+            // The page's event handlers keep the app running; a panic shows over the page.
+            Ok(_handle) => {}
+            Err(e) => {
+                pvrnn_explorer::web::log(&e);
+                pvrnn_explorer::web::show_panic(&e, "");
+            }
         }
     };
     wasm_bindgen_futures::spawn_local(start);

@@ -30,8 +30,9 @@ pub struct Condition {
     /// H.
     pub window: u16,
     pub iterations: u16,
-    /// Inference learning rate in thousandths (an integer so conditions can be keys).
-    pub lr_milli: u32,
+    /// The inference learning rate's bits: exact (a rate such as 0.0905 must not round to
+    /// another), and hashable so conditions can be keys. See [`Condition::lr`].
+    pub lr_bits: u64,
     pub seed: u32,
 }
 
@@ -45,7 +46,7 @@ impl Condition {
             ablation_mode: AblationMode::default(),
             window: config.inference.window as u16,
             iterations: config.inference.iterations as u16,
-            lr_milli: (config.inference.optimizer.lr * 1000.0).round() as u32,
+            lr_bits: config.inference.optimizer.lr.to_bits(),
             seed: 0,
         }
     }
@@ -60,7 +61,7 @@ impl Condition {
         s.ablation_mode = self.ablation_mode;
         s.window = (self.window as usize).max(1);
         s.iterations = self.iterations as usize;
-        s.optimizer.lr = (self.lr_milli.max(1) as f64) / 1000.0;
+        s.optimizer.lr = self.lr();
         s.canonical()
     }
 
@@ -90,10 +91,19 @@ impl Condition {
             ablation_mode: settings.ablation_mode,
             window: settings.window as u16,
             iterations: settings.iterations as u16,
-            lr_milli: (settings.optimizer.lr * 1000.0).round() as u32,
+            lr_bits: settings.optimizer.lr.to_bits(),
             seed,
         };
         (c.settings(config) == settings.clone().canonical()).then_some(c.canonical())
+    }
+
+    /// The inference learning rate.
+    pub fn lr(&self) -> f64 {
+        f64::from_bits(self.lr_bits)
+    }
+
+    pub fn set_lr(&mut self, lr: f64) {
+        self.lr_bits = lr.to_bits();
     }
 
     /// The same condition (and ablation mode) with exactly one module ablated.
@@ -298,6 +308,8 @@ pub struct RunStore {
     executor_model: Option<Arc<Model<f32>>>,
     provided: HashSet<String>,
     running: Option<(RunKey, usize)>,
+    /// What the user should know about how runs are computed (e.g. a failed worker).
+    notes: Vec<String>,
 }
 
 impl std::fmt::Debug for RunStore {
@@ -312,6 +324,11 @@ impl std::fmt::Debug for RunStore {
 }
 
 impl RunStore {
+    /// Notes since the last call, for the status line.
+    pub fn take_notes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notes)
+    }
+
     pub fn with_executor(executor: Executor) -> Self {
         Self {
             executor,
@@ -401,6 +418,9 @@ impl RunStore {
             self.executor = Executor::default();
             self.restart_executor();
             note_fallback(&reason);
+            self.notes.push(format!(
+                "live runs compute in the page: the worker failed ({reason})"
+            ));
         }
         if !self
             .executor_model

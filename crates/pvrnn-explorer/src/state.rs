@@ -1,7 +1,8 @@
 //! The view state (sequence, time, conditions, selected units, what is shown), and its
 //! text form in the URL hash so a view can be shared and reopened, e.g.
-//! `#seq=wiping_650mm_test0&t=120&vision=1&proprio=1&ablate=1000&H=30&iter=50&lr=1000&seed=0&units=0-14`.
+//! `#seq=wiping_650mm_test0&t=120&vision=1&proprio=1&ablate=1000&H=30&iter=50&lr=0.09&seed=0&units=0-14`.
 
+use crate::bundle::Bundle;
 use crate::runs::Condition;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -114,6 +115,56 @@ pub fn parse_units(text: &str) -> Option<Vec<usize>> {
 }
 
 impl ViewState {
+    /// Makes the view one the bundle can show, whatever it came from (a URL hash, `--view`,
+    /// a new bundle, the controls): an unknown sequence becomes the first one, time and the
+    /// observed vision levels are clamped. Returns what was changed, for the status line.
+    pub fn sanitize(&mut self, bundle: &Bundle) -> Vec<String> {
+        let mut notes = Vec::new();
+        let known = self
+            .sequence
+            .as_ref()
+            .is_some_and(|s| bundle.dataset.by_name(s).is_some());
+        if !known {
+            let first = bundle
+                .dataset
+                .sequences
+                .first()
+                .map(|s| s.info.name.clone());
+            if let Some(unknown) = &self.sequence {
+                notes.push(format!(
+                    "no sequence `{unknown}` in this model's data: showing `{}`",
+                    first.as_deref().unwrap_or("none")
+                ));
+                self.t = 0;
+            }
+            self.sequence = first;
+        }
+        let len = self
+            .sequence
+            .as_ref()
+            .and_then(|s| bundle.dataset.by_name(s))
+            .map_or(1, |s| s.len());
+        if self.t >= len {
+            notes.push(format!(
+                "time {} is past the sequence's end: showing its last step, {}",
+                self.t,
+                len - 1
+            ));
+            self.t = len - 1;
+        }
+        let levels = bundle.model.config.vision.resolutions.len();
+        if let Some(c) = &mut self.condition
+            && c.vision_levels as usize > levels
+        {
+            notes.push(format!(
+                "vision levels {} asked for, the model has {levels}: observing all",
+                c.vision_levels
+            ));
+            c.vision_levels = levels as u8;
+        }
+        notes
+    }
+
     /// The hash text (without `#`).
     pub fn to_hash(&self) -> String {
         let mut parts = Vec::new();
@@ -134,7 +185,7 @@ impl ViewState {
             parts.push(format!("amode={}", c.ablation_mode.name()));
             parts.push(format!("H={}", c.window));
             parts.push(format!("iter={}", c.iterations));
-            parts.push(format!("lr={}", c.lr_milli));
+            parts.push(format!("lr={}", c.lr()));
             parts.push(format!("seed={}", c.seed));
         }
         parts.push(format!("units={}", format_units(&self.units)));
@@ -210,8 +261,12 @@ impl ViewState {
                     }
                 }
                 "lr" => {
-                    if let Some(n) = num().filter(|&n| (1..=1_000_000).contains(&n)) {
-                        c.lr_milli = n as u32;
+                    if let Some(lr) = value
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|lr| *lr > 0.0 && *lr <= 100.0)
+                    {
+                        c.set_lr(lr);
                         condition_given = true;
                     }
                 }
@@ -248,6 +303,8 @@ mod tests {
         c.ablation_mode = pvrnn_core::AblationMode::Inference;
         c.iterations = 20;
         c.seed = 7;
+        // A rate that no fixed number of decimals holds survives exactly.
+        c.set_lr(0.0905 / 3.0);
         let v = ViewState {
             sequence: Some("wiping 650/test#0".into()),
             t: 123,

@@ -11,13 +11,100 @@ use crate::app::Status;
 use crate::bundle::{BUNDLE_MANIFEST, Bundle, BundleManifest};
 use crate::drop::DroppedFile;
 
-/// The web entry: starts `make`'s app on `canvas` (following URL hash changes) and returns
-/// the runner once the first frame is set up. `main` passes the page's canvas and the
-/// default bundle; the browser tests pass their own.
+/// The running web app, as egui's and rerun's web entries hand it out: the runner, and
+/// whether (and why) the app panicked.
+#[derive(Clone)]
+pub struct WebHandle {
+    runner: eframe::WebRunner,
+}
+
+impl std::fmt::Debug for WebHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WebHandle")
+            .field("has_panicked", &self.has_panicked())
+            .finish()
+    }
+}
+
+impl WebHandle {
+    pub fn runner(&self) -> &eframe::WebRunner {
+        &self.runner
+    }
+    pub fn has_panicked(&self) -> bool {
+        self.runner.has_panicked()
+    }
+    pub fn panic_message(&self) -> Option<String> {
+        self.runner.panic_summary().map(|p| p.message())
+    }
+    pub fn panic_callstack(&self) -> Option<String> {
+        self.runner.panic_summary().map(|p| p.callstack())
+    }
+}
+
+/// Element id of the message shown over the page after a panic.
+pub const PANIC_ELEMENT_ID: &str = "explorer-panic";
+
+/// Shows a panic over the page instead of a frozen canvas: what happened, and what to do.
+pub fn show_panic(message: &str, callstack: &str) {
+    let Some(document) = web_sys::window().and_then(|w| w.document()) else {
+        return;
+    };
+    if document.get_element_by_id(PANIC_ELEMENT_ID).is_some() {
+        return;
+    }
+    let Ok(div) = document.create_element("div") else {
+        return;
+    };
+    div.set_id(PANIC_ELEMENT_ID);
+    let _ = div.set_attribute(
+        "style",
+        "position:absolute;inset:0;overflow:auto;padding:2em;background:#1b1b1bee;color:#eee;\
+         font:15px sans-serif;z-index:10;white-space:pre-wrap",
+    );
+    div.set_text_content(Some(&format!(
+        "The explorer stopped with an error:\n\n{message}\n\nReload the page to start again. \
+         If it happens again, please report it with this text.\n\n{callstack}"
+    )));
+    if let Some(body) = document.body() {
+        let _ = body.append_child(&div);
+    }
+}
+
+/// Checks twice a second whether the app panicked, and shows it when it has.
+fn watch_for_panic(handle: WebHandle) {
+    let Some(window) = web_sys::window() else {
+        return;
+    };
+    let id = Rc::new(RefCell::new(None::<i32>));
+    let id_in = id.clone();
+    let check = Closure::<dyn FnMut()>::new(move || {
+        if handle.has_panicked() {
+            show_panic(
+                &handle.panic_message().unwrap_or_default(),
+                &handle.panic_callstack().unwrap_or_default(),
+            );
+            if let (Some(w), Some(id)) = (web_sys::window(), *id_in.borrow()) {
+                w.clear_interval_with_handle(id);
+            }
+        }
+    });
+    if let Ok(handle) = window
+        .set_interval_with_callback_and_timeout_and_arguments_0(check.as_ref().unchecked_ref(), 500)
+    {
+        *id.borrow_mut() = Some(handle);
+    }
+    // Lives as long as the page.
+    check.forget();
+}
+
+/// The web entry: starts `make`'s app on `canvas` (following URL hash changes, and showing a
+/// panic over the page should one happen) and returns its handle once the first frame is
+/// set up. `main` passes the page's canvas and the default bundle; the browser tests pass
+/// their own.
 pub async fn start(
     canvas: web_sys::HtmlCanvasElement,
     make: impl FnOnce(&eframe::egui::Context) -> crate::ExplorerApp + 'static,
-) -> Result<eframe::WebRunner, String> {
+) -> Result<WebHandle, String> {
     let runner = eframe::WebRunner::new();
     runner
         .start(
@@ -30,7 +117,9 @@ pub async fn start(
         )
         .await
         .map_err(|e| format!("the explorer failed to start: {e:?}"))?;
-    Ok(runner)
+    let handle = WebHandle { runner };
+    watch_for_panic(handle.clone());
+    Ok(handle)
 }
 
 pub fn location_hash() -> String {

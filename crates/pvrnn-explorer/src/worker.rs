@@ -5,7 +5,9 @@
 //! page → worker: `model {generation, bytes}`, `observations {generation, name, steps,
 //! extero, proprio}`, `run {generation, key}`;
 //! worker → page: `ready`, `step {generation, key, data}`, `done {generation, key, steps,
-//! busy_ms, wall_ms}`, `failed {generation, key, message}`.
+//! busy_ms, wall_ms}`, `failed {generation, key, message}`, and `fatal {generation, message}`
+//! when the worker cannot go on (a command it cannot read, a message it cannot send): the
+//! page then computes in itself, and says why.
 //!
 //! Keys are [`RunKey`]s as JSON, steps are [`CompactStep::to_f32s`]. Messages carry the
 //! generation of the model they belong to, so results that were in flight when a new model
@@ -163,7 +165,14 @@ pub fn run_worker() -> Result<(), JsValue> {
         let events = s.engine.work(TICK);
         for e in &events {
             let (m, transfer) = event_message(e, s.generation);
-            let _ = tick_scope.post_message_with_transfer(&m, &transfer);
+            if let Err(err) = tick_scope.post_message_with_transfer(&m, &transfer) {
+                // A lost result would leave the page waiting for ever.
+                report_fatal(
+                    &tick_scope,
+                    s.generation,
+                    &format!("cannot send a result: {err:?}"),
+                );
+            }
         }
         if s.engine.running().is_some() {
             s.scheduled = true;
@@ -175,12 +184,13 @@ pub fn run_worker() -> Result<(), JsValue> {
         .set_onmessage(Some(tick.as_ref().unchecked_ref()));
     tick.forget();
 
+    let scope_for_errors = scope.clone();
     let on_message =
         Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
             let m = e.data();
             let mut s = side.borrow_mut();
             if let Err(err) = handle_command(&mut s, &m) {
-                crate::web::log(&format!("worker: {err}"));
+                report_fatal(&scope_for_errors, s.generation, &err);
             }
             if s.engine.running().is_some() && !s.scheduled {
                 s.scheduled = true;
@@ -190,6 +200,12 @@ pub fn run_worker() -> Result<(), JsValue> {
     scope.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
     on_message.forget();
     scope.post_message(&message("ready", 0, &[]))
+}
+
+/// Tells the page the worker cannot go on (and the console, in case that fails too).
+fn report_fatal(scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32, why: &str) {
+    crate::web::log(&format!("worker: {why}"));
+    let _ = scope.post_message(&message("fatal", generation, &[("message", why.into())]));
 }
 
 fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
@@ -261,18 +277,32 @@ impl WorkerClient {
         let worker = web_sys::Worker::new_with_options(url, &options)
             .map_err(|e| format!("cannot start {url}: {e:?}"))?;
         let side = Rc::new(RefCell::new(PageSide::default()));
+        let err_ctx = ctx.clone();
 
         let (msg_side, msg_worker) = (side.clone(), worker.clone());
         let on_message =
             Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
                 let m = e.data();
                 let mut s = msg_side.borrow_mut();
-                if field(&m, "kind").as_string().as_deref() == Some("ready") {
-                    s.ready = true;
-                    for (m, transfer) in std::mem::take(&mut s.pending) {
-                        let _ = msg_worker.post_message_with_transfer(&m, &transfer);
+                match field(&m, "kind").as_string().as_deref() {
+                    Some("ready") => {
+                        s.ready = true;
+                        for (m, transfer) in std::mem::take(&mut s.pending) {
+                            if let Err(e) = msg_worker.post_message_with_transfer(&m, &transfer) {
+                                s.failure = Some(format!("cannot message the worker: {e:?}"));
+                            }
+                        }
+                        return;
                     }
-                    return;
+                    Some("fatal") => {
+                        s.failure = Some(
+                            string_field(&m, "message")
+                                .unwrap_or_else(|_| "the worker stopped".into()),
+                        );
+                        ctx.request_repaint();
+                        return;
+                    }
+                    _ => {}
                 }
                 if field(&m, "generation").as_f64() != Some(s.generation as f64) {
                     return;
@@ -293,9 +323,17 @@ impl WorkerClient {
                 .dyn_ref::<web_sys::ErrorEvent>()
                 .map_or_else(|| "the worker failed".to_string(), |e| e.message());
             err_side.borrow_mut().failure = Some(text);
+            err_ctx.request_repaint();
         });
         worker.set_onerror(Some(on_error.as_ref().unchecked_ref()));
         on_error.forget();
+        // A message that cannot be deserialised would otherwise vanish with its run.
+        let lost_side = side.clone();
+        let on_lost = Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |_| {
+            lost_side.borrow_mut().failure = Some("a message from the worker was lost".into());
+        });
+        worker.set_onmessageerror(Some(on_lost.as_ref().unchecked_ref()));
+        on_lost.forget();
         Ok(Self { worker, side })
     }
 

@@ -322,6 +322,94 @@ fn files_that_do_not_fit_get_a_clear_message() {
         e.contains("reach_learn.safetensors") && e.contains("not dropped"),
         "{e}"
     );
+    // Two models: refused, naming both, whatever order they come in.
+    let bytes = io::model_to_bytes(&common::model()).unwrap();
+    for names in [
+        ["b.safetensors", "a.safetensors"],
+        ["a.safetensors", "b.safetensors"],
+    ] {
+        let files = names.map(|n| (n.to_string(), Ok(bytes.clone()))).to_vec();
+        let e = pvrnn_explorer::drop::assemble(files, Some(&common::bundle())).unwrap_err();
+        assert!(
+            e.contains("a.safetensors and b.safetensors are both models"),
+            "{e}"
+        );
+    }
+    // A model whose proprioception is not the data's.
+    let mut other = common::config();
+    other.proprio_dims = 20;
+    let model = pvrnn_core::Model::<f32>::init(other, 1, 3, 1).unwrap();
+    let e = Bundle::new("x".into(), model, common::dataset()).unwrap_err();
+    assert!(
+        e.contains("20 proprioceptive dimensions, the data 28"),
+        "{e}"
+    );
+}
+
+#[test]
+fn views_outside_the_bundle_are_brought_back_with_a_message() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
+    // What a hand-edited URL hash such as `#vision=8&seq=nope` used to put in the view.
+    let mut c = h.state().condition().unwrap();
+    c.vision_levels = 8;
+    h.state_mut().view_mut().condition = Some(c);
+    h.state_mut().view_mut().sequence = Some("nope".into());
+    h.step();
+    settle(&mut h);
+    assert_eq!(h.state().view().sequence.as_deref(), Some("reach_learn"));
+    assert_eq!(h.state().condition().unwrap().vision_levels, 2);
+    let status = format!("{:?}", h.state().status());
+    assert!(
+        status.contains("no sequence `nope`") && status.contains("vision levels 8"),
+        "{status}"
+    );
+    // The pickers are still there to choose another sequence.
+    h.get_by_label("Trial");
+    // The same through the hash.
+    h.state_mut().apply_hash("seq=wipe_test&t=999&vision=5");
+    h.step();
+    assert_eq!(h.state().view().sequence.as_deref(), Some("wipe_test"));
+    assert_eq!(h.state().view().t, 8);
+    assert_eq!(h.state().condition().unwrap().vision_levels, 2);
+}
+
+#[test]
+fn precomputed_runs_keep_their_exact_rate_and_skipped_ones_are_named() {
+    let mut bundle = common::bundle();
+    let config = bundle.model.config.clone();
+    let obs = bundle.observations("reach_test").unwrap();
+    let model = bundle.model.clone();
+    // A rate that thousandths would round to another (0.091).
+    let mut odd = InferenceSettings::from_config(&config, 0);
+    odd.optimizer.lr = 0.0905;
+    let run = run_sequence(model.clone(), odd, &obs, 0, false, &mut |_, _| {}).unwrap();
+    // The second run names a sequence the data does not have.
+    let names = vec!["reach_test".to_string(), "nope".to_string()];
+    let bytes = io::runs_to_bytes(
+        &config,
+        &[run.clone(), run],
+        &[1, 1],
+        Some(&names),
+        io::StateStorage::F16,
+    )
+    .unwrap();
+    assert_eq!(bundle.add_runs(bytes, "odd.safetensors").unwrap(), 1);
+    assert_eq!(bundle.precomputed[0].0.condition.lr(), 0.0905);
+    let note = bundle.notes.join("\n");
+    assert!(
+        note.contains("odd.safetensors: 1 of 2 runs skipped")
+            && note.contains("no sequence `nope`"),
+        "{note}"
+    );
+    // The note reaches the status line.
+    let app = ExplorerApp::new(Some(bundle), ViewState::default());
+    assert!(format!("{:?}", app.status()).contains("runs skipped"));
 }
 
 fn tempdir() -> std::path::PathBuf {

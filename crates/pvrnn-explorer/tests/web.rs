@@ -28,7 +28,7 @@ fn key() -> RunKey {
             ablation_mode: pvrnn_core::AblationMode::Inference,
             window: 30,
             iterations: 50,
-            lr_milli: 90,
+            lr_bits: 0.09f64.to_bits(),
             seed: 3,
         },
     }
@@ -70,11 +70,12 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
         .append_child(&canvas)
         .expect("appended");
 
-    let runner = pvrnn_explorer::web::start(canvas, |_| {
+    let handle = pvrnn_explorer::web::start(canvas, |_| {
         ExplorerApp::new(Some(common::bundle()), ViewState::default())
     })
     .await
     .expect("the explorer starts");
+    let runner = handle.runner();
     let complete = |runner: &eframe::WebRunner| {
         runner
             .app_mut::<ExplorerApp>()
@@ -82,21 +83,64 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
             .unwrap_or(false)
     };
     for _ in 0..300 {
-        if complete(&runner) || runner.has_panicked() {
+        if complete(runner) || handle.has_panicked() {
             break;
         }
         sleep_ms(100).await;
     }
     assert!(
-        runner.panic_summary().is_none(),
+        !handle.has_panicked(),
         "the app panicked: {:?}",
-        runner.panic_summary().map(|p| p.message())
+        handle.panic_message()
     );
     let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
     let run = app.current_run().expect("the shown sequence has a run");
     assert!(run.complete, "the live run did not finish in 30 s");
     assert_eq!(run.error, None);
     assert!(run.trace.steps > 0 && run.trace.free_energy.iter().all(|f| f.is_finite()));
+}
+
+/// A panic shows over the page, with its message, instead of a frozen canvas.
+#[wasm_bindgen_test]
+fn a_panic_is_shown_over_the_page() {
+    pvrnn_explorer::web::show_panic("index out of bounds", "at somewhere.rs:1");
+    let text = web_sys::window()
+        .and_then(|w| w.document())
+        .and_then(|d| d.get_element_by_id(pvrnn_explorer::web::PANIC_ELEMENT_ID))
+        .and_then(|e| e.text_content())
+        .expect("the panic message element");
+    assert!(
+        text.contains("index out of bounds") && text.contains("Reload the page"),
+        "{text}"
+    );
+}
+
+/// Waits up to 10 s for a worker's failure.
+async fn failure_of(mut worker: pvrnn_explorer::worker::WorkerClient) -> Option<String> {
+    for _ in 0..100 {
+        if let Some(f) = worker.failure() {
+            return Some(f);
+        }
+        sleep_ms(100).await;
+    }
+    None
+}
+
+/// A worker that cannot start (its script is missing), or that says it cannot go on (a
+/// result it could not send), surfaces as a failure with a message, so runs fall back to the
+/// page instead of waiting for ever.
+#[wasm_bindgen_test]
+async fn a_lost_worker_is_reported() {
+    use pvrnn_explorer::worker::WorkerClient;
+    let ctx = eframe::egui::Context::default();
+    let missing = WorkerClient::spawn("./no-such-worker.js", ctx.clone()).expect("a Worker");
+    assert!(failure_of(missing).await.is_some(), "a missing script");
+    let script = "postMessage({kind: 'ready', generation: 0}); \
+                  postMessage({kind: 'fatal', generation: 0, message: 'cannot send a result'});";
+    let fatal =
+        WorkerClient::spawn(&format!("data:text/javascript,{script}"), ctx).expect("a Worker");
+    let failure = failure_of(fatal).await;
+    assert_eq!(failure.as_deref(), Some("cannot send a result"));
 }
 
 #[wasm_bindgen_test]

@@ -70,7 +70,7 @@ pub struct Args {
     /// `pvrnn evaluate` reports of this model (folders with a summary.json) for the card.
     #[arg(long)]
     evaluation: Vec<PathBuf>,
-    /// The training log for the card (default: `<model>.log.csv` when it exists).
+    /// The training log for the card (default: beside the model, `run.safetensors` -> `run.log.csv`, when it exists).
     #[arg(long)]
     training_log: Option<PathBuf>,
     /// The machine the model was trained on, for the card (e.g. "AMD EPYC 7B13, 2 threads").

@@ -13,7 +13,7 @@ pub enum Command {
         after_help = "Example:\n  pvrnn report curves --log training/caresim-seed0.log.csv --out docs/results/curves.png"
     )]
     Curves {
-        /// A `pvrnn train` log (`<out>.log.csv`).
+        /// A `pvrnn train` log (`run.safetensors` -> `run.log.csv`).
         #[arg(long)]
         log: PathBuf,
         /// PNG to write.

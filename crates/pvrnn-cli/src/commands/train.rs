@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long)]
     split: Option<String>,
     /// The run's checkpoint: written every --checkpoint-every iterations and at the end;
-    /// it is also a model file. A CSV log goes next to it (`<out>.log.csv`).
+    /// it is also a model file. A CSV log goes next to it (`run.safetensors` -> `run.log.csv`).
     #[arg(long)]
     out: PathBuf,
     /// Total iterations, counted from the start of the run also with --resume (default: the

@@ -1401,12 +1401,16 @@ pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
         app.compute(Duration::from_millis(200));
     }
     let len = app.sequence_len().max(1);
-    let _ = ctx.run_ui(input(), |ui| app.show(ui));
+    // Headless: no textures are uploaded, so their deltas are dropped on purpose.
+    ctx.run_ui(input(), |ui| app.show(ui))
+        .textures_delta
+        .clear();
     let mut times = Vec::with_capacity(frames);
     for i in 0..frames {
         app.view_mut().t = (i * 7) % len;
         let start = Instant::now();
-        let out = ctx.run_ui(input(), |ui| app.show(ui));
+        let mut out = ctx.run_ui(input(), |ui| app.show(ui));
+        out.textures_delta.clear();
         let _ = ctx.tessellate(out.shapes, out.pixels_per_point);
         times.push(start.elapsed().as_secs_f64() * 1000.0);
     }

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use pvrnn_core::{Model, Observations, io};
-use pvrnn_dataset::{Dataset, Selection, Split, proprio_ranges};
+use pvrnn_dataset::{Dataset, Selection, Split};
 
 /// Model inputs and, for dataset folders, the names of the chosen sequences.
 pub struct Inputs {
@@ -59,9 +59,7 @@ pub fn parse_split(split: Option<&str>, default_split: Split) -> Result<Selectio
 /// A model without proprioception ranges gets the dataset's learning-split ranges (the
 /// spec's rule), and a note says so.
 pub fn ensure_normalisation(model: &mut Model<f32>, dataset: &Dataset, path: &Path) -> Result<()> {
-    if model.config.normalisation.is_none() {
-        let learn = dataset.select(&Selection::Split(Split::Learn))?;
-        model.config.normalisation = Some(proprio_ranges(&learn));
+    if pvrnn_dataset::inputs::ensure_normalisation(&mut model.config, dataset)? {
         eprintln!(
             "note: the model has no proprioception ranges; using {}'s learning split",
             path.display()

@@ -686,6 +686,14 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         manifest["runs"],
         serde_json::json!(["runs-all-on.safetensors", "runs-16-off.safetensors"])
     );
+    // The explorer's reader (the one shared definition) takes what the CLI wrote.
+    let read = pvrnn_dataset::bundle::BundleManifest::parse(
+        &std::fs::read(x.path("bundle/bundle.json")).unwrap(),
+        "bundle.json",
+    )
+    .unwrap();
+    assert_eq!(read.version, pvrnn_dataset::bundle::BUNDLE_VERSION);
+    assert_eq!(read.card.as_ref().and_then(|c| c.iteration), Some(2));
     assert_eq!(manifest["card"]["iteration"], 2);
     assert_eq!(manifest["card"]["training_machine"], "the test machine");
     assert!(manifest["card"]["training_seconds"].as_f64().unwrap() > 0.0);

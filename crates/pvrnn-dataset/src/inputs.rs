@@ -82,6 +82,23 @@ pub fn check_layout(manifest: &Manifest, layout: &VisionLayout) -> Result<()> {
     Ok(())
 }
 
+/// A model without proprioception ranges gets the dataset's learning split's (the spec's
+/// rule; every reader of a model and a dataset applies it here). Returns whether it did.
+pub fn ensure_normalisation(config: &mut ModelConfig, dataset: &Dataset) -> Result<bool> {
+    if config.normalisation.is_some() {
+        return Ok(false);
+    }
+    let learn = dataset.split(Some(Split::Learn));
+    if learn.is_empty() {
+        return Err(format_err(
+            "model",
+            "has no proprioception ranges, and the dataset has no learning sequences to take them from",
+        ));
+    }
+    config.normalisation = Some(proprio_ranges(&learn));
+    Ok(true)
+}
+
 /// Writes one step's vision vector (all levels, all cameras) into `out`.
 pub fn vision_vector(seq: &Sequence, t: usize, layout: &VisionLayout, out: &mut [f32]) {
     let levels = layout.resolutions.len();

@@ -16,6 +16,7 @@
 //! [`Dataset::observations`] turns sequences into model inputs exactly as the model spec's
 //! "Data layout" says (see [`inputs`]). `docs/dataset.md` documents the format for users.
 
+pub mod bundle;
 pub mod card;
 pub mod import;
 pub mod inputs;

@@ -10,44 +10,13 @@ use std::sync::Arc;
 
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_core::{Model, Observations};
+use pvrnn_dataset::Dataset;
 use pvrnn_dataset::card::ModelCard;
-use pvrnn_dataset::{Dataset, Selection, Split, inputs::check_layout, proprio_ranges};
-use serde::Deserialize;
+use pvrnn_dataset::inputs::{check_layout, ensure_normalisation};
 
 use crate::runs::{Condition, RunKey, RunTrace};
 
-/// `bundle.json`.
-#[derive(Clone, Debug, Deserialize)]
-pub struct BundleManifest {
-    pub format: String,
-    #[serde(default)]
-    pub description: String,
-    pub model: String,
-    pub dataset: String,
-    /// Runs files (one per precomputed condition); older bundles name a single file.
-    #[serde(default, deserialize_with = "one_or_many")]
-    pub runs: Vec<String>,
-    /// How the model was trained and how it scores (`pvrnn bundle` writes it).
-    #[serde(default)]
-    pub card: Option<ModelCard>,
-}
-
-fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Error> {
-    #[derive(Deserialize)]
-    #[serde(untagged)]
-    enum OneOrMany {
-        One(String),
-        Many(Vec<String>),
-    }
-    Ok(match Option::<OneOrMany>::deserialize(d)? {
-        None => Vec::new(),
-        Some(OneOrMany::One(s)) => vec![s],
-        Some(OneOrMany::Many(v)) => v,
-    })
-}
-
-pub const BUNDLE_MANIFEST: &str = "bundle.json";
-pub const BUNDLE_FORMAT: &str = "pvrnn-bundle/1";
+pub use pvrnn_dataset::bundle::{BUNDLE_FORMAT, BUNDLE_MANIFEST, BundleManifest};
 
 /// A model with the dataset it is explored on.
 pub struct Bundle {
@@ -95,12 +64,7 @@ impl Bundle {
                 pvrnn_dataset::JOINTS
             ));
         }
-        if model.config.normalisation.is_none() {
-            let learn = dataset.select(&Selection::Split(Split::Learn)).map_err(|_| {
-                "the model has no proprioception ranges and the dataset has no learning sequences to take them from".to_string()
-            })?;
-            model.config.normalisation = Some(proprio_ranges(&learn));
-        }
+        ensure_normalisation(&mut model.config, &dataset).map_err(|e| e.to_string())?;
         Ok(Self {
             description,
             card: None,
@@ -181,14 +145,8 @@ impl Bundle {
                 .cloned()
                 .ok_or_else(|| format!("{name} is missing"))
         };
-        let manifest: BundleManifest = serde_json::from_slice(&get(BUNDLE_MANIFEST)?)
-            .map_err(|e| format!("{BUNDLE_MANIFEST} is not a bundle manifest: {e}"))?;
-        if manifest.format != BUNDLE_FORMAT {
-            return Err(format!(
-                "{BUNDLE_MANIFEST}: format `{}`, expected `{BUNDLE_FORMAT}`",
-                manifest.format
-            ));
-        }
+        let manifest = BundleManifest::parse(&get(BUNDLE_MANIFEST)?, BUNDLE_MANIFEST)
+            .map_err(|e| e.to_string())?;
         let model = io::model_from_bytes(get(&manifest.model)?, &manifest.model)
             .map_err(|e| e.to_string())?;
         let dataset_json = String::from_utf8(get(&manifest.dataset)?)
@@ -234,8 +192,11 @@ impl Bundle {
                 dir.display()
             ));
         }
-        let manifest: BundleManifest = serde_json::from_slice(&read(BUNDLE_MANIFEST)?)
-            .map_err(|e| format!("{}: {e}", manifest_path.display()))?;
+        let manifest = BundleManifest::parse(
+            &read(BUNDLE_MANIFEST)?,
+            &manifest_path.display().to_string(),
+        )
+        .map_err(|e| e.to_string())?;
         let model = io::load_model(&dir.join(&manifest.model)).map_err(|e| e.to_string())?;
         let dataset = Dataset::open(dir).map_err(|e| e.to_string())?;
         let mut bundle = Self::new(manifest.description.clone(), model, dataset)?;

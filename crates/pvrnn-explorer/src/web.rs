@@ -335,10 +335,10 @@ impl WebState {
 }
 
 fn manifest_arrived(d: Rc<RefCell<Download>>, bytes: Vec<u8>) {
-    let manifest: BundleManifest = match serde_json::from_slice(&bytes) {
+    let manifest = match BundleManifest::parse(&bytes, BUNDLE_MANIFEST) {
         Ok(m) => m,
         Err(e) => {
-            d.borrow_mut().error = Some(format!("{BUNDLE_MANIFEST}: {e}"));
+            d.borrow_mut().error = Some(e.to_string());
             return;
         }
     };

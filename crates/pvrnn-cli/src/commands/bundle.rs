@@ -11,22 +11,11 @@ use pvrnn_core::{Modality, Model, ModuleId, Observations, Observed};
 use pvrnn_dataset::card::ModelCard;
 use pvrnn_dataset::{Dataset, Split};
 use rayon::prelude::*;
-use serde::Serialize;
+
+use pvrnn_dataset::bundle::{BUNDLE_MANIFEST, BundleManifest};
 
 use crate::commands::train::log_path;
 use crate::{inputs, util};
-
-/// `bundle.json`: what the explorer opens.
-#[derive(Serialize)]
-struct BundleManifest {
-    format: &'static str,
-    description: String,
-    model: &'static str,
-    dataset: &'static str,
-    /// One runs file per precomputed condition.
-    runs: Vec<String>,
-    card: ModelCard,
-}
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -320,18 +309,14 @@ pub fn run(a: Args) -> Result<()> {
         a.out.display()
     ));
     io::write_atomic(&a.out.join("README.md"), readme.as_bytes())?;
-    let manifest = BundleManifest {
-        format: "pvrnn-bundle/1",
-        description: a.description,
-        model: "model.safetensors",
-        dataset: pvrnn_dataset::MANIFEST,
-        runs: run_files,
-        card,
-    };
-    io::write_atomic(
-        &a.out.join("bundle.json"),
-        serde_json::to_string_pretty(&manifest)?.as_bytes(),
-    )?;
+    let manifest = BundleManifest::new(
+        a.description,
+        "model.safetensors".into(),
+        pvrnn_dataset::MANIFEST.into(),
+        run_files,
+        Some(card),
+    );
+    io::write_atomic(&a.out.join(BUNDLE_MANIFEST), manifest.to_json().as_bytes())?;
     eprintln!(
         "wrote {} ({} sequences, {} precomputed conditions)",
         a.out.display(),

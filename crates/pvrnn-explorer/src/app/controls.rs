@@ -1,0 +1,260 @@
+//! The top bar: which sequence, under which condition (vision, proprioception, ablation,
+//! inference settings), what is shown.
+
+use super::*;
+
+impl ExplorerApp {
+    pub(super) fn controls_ui(&mut self, ui: &mut egui::Ui) {
+        let Some(bundle) = &self.bundle else { return };
+        let config = bundle.model.config.clone();
+        ui.horizontal_wrapped(|ui| {
+            ui.strong("PV-RNN explorer");
+            ui.toggle_value(&mut self.show_about, "About this model");
+            ui.separator();
+            self.sequence_picker(ui);
+            ui.separator();
+            match &self.status {
+                Status::Error(e) => {
+                    ui.colored_label(Color32::from_rgb(230, 80, 80), e.as_str());
+                }
+                Status::Info(s) => {
+                    ui.weak(s.as_str());
+                }
+                Status::Loading { what, fraction } => {
+                    ui.label(what.as_str());
+                    ui.add(egui::ProgressBar::new(fraction.unwrap_or(0.0)).desired_width(120.0));
+                }
+                Status::None => {}
+            }
+        });
+        let standard = Condition::standard(&config);
+        let mut c = self.view.condition.unwrap_or(standard);
+        ui.horizontal_wrapped(|ui| {
+            let vision_label = ui.label("Vision observed:");
+            let levels = config.vision.resolutions.len();
+            let label = |n: usize| {
+                if n == 0 {
+                    "none".to_string()
+                } else {
+                    config.vision.resolutions[..n]
+                        .iter()
+                        .rev()
+                        .map(|r| r.to_string())
+                        .collect::<Vec<_>>()
+                        .join("+")
+                }
+            };
+            egui::ComboBox::from_id_salt("vision")
+                .selected_text(label(c.vision_levels as usize))
+                .show_ui(ui, |ui| {
+                    for n in (0..=levels).rev() {
+                        ui.selectable_value(&mut c.vision_levels, n as u8, label(n));
+                    }
+                })
+                .response
+                .labelled_by(vision_label.id);
+            ui.checkbox(&mut c.proprio, "proprioception observed");
+            ui.separator();
+            ui.label("Ablate:");
+            for id in ModuleId::ALL {
+                ui.checkbox(&mut c.ablation[id.index()], id.name());
+            }
+            let l = ui.label("mode");
+            egui::ComboBox::from_id_salt("ablation mode")
+                .selected_text(c.ablation_mode.name())
+                .show_ui(ui, |ui| {
+                    for (mode, tip) in [
+                        (
+                            AblationMode::Readout,
+                            "inference runs as standard; each step is read out again with z = 0 (the paper's contribution maps)",
+                        ),
+                        (
+                            AblationMode::Inference,
+                            "z = 0 during the whole inference, so the other modules may compensate",
+                        ),
+                    ] {
+                        ui.selectable_value(&mut c.ablation_mode, mode, mode.name())
+                            .on_hover_text(tip);
+                    }
+                })
+                .response
+                .labelled_by(l.id)
+                .on_hover_text("when an ablation (and the contribution maps) applies");
+            ui.separator();
+            let l = ui.label("H");
+            ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
+                .labelled_by(l.id);
+            let l = ui.label("iterations");
+            ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
+                .labelled_by(l.id);
+            let l = ui.label("lr");
+            let mut lr = c.lr();
+            if ui
+                .add(
+                    egui::DragValue::new(&mut lr)
+                        .range(0.001..=100.0)
+                        .speed(0.01),
+                )
+                .labelled_by(l.id)
+                .changed()
+            {
+                c.set_lr(lr);
+            }
+            let l = ui.label("seed");
+            ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
+            if ui
+                .button("standard")
+                .on_hover_text("The model's configured inference, everything observed")
+                .clicked()
+            {
+                c = standard;
+            }
+        });
+        if Some(c) != self.view.condition && !(self.view.condition.is_none() && c == standard) {
+            self.view.condition = Some(c);
+        }
+        ui.horizontal_wrapped(|ui| {
+            let l = ui.label("Units:");
+            let edit = ui.add(egui::TextEdit::singleline(&mut self.units_text).desired_width(90.0)).labelled_by(l.id);
+            if edit.changed()
+                && let Some(u) = parse_units(&self.units_text)
+            {
+                self.view.units = u;
+            }
+            ui.checkbox(&mut self.view.show_d, "d traces");
+            ui.checkbox(&mut self.view.prior_images, "prior prediction images");
+            ui.checkbox(&mut self.view.contours, "contours");
+            ui.checkbox(&mut self.view.maps, "contribution maps").on_hover_text("Runs inference once more with each module ablated (four runs; minutes at full vision in a browser)");
+            ui.separator();
+            self.progress_ui(ui);
+        });
+    }
+
+    pub(super) fn sequence_picker(&mut self, ui: &mut egui::Ui) {
+        let Some(bundle) = &self.bundle else { return };
+        let seqs = &bundle.dataset.sequences;
+        let Some(current) = self
+            .view
+            .sequence
+            .as_ref()
+            .and_then(|n| bundle.dataset.by_name(n))
+        else {
+            return;
+        };
+        let info = current.info.clone();
+        let mut tasks: Vec<String> = seqs.iter().map(|s| s.info.task.clone()).collect();
+        tasks.dedup();
+        tasks.sort();
+        tasks.dedup();
+        let height = |s: &pvrnn_dataset::SequenceInfo| {
+            s.bed_height_mm
+                .map_or("-".to_string(), |h| format!("{h:.0} mm"))
+        };
+        let mut task = info.task.clone();
+        let mut bed = height(&info);
+        let mut split = info.split.name().to_string();
+        let l = ui.label("Task");
+        egui::ComboBox::from_id_salt("task")
+            .selected_text(&task)
+            .show_ui(ui, |ui| {
+                for t in &tasks {
+                    ui.selectable_value(&mut task, t.clone(), t);
+                }
+            })
+            .response
+            .labelled_by(l.id);
+        let mut heights: Vec<String> = seqs
+            .iter()
+            .filter(|s| s.info.task == task)
+            .map(|s| height(&s.info))
+            .collect();
+        heights.sort();
+        heights.dedup();
+        let l = ui.label("Bed");
+        egui::ComboBox::from_id_salt("bed")
+            .selected_text(&bed)
+            .show_ui(ui, |ui| {
+                for h in &heights {
+                    ui.selectable_value(&mut bed, h.clone(), h);
+                }
+            })
+            .response
+            .labelled_by(l.id);
+        let l = ui.label("Split");
+        egui::ComboBox::from_id_salt("split")
+            .selected_text(&split)
+            .show_ui(ui, |ui| {
+                for s in ["learn", "test"] {
+                    ui.selectable_value(&mut split, s.to_string(), s);
+                }
+            })
+            .response
+            .labelled_by(l.id);
+        let matching: Vec<&str> = seqs
+            .iter()
+            .filter(|s| {
+                s.info.task == task && height(&s.info) == bed && s.info.split.name() == split
+            })
+            .map(|s| s.info.name.as_str())
+            .collect();
+        let mut chosen = self.view.sequence.clone().unwrap_or_default();
+        let l = ui.label("Trial");
+        egui::ComboBox::from_id_salt("trial")
+            .selected_text(&chosen)
+            .show_ui(ui, |ui| {
+                for name in &matching {
+                    ui.selectable_value(&mut chosen, name.to_string(), *name);
+                }
+            })
+            .response
+            .labelled_by(l.id);
+        let choice = if matching.contains(&chosen.as_str()) {
+            Some(chosen)
+        } else {
+            // A changed task, bed or split: the first sequence that matches as much as possible.
+            matching
+                .first()
+                .map(|s| s.to_string())
+                .or_else(|| {
+                    seqs.iter()
+                        .find(|s| s.info.task == task && height(&s.info) == bed)
+                        .map(|s| s.info.name.clone())
+                })
+                .or_else(|| {
+                    seqs.iter()
+                        .find(|s| s.info.task == task)
+                        .map(|s| s.info.name.clone())
+                })
+        };
+        if let Some(name) = choice
+            && Some(&name) != self.view.sequence.as_ref()
+        {
+            let len = bundle.dataset.by_name(&name).map_or(1, |s| s.len());
+            self.view.sequence = Some(name);
+            self.view.t = self.view.t.min(len.saturating_sub(1));
+        }
+    }
+}
+
+/// Short text of a condition, e.g. `vision 32+16, proprio off, ablate executive, H 30, 50 it`.
+pub fn condition_label(c: &Condition) -> String {
+    let ablated: Vec<&str> = ModuleId::ALL
+        .iter()
+        .filter(|id| c.ablation[id.index()])
+        .map(|id| id.name())
+        .collect();
+    format!(
+        "vision levels {}, proprio {}, ablate {}, H {}, {} iterations, lr {}, seed {}",
+        c.vision_levels,
+        if c.proprio { "on" } else { "off" },
+        if ablated.is_empty() {
+            "none".to_string()
+        } else {
+            format!("{} ({})", ablated.join("+"), c.ablation_mode.name())
+        },
+        c.window,
+        c.iterations,
+        c.lr(),
+        c.seed
+    )
+}

@@ -1,0 +1,470 @@
+//! The explorer's window. This module holds the app's state and its logic (loading,
+//! computing, playback, the URL hash: [`ExplorerApp::logic`]); each panel draws in its own
+//! file: [`controls`] (top bar), [`status`], [`time_panel`], [`images_panel`], [`traces`],
+//! [`summaries`].
+
+use std::collections::HashMap;
+
+use eframe::egui::{self, Color32, RichText, TextureHandle, TextureOptions};
+use egui_plot::{Bar, BarChart, Legend, Line, LineStyle, Plot, PlotPoints, VLine};
+use pvrnn_core::config::ModuleId;
+use pvrnn_core::cpu::readout;
+use pvrnn_core::{AblationMode, Modality};
+use web_time::{Duration, Instant};
+
+use crate::bundle::Bundle;
+use crate::images::{self, Rgb};
+use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
+use crate::state::{ViewState, format_units, parse_units};
+use pvrnn_dataset::JOINTS;
+
+mod controls;
+mod images_panel;
+mod status;
+mod summaries;
+mod time_panel;
+mod traces;
+
+pub use controls::condition_label;
+use images_panel::ImageCache;
+pub use summaries::uncertainty;
+
+/// Time given to online inference per frame.
+const COMPUTE_BUDGET: Duration = Duration::from_millis(14);
+const MODULE_TITLES: [&str; 4] = [
+    "Executive module",
+    "Associative module",
+    "Exteroceptive module",
+    "Proprioceptive module",
+];
+const SUBTASK_COLOURS: [Color32; 4] = [
+    Color32::from_rgb(66, 133, 244),
+    Color32::from_rgb(244, 160, 0),
+    Color32::from_rgb(15, 157, 88),
+    Color32::from_rgb(219, 68, 55),
+];
+
+/// A status line: progress of a download, or a message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Status {
+    None,
+    Loading { what: String, fraction: Option<f32> },
+    Info(String),
+    Error(String),
+}
+
+pub struct ExplorerApp {
+    bundle: Option<Bundle>,
+    store: RunStore,
+    view: ViewState,
+    status: Status,
+    images: ImageCache,
+    units_text: String,
+    last_frame: Option<Instant>,
+    play_accum: f32,
+    /// The hash last written to (or read from) the URL.
+    last_hash: String,
+    /// How the last live run went (shown, and logged in the browser console).
+    last_run_note: Option<String>,
+    /// Whether the "About this model" window is open.
+    show_about: bool,
+    #[cfg(target_arch = "wasm32")]
+    web: crate::web::WebState,
+}
+
+impl std::fmt::Debug for ExplorerApp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExplorerApp")
+            .field("bundle", &self.bundle)
+            .field("store", &self.store)
+            .field("view", &self.view)
+            .finish()
+    }
+}
+
+impl ExplorerApp {
+    pub fn new(bundle: Option<Bundle>, view: ViewState) -> Self {
+        let mut app = Self {
+            bundle: None,
+            store: RunStore::default(),
+            units_text: format_units(&view.units),
+            view,
+            status: Status::None,
+            images: ImageCache::default(),
+            last_frame: None,
+            play_accum: 0.0,
+            last_hash: String::new(),
+            last_run_note: None,
+            show_about: false,
+            #[cfg(target_arch = "wasm32")]
+            web: crate::web::WebState::default(),
+        };
+        if let Some(b) = bundle {
+            app.set_bundle(b);
+        }
+        app
+    }
+
+    /// The web app: starts downloading the default bundle and reads the URL hash.
+    #[cfg(target_arch = "wasm32")]
+    pub fn new_web(bundle_url: &str, ctx: &egui::Context) -> Self {
+        let mut app = Self::new(None, ViewState::default());
+        // Live inference in a worker beside the page; in the page itself if that fails.
+        match crate::worker::WorkerClient::spawn("./worker.js", ctx.clone()) {
+            Ok(worker) => {
+                app.store = RunStore::with_executor(crate::runs::Executor::Worker(worker))
+            }
+            Err(e) => crate::web::log(&format!("computing in the page: {e}")),
+        }
+        app.web.start_download(bundle_url);
+        app.last_hash = crate::web::location_hash();
+        app
+    }
+
+    /// Shows a new model and dataset; every cached run is dropped.
+    pub fn set_bundle(&mut self, mut bundle: Bundle) {
+        self.store.clear();
+        for (key, trace) in std::mem::take(&mut bundle.precomputed) {
+            self.store.insert_complete(key, trace);
+        }
+        let standard = Condition::standard(&bundle.model.config);
+        // Keep the view if its sequence exists; read a pending URL hash now that
+        // conditions have defaults.
+        if !self.last_hash.is_empty() {
+            self.view = ViewState::from_hash(&self.last_hash, &self.view, standard);
+        }
+        let notes = self.view.sanitize(&bundle);
+        self.units_text = format_units(&self.view.units);
+        self.images = ImageCache::default();
+        let notes: Vec<String> = bundle.notes.iter().cloned().chain(notes).collect();
+        self.status = Status::Info(if !notes.is_empty() {
+            notes.join("; ")
+        } else if bundle.description.is_empty() {
+            format!("{} sequences", bundle.dataset.sequences.len())
+        } else {
+            bundle.description.clone()
+        });
+        self.bundle = Some(bundle);
+    }
+
+    pub fn view(&self) -> &ViewState {
+        &self.view
+    }
+
+    /// Shows the view a URL hash describes (as the web page does when its hash changes).
+    pub fn apply_hash(&mut self, hash: &str) {
+        let Some(b) = &self.bundle else {
+            self.last_hash = hash.to_string();
+            return;
+        };
+        self.view = ViewState::from_hash(hash, &self.view, Condition::standard(&b.model.config));
+        self.units_text = format_units(&self.view.units);
+        self.sanitize_view();
+    }
+
+    /// Keeps the view within what the bundle can show; says what it changed.
+    fn sanitize_view(&mut self) {
+        if let Some(b) = &self.bundle {
+            let notes = self.view.sanitize(b);
+            if !notes.is_empty() {
+                self.status = Status::Info(notes.join("; "));
+            }
+        }
+    }
+    pub fn view_mut(&mut self) -> &mut ViewState {
+        &mut self.view
+    }
+    pub fn bundle(&self) -> Option<&Bundle> {
+        self.bundle.as_ref()
+    }
+    pub fn status(&self) -> &Status {
+        &self.status
+    }
+
+    /// No inference running or waiting.
+    pub fn idle(&self) -> bool {
+        self.store.idle()
+    }
+
+    pub fn condition(&self) -> Option<Condition> {
+        let b = self.bundle.as_ref()?;
+        Some(
+            self.view
+                .condition
+                .unwrap_or_else(|| Condition::standard(&b.model.config)),
+        )
+    }
+
+    pub fn current_key(&self) -> Option<RunKey> {
+        Some(RunKey {
+            sequence: self.view.sequence.clone()?,
+            condition: self.condition()?.canonical(),
+        })
+    }
+
+    pub fn current_run(&self) -> Option<&Entry> {
+        self.store.get(&self.current_key()?)
+    }
+
+    /// The predicted vision vector at the cursor, as last drawn.
+    pub fn predicted_vision(&self) -> Option<&[f32]> {
+        self.images.predicted.as_deref()
+    }
+
+    /// A module's contribution map at the cursor, as last drawn.
+    pub fn contribution_map(&self, module: ModuleId) -> Option<&Rgb> {
+        self.images.maps[module.index()].as_ref()
+    }
+
+    /// Any cached or computing run.
+    pub fn run(&self, key: &RunKey) -> Option<&Entry> {
+        self.store.get(key)
+    }
+
+    fn sequence_len(&self) -> usize {
+        let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence) else {
+            return 0;
+        };
+        b.dataset.by_name(name).map_or(0, |s| s.len())
+    }
+
+    /// Asks for the runs the view needs and computes for up to `budget`.
+    pub fn compute(&mut self, budget: Duration) -> bool {
+        let Some(key) = self.current_key() else {
+            return false;
+        };
+        self.store.request(key.clone(), true);
+        if self.view.maps {
+            let base = key.condition.without_ablation();
+            self.store.request(
+                RunKey {
+                    condition: base,
+                    ..key.clone()
+                },
+                false,
+            );
+            for id in ModuleId::ALL {
+                self.store.request(
+                    RunKey {
+                        condition: key.condition.ablating(id),
+                        ..key.clone()
+                    },
+                    false,
+                );
+            }
+        }
+        let Some(bundle) = self.bundle.as_mut() else {
+            return false;
+        };
+        let model = bundle.model.clone();
+        let worked = self
+            .store
+            .work(&model, budget, &mut |name| bundle.observations(name));
+        let notes = self.store.take_notes();
+        if !notes.is_empty() {
+            self.status = Status::Info(notes.join("; "));
+        }
+        worked
+    }
+
+    /// Handles files dropped on the window: a bundle, a model, a dataset, runs.
+    fn take_dropped(&mut self, ctx: &egui::Context) {
+        let dropped = ctx.input(|i| i.raw.dropped_files.clone());
+        #[cfg(not(target_arch = "wasm32"))]
+        let files = (!dropped.is_empty()).then(|| crate::drop::read_dropped(&dropped));
+        #[cfg(target_arch = "wasm32")]
+        let files = {
+            if !dropped.is_empty() {
+                self.web.read_dropped(&dropped);
+            }
+            self.web.take_dropped()
+        };
+        if let Some(files) = files {
+            match crate::drop::assemble(files, self.bundle.as_ref()) {
+                Ok(bundle) => self.set_bundle(bundle),
+                Err(e) => self.status = Status::Error(e),
+            }
+        }
+    }
+
+    /// Everything a frame does besides drawing: a finished download or dropped files, the
+    /// URL hash, keeping the view valid, keys and playback, and computing runs.
+    pub fn logic(&mut self, ctx: &egui::Context) {
+        #[cfg(target_arch = "wasm32")]
+        if let Some(result) = self.web.poll(&mut self.status) {
+            match result {
+                Ok(bundle) => self.set_bundle(bundle),
+                Err(e) => self.status = Status::Error(e),
+            }
+        }
+        self.take_dropped(ctx);
+        let now = Instant::now();
+        let dt = self
+            .last_frame
+            .map_or(0.0, |l| (now - l).as_secs_f32())
+            .min(0.25);
+        self.last_frame = Some(now);
+        if self.bundle.is_none() {
+            return;
+        }
+        // The view as the URL hash has it (or the hash as the view has it, after the last
+        // frame's controls), then within what the bundle can show.
+        self.sync_hash();
+        self.sanitize_view();
+        self.keyboard(ctx);
+        self.advance_playback(dt);
+        // Inline runs advance only while frames are drawn; a worker's results repaint when
+        // they arrive, so the page does not redraw at full rate beside it.
+        if self.compute(COMPUTE_BUDGET) || (self.store.computes_inline() && !self.idle()) {
+            ctx.request_repaint();
+        }
+        for f in self.store.take_finished() {
+            let rate = f.steps as f64 / f.wall.as_secs_f64().max(1e-9);
+            let text = format!(
+                "run {} ({}) computed live: {} steps in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
+                f.key.sequence,
+                condition_label(&f.key.condition),
+                f.steps,
+                f.wall.as_secs_f64(),
+                rate,
+                f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
+            );
+            #[cfg(target_arch = "wasm32")]
+            crate::web::log(&text);
+            self.last_run_note = Some(text);
+        }
+        if self.view.playing {
+            ctx.request_repaint();
+        }
+    }
+
+    /// Draws the panels (each in its own file).
+    pub fn draw(&mut self, ui: &mut egui::Ui) {
+        if self.bundle.is_none() {
+            egui::CentralPanel::default().show(ui, |ui| self.empty_ui(ui));
+            return;
+        }
+        let ctx = ui.ctx().clone();
+        egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
+        egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
+        egui::Panel::left("images")
+            .resizable(true)
+            .default_size(430.0)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
+            });
+        egui::CentralPanel::default().show(ui, |ui| {
+            egui::ScrollArea::vertical().show(ui, |ui| self.traces_ui(ui));
+        });
+        if let Some(bundle) = &self.bundle {
+            egui::Window::new("About this model")
+                .open(&mut self.show_about)
+                .default_width(620.0)
+                .vscroll(true)
+                .show(&ctx, |ui| {
+                    crate::about::about_ui(ui, &bundle.description, bundle.card.as_ref())
+                });
+        }
+    }
+
+    fn empty_ui(&mut self, ui: &mut egui::Ui) {
+        ui.vertical_centered(|ui| {
+            ui.add_space(80.0);
+            ui.heading("Scalable PV-RNN explorer");
+            ui.add_space(12.0);
+            match &self.status {
+                Status::Loading { what, fraction } => {
+                    ui.label(what.as_str());
+                    ui.add(egui::ProgressBar::new(fraction.unwrap_or(0.0)).desired_width(320.0).animate(true));
+                }
+                Status::Error(e) => {
+                    ui.colored_label(Color32::from_rgb(230, 80, 80), e.as_str());
+                }
+                _ => {
+                    ui.label("Drop a bundle folder (from `pvrnn bundle`), or a model file with a dataset folder, on this window.");
+                }
+            }
+        });
+    }
+
+    /// Keeps the URL hash in step with the view (web) so a view can be shared.
+    fn sync_hash(&mut self) {
+        #[cfg(target_arch = "wasm32")]
+        {
+            let current = crate::web::location_hash();
+            let current = current.trim_start_matches('#').to_string();
+            if current != self.last_hash.trim_start_matches('#') && self.bundle.is_some() {
+                // Edited by the user (or the back button): follow it.
+                self.apply_hash(&current);
+                self.last_hash = current;
+                return;
+            }
+            let wanted = self.view.to_hash();
+            if wanted != self.last_hash {
+                crate::web::set_hash(&wanted);
+                self.last_hash = wanted;
+            }
+        }
+    }
+}
+
+impl eframe::App for ExplorerApp {
+    fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
+        ExplorerApp::logic(self, ctx);
+    }
+
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.draw(ui);
+    }
+
+    /// Lets the browser tests look inside the running app (`WebRunner::app_mut`).
+    #[cfg(target_arch = "wasm32")]
+    fn as_any_mut(&mut self) -> Option<&mut dyn std::any::Any> {
+        Some(&mut *self)
+    }
+}
+
+impl ExplorerApp {
+    /// One whole frame, logic then drawing (tests and benchmarks drive this without eframe).
+    pub fn show(&mut self, ui: &mut egui::Ui) {
+        self.logic(&ui.ctx().clone());
+        self.draw(ui);
+    }
+}
+
+/// Draws `frames` frames headless (layout and tessellation, no GPU) while scrubbing through
+/// the first sequence, and prints the time per frame.
+pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
+    let ctx = egui::Context::default();
+    let input = || egui::RawInput {
+        screen_rect: Some(egui::Rect::from_min_size(
+            egui::Pos2::ZERO,
+            egui::vec2(1440.0, 920.0),
+        )),
+        ..Default::default()
+    };
+    // Let the shown run finish first: scrubbing is measured on computed runs.
+    while !app.idle() {
+        app.compute(Duration::from_millis(200));
+    }
+    let len = app.sequence_len().max(1);
+    // Headless: no textures are uploaded, so their deltas are dropped on purpose.
+    ctx.run_ui(input(), |ui| app.show(ui))
+        .textures_delta
+        .clear();
+    let mut times = Vec::with_capacity(frames);
+    for i in 0..frames {
+        app.view_mut().t = (i * 7) % len;
+        let start = Instant::now();
+        let mut out = ctx.run_ui(input(), |ui| app.show(ui));
+        out.textures_delta.clear();
+        let _ = ctx.tessellate(out.shapes, out.pixels_per_point);
+        times.push(start.elapsed().as_secs_f64() * 1000.0);
+    }
+    times.sort_by(f64::total_cmp);
+    let mean = times.iter().sum::<f64>() / times.len() as f64;
+    let p95 = times[(times.len() * 95 / 100).min(times.len() - 1)];
+    println!(
+        "{frames} frames while scrubbing: mean {mean:.2} ms, 95th percentile {p95:.2} ms per frame (layout + tessellation, one thread)"
+    );
+}

@@ -1,0 +1,31 @@
+//! Status and progress: what is loading or computing, and how the last live run went.
+
+use super::*;
+
+impl ExplorerApp {
+    pub(super) fn progress_ui(&self, ui: &mut egui::Ui) {
+        match (self.store.computing(), self.store.progress()) {
+            (Some(key), Some((done, total))) => {
+                let what = if Some(key) == self.current_key().as_ref() {
+                    "inference"
+                } else {
+                    "ablation runs"
+                };
+                ui.spinner();
+                ui.label(format!("{what}: step {done}/{total}"));
+                ui.add(
+                    egui::ProgressBar::new(done as f32 / total.max(1) as f32).desired_width(120.0),
+                );
+                if self.store.waiting() > 0 {
+                    ui.weak(format!("+{} waiting", self.store.waiting()));
+                }
+            }
+            _ => {
+                ui.weak("all runs ready");
+            }
+        }
+        if let Some(note) = &self.last_run_note {
+            ui.weak(note.as_str());
+        }
+    }
+}

@@ -1,0 +1,268 @@
+//! Latent traces: mu and sigma (prior and posterior) and d per module, proprioception
+//! actual and predicted.
+
+use super::*;
+
+impl ExplorerApp {
+    pub(super) fn traces_ui(&mut self, ui: &mut egui::Ui) {
+        let Some(bundle) = &self.bundle else { return };
+        let Some(key) = self.current_key() else {
+            return;
+        };
+        let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
+            return;
+        };
+        let len = seq.len();
+        let entry = self.store.get(&key);
+        if let Some(err) = entry.and_then(|e| e.error.as_ref()) {
+            ui.colored_label(
+                Color32::from_rgb(230, 80, 80),
+                format!("inference failed: {err}"),
+            );
+        }
+        let empty = RunTrace::new(&bundle.model.config);
+        let trace = entry.map_or(&empty, |e| &e.trace);
+        let mut seek: Option<usize> = None;
+        let t = self.view.t;
+        let plot = |ui: &mut egui::Ui,
+                    id: String,
+                    title: &str,
+                    height: f32,
+                    lines: Vec<Line<'static>>,
+                    y: Option<(f64, f64)>|
+         -> Option<usize> {
+            ui.label(RichText::new(title).small());
+            let mut p = Plot::new(id)
+                .height(height)
+                .include_x(0.0)
+                .include_x(len as f64)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .allow_boxed_zoom(false)
+                .show_x(true);
+            if let Some((lo, hi)) = y {
+                p = p.include_y(lo).include_y(hi);
+            }
+            let cursor = ui.visuals().strong_text_color();
+            let response = p.show(ui, |pu| {
+                for l in lines {
+                    pu.line(l);
+                }
+                pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
+            });
+            let r = &response.response;
+            if r.is_pointer_button_down_on() || r.clicked() {
+                r.interact_pointer_pos().map(|pos| {
+                    response
+                        .transform
+                        .value_from_position(pos)
+                        .x
+                        .round()
+                        .clamp(0.0, (len.max(1) - 1) as f64) as usize
+                })
+            } else {
+                None
+            }
+        };
+
+        ui.heading("Latent states");
+        ui.weak("posterior solid, prior dashed; one colour per unit");
+        for id in ModuleId::ALL {
+            let m = id.index();
+            let (z, d) = (trace.z[m], trace.d[m]);
+            let units: Vec<usize> = self.view.units.iter().copied().filter(|&u| u < z).collect();
+            let series = |values: &[f32], width: usize, u: usize| -> Vec<[f64; 2]> {
+                (0..trace.steps)
+                    .map(|s| [s as f64, values[s * width + u] as f64])
+                    .collect()
+            };
+            let pair = |post: &[f32], prior: &[f32]| -> Vec<Line<'static>> {
+                let mut lines = Vec::new();
+                for (k, &u) in units.iter().enumerate() {
+                    let colour = unit_colour(k);
+                    lines.push(
+                        Line::new(format!("{u}"), PlotPoints::from(series(post, z, u)))
+                            .color(colour)
+                            .width(1.2),
+                    );
+                    lines.push(
+                        Line::new(format!("{u} prior"), PlotPoints::from(series(prior, z, u)))
+                            .color(colour)
+                            .width(1.0)
+                            .style(LineStyle::dashed_dense()),
+                    );
+                }
+                lines
+            };
+            let mt = &trace.modules[m];
+            ui.strong(MODULE_TITLES[m]);
+            ui.columns(2, |cols| {
+                if let Some(s) = plot(
+                    &mut cols[0],
+                    format!("mu {m}"),
+                    "mu",
+                    110.0,
+                    pair(&mt.mu_q, &mt.mu_p),
+                    Some((-1.0, 1.0)),
+                ) {
+                    seek = Some(s);
+                }
+                if let Some(s) = plot(
+                    &mut cols[1],
+                    format!("sigma {m}"),
+                    "sigma",
+                    110.0,
+                    pair(&mt.sigma_q, &mt.sigma_p),
+                    Some((0.0, 1.0)),
+                ) {
+                    seek = Some(s);
+                }
+            });
+            if self.view.show_d {
+                let lines: Vec<Line<'static>> = (0..d.min(units.len().max(1) * 2).min(d))
+                    .map(|u| {
+                        Line::new(format!("d{u}"), PlotPoints::from(series(&mt.d, d, u)))
+                            .color(unit_colour(u))
+                            .width(1.0)
+                    })
+                    .collect();
+                if let Some(s) = plot(ui, format!("d {m}"), "d", 90.0, lines, Some((-1.0, 1.0))) {
+                    seek = Some(s);
+                }
+            }
+        }
+
+        ui.add_space(8.0);
+        ui.heading("Proprioception");
+        ui.weak("actual solid, predicted (posterior reconstruction) dashed; left arm warm colours, right arm cool");
+        let norm = bundle.model.config.normalisation.clone();
+        // Bundle::new checked that the model's proprioception is the data's.
+        let dims = bundle.model.config.proprio_dims;
+        let raw_pred = |values: &[f32], dim: usize| -> Vec<[f64; 2]> {
+            (0..trace.steps)
+                .map(|s| {
+                    let v = values[s * dims + dim] as f64;
+                    [
+                        s as f64,
+                        norm.as_ref().map_or(v, |n| n.proprio_from_model(dim, v)),
+                    ]
+                })
+                .collect()
+        };
+        for (title, offset) in [("joint angles (rad)", 0), ("torques (N m)", JOINTS)] {
+            let mut lines = Vec::new();
+            for j in 0..JOINTS {
+                let dim = offset + j;
+                let colour = arm_colour(j);
+                let actual: Vec<[f64; 2]> = (0..len)
+                    .map(|s| [s as f64, seq.proprio(s)[dim] as f64])
+                    .collect();
+                lines.push(
+                    Line::new(format!("{dim}"), PlotPoints::from(actual))
+                        .color(colour)
+                        .width(1.2),
+                );
+                if trace.steps > 0 {
+                    lines.push(
+                        Line::new(
+                            format!("{dim} predicted"),
+                            PlotPoints::from(raw_pred(&trace.proprio_recon, dim)),
+                        )
+                        .color(colour)
+                        .width(1.0)
+                        .style(LineStyle::dashed_dense()),
+                    );
+                }
+            }
+            if let Some(s) = plot(ui, format!("proprio {offset}"), title, 150.0, lines, None) {
+                seek = Some(s);
+            }
+        }
+
+        ui.add_space(8.0);
+        ui.heading("Summaries");
+        let fe: Vec<[f64; 2]> = trace
+            .free_energy
+            .iter()
+            .enumerate()
+            .map(|(s, &v)| [s as f64, v as f64])
+            .collect();
+        let ve: Vec<[f64; 2]> = trace
+            .recon_error
+            .iter()
+            .enumerate()
+            .map(|(s, e)| [s as f64, e[0] as f64])
+            .collect();
+        let pe: Vec<[f64; 2]> = trace
+            .recon_error
+            .iter()
+            .enumerate()
+            .map(|(s, e)| [s as f64, e[1] as f64])
+            .collect();
+        ui.columns(2, |cols| {
+            if let Some(s) = plot(
+                &mut cols[0],
+                "fe".into(),
+                "window free energy",
+                120.0,
+                vec![Line::new("F", PlotPoints::from(fe)).color(Color32::LIGHT_BLUE)],
+                None,
+            ) {
+                seek = Some(s);
+            }
+            let lines = vec![
+                Line::new("vision", PlotPoints::from(ve)).color(Color32::from_rgb(242, 146, 38)),
+                Line::new("proprioception", PlotPoints::from(pe))
+                    .color(Color32::from_rgb(118, 172, 152)),
+            ];
+            cols[1].label(RichText::new("prediction error (mean squared, all dimensions)").small());
+            let cursor = cols[1].visuals().strong_text_color();
+            let r = Plot::new("errors")
+                .height(120.0)
+                .legend(Legend::default())
+                .include_x(0.0)
+                .include_x(len as f64)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .show(&mut cols[1], |pu| {
+                    for l in lines {
+                        pu.line(l);
+                    }
+                    pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
+                });
+            if r.response.clicked()
+                && let Some(pos) = r.response.interact_pointer_pos()
+            {
+                seek = Some(
+                    r.transform
+                        .value_from_position(pos)
+                        .x
+                        .round()
+                        .clamp(0.0, (len.max(1) - 1) as f64) as usize,
+                );
+            }
+        });
+        self.uncertainty_ui(ui, trace);
+        if let Some(s) = seek {
+            self.view.t = s;
+        }
+    }
+}
+
+pub(super) fn unit_colour(k: usize) -> Color32 {
+    // Evenly spaced hues.
+    let hue = (k as f32 * 0.618_034) % 1.0;
+    let c = egui::ecolor::Hsva::new(hue, 0.7, 0.95, 1.0);
+    c.into()
+}
+
+pub(super) fn arm_colour(joint: usize) -> Color32 {
+    let (hue, j) = if joint < 7 {
+        (0.0 + joint as f32 * 0.025, joint)
+    } else {
+        (0.5 + (joint - 7) as f32 * 0.03, joint - 7)
+    };
+    egui::ecolor::Hsva::new(hue, 0.75, 0.6 + 0.05 * j as f32, 1.0).into()
+}

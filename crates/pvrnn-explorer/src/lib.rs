@@ -12,6 +12,8 @@ pub mod engine;
 pub mod images;
 pub mod runs;
 pub mod state;
+#[cfg(not(target_arch = "wasm32"))]
+pub mod thread;
 #[cfg(target_arch = "wasm32")]
 pub mod web;
 #[cfg(target_arch = "wasm32")]

@@ -1,30 +1,41 @@
 //! The explorer as a desktop app (`cargo run --release -p pvrnn-explorer`) and as the web
 //! app's entry point (Trunk builds this file for wasm32).
 
+/// The PV-RNN explorer: scrub time, toggle ablations, drop vision or proprioception, and
+/// watch the latent states and predicted images follow.
+#[cfg(not(target_arch = "wasm32"))]
+#[derive(clap::Parser, Debug)]
+#[command(
+    name = "pvrnn-explorer",
+    version,
+    after_help = "Drop a bundle folder, or a model file with a dataset folder, on the window to open them.\n\n\
+                  Example:\n  pvrnn-explorer --bundle models/default --view 'seq=wiping_650mm_test0&t=120&vision=1'"
+)]
+struct Args {
+    /// A bundle folder from `pvrnn bundle` (default: models/default).
+    #[arg(long)]
+    bundle: Option<std::path::PathBuf>,
+    /// Open this view: a URL hash such as 'seq=wiping_650mm_test0&t=120&vision=1'.
+    #[arg(long)]
+    view: Option<String>,
+    /// Draw this many frames headless while scrubbing, print the time per frame (ms), exit.
+    #[arg(long, value_name = "FRAMES")]
+    bench_frames: Option<usize>,
+    /// Compute the view's run live while drawing frames headless at 60 Hz, in the frame loop
+    /// and then on a background thread; print steps per second of each, exit.
+    #[arg(long)]
+    bench_live: bool,
+}
+
 #[cfg(not(target_arch = "wasm32"))]
 fn main() {
     use std::path::PathBuf;
 
+    use clap::Parser;
     use pvrnn_explorer::{Bundle, ExplorerApp, ViewState};
 
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let value = |flag: &str| {
-        args.iter()
-            .position(|a| a == flag)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
-    if args.iter().any(|a| a == "--help" || a == "-h") {
-        println!(
-            "pvrnn-explorer [--bundle DIR] [--view HASH] [--bench-frames N]\n\n\
-             --bundle DIR        a bundle folder from `pvrnn bundle` (default: models/default)\n\
-             --view HASH         open this view, e.g. 'seq=wiping_650mm_test0&t=120&vision=1'\n\
-             --bench-frames N    draw N frames headless while scrubbing, print the time per frame, exit\n\n\
-             Drop a bundle folder, or a model file with a dataset folder, on the window to open them."
-        );
-        return;
-    }
-    let dir = value("--bundle").map(PathBuf::from).unwrap_or_else(|| {
+    let args = Args::parse();
+    let dir = args.bundle.clone().unwrap_or_else(|| {
         let local = PathBuf::from("models/default");
         if local.is_dir() {
             local
@@ -40,20 +51,30 @@ fn main() {
         }
     };
     let mut view = ViewState::default();
-    if let (Some(hash), Some(b)) = (value("--view"), &bundle) {
+    if let (Some(hash), Some(b)) = (&args.view, &bundle) {
         view = ViewState::from_hash(
-            &hash,
+            hash,
             &view,
             pvrnn_explorer::Condition::standard(&b.model.config),
         );
     }
-    if let Some(frames) = value("--bench-frames") {
-        let frames: usize = frames.parse().unwrap_or(300);
+    if args.bench_frames.is_some() || args.bench_live {
         let Some(bundle) = bundle else {
-            eprintln!("--bench-frames needs a bundle");
+            eprintln!("benchmarks need a bundle");
             std::process::exit(1);
         };
-        pvrnn_explorer::app::bench_frames(ExplorerApp::new(Some(bundle), view), frames);
+        if let Some(frames) = args.bench_frames {
+            pvrnn_explorer::app::bench_frames(ExplorerApp::new(Some(bundle), view), frames);
+        } else {
+            let bundle = std::cell::RefCell::new(Some(bundle));
+            pvrnn_explorer::app::bench_live(|| {
+                let b = bundle
+                    .borrow_mut()
+                    .take()
+                    .or_else(|| Bundle::open_dir(&dir).ok());
+                ExplorerApp::new(b, view.clone())
+            });
+        }
         return;
     }
     let options = eframe::NativeOptions {
@@ -66,7 +87,11 @@ fn main() {
     let result = eframe::run_native(
         "PV-RNN explorer",
         options,
-        Box::new(move |_cc| Ok(Box::new(ExplorerApp::new(bundle, view)))),
+        Box::new(move |cc| {
+            let mut app = ExplorerApp::new(bundle, view);
+            app.compute_in_background(&cc.egui_ctx);
+            Ok(Box::new(app))
+        }),
     );
     if let Err(e) = result {
         eprintln!("cannot open a window: {e}");

@@ -226,6 +226,11 @@ pub struct RunKey {
     pub condition: Condition,
 }
 
+/// How soon the window redraws after an off-thread result arrives (web worker, desktop
+/// thread): often enough to watch a run grow, rarely enough that drawing does not take the
+/// core the inference needs (measured: `pvrnn-explorer --bench-live`).
+pub const REPAINT_EVERY: Duration = Duration::from_millis(100);
+
 /// Where runs are computed. The store only sends commands and reads [`Event`]s, so it does
 /// not depend on how (or on which thread) a result was computed.
 #[derive(Debug)]
@@ -235,6 +240,9 @@ pub enum Executor {
     /// In a Web Worker, beside the page's thread.
     #[cfg(target_arch = "wasm32")]
     Worker(crate::worker::WorkerClient),
+    /// On a background thread, beside the window's (desktop).
+    #[cfg(not(target_arch = "wasm32"))]
+    Thread(crate::thread::ThreadClient),
 }
 
 impl Default for Executor {
@@ -249,6 +257,8 @@ impl Executor {
             Self::Inline(e) => e.set_model(model.clone()),
             #[cfg(target_arch = "wasm32")]
             Self::Worker(w) => w.set_model(model),
+            #[cfg(not(target_arch = "wasm32"))]
+            Self::Thread(t) => t.set_model(model),
         }
     }
 
@@ -257,6 +267,8 @@ impl Executor {
             Self::Inline(e) => e.add_observations(name.to_string(), observations),
             #[cfg(target_arch = "wasm32")]
             Self::Worker(w) => w.add_observations(name, &observations),
+            #[cfg(not(target_arch = "wasm32"))]
+            Self::Thread(t) => t.add_observations(name, observations),
         }
     }
 
@@ -265,15 +277,19 @@ impl Executor {
             Self::Inline(e) => e.run(key.clone()),
             #[cfg(target_arch = "wasm32")]
             Self::Worker(w) => w.run(key),
+            #[cfg(not(target_arch = "wasm32"))]
+            Self::Thread(t) => t.run(key),
         }
     }
 
-    /// Computes for up to `budget` (inline) or collects what arrived (worker).
+    /// Computes for up to `budget` (inline) or collects what arrived (worker, thread).
     fn poll(&mut self, budget: Duration) -> Vec<Event> {
         match self {
             Self::Inline(e) => e.work(budget),
             #[cfg(target_arch = "wasm32")]
             Self::Worker(w) => w.take_events(),
+            #[cfg(not(target_arch = "wasm32"))]
+            Self::Thread(t) => t.take_events(),
         }
     }
 
@@ -283,6 +299,8 @@ impl Executor {
             Self::Inline(_) => None,
             #[cfg(target_arch = "wasm32")]
             Self::Worker(w) => w.failure(),
+            #[cfg(not(target_arch = "wasm32"))]
+            Self::Thread(t) => t.failure(),
         }
     }
 
@@ -327,6 +345,12 @@ impl RunStore {
     /// Notes since the last call, for the status line.
     pub fn take_notes(&mut self) -> Vec<String> {
         std::mem::take(&mut self.notes)
+    }
+
+    /// Computes with `executor` from now on; runs part way through start again there.
+    pub fn set_executor(&mut self, executor: Executor) {
+        self.executor = executor;
+        self.restart_executor();
     }
 
     pub fn with_executor(executor: Executor) -> Self {

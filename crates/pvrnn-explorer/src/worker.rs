@@ -29,9 +29,7 @@ use crate::runs::RunKey;
 /// Computing time per worker tick; messages from the page are handled between ticks.
 const TICK: Duration = Duration::from_millis(30);
 
-/// How soon the page redraws after a result arrives: often enough to watch a run grow, rarely
-/// enough that drawing does not take the worker's core (it matters with software rendering).
-const REPAINT_EVERY: Duration = Duration::from_millis(100);
+use crate::runs::REPAINT_EVERY;
 
 fn message(kind: &str, generation: u32, fields: &[(&str, JsValue)]) -> Object {
     let m = Object::new();

@@ -421,3 +421,32 @@ fn tempdir() -> std::path::PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+#[test]
+fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
+    let view = ViewState {
+        maps: false,
+        ..ViewState::default()
+    };
+    let inline = harness(ExplorerApp::new(Some(common::bundle()), view.clone()));
+    let expected = inline.state().current_run().unwrap().trace.clone();
+    let mut h = Harness::builder()
+        .with_size(eframe::egui::vec2(1400.0, 1000.0))
+        .build_ui_state(
+            |ui, app: &mut ExplorerApp| app.show(ui),
+            ExplorerApp::new(Some(common::bundle()), view),
+        );
+    let ctx = h.ctx.clone();
+    h.state_mut().compute_in_background(&ctx);
+    for _ in 0..3000 {
+        h.step();
+        if h.state().current_run().is_some_and(|r| r.complete) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let run = h.state().current_run().expect("the shown run");
+    assert!(run.complete && run.error.is_none(), "not finished in 15 s");
+    // Same model, inputs and seed: the same numbers, whichever thread computed them.
+    assert!(run.trace == expected, "the background run differs");
+}

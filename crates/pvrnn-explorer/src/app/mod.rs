@@ -121,6 +121,18 @@ impl ExplorerApp {
         app
     }
 
+    /// Computes live runs on a background thread (the desktop app), so drawing keeps its
+    /// full frame rate; `ctx` repaints when results arrive.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn compute_in_background(&mut self, ctx: &egui::Context) {
+        let ctx = ctx.clone();
+        let repaint = move || ctx.request_repaint_after(crate::runs::REPAINT_EVERY);
+        match crate::thread::ThreadClient::spawn(repaint) {
+            Ok(t) => self.store.set_executor(crate::runs::Executor::Thread(t)),
+            Err(e) => self.status = Status::Error(e),
+        }
+    }
+
     /// Shows a new model and dataset; every cached run is dropped.
     pub fn set_bundle(&mut self, mut bundle: Bundle) {
         self.store.clear();
@@ -467,4 +479,65 @@ pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
     println!(
         "{frames} frames while scrubbing: mean {mean:.2} ms, 95th percentile {p95:.2} ms per frame (layout + tessellation, one thread)"
     );
+}
+
+/// Computes the shown run live while drawing frames headless as a window would (at most 60
+/// per second, vsync, and only as often as the app asks to be repainted), first in the
+/// frame loop (slices of each frame's budget), then on a background thread, and prints the
+/// steps per second of each. `make` gives a fresh app each time (the run not yet computed).
+#[cfg(not(target_arch = "wasm32"))]
+pub fn bench_live(make: impl Fn() -> ExplorerApp) {
+    const FRAME: Duration = Duration::from_micros(16_667);
+    for (label, background) in [
+        ("in the frame loop", false),
+        ("on a background thread", true),
+    ] {
+        let mut app = make();
+        let ctx = egui::Context::default();
+        if background {
+            app.compute_in_background(&ctx);
+        }
+        let input = || egui::RawInput {
+            screen_rect: Some(egui::Rect::from_min_size(
+                egui::Pos2::ZERO,
+                egui::vec2(1440.0, 920.0),
+            )),
+            ..Default::default()
+        };
+        let start = Instant::now();
+        let mut frames = 0usize;
+        while !app
+            .current_run()
+            .is_some_and(|r| r.complete || r.error.is_some())
+        {
+            let frame = Instant::now();
+            let mut out = ctx.run_ui(input(), |ui| app.show(ui));
+            out.textures_delta.clear();
+            // The next frame when the app asked for it (the background thread asks when
+            // results arrive), but not sooner than vsync.
+            let wanted = out
+                .viewport_output
+                .get(&egui::ViewportId::ROOT)
+                .map_or(FRAME, |v| v.repaint_delay)
+                .clamp(FRAME, crate::runs::REPAINT_EVERY);
+            let _ = ctx.tessellate(out.shapes, out.pixels_per_point);
+            frames += 1;
+            if let Some(rest) = wanted.checked_sub(frame.elapsed()) {
+                std::thread::sleep(rest);
+            }
+            if start.elapsed() > Duration::from_secs(600) {
+                println!("{label}: not finished in 10 minutes");
+                break;
+            }
+        }
+        let seconds = start.elapsed().as_secs_f64();
+        let steps = app.current_run().map_or(0, |r| r.trace.steps);
+        let key = app.current_key().map(|k| condition_label(&k.condition));
+        println!(
+            "live run {label}: {steps} steps in {seconds:.1} s = {:.2} steps/s, {:.0} frames/s ({})",
+            steps as f64 / seconds,
+            frames as f64 / seconds,
+            key.unwrap_or_default()
+        );
+    }
 }

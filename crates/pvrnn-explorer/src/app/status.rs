@@ -11,7 +11,11 @@ impl ExplorerApp {
                 } else {
                     "ablation runs"
                 };
-                ui.spinner();
+                // A spinner repaints every frame: fine when the frame loop computes anyway,
+                // but off-thread it would take the core the inference needs.
+                if self.store.computes_inline() {
+                    ui.spinner();
+                }
                 ui.label(format!("{what}: step {done}/{total}"));
                 ui.add(
                     egui::ProgressBar::new(done as f32 / total.max(1) as f32).desired_width(120.0),

@@ -1,0 +1,160 @@
+//! Live inference on a background thread: the desktop's counterpart of the web worker. The
+//! window keeps drawing at full rate while an [`Engine`] computes beside it, instead of
+//! sharing each frame's budget with it. Commands go in and events come out through
+//! channels; events carry the generation of the model they belong to, so results still in
+//! flight when a new model arrives are dropped.
+
+use std::sync::Arc;
+use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
+use std::thread::JoinHandle;
+
+use pvrnn_core::{Model, Observations};
+use web_time::Duration;
+
+use crate::engine::{Engine, Event};
+use crate::runs::RunKey;
+
+/// Computing time between looks at the command channel.
+const TICK: Duration = Duration::from_millis(30);
+
+enum Command {
+    Model(u64, Arc<Model<f32>>),
+    Observations(u64, String, Arc<Observations<f32>>),
+    Run(u64, RunKey),
+}
+
+/// The window's handle on the inference thread.
+pub struct ThreadClient {
+    commands: Sender<Command>,
+    events: Receiver<(u64, Event)>,
+    generation: u64,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl std::fmt::Debug for ThreadClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ThreadClient")
+            .field("generation", &self.generation)
+            .finish()
+    }
+}
+
+impl ThreadClient {
+    /// Starts the thread; `repaint` is called when results arrive.
+    pub fn spawn(repaint: impl Fn() + Send + 'static) -> Result<Self, String> {
+        let (commands, command_rx) = mpsc::channel();
+        let (event_tx, events) = mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("pvrnn-inference".into())
+            .spawn(move || serve(&command_rx, &event_tx, &repaint))
+            .map_err(|e| format!("cannot start the inference thread: {e}"))?;
+        Ok(Self {
+            commands,
+            events,
+            generation: 0,
+            thread: Some(thread),
+        })
+    }
+
+    fn send(&self, command: Command) {
+        // A stopped thread shows in `failure`.
+        let _ = self.commands.send(command);
+    }
+
+    pub fn set_model(&mut self, model: &Arc<Model<f32>>) {
+        self.generation += 1;
+        self.send(Command::Model(self.generation, model.clone()));
+    }
+
+    pub fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
+        self.send(Command::Observations(
+            self.generation,
+            name.to_string(),
+            observations,
+        ));
+    }
+
+    pub fn run(&mut self, key: &RunKey) {
+        self.send(Command::Run(self.generation, key.clone()));
+    }
+
+    /// The events of the current model that arrived since the last call.
+    pub fn take_events(&mut self) -> Vec<Event> {
+        let mut out = Vec::new();
+        while let Ok((generation, event)) = self.events.try_recv() {
+            if generation == self.generation {
+                out.push(event);
+            }
+        }
+        out
+    }
+
+    /// Why the thread cannot be used, once it stopped (a panic in inference).
+    pub fn failure(&mut self) -> Option<String> {
+        if !self.thread.as_ref().is_some_and(JoinHandle::is_finished) {
+            return None;
+        }
+        let why = match self.thread.take().map(JoinHandle::join) {
+            Some(Err(panic)) => panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "a panic".into()),
+            _ => "it stopped".into(),
+        };
+        Some(format!("the inference thread stopped: {why}"))
+    }
+}
+
+impl Drop for ThreadClient {
+    fn drop(&mut self) {
+        // Closing the command channel ends the thread after its current tick.
+        let (closed, _) = mpsc::channel();
+        self.commands = closed;
+    }
+}
+
+/// The thread: waits for commands while idle, computes in ticks while a run is going.
+fn serve(commands: &Receiver<Command>, events: &Sender<(u64, Event)>, repaint: &dyn Fn()) {
+    let mut engine = Engine::default();
+    let mut generation = 0;
+    loop {
+        let mut next = if engine.running().is_none() {
+            match commands.recv() {
+                Ok(c) => Some(c),
+                Err(_) => return,
+            }
+        } else {
+            None
+        };
+        loop {
+            let command = match next.take() {
+                Some(c) => c,
+                None => match commands.try_recv() {
+                    Ok(c) => c,
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => return,
+                },
+            };
+            match command {
+                Command::Model(g, model) => {
+                    engine.set_model(model);
+                    generation = g;
+                }
+                // Meant for a model already replaced.
+                Command::Observations(g, _, _) | Command::Run(g, _) if g != generation => {}
+                Command::Observations(_, name, obs) => engine.add_observations(name, obs),
+                Command::Run(_, key) => engine.run(key),
+            }
+        }
+        let out = engine.work(TICK);
+        if !out.is_empty() {
+            for event in out {
+                if events.send((generation, event)).is_err() {
+                    return;
+                }
+            }
+            repaint();
+        }
+    }
+}

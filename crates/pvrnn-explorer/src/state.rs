@@ -5,6 +5,30 @@
 use crate::bundle::Bundle;
 use crate::runs::Condition;
 
+/// Which conditions the comparison view sets side by side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CompareSet {
+    /// Vision observed (every lowest-levels choice) x proprioception on / off: the paper's
+    /// Fig. 5 question.
+    Vision,
+    /// No ablation and each module ablated alone.
+    Ablation,
+}
+
+impl CompareSet {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Vision => "vision",
+            Self::Ablation => "ablation",
+        }
+    }
+    pub fn parse(text: &str) -> Option<Self> {
+        [Self::Vision, Self::Ablation]
+            .into_iter()
+            .find(|c| c.name() == text)
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct ViewState {
     pub sequence: Option<String>,
@@ -24,6 +48,8 @@ pub struct ViewState {
     pub playing: bool,
     /// Playback speed in steps per second.
     pub speed: f32,
+    /// The comparison view, when open.
+    pub compare: Option<CompareSet>,
 }
 
 impl Default for ViewState {
@@ -40,6 +66,7 @@ impl Default for ViewState {
             maps: false,
             playing: false,
             speed: 10.0,
+            compare: None,
         }
     }
 }
@@ -189,6 +216,9 @@ impl ViewState {
             parts.push(format!("seed={}", c.seed));
         }
         parts.push(format!("units={}", format_units(&self.units)));
+        if let Some(c) = self.compare {
+            parts.push(format!("compare={}", c.name()));
+        }
         for (key, on) in [
             ("d", self.show_d),
             ("prior", self.prior_images),
@@ -224,6 +254,12 @@ impl ViewState {
                 "prior" => v.prior_images = flag().unwrap_or(v.prior_images),
                 "contours" => v.contours = flag().unwrap_or(v.contours),
                 "maps" => v.maps = flag().unwrap_or(v.maps),
+                "compare" => {
+                    v.compare = match value {
+                        "off" | "0" => None,
+                        other => CompareSet::parse(other).or(v.compare),
+                    }
+                }
                 "vision" => {
                     if let Some(n) = num() {
                         c.vision_levels = n.min(8) as u8;
@@ -314,6 +350,7 @@ mod tests {
             prior_images: true,
             contours: true,
             maps: false,
+            compare: Some(CompareSet::Vision),
             ..ViewState::default()
         };
         let hash = v.to_hash();

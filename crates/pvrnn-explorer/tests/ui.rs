@@ -450,3 +450,44 @@ fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
     // Same model, inputs and seed: the same numbers, whichever thread computed them.
     assert!(run.trace == expected, "the background run differs");
 }
+
+#[test]
+fn the_comparison_view_computes_each_condition_side_by_side() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            maps: false,
+            t: 5,
+            compare: Some(pvrnn_explorer::state::CompareSet::Vision),
+            ..ViewState::default()
+        },
+    ));
+    settle(&mut h);
+    let cells = h.state().comparison();
+    // Two vision choices (8+4, 4) x proprioception on / off.
+    let labels: Vec<&str> = cells.iter().map(|c| c.label.as_str()).collect();
+    assert_eq!(
+        labels,
+        [
+            "vision 8+4, proprio on",
+            "vision 4, proprio on",
+            "vision 8+4, proprio off",
+            "vision 4, proprio off"
+        ]
+    );
+    for c in &cells {
+        let e = c.error_at_t.expect("computed past the cursor");
+        assert!(e.iter().all(|v| v.is_finite()), "{c:?}");
+        assert_eq!(c.steps, 12);
+    }
+    // Different conditions, different runs: the errors are not all the same.
+    assert!(cells.iter().any(|c| c.error_at_t != cells[0].error_at_t));
+    h.get_by_label("vision 4, proprio off");
+    // Each ablation instead, in the hash too.
+    h.state_mut().apply_hash("compare=ablation");
+    settle(&mut h);
+    let cells = h.state().comparison();
+    assert_eq!(cells.len(), 5);
+    assert!(cells.iter().all(|c| c.error_at_t.is_some()));
+    assert!(h.state().view().to_hash().contains("compare=ablation"));
+}

@@ -2,6 +2,7 @@
 //! inference settings), what is shown.
 
 use super::*;
+use crate::state::CompareSet;
 
 impl ExplorerApp {
     pub(super) fn controls_ui(&mut self, ui: &mut egui::Ui) {
@@ -10,6 +11,21 @@ impl ExplorerApp {
         ui.horizontal_wrapped(|ui| {
             ui.strong("PV-RNN explorer");
             ui.toggle_value(&mut self.show_about, "About this model");
+            let l = ui.label("Compare");
+            let text = |c: Option<CompareSet>| match c {
+                None => "off",
+                Some(CompareSet::Vision) => "vision x proprio",
+                Some(CompareSet::Ablation) => "ablations",
+            };
+            egui::ComboBox::from_id_salt("compare")
+                .selected_text(text(self.view.compare))
+                .show_ui(ui, |ui| {
+                    for c in [None, Some(CompareSet::Vision), Some(CompareSet::Ablation)] {
+                        ui.selectable_value(&mut self.view.compare, c, text(c));
+                    }
+                })
+                .response
+                .labelled_by(l.id);
             ui.separator();
             self.sequence_picker(ui);
             ui.separator();

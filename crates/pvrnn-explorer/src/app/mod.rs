@@ -18,6 +18,7 @@ use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
 use pvrnn_dataset::JOINTS;
 
+mod compare;
 mod controls;
 mod images_panel;
 mod status;
@@ -25,6 +26,8 @@ mod summaries;
 mod time_panel;
 mod traces;
 
+use compare::CompareCache;
+pub use compare::{CompareCell, compare_conditions};
 pub use controls::condition_label;
 use images_panel::ImageCache;
 pub use summaries::uncertainty;
@@ -59,6 +62,7 @@ pub struct ExplorerApp {
     view: ViewState,
     status: Status,
     images: ImageCache,
+    compare_images: CompareCache,
     units_text: String,
     last_frame: Option<Instant>,
     play_accum: f32,
@@ -91,6 +95,7 @@ impl ExplorerApp {
             view,
             status: Status::None,
             images: ImageCache::default(),
+            compare_images: CompareCache::default(),
             last_frame: None,
             play_accum: 0.0,
             last_hash: String::new(),
@@ -265,6 +270,7 @@ impl ExplorerApp {
                 );
             }
         }
+        self.request_comparison();
         let Some(bundle) = self.bundle.as_mut() else {
             return false;
         };
@@ -368,6 +374,7 @@ impl ExplorerApp {
         egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| self.traces_ui(ui));
         });
+        self.compare_ui(&ctx);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")
                 .open(&mut self.show_about)

@@ -1,0 +1,246 @@
+//! The comparison view: the step at the cursor under several conditions side by side, each
+//! with its predicted image and its reconstruction error, filled in as the runs arrive
+//! (vision 64 / 32+16 / 16 x proprioception on / off: the paper's Fig. 5 question answered by
+//! looking; or each module ablated).
+
+use super::*;
+use crate::state::CompareSet;
+
+/// The comparison's conditions, derived from `current` (its H, iterations, lr and seed are
+/// kept), with their labels.
+pub fn compare_conditions(
+    set: CompareSet,
+    current: Condition,
+    resolutions: &[usize],
+) -> Vec<(String, Condition)> {
+    let vision_label = |n: usize| {
+        resolutions[..n]
+            .iter()
+            .rev()
+            .map(|r| r.to_string())
+            .collect::<Vec<_>>()
+            .join("+")
+    };
+    match set {
+        CompareSet::Vision => {
+            let mut out = Vec::new();
+            for proprio in [true, false] {
+                for levels in (1..=resolutions.len()).rev() {
+                    let c = Condition {
+                        vision_levels: levels as u8,
+                        proprio,
+                        ..current
+                    };
+                    let label = format!(
+                        "vision {}, proprio {}",
+                        vision_label(levels),
+                        if proprio { "on" } else { "off" }
+                    );
+                    out.push((label, c.canonical()));
+                }
+            }
+            out
+        }
+        CompareSet::Ablation => {
+            let mut out = vec![("no ablation".to_string(), current.without_ablation())];
+            for id in ModuleId::ALL {
+                out.push((format!("{} ablated", id.name()), current.ablating(id)));
+            }
+            out
+        }
+    }
+}
+
+/// Textures of the comparison at the cursor, redone when a run grows past the cursor.
+#[derive(Default)]
+pub(super) struct CompareCache {
+    key: Option<(Vec<RunKey>, usize, Vec<usize>)>,
+    textures: Vec<Option<TextureHandle>>,
+}
+
+/// One cell as the view shows it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompareCell {
+    pub label: String,
+    pub key: RunKey,
+    /// Mean squared reconstruction error at the cursor (vision, proprioception), once the
+    /// run got there.
+    pub error_at_t: Option<[f32; 2]>,
+    /// The same averaged over the steps computed so far.
+    pub mean_error: Option<[f32; 2]>,
+    /// Steps computed of the sequence's.
+    pub steps: usize,
+}
+
+impl ExplorerApp {
+    /// The comparison's cells, when the view is open.
+    pub fn comparison(&self) -> Vec<CompareCell> {
+        let (Some(set), Some(bundle), Some(key)) =
+            (self.view.compare, &self.bundle, self.current_key())
+        else {
+            return Vec::new();
+        };
+        let t = self.view.t;
+        compare_conditions(set, key.condition, &bundle.model.config.vision.resolutions)
+            .into_iter()
+            .map(|(label, condition)| {
+                let key = RunKey {
+                    condition,
+                    ..key.clone()
+                };
+                let trace = self.store.get(&key).map(|e| &e.trace);
+                let steps = trace.map_or(0, |tr| tr.steps);
+                let mean_error = trace.filter(|tr| tr.steps > 0).map(|tr| {
+                    let n = tr.recon_error.len() as f32;
+                    let sum = tr
+                        .recon_error
+                        .iter()
+                        .fold([0f32; 2], |a, e| [a[0] + e[0], a[1] + e[1]]);
+                    [sum[0] / n, sum[1] / n]
+                });
+                CompareCell {
+                    label,
+                    error_at_t: trace.and_then(|tr| tr.recon_error.get(t).copied()),
+                    mean_error,
+                    steps,
+                    key,
+                }
+            })
+            .collect()
+    }
+
+    /// Asks for the comparison's runs (after the shown one).
+    pub(super) fn request_comparison(&mut self) {
+        for cell in self.comparison() {
+            self.store.request(cell.key, false);
+        }
+    }
+
+    pub(super) fn compare_ui(&mut self, ctx: &egui::Context) {
+        let Some(set) = self.view.compare else {
+            return;
+        };
+        let cells = self.comparison();
+        self.refresh_comparison(ctx, &cells);
+        let Some(bundle) = &self.bundle else { return };
+        let len = bundle
+            .dataset
+            .by_name(
+                &cells
+                    .first()
+                    .map(|c| c.key.sequence.clone())
+                    .unwrap_or_default(),
+            )
+            .map_or(0, |s| s.len());
+        let top = bundle.model.config.vision.resolutions.len() - 1;
+        let r = bundle.model.config.vision.resolutions[top];
+        let mut open = true;
+        let columns = if set == CompareSet::Vision {
+            bundle.model.config.vision.resolutions.len()
+        } else {
+            cells.len()
+        };
+        egui::Window::new(format!("Compare: {}", set.name()))
+            .open(&mut open)
+            .default_width(160.0 * columns as f32)
+            .show(ctx, |ui| {
+                ui.weak(format!(
+                    "step t = {}: left camera at {r}x{r}, posterior reconstruction; error = mean squared error of all dimensions (model units) at t, and over the steps computed",
+                    self.view.t
+                ));
+                egui::Grid::new("compare grid")
+                    .spacing([8.0, 6.0])
+                    .show(ui, |ui| {
+                        for (i, cell) in cells.iter().enumerate() {
+                            ui.vertical(|ui| {
+                                ui.strong(&cell.label);
+                                let size = egui::vec2(140.0, 140.0);
+                                match self.compare_images.textures.get(i).and_then(Option::as_ref) {
+                                    Some(t) => {
+                                        ui.add(egui::Image::new(t).fit_to_exact_size(size));
+                                    }
+                                    None => {
+                                        let (rect, _) =
+                                            ui.allocate_exact_size(size, egui::Sense::hover());
+                                        ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
+                                        ui.painter().text(
+                                            rect.center(),
+                                            egui::Align2::CENTER_CENTER,
+                                            format!("computing {}/{len}", cell.steps),
+                                            egui::FontId::proportional(11.0),
+                                            Color32::GRAY,
+                                        );
+                                    }
+                                }
+                                let text = |e: Option<[f32; 2]>| {
+                                    e.map_or("–".to_string(), |e| {
+                                        format!("vision {:.4}, proprio {:.4}", e[0], e[1])
+                                    })
+                                };
+                                ui.label(format!("at t: {}", text(cell.error_at_t)));
+                                ui.weak(format!(
+                                    "mean over {} steps: {}",
+                                    cell.steps,
+                                    text(cell.mean_error)
+                                ));
+                            });
+                            if (i + 1) % columns == 0 {
+                                ui.end_row();
+                            }
+                        }
+                    });
+            });
+        if !open {
+            self.view.compare = None;
+        }
+    }
+
+    /// Reads out the cells' images at the cursor when a run reached it since last time.
+    fn refresh_comparison(&mut self, ctx: &egui::Context, cells: &[CompareCell]) {
+        let Some(bundle) = &self.bundle else { return };
+        let t = self.view.t;
+        let key = (
+            cells.iter().map(|c| c.key.clone()).collect::<Vec<_>>(),
+            t,
+            cells.iter().map(|c| c.steps.min(t + 1)).collect::<Vec<_>>(),
+        );
+        if self.compare_images.key.as_ref() == Some(&key) {
+            return;
+        }
+        let ext = ModuleId::Exteroceptive;
+        let mut rows = Vec::new();
+        let mut which = Vec::new();
+        for (i, cell) in cells.iter().enumerate() {
+            if let Some(e) = self.store.get(&cell.key).filter(|e| e.trace.steps > t) {
+                rows.extend_from_slice(e.trace.d_at(ext, t, false));
+                which.push(i);
+            }
+        }
+        let layout = &bundle.model.config.vision;
+        let dims = layout.dims();
+        let predictions = if which.is_empty() {
+            Vec::new()
+        } else {
+            readout(
+                &bundle.model.params,
+                Modality::Exteroceptive,
+                &rows,
+                which.len(),
+            )
+        };
+        let top = layout.resolutions.len() - 1;
+        let mut textures = vec![None; cells.len()];
+        for (k, &i) in which.iter().enumerate() {
+            let rgb = images::camera_image(layout, &predictions[k * dims..(k + 1) * dims], top, 0);
+            textures[i] = Some(ctx.load_texture(
+                format!("compare {i}"),
+                rgb.to_color_image(),
+                TextureOptions::NEAREST,
+            ));
+        }
+        self.compare_images = CompareCache {
+            key: Some(key),
+            textures,
+        };
+    }
+}

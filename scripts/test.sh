@@ -18,6 +18,9 @@ cargo clippy --workspace --all-targets -- -D warnings
 step "cargo clippy for WebAssembly (the explorer's web code)"
 cargo clippy -p pvrnn-explorer --target wasm32-unknown-unknown --all-targets -- -D warnings
 
+step "cargo doc with warnings denied"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
+
 step "native tests"
 cargo test --workspace
 

@@ -1,6 +1,7 @@
 //! Finds wiping's variability factor whose trajectory spread matches repositioning's at
 //! factor 1 (the `Variability::MATCHED` preset), by bisection over the 9 learning trials of
 //! seed 0.
+#![allow(clippy::unwrap_used)] // an example script: a failed unwrap is a failed run
 use caresim::variability::trajectory_spread;
 use caresim::{DatasetSpec, Task, TrialSpec, Variability};
 use pvrnn_dataset::Split;

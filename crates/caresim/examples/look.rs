@@ -1,4 +1,5 @@
 //! Renders a few frames of a trial at high resolution for a person to look at.
+#![allow(clippy::unwrap_used)] // an example script: a failed unwrap is a failed run
 use caresim::*;
 fn main() {
     let args: Vec<String> = std::env::args().collect();

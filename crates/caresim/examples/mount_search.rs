@@ -1,4 +1,5 @@
 //! Random search of rest postures: exact IK on both tasks, elbows as low as possible.
+#![allow(clippy::unwrap_used)] // an example script: a failed unwrap is a failed run
 use caresim::scene::{Mount, Robot};
 use caresim::*;
 use glam::DVec3;

@@ -1,5 +1,5 @@
 //! The model configuration. Defaults are the paper's; every point `spec/model.md` marks as
-//! [decided] is a field here, so a user can change it in a TOML file.
+//! \[decided\] is a field here, so a user can change it in a TOML file.
 //!
 //! The configuration travels inside every model file as JSON (safetensors metadata `config`).
 
@@ -101,9 +101,9 @@ pub struct ModuleConfig {
 pub struct ReadoutConfig {
     /// Hidden layer widths, bottom (module side) first.
     pub hidden: Vec<usize>,
-    /// [decided] Hidden layers have a trainable bias.
+    /// \[decided\] Hidden layers have a trainable bias.
     pub hidden_bias: bool,
-    /// [decided] The output layer has no bias (eq. 13).
+    /// \[decided\] The output layer has no bias (eq. 13).
     pub output_bias: bool,
 }
 
@@ -147,7 +147,7 @@ impl VisionLayout {
 }
 
 /// What each modality's accuracy term is divided by when only part of it is observed
-/// (spec, [decided] "Accuracy under partial observation").
+/// (spec, \[decided\] "Accuracy under partial observation").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AccuracyNormalisation {
@@ -189,7 +189,7 @@ pub enum TauOrder {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PosteriorInit {
-    /// [decided] a = the prior's pre-activations of a first forward pass (mean path, eps = 0).
+    /// \[decided\] a = the prior's pre-activations of a first forward pass (mean path, eps = 0).
     Prior,
     /// a = 0: posterior N(0, 1).
     Zero,
@@ -203,9 +203,9 @@ pub struct RAdamConfig {
     pub beta1: f64,
     pub beta2: f64,
     pub eps: f64,
-    /// [decided] The adaptive (rectified) step is used once rho_t exceeds this (PyTorch: 5).
+    /// \[decided\] The adaptive (rectified) step is used once rho_t exceeds this (PyTorch: 5).
     pub rectify_threshold: f64,
-    /// [decided] L2 penalty added to the gradient; 0 = none.
+    /// \[decided\] L2 penalty added to the gradient; 0 = none.
     pub weight_decay: f64,
 }
 
@@ -226,9 +226,9 @@ pub struct InferenceConfig {
     pub window: usize,
     /// Updates of the window's adaptive variables per step.
     pub iterations: usize,
-    /// [decided] RAdam with lr 1.0 ...
+    /// \[decided\] RAdam with lr 1.0 ...
     pub optimizer: RAdamConfig,
-    /// [decided] ... and moments reset at every new step.
+    /// \[decided\] ... and moments reset at every new step.
     pub reset_moments_each_step: bool,
 }
 
@@ -288,17 +288,17 @@ pub struct ModelConfig {
     pub proprio_dims: usize,
     /// W: weight of every module's complexity term.
     pub kl_weight: f64,
-    /// [decided] Divisor of each modality's accuracy under partial observation.
+    /// \[decided\] Divisor of each modality's accuracy under partial observation.
     pub accuracy_normalisation: AccuracyNormalisation,
-    /// [decided] The prior has no bias (eqs. 5-6).
+    /// \[decided\] The prior has no bias (eqs. 5-6).
     pub prior_bias: bool,
-    /// [decided] The first half of a module's units gets the smaller tau.
+    /// \[decided\] The first half of a module's units gets the smaller tau.
     pub tau_order: TauOrder,
-    /// [decided] Fixed recurrent bias ~ N(0, variance), variance (not std) 10.
+    /// \[decided\] Fixed recurrent bias ~ N(0, variance), variance (not std) 10.
     pub recurrent_bias_variance: f64,
     /// Gain of Xavier-normal weight initialisation.
     pub xavier_gain: f64,
-    /// [decided] Initial adaptive variables.
+    /// \[decided\] Initial adaptive variables.
     pub posterior_init: PosteriorInit,
     pub train: TrainConfig,
     pub inference: InferenceConfig,

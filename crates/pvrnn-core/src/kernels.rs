@@ -5,6 +5,10 @@
 //! result does not depend on the vector width (SSE2, AVX2, AVX-512). Multiply-adds are
 //! fused on x86-64 (see [`crate::Real::madd`]), like faer's products: runs are bit-for-bit
 //! reproducible on one machine, not across CPUs with and without FMA.
+//!
+//! The one module allowed unsafe code (the workspace denies it): calling functions compiled
+//! for CPU features checked at run time, and prefetch hints.
+#![allow(unsafe_code)]
 
 /// Runs `f` compiled for the widest x86 vector extension the CPU has (AVX-512, then AVX2),
 /// else as is. `f` and everything it calls should be `#[inline(always)]` so the code is
@@ -25,11 +29,19 @@ pub(crate) fn simd<R>(f: impl FnOnce() -> R) -> R {
             && std::is_x86_feature_detected!("avx512vl")
             && std::is_x86_feature_detected!("avx512dq")
             && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx2")
+            && std::is_x86_feature_detected!("fma")
+            && std::is_x86_feature_detected!("bmi1")
+            && std::is_x86_feature_detected!("bmi2")
         {
             // SAFETY: the CPU supports every feature enabled on `v4`.
             return unsafe { v4(f) };
         }
-        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        if std::is_x86_feature_detected!("avx2")
+            && std::is_x86_feature_detected!("fma")
+            && std::is_x86_feature_detected!("bmi1")
+            && std::is_x86_feature_detected!("bmi2")
+        {
             // SAFETY: the CPU supports every feature enabled on `v3`.
             return unsafe { v3(f) };
         }

@@ -3,6 +3,7 @@
 //! Tolerance: |numeric - analytic| <= 1e-7 + 1e-5 |analytic|. With h = 1e-5 the truncation
 //! error of a central difference is ~h^2 * F''' ~ 1e-10 and rounding ~1e-16 * F / h ~ 1e-10,
 //! so a wrong term (even a missing factor 1/tau or a sign) fails by orders of magnitude.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 mod common;
 

@@ -1,5 +1,6 @@
 //! Learning lowers the free energy; online inference with the learned weights tracks the
 //! sequence; everything is reproducible from the seed.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 mod common;
 

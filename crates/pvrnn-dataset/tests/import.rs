@@ -1,5 +1,6 @@
 //! Importing real recordings: the layout round trip, and an error naming the file (and the
 //! line) for every kind of bad input.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::Path;
 

@@ -8,7 +8,7 @@
 //! - [`groups`]: which dimensions a figure covers.
 //! - [`metrics`]: squared errors (one function for model and baselines), change masks,
 //!   upsampling.
-//! - [`evaluate`]: the runs.
+//! - [`evaluate`](mod@evaluate): the runs.
 //! - [`report`]: aggregation (per trial, then mean ± SE) and the JSON, Markdown and CSV files.
 //! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
 //!   images), and training curves from a training log.

@@ -1,6 +1,7 @@
 //! `evaluate` end to end on a small model and dataset: the model's errors agree with the
 //! core's own reconstruction error, the baselines equal their definitions, and the report
 //! files and the progress table come out.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::sync::Arc;
 

@@ -1,4 +1,5 @@
 //! The explorer's interface logic, driven headless with egui_kittest.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 #![cfg(not(target_arch = "wasm32"))]
 
 mod common;

@@ -2,6 +2,7 @@
 //! `WASM_BINDGEN_TEST_WEBDRIVER_JSON=$PWD/tests/web/webdriver.json CHROMEDRIVER=/usr/bin/chromedriver
 //! cargo test -p pvrnn-explorer --target wasm32-unknown-unknown` (the JSON turns on software
 //! WebGL). The built site, with its worker, is tested by tests/web/smoke.mjs.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 #![cfg(target_arch = "wasm32")]
 
 mod common;

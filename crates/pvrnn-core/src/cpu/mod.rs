@@ -70,9 +70,11 @@ fn evaluate<T: Real>(
         recurrent::forward(prepared, &windows[i], &req.ablation)
     });
     let mut offsets = Vec::with_capacity(windows.len() + 1);
-    offsets.push(0);
+    let mut total = 0;
+    offsets.push(total);
     for w in windows {
-        offsets.push(offsets.last().unwrap() + w.len);
+        total += w.len;
+        offsets.push(total);
     }
     let n = offsets[windows.len()];
     let want_grads = req.grads != Grads::None;

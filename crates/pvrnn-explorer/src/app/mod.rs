@@ -1,7 +1,7 @@
 //! The explorer's window. This module holds the app's state and its logic (loading,
 //! computing, playback, the URL hash: [`ExplorerApp::logic`]); each panel draws in its own
-//! file: [`controls`] (top bar), [`status`], [`time_panel`], [`images_panel`], [`traces`],
-//! [`summaries`].
+//! file: `controls` (top bar), `status`, `time_panel`, `images_panel`, `traces`,
+//! `summaries`, `compare`.
 
 use std::collections::HashMap;
 

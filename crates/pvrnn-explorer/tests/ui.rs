@@ -492,3 +492,37 @@ fn the_comparison_view_computes_each_condition_side_by_side() {
     assert!(cells.iter().all(|c| c.error_at_t.is_some()));
     assert!(h.state().view().to_hash().contains("compare=ablation"));
 }
+
+#[test]
+fn the_shown_run_exports_as_csv() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
+    let dir = tempdir();
+    h.state_mut().set_export_dir(dir.clone());
+    h.get_by_label("Export CSV").click();
+    h.step();
+    let status = format!("{:?}", h.state().status());
+    assert!(status.contains("saved"), "{status}");
+    let file = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.extension().is_some_and(|e| e == "csv"))
+        .expect("a CSV file");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 13, "a header and the 12 steps");
+    let header: Vec<&str> = lines[0].split(',').collect();
+    assert!(header.contains(&"executive.mu_p0") && header.contains(&"proprio_recon27"));
+    let row: Vec<&str> = lines[1].split(',').collect();
+    assert_eq!(row.len(), header.len());
+    assert_eq!(&row[..2], ["0", "first"]);
+    let trace = &h.state().current_run().unwrap().trace;
+    assert_eq!(row[2].parse::<f32>().unwrap(), trace.free_energy[0]);
+    let _ = std::fs::remove_dir_all(&dir);
+}

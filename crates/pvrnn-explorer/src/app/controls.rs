@@ -26,6 +26,7 @@ impl ExplorerApp {
                 })
                 .response
                 .labelled_by(l.id);
+            self.export_ui(ui);
             ui.separator();
             self.sequence_picker(ui);
             ui.separator();

@@ -20,6 +20,7 @@ use pvrnn_dataset::JOINTS;
 
 mod compare;
 mod controls;
+mod export;
 mod images_panel;
 mod status;
 mod summaries;
@@ -29,6 +30,7 @@ mod traces;
 use compare::CompareCache;
 pub use compare::{CompareCell, compare_conditions};
 pub use controls::condition_label;
+pub use export::png_bytes;
 use images_panel::ImageCache;
 pub use summaries::uncertainty;
 
@@ -63,6 +65,11 @@ pub struct ExplorerApp {
     status: Status,
     images: ImageCache,
     compare_images: CompareCache,
+    /// A picture of the window on its way back from the renderer.
+    pending_shot: export::PendingShot,
+    /// Where exports go on the desktop.
+    #[cfg(not(target_arch = "wasm32"))]
+    export_dir: std::path::PathBuf,
     units_text: String,
     last_frame: Option<Instant>,
     play_accum: f32,
@@ -96,6 +103,9 @@ impl ExplorerApp {
             status: Status::None,
             images: ImageCache::default(),
             compare_images: CompareCache::default(),
+            pending_shot: Default::default(),
+            #[cfg(not(target_arch = "wasm32"))]
+            export_dir: std::path::PathBuf::from("pvrnn-exports"),
             last_frame: None,
             play_accum: 0.0,
             last_hash: String::new(),
@@ -316,6 +326,7 @@ impl ExplorerApp {
             }
         }
         self.take_dropped(ctx);
+        self.take_picture();
         let now = Instant::now();
         let dt = self
             .last_frame

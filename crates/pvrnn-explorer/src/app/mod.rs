@@ -71,7 +71,8 @@ pub struct ExplorerApp {
     #[cfg(not(target_arch = "wasm32"))]
     export_dir: std::path::PathBuf,
     units_text: String,
-    last_frame: Option<Instant>,
+    /// egui's clock at the last frame (real time in a window, stepped in tests).
+    last_time: Option<f64>,
     play_accum: f32,
     /// The hash last written to (or read from) the URL.
     last_hash: String,
@@ -106,7 +107,7 @@ impl ExplorerApp {
             pending_shot: Default::default(),
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
-            last_frame: None,
+            last_time: None,
             play_accum: 0.0,
             last_hash: String::new(),
             last_run_note: None,
@@ -327,12 +328,13 @@ impl ExplorerApp {
         }
         self.take_dropped(ctx);
         self.take_picture();
-        let now = Instant::now();
+        // egui's clock rather than the wall clock, so tests can step time exactly.
+        let now = ctx.input(|i| i.time);
         let dt = self
-            .last_frame
-            .map_or(0.0, |l| (now - l).as_secs_f32())
-            .min(0.25);
-        self.last_frame = Some(now);
+            .last_time
+            .map_or(0.0, |l| (now - l) as f32)
+            .clamp(0.0, 0.25);
+        self.last_time = Some(now);
         if self.bundle.is_none() {
             return;
         }

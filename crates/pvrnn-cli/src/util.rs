@@ -60,17 +60,171 @@ pub fn config_to_toml(config: &ModelConfig) -> String {
     toml::to_string_pretty(config).expect("configuration serialises to TOML")
 }
 
-/// A progress bar on stderr (hidden when stderr is not a terminal).
-pub fn progress(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{what} {{bar:30}} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta_precise}}] {{msg}}"
-        ))
-        .expect("valid template"),
-    );
-    bar.enable_steady_tick(Duration::from_millis(200));
-    bar
+/// Progress of a long job on stderr: a bar on a terminal; otherwise (`nohup`, a cluster
+/// job's log) a plain line at a steady interval: done/total, the last message (e.g. the free
+/// energy), seconds per unit and the time left. The interval is 60 s, or
+/// `PVRNN_PROGRESS_EVERY` seconds.
+#[derive(Debug)]
+pub struct Progress {
+    bar: ProgressBar,
+    plain: Option<std::sync::Mutex<Plain>>,
+}
+
+#[derive(Debug)]
+struct Plain {
+    what: String,
+    len: u64,
+    pos: u64,
+    message: String,
+    start: std::time::Instant,
+    /// Position and time at the start, so a resumed run's rate counts only this run.
+    first_pos: Option<u64>,
+    last_print: Option<std::time::Instant>,
+    every: Duration,
+}
+
+impl Plain {
+    fn line(&self) -> String {
+        let elapsed = self.start.elapsed().as_secs_f64();
+        let done = self.pos.saturating_sub(self.first_pos.unwrap_or(0));
+        let mut out = format!("{}: {}/{}", self.what, self.pos, self.len);
+        if self.len > 0 {
+            out.push_str(&format!(
+                " ({:.1}%)",
+                100.0 * self.pos as f64 / self.len as f64
+            ));
+        }
+        if !self.message.is_empty() {
+            out.push_str(&format!(", {}", self.message));
+        }
+        if done > 0 {
+            let per = elapsed / done as f64;
+            out.push_str(&format!(", {per:.3} s each"));
+            if self.len > self.pos {
+                out.push_str(&format!(
+                    ", ETA {}",
+                    duration_text(per * (self.len - self.pos) as f64)
+                ));
+            }
+        }
+        out
+    }
+}
+
+/// `2h 05m`, `3m 20s`, `12s`.
+pub fn duration_text(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match (s / 3600, (s % 3600) / 60, s % 60) {
+        (0, 0, sec) => format!("{sec}s"),
+        (0, m, sec) => format!("{m}m {sec:02}s"),
+        (h, m, _) => format!("{h}h {m:02}m"),
+    }
+}
+
+impl Progress {
+    fn with_plain(&self, f: impl FnOnce(&mut Plain)) {
+        if let Some(plain) = &self.plain
+            && let Ok(mut p) = plain.lock()
+        {
+            f(&mut p);
+        }
+    }
+
+    /// Prints the plain line when the interval has passed (or `force`).
+    fn report(&self, force: bool) {
+        self.with_plain(|p| {
+            let due = p.last_print.is_none_or(|t| t.elapsed() >= p.every);
+            if force || due {
+                eprintln!("{}", p.line());
+                p.last_print = Some(std::time::Instant::now());
+            }
+        });
+    }
+
+    pub fn set_position(&self, pos: u64) {
+        self.bar.set_position(pos);
+        self.with_plain(|p| {
+            p.first_pos.get_or_insert(pos);
+            p.pos = pos;
+        });
+        self.report(false);
+    }
+
+    pub fn inc(&self, n: u64) {
+        self.bar.inc(n);
+        self.with_plain(|p| {
+            p.first_pos.get_or_insert(p.pos);
+            p.pos += n;
+        });
+        self.report(false);
+    }
+
+    pub fn inc_length(&self, n: u64) {
+        self.bar.inc_length(n);
+        self.with_plain(|p| p.len += n);
+    }
+
+    pub fn set_message(&self, message: String) {
+        self.with_plain(|p| p.message.clone_from(&message));
+        self.bar.set_message(message);
+    }
+
+    pub fn println(&self, line: impl AsRef<str>) {
+        if self.plain.is_some() {
+            eprintln!("{}", line.as_ref());
+        } else {
+            self.bar.println(line);
+        }
+    }
+
+    pub fn finish(&self) {
+        self.bar.finish();
+        self.report(true);
+    }
+
+    pub fn finish_and_clear(&self) {
+        self.bar.finish_and_clear();
+        self.report(true);
+    }
+
+    pub fn abandon(&self) {
+        self.bar.abandon();
+        self.report(true);
+    }
+}
+
+/// Progress of `len` units of `what` on stderr (see [`Progress`]).
+pub fn progress(len: u64, what: &str) -> Progress {
+    use std::io::IsTerminal;
+    if std::io::stderr().is_terminal() {
+        let bar = ProgressBar::new(len);
+        bar.set_style(
+            ProgressStyle::with_template(&format!(
+                "{what} {{bar:30}} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta_precise}}] {{msg}}"
+            ))
+            .expect("valid template"),
+        );
+        bar.enable_steady_tick(Duration::from_millis(200));
+        return Progress { bar, plain: None };
+    }
+    let every = std::env::var("PVRNN_PROGRESS_EVERY")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|v| v.is_finite() && *v >= 0.0)
+        .unwrap_or(60.0);
+    Progress {
+        bar: ProgressBar::hidden(),
+        plain: Some(std::sync::Mutex::new(Plain {
+            what: what.to_string(),
+            len,
+            pos: 0,
+            message: String::new(),
+            start: std::time::Instant::now(),
+            first_pos: None,
+            last_print: Some(std::time::Instant::now()),
+            every: Duration::from_secs_f64(every),
+        })),
+    }
 }
 
 /// Parses `on`/`off`.
@@ -107,6 +261,27 @@ mod tests {
         std::fs::write(&p, "[executive]\ntau = [0.5, 2.0]\n").unwrap();
         let e = format!("{:#}", load_config(Some(&p)).unwrap_err());
         assert!(e.contains("executive.tau"), "{e}");
+    }
+
+    #[test]
+    fn plain_progress_lines_say_rate_and_time_left() {
+        let p = Plain {
+            what: "train".into(),
+            len: 1000,
+            pos: 400,
+            message: "F 16.5".into(),
+            start: std::time::Instant::now() - Duration::from_secs(100),
+            first_pos: Some(200),
+            last_print: None,
+            every: Duration::ZERO,
+        };
+        // 200 iterations in 100 s: 0.5 s each, 600 left: 5 minutes.
+        assert_eq!(
+            p.line(),
+            "train: 400/1000 (40.0%), F 16.5, 0.500 s each, ETA 5m 00s"
+        );
+        assert_eq!(duration_text(7530.0), "2h 05m");
+        assert_eq!(duration_text(12.4), "12s");
     }
 
     #[test]

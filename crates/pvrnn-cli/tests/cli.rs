@@ -220,6 +220,31 @@ fn train_checkpoints_resumes_and_lowers_free_energy() {
         "10",
     ]);
     let f30: serde_json::Value = serde_json::from_str(first.trim()).unwrap();
+    // Without a terminal (as under nohup or a cluster), plain progress lines at the
+    // interval PVRNN_PROGRESS_EVERY sets (0: every update).
+    let logged = Command::new(env!("CARGO_BIN_EXE_pvrnn"))
+        .env("PVRNN_PROGRESS_EVERY", "0")
+        .args([
+            "train",
+            "--model",
+            &x.s("m.safetensors"),
+            "--inputs",
+            &x.s("x.safetensors"),
+            "--out",
+            &x.s("logged.safetensors"),
+            "--iterations",
+            "5",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&logged.stderr);
+    assert!(
+        logged.status.success()
+            && err.contains("train: 5/5 (100.0%), F ")
+            && err.contains("train: 2/5 (40.0%)")
+            && err.contains("s each, ETA "),
+        "{err}"
+    );
     // Refuses to clobber a run.
     let e = fails(&[
         "train",

@@ -9,6 +9,7 @@
 //! when the worker cannot go on (a command it cannot read, a message it cannot send): the
 //! page then computes in itself, and says why.
 //!
+//! One typed protocol, one encoder and decoder per direction: [`Command`] and [`Reply`].
 //! Keys are [`RunKey`]s as JSON, steps are [`CompactStep::to_f32s`]. Messages carry the
 //! generation of the model they belong to, so results that were in flight when a new model
 //! arrived are dropped.
@@ -73,60 +74,189 @@ pub fn key_from_text(text: &str) -> Result<RunKey, String> {
     serde_json::from_str(text).map_err(|e| format!("a worker message has a bad run key: {e}"))
 }
 
-/// Worker → page: an engine event as a message (with the buffers to transfer).
-pub fn event_message(event: &Event, generation: u32) -> (Object, Array) {
-    let transfer = Array::new();
-    let m = match event {
-        Event::Step(key, step) => {
-            let data = floats(&step.to_f32s());
-            transfer.push(&data.buffer());
-            message(
-                "step",
-                generation,
-                &[("key", key_to_text(key).into()), ("data", data.into())],
-            )
-        }
-        Event::Done(f) => message(
-            "done",
-            generation,
-            &[
-                ("key", key_to_text(&f.key).into()),
-                ("steps", (f.steps as f64).into()),
-                ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
-                ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
-            ],
-        ),
-        Event::Failed(key, e) => message(
-            "failed",
-            generation,
-            &[("key", key_to_text(key).into()), ("message", e.into())],
-        ),
-    };
-    (m, transfer)
+/// Page → worker.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// A new model (its safetensors bytes); `generation` tags everything that follows.
+    Model { generation: u32, bytes: Vec<u8> },
+    /// A sequence's inputs.
+    Observations {
+        generation: u32,
+        name: String,
+        steps: usize,
+        extero: Vec<f32>,
+        proprio: Vec<f32>,
+    },
+    /// Compute this run (pausing the one in progress).
+    Run { generation: u32, key: RunKey },
 }
 
-/// Page side: a message from the worker as an engine event.
-pub fn event_from_message(m: &JsValue, layout: &StepLayout) -> Result<Event, String> {
-    let key = key_from_text(&string_field(m, "key")?)?;
-    let ms = |name| number_field(m, name).map(|v| Duration::from_secs_f64(v.max(0.0) / 1e3));
-    match string_field(m, "kind")?.as_str() {
-        "step" => {
-            let data = field(m, "data")
-                .dyn_into::<Float32Array>()
-                .map_err(|_| "a step message has no data")?;
-            Ok(Event::Step(
-                key,
-                Box::new(CompactStep::from_f32s(&data.to_vec(), layout)?),
-            ))
+/// Worker → page.
+#[derive(Debug, PartialEq)]
+pub enum Reply {
+    /// The worker's module is loaded: commands can come.
+    Ready,
+    /// What the engine did, for the model of `generation`.
+    Event { generation: u32, event: Event },
+    /// The worker cannot go on (a command it cannot read, a result it cannot send).
+    Fatal { generation: u32, message: String },
+}
+
+impl Command {
+    fn generation(&self) -> u32 {
+        match self {
+            Self::Model { generation, .. }
+            | Self::Observations { generation, .. }
+            | Self::Run { generation, .. } => *generation,
         }
-        "done" => Ok(Event::Done(Finished {
-            key,
-            steps: number_field(m, "steps")? as usize,
-            busy: ms("busy_ms")?,
-            wall: ms("wall_ms")?,
-        })),
-        "failed" => Ok(Event::Failed(key, string_field(m, "message")?)),
-        other => Err(format!("unknown worker message `{other}`")),
+    }
+
+    /// The message, and the buffers to transfer with it.
+    pub fn encode(&self) -> (Object, Array) {
+        let transfer = Array::new();
+        let m = match self {
+            Self::Model { generation, bytes } => {
+                let bytes = Uint8Array::from(&bytes[..]);
+                transfer.push(&bytes.buffer());
+                message("model", *generation, &[("bytes", bytes.into())])
+            }
+            Self::Observations {
+                generation,
+                name,
+                steps,
+                extero,
+                proprio,
+            } => {
+                let (extero, proprio) = (floats(extero), floats(proprio));
+                transfer.push(&extero.buffer());
+                transfer.push(&proprio.buffer());
+                message(
+                    "observations",
+                    *generation,
+                    &[
+                        ("name", name.into()),
+                        ("steps", (*steps as f64).into()),
+                        ("extero", extero.into()),
+                        ("proprio", proprio.into()),
+                    ],
+                )
+            }
+            Self::Run { generation, key } => {
+                message("run", *generation, &[("key", key_to_text(key).into())])
+            }
+        };
+        (m, transfer)
+    }
+
+    pub fn decode(m: &JsValue) -> Result<Self, String> {
+        let generation = number_field(m, "generation")? as u32;
+        let vector = |which: &str| -> Result<Vec<f32>, String> {
+            Ok(field(m, which)
+                .dyn_into::<Float32Array>()
+                .map_err(|_| format!("a worker message has no `{which}` data"))?
+                .to_vec())
+        };
+        match string_field(m, "kind")?.as_str() {
+            "model" => Ok(Self::Model {
+                generation,
+                bytes: field(m, "bytes")
+                    .dyn_into::<Uint8Array>()
+                    .map_err(|_| "a model message has no bytes")?
+                    .to_vec(),
+            }),
+            "observations" => Ok(Self::Observations {
+                generation,
+                name: string_field(m, "name")?,
+                steps: number_field(m, "steps")? as usize,
+                extero: vector("extero")?,
+                proprio: vector("proprio")?,
+            }),
+            "run" => Ok(Self::Run {
+                generation,
+                key: key_from_text(&string_field(m, "key")?)?,
+            }),
+            other => Err(format!("unknown command `{other}`")),
+        }
+    }
+}
+
+impl Reply {
+    /// The message, and the buffers to transfer with it.
+    pub fn encode(&self) -> (Object, Array) {
+        let transfer = Array::new();
+        let m = match self {
+            Self::Ready => message("ready", 0, &[]),
+            Self::Fatal {
+                generation,
+                message: text,
+            } => message("fatal", *generation, &[("message", text.into())]),
+            Self::Event { generation, event } => match event {
+                Event::Step(key, step) => {
+                    let data = floats(&step.to_f32s());
+                    transfer.push(&data.buffer());
+                    message(
+                        "step",
+                        *generation,
+                        &[("key", key_to_text(key).into()), ("data", data.into())],
+                    )
+                }
+                Event::Done(f) => message(
+                    "done",
+                    *generation,
+                    &[
+                        ("key", key_to_text(&f.key).into()),
+                        ("steps", (f.steps as f64).into()),
+                        ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
+                        ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
+                    ],
+                ),
+                Event::Failed(key, e) => message(
+                    "failed",
+                    *generation,
+                    &[("key", key_to_text(key).into()), ("message", e.into())],
+                ),
+            },
+        };
+        (m, transfer)
+    }
+
+    /// Reads a reply; steps need the layout of the model they belong to.
+    pub fn decode(m: &JsValue, layout: Option<&StepLayout>) -> Result<Self, String> {
+        let generation = number_field(m, "generation")? as u32;
+        let kind = string_field(m, "kind")?;
+        match kind.as_str() {
+            "ready" => return Ok(Self::Ready),
+            "fatal" => {
+                return Ok(Self::Fatal {
+                    generation,
+                    message: string_field(m, "message")?,
+                });
+            }
+            _ => {}
+        }
+        let key = key_from_text(&string_field(m, "key")?)?;
+        let ms = |name| number_field(m, name).map(|v| Duration::from_secs_f64(v.max(0.0) / 1e3));
+        let event = match kind.as_str() {
+            "step" => {
+                let layout = layout.ok_or("a step arrived before its model")?;
+                let data = field(m, "data")
+                    .dyn_into::<Float32Array>()
+                    .map_err(|_| "a step message has no data")?;
+                Event::Step(
+                    key,
+                    Box::new(CompactStep::from_f32s(&data.to_vec(), layout)?),
+                )
+            }
+            "done" => Event::Done(Finished {
+                key,
+                steps: number_field(m, "steps")? as usize,
+                busy: ms("busy_ms")?,
+                wall: ms("wall_ms")?,
+            }),
+            "failed" => Event::Failed(key, string_field(m, "message")?),
+            other => return Err(format!("unknown worker message `{other}`")),
+        };
+        Ok(Self::Event { generation, event })
     }
 }
 
@@ -161,8 +291,9 @@ pub fn run_worker() -> Result<(), JsValue> {
         let mut s = tick_side.borrow_mut();
         s.scheduled = false;
         let events = s.engine.work(TICK);
-        for e in &events {
-            let (m, transfer) = event_message(e, s.generation);
+        let generation = s.generation;
+        for event in events {
+            let (m, transfer) = Reply::Event { generation, event }.encode();
             if let Err(err) = tick_scope.post_message_with_transfer(&m, &transfer) {
                 // A lost result would leave the page waiting for ever.
                 report_fatal(
@@ -197,45 +328,47 @@ pub fn run_worker() -> Result<(), JsValue> {
         });
     scope.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
     on_message.forget();
-    scope.post_message(&message("ready", 0, &[]))
+    scope.post_message(&Reply::Ready.encode().0)
 }
 
 /// Tells the page the worker cannot go on (and the console, in case that fails too).
 fn report_fatal(scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32, why: &str) {
     crate::web::log(&format!("worker: {why}"));
-    let _ = scope.post_message(&message("fatal", generation, &[("message", why.into())]));
+    let reply = Reply::Fatal {
+        generation,
+        message: why.to_string(),
+    };
+    let _ = scope.post_message(&reply.encode().0);
 }
 
 fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
-    let generation = number_field(m, "generation")? as u32;
-    match string_field(m, "kind")?.as_str() {
-        "model" => {
-            let bytes = field(m, "bytes")
-                .dyn_into::<Uint8Array>()
-                .map_err(|_| "a model message has no bytes")?;
-            let model = io::model_from_bytes(bytes.to_vec(), "the model sent to the worker")
+    let command = Command::decode(m)?;
+    if !matches!(command, Command::Model { .. }) && command.generation() != s.generation {
+        return Ok(()); // meant for a model already replaced
+    }
+    match command {
+        Command::Model { generation, bytes } => {
+            let model = io::model_from_bytes(bytes, "the model sent to the worker")
                 .map_err(|e| e.to_string())?;
             s.engine.set_model(Arc::new(model));
             s.generation = generation;
         }
-        _ if generation != s.generation => {} // meant for a model already replaced
-        "observations" => {
-            let name = string_field(m, "name")?;
-            let steps = number_field(m, "steps")? as usize;
-            let tensor = |which: &str| -> Result<Tensor<f32>, String> {
-                let data = field(m, which)
-                    .dyn_into::<Float32Array>()
-                    .map_err(|_| format!("no `{which}` data"))?
-                    .to_vec();
+        Command::Observations {
+            name,
+            steps,
+            extero,
+            proprio,
+            ..
+        } => {
+            let tensor = |data: Vec<f32>| -> Result<Tensor<f32>, String> {
                 let dims = data.len() / steps.max(1);
                 Tensor::from_vec(&[1, steps, dims], data).map_err(|e| e.to_string())
             };
-            let obs = Observations::new(tensor("extero")?, tensor("proprio")?, None)
+            let obs = Observations::new(tensor(extero)?, tensor(proprio)?, None)
                 .map_err(|e| e.to_string())?;
             s.engine.add_observations(name, Arc::new(obs));
         }
-        "run" => s.engine.run(key_from_text(&string_field(m, "key")?)?),
-        other => return Err(format!("unknown command `{other}`")),
+        Command::Run { key, .. } => s.engine.run(key),
     }
     Ok(())
 }
@@ -282,8 +415,9 @@ impl WorkerClient {
             Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
                 let m = e.data();
                 let mut s = msg_side.borrow_mut();
-                match field(&m, "kind").as_string().as_deref() {
-                    Some("ready") => {
+                let reply = Reply::decode(&m, s.layout.as_ref());
+                match reply {
+                    Ok(Reply::Ready) => {
                         s.ready = true;
                         for (m, transfer) in std::mem::take(&mut s.pending) {
                             if let Err(e) = msg_worker.post_message_with_transfer(&m, &transfer) {
@@ -292,22 +426,17 @@ impl WorkerClient {
                         }
                         return;
                     }
-                    Some("fatal") => {
-                        s.failure = Some(
-                            string_field(&m, "message")
-                                .unwrap_or_else(|_| "the worker stopped".into()),
-                        );
+                    Ok(Reply::Fatal { message, .. }) => {
+                        s.failure = Some(message);
                         ctx.request_repaint();
                         return;
                     }
-                    _ => {}
-                }
-                if field(&m, "generation").as_f64() != Some(s.generation as f64) {
-                    return;
-                }
-                let Some(layout) = s.layout else { return };
-                match event_from_message(&m, &layout) {
-                    Ok(event) => s.events.push(event),
+                    // Results of a model already replaced.
+                    Ok(Reply::Event { generation, .. }) if generation != s.generation => return,
+                    Ok(Reply::Event { event, .. }) => s.events.push(event),
+                    Err(_) if field(&m, "generation").as_f64() != Some(s.generation as f64) => {
+                        return;
+                    }
                     Err(err) => s.failure = Some(err),
                 }
                 ctx.request_repaint_after(REPAINT_EVERY);
@@ -335,7 +464,8 @@ impl WorkerClient {
         Ok(Self { worker, side })
     }
 
-    fn post(&self, m: Object, transfer: Array) {
+    fn post(&self, command: &Command) {
+        let (m, transfer) = command.encode();
         let mut s = self.side.borrow_mut();
         if s.ready {
             if let Err(e) = self.worker.post_message_with_transfer(&m, &transfer) {
@@ -355,14 +485,7 @@ impl WorkerClient {
             s.generation
         };
         match io::model_to_bytes(model.as_ref()) {
-            Ok(bytes) => {
-                let bytes = Uint8Array::from(&bytes[..]);
-                let transfer = Array::of1(&bytes.buffer());
-                self.post(
-                    message("model", generation, &[("bytes", bytes.into())]),
-                    transfer,
-                );
-            }
+            Ok(bytes) => self.post(&Command::Model { generation, bytes }),
             Err(e) => {
                 self.side.borrow_mut().failure =
                     Some(format!("cannot send the model to the worker: {e}"))
@@ -372,28 +495,21 @@ impl WorkerClient {
 
     pub fn add_observations(&mut self, name: &str, obs: &Observations<f32>) {
         let generation = self.side.borrow().generation;
-        let extero = floats(obs.tensor(Modality::Exteroceptive).data());
-        let proprio = floats(obs.tensor(Modality::Proprioceptive).data());
-        let transfer = Array::of2(&extero.buffer(), &proprio.buffer());
-        let m = message(
-            "observations",
+        self.post(&Command::Observations {
             generation,
-            &[
-                ("name", name.into()),
-                ("steps", (obs.steps() as f64).into()),
-                ("extero", extero.into()),
-                ("proprio", proprio.into()),
-            ],
-        );
-        self.post(m, transfer);
+            name: name.to_string(),
+            steps: obs.steps(),
+            extero: obs.tensor(Modality::Exteroceptive).data().to_vec(),
+            proprio: obs.tensor(Modality::Proprioceptive).data().to_vec(),
+        });
     }
 
     pub fn run(&mut self, key: &RunKey) {
         let generation = self.side.borrow().generation;
-        self.post(
-            message("run", generation, &[("key", key_to_text(key).into())]),
-            Array::new(),
-        );
+        self.post(&Command::Run {
+            generation,
+            key: key.clone(),
+        });
     }
 
     pub fn take_events(&mut self) -> Vec<Event> {

@@ -13,7 +13,7 @@ use pvrnn_explorer::{ExplorerApp, ViewState};
 
 use pvrnn_explorer::engine::{CompactStep, Event, Finished, ModuleStates, StepLayout};
 use pvrnn_explorer::runs::{Condition, RunKey};
-use pvrnn_explorer::worker::{event_from_message, event_message};
+use pvrnn_explorer::worker::{Command, Reply};
 use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
 use web_time::Duration;
 
@@ -185,14 +185,53 @@ fn worker_messages_round_trip() {
         Event::Failed(key(), "no observations".into()),
     ];
     for event in events {
-        let (message, _transfer) = event_message(&event, 7);
-        let back = event_from_message(&message, &layout).expect("decodes");
-        assert_eq!(back, event);
+        let reply = Reply::Event {
+            generation: 7,
+            event,
+        };
+        let (message, _transfer) = reply.encode();
+        let back = Reply::decode(&message, Some(&layout)).expect("decodes");
+        assert_eq!(back, reply);
+    }
+    for reply in [
+        Reply::Ready,
+        Reply::Fatal {
+            generation: 3,
+            message: "cannot send a result".into(),
+        },
+    ] {
+        assert_eq!(Reply::decode(&reply.encode().0, None).unwrap(), reply);
     }
     // A step of another model's layout is refused with a message, not misread.
-    let (message, _) = event_message(&Event::Step(key(), Box::default()), 7);
-    let err = event_from_message(&message, &layout).unwrap_err();
+    let (message, _) = Reply::Event {
+        generation: 7,
+        event: Event::Step(key(), Box::default()),
+    }
+    .encode();
+    let err = Reply::decode(&message, Some(&layout)).unwrap_err();
     assert!(err.contains("numbers"), "{err}");
+    // Commands, page to worker.
+    for command in [
+        Command::Model {
+            generation: 2,
+            bytes: vec![1, 2, 3],
+        },
+        Command::Observations {
+            generation: 2,
+            name: "wiping_650mm_test0".into(),
+            steps: 2,
+            extero: vec![0.5, -0.5, 0.25, 1.0],
+            proprio: vec![0.1, 0.2],
+        },
+        Command::Run {
+            generation: 2,
+            key: key(),
+        },
+    ] {
+        assert_eq!(Command::decode(&command.encode().0).unwrap(), command);
+    }
+    let err = Command::decode(&Reply::Ready.encode().0).unwrap_err();
+    assert!(err.contains("unknown command `ready`"), "{err}");
 }
 
 #[wasm_bindgen_test]

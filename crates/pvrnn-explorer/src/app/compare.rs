@@ -3,6 +3,7 @@
 //! (vision 64 / 32+16 / 16 x proprioception on / off: the paper's Fig. 5 question answered by
 //! looking; or each module ablated).
 
+use super::images_panel::read_out_vision;
 use super::*;
 use crate::state::CompareSet;
 
@@ -218,16 +219,7 @@ impl ExplorerApp {
         }
         let layout = &bundle.model.config.vision;
         let dims = layout.dims();
-        let predictions = if which.is_empty() {
-            Vec::new()
-        } else {
-            readout(
-                &bundle.model.params,
-                Modality::Exteroceptive,
-                &rows,
-                which.len(),
-            )
-        };
+        let predictions = read_out_vision(bundle, &rows, which.len());
         let top = layout.resolutions.len() - 1;
         let mut textures = vec![None; cells.len()];
         for (k, &i) in which.iter().enumerate() {

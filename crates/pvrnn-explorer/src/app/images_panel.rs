@@ -13,6 +13,14 @@ pub(super) struct ImageCache {
     pub(super) maps: [Option<Rgb>; 4],
 }
 
+/// The vision read-outs of `count` exteroceptive d rows (concatenated), none for none.
+pub(super) fn read_out_vision(bundle: &Bundle, rows: &[f32], count: usize) -> Vec<f32> {
+    if count == 0 {
+        return Vec::new();
+    }
+    readout(&bundle.model.params, Modality::Exteroceptive, rows, count)
+}
+
 impl ExplorerApp {
     /// Recomputes the images at the cursor when anything they depend on changed.
     pub(super) fn refresh_images(&mut self, ctx: &egui::Context) {
@@ -84,16 +92,7 @@ impl ExplorerApp {
             }
         }
         let dims = layout.dims();
-        let predictions = if which.is_empty() {
-            Vec::new()
-        } else {
-            readout(
-                &bundle.model.params,
-                Modality::Exteroceptive,
-                &rows,
-                which.len(),
-            )
-        };
+        let predictions = read_out_vision(bundle, &rows, which.len());
         let vector = |name: &str| {
             which
                 .iter()

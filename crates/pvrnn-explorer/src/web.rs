@@ -302,6 +302,51 @@ impl WebState {
         }
     }
 
+    /// Opens the browser's file picker (several files, or a whole folder); what the user
+    /// picks is read like dropped files. Returns the input element (tests fill it).
+    pub fn pick_files(&self, folder: bool) -> Result<web_sys::HtmlInputElement, String> {
+        let document = web_sys::window()
+            .and_then(|w| w.document())
+            .ok_or("no document")?;
+        let input: web_sys::HtmlInputElement = document
+            .create_element("input")
+            .map_err(|e| format!("{e:?}"))?
+            .dyn_into()
+            .map_err(|_| "not an input element")?;
+        input.set_type("file");
+        input.set_multiple(true);
+        if folder {
+            let _ = input.set_attribute("webkitdirectory", "");
+        }
+        let _ = input.set_attribute("style", "display:none");
+        let queue = self.dropped.clone();
+        let source = input.clone();
+        let on_change = Closure::<dyn FnMut()>::new(move || {
+            let Some(files) = source.files() else { return };
+            queue.borrow_mut().0 += files.length() as usize;
+            for i in 0..files.length() {
+                let Some(file) = files.get(i) else { continue };
+                let queue = queue.clone();
+                wasm_bindgen_futures::spawn_local(async move {
+                    let name = file.name();
+                    let bytes = wasm_bindgen_futures::JsFuture::from(file.array_buffer())
+                        .await
+                        .map(|b| js_sys::Uint8Array::new(&b).to_vec())
+                        .map_err(|e| format!("cannot read it: {e:?}"));
+                    queue.borrow_mut().1.push((name, bytes));
+                });
+            }
+            source.remove();
+        });
+        input.set_onchange(Some(on_change.as_ref().unchecked_ref()));
+        on_change.forget();
+        if let Some(body) = document.body() {
+            let _ = body.append_child(&input);
+        }
+        input.click();
+        Ok(input)
+    }
+
     /// Dropped files, once all of a drop have been read.
     pub fn take_dropped(&self) -> Option<Vec<DroppedFile>> {
         let mut q = self.dropped.borrow_mut();

@@ -234,6 +234,39 @@ fn worker_messages_round_trip() {
     assert!(err.contains("unknown command `ready`"), "{err}");
 }
 
+/// Files chosen in the browser's picker (here put into its input as a user's choice would)
+/// are read like dropped files.
+#[wasm_bindgen_test]
+async fn picked_files_are_read_like_dropped_ones() {
+    let web = pvrnn_explorer::web::WebState::default();
+    let input = web.pick_files(false).expect("a file input");
+    assert!(input.multiple() && input.type_() == "file");
+    let chosen = web_sys::DataTransfer::new().expect("a DataTransfer");
+    for (name, bytes) in [("a.json", &b"{}"[..]), ("b.safetensors", &[1u8, 2, 3][..])] {
+        let parts = js_sys::Array::of1(&js_sys::Uint8Array::from(bytes));
+        let file = web_sys::File::new_with_u8_array_sequence(&parts, name).expect("a File");
+        chosen.items().add_with_file(&file).expect("added");
+    }
+    input.set_files(chosen.files().as_ref());
+    input
+        .dispatch_event(&web_sys::Event::new("change").expect("an event"))
+        .expect("dispatched");
+    let mut read = None;
+    for _ in 0..100 {
+        read = web.take_dropped();
+        if read.is_some() {
+            break;
+        }
+        sleep_ms(20).await;
+    }
+    let mut files = read.expect("the picked files are read");
+    files.sort_by(|a, b| a.0.cmp(&b.0));
+    assert_eq!(files.len(), 2);
+    assert_eq!(files[0].0, "a.json");
+    assert_eq!(files[0].1.as_deref(), Ok(&b"{}"[..]));
+    assert_eq!(files[1].1.as_deref(), Ok(&[1u8, 2, 3][..]));
+}
+
 #[wasm_bindgen_test]
 fn the_url_hash_round_trips() {
     pvrnn_explorer::web::set_hash("seq=wiping_650mm_test0&t=12&vision=1");

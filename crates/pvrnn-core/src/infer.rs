@@ -101,14 +101,79 @@ impl InferenceSettings {
     }
 }
 
-/// One module's distributions and state at a step.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ModuleStep<T> {
+/// One module's distributions and states, row-major `[steps, width]`: at one step
+/// (`steps = 1`, in a [`StepOutput`]) or stacked over a whole run (in a [`Run`], and in the
+/// explorer's traces and worker messages). Widths: z for the four distributions, d for `d`
+/// and `prior_d`. The one type every consumer of module states shares.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModuleStates<T> {
     pub mu_p: Vec<T>,
     pub sigma_p: Vec<T>,
     pub mu_q: Vec<T>,
     pub sigma_q: Vec<T>,
     pub d: Vec<T>,
+    /// d in the one-step-ahead prior step (x^_{t+1} is the read-out of these).
+    pub prior_d: Vec<T>,
+}
+
+impl<T: Copy> ModuleStates<T> {
+    /// The field names as they appear in files (`<module>.<field>`), in a fixed order.
+    pub const FIELDS: [&'static str; 6] = ["mu_p", "sigma_p", "mu_q", "sigma_q", "d", "prior_d"];
+
+    /// The fields in [`Self::FIELDS`] order.
+    pub fn fields(&self) -> [&Vec<T>; 6] {
+        [
+            &self.mu_p,
+            &self.sigma_p,
+            &self.mu_q,
+            &self.sigma_q,
+            &self.d,
+            &self.prior_d,
+        ]
+    }
+
+    /// The fields in [`Self::FIELDS`] order, mutable.
+    pub fn fields_mut(&mut self) -> [&mut Vec<T>; 6] {
+        [
+            &mut self.mu_p,
+            &mut self.sigma_p,
+            &mut self.mu_q,
+            &mut self.sigma_q,
+            &mut self.d,
+            &mut self.prior_d,
+        ]
+    }
+
+    /// Widths of the fields in [`Self::FIELDS`] order, for a module of these sizes.
+    pub fn widths(z: usize, d: usize) -> [usize; 6] {
+        [z, z, z, z, d, d]
+    }
+
+    /// Appends `other`'s steps.
+    pub fn extend(&mut self, other: &Self) {
+        for (mine, theirs) in self.fields_mut().into_iter().zip(other.fields()) {
+            mine.extend_from_slice(theirs);
+        }
+    }
+
+    /// Stacks the states of consecutive steps.
+    pub fn stack<'a>(steps: impl IntoIterator<Item = &'a Self>) -> Self
+    where
+        T: 'a,
+    {
+        let mut all = Self {
+            mu_p: Vec::new(),
+            sigma_p: Vec::new(),
+            mu_q: Vec::new(),
+            sigma_q: Vec::new(),
+            d: Vec::new(),
+            prior_d: Vec::new(),
+        };
+        for s in steps {
+            all.extend(s);
+        }
+        all
+    }
 }
 
 /// What online inference reports after step t. With a `readout` ablation, the read-outs,
@@ -122,9 +187,9 @@ pub struct StepOutput<T> {
     pub recon: [Vec<T>; 2],
     /// One-step-ahead prior prediction x^_{t+1}, per modality.
     pub prior_next: [Vec<T>; 2],
-    /// Each module's d in that prior step (x^_{t+1} is the read-out of these).
-    pub prior_d: [Vec<T>; 4],
-    pub modules: [ModuleStep<T>; 4],
+    /// Each module's states at step t, with `prior_d` the d of the prior step that
+    /// `prior_next` is the read-out of.
+    pub modules: [ModuleStates<T>; 4],
     /// Mean squared error of `recon` against the whole observation (observed and
     /// unobserved dimensions), per modality, in model units.
     pub recon_error: [f64; 2],
@@ -428,7 +493,7 @@ impl<T: Real> OnlineInference<T> {
             )));
         }
         let step_accuracy = [result.accuracy[0][len - 1], result.accuracy[1][len - 1]];
-        let modules = last_step_states(&reported.trace, &config);
+        let mut modules = last_step_states(&reported.trace, &config);
         let last_state = |tr: &Trace<T>, field: fn(&crate::backend::ModuleTrace<T>) -> &Vec<T>| {
             std::array::from_fn::<Vec<T>, 4, _>(|m| {
                 let d = config.module(ModuleId::ALL[m]).d;
@@ -448,6 +513,9 @@ impl<T: Real> OnlineInference<T> {
             ),
             None => self.prior_prediction(t, &self.last_h, &self.last_d, ablation),
         };
+        for (states, d) in modules.iter_mut().zip(prior_d) {
+            states.prior_d = d;
+        }
         let recon = reported.outputs.clone();
         let recon_error: [f64; 2] = std::array::from_fn(|i| {
             let n = recon[i].len().max(1) as f64;
@@ -485,7 +553,6 @@ impl<T: Real> OnlineInference<T> {
             t,
             recon,
             prior_next,
-            prior_d,
             modules,
             recon_error,
             window_free_energy,
@@ -542,14 +609,15 @@ impl<T: Real> OnlineInference<T> {
     }
 }
 
-fn last_step_states<T: Real>(trace: &Trace<T>, config: &ModelConfig) -> [ModuleStep<T>; 4] {
+/// Module states at the window's newest step; `prior_d` is filled in by the caller.
+fn last_step_states<T: Real>(trace: &Trace<T>, config: &ModelConfig) -> [ModuleStates<T>; 4] {
     let t = trace.len - 1;
     std::array::from_fn(|m| {
         let id = ModuleId::ALL[m];
         let (d, z) = (config.module(id).d, config.module(id).z);
         let mt = &trace.modules[m];
         let row = |v: &[T], w: usize| v[t * w..(t + 1) * w].to_vec();
-        ModuleStep {
+        ModuleStates {
             mu_p: row(&mt.mu_p, z),
             sigma_p: mt.log_sigma_p[t * z..(t + 1) * z]
                 .iter()
@@ -558,6 +626,7 @@ fn last_step_states<T: Real>(trace: &Trace<T>, config: &ModelConfig) -> [ModuleS
             mu_q: row(&mt.mu_q, z),
             sigma_q: row(&mt.sigma_q, z),
             d: row(&mt.d, d),
+            prior_d: Vec::new(),
         }
     })
 }
@@ -571,23 +640,13 @@ pub struct Run<T> {
     /// ([`crate::cpu::readout`]), so a compact run can still show them.
     pub recon: Option<[Tensor<T>; 2]>,
     pub prior_next: Option<[Tensor<T>; 2]>,
-    /// Per module: `mu_p, sigma_p, mu_q, sigma_q` `[steps, z]`, `d` and `prior_d` `[steps, d]`.
-    pub modules: [RunModule<T>; 4],
+    /// Per module, stacked over steps.
+    pub modules: [ModuleStates<T>; 4],
     /// Per step: window free energy, the newest step's accuracy terms, and its
     /// reconstruction error (all dimensions) per modality.
     pub free_energy: Vec<FreeEnergy>,
     pub step_accuracy: Vec<[f64; 2]>,
     pub recon_error: Vec<[f64; 2]>,
-}
-
-#[derive(Clone, Debug, PartialEq)]
-pub struct RunModule<T> {
-    pub mu_p: Tensor<T>,
-    pub sigma_p: Tensor<T>,
-    pub mu_q: Tensor<T>,
-    pub sigma_q: Tensor<T>,
-    pub d: Tensor<T>,
-    pub prior_d: Tensor<T>,
 }
 
 impl<T: Real> Run<T> {
@@ -614,13 +673,8 @@ impl<T: Real> Run<T> {
         Self {
             recon: keep_outputs.then(|| std::array::from_fn(|i| stack(&|s| &s.recon[i]))),
             prior_next: keep_outputs.then(|| std::array::from_fn(|i| stack(&|s| &s.prior_next[i]))),
-            modules: std::array::from_fn(|m| RunModule {
-                mu_p: stack(&|s| &s.modules[m].mu_p),
-                sigma_p: stack(&|s| &s.modules[m].sigma_p),
-                mu_q: stack(&|s| &s.modules[m].mu_q),
-                sigma_q: stack(&|s| &s.modules[m].sigma_q),
-                d: stack(&|s| &s.modules[m].d),
-                prior_d: stack(&|s| &s.prior_d[m]),
+            modules: std::array::from_fn(|m| {
+                ModuleStates::stack(steps.iter().map(|s| &s.modules[m]))
             }),
             free_energy: steps.iter().map(|s| s.window_free_energy).collect(),
             step_accuracy: steps.iter().map(|s| s.step_accuracy).collect(),

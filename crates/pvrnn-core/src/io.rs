@@ -18,7 +18,7 @@ use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Observations;
 use crate::error::{Error, Result};
 use crate::free_energy::{FreeEnergy, Gradients};
-use crate::infer::{InferenceSettings, Run, RunModule};
+use crate::infer::{InferenceSettings, ModuleStates, Run};
 use crate::noise::NoiseMode;
 use crate::optim::RAdam;
 use crate::params::{Adaptive, Model, Params, Role};
@@ -620,34 +620,35 @@ pub fn save_observations<T: Real>(path: &Path, obs: &Observations<T>) -> Result<
     )
 }
 
-/// A run's per-step tensors (without the sequence axis), with their file names.
-fn run_tensors<T: Real>(run: &Run<T>) -> Vec<(String, &Tensor<T>)> {
+/// A run's per-step tensors (without the sequence axis): file name, `[steps, width]` data
+/// and width.
+fn run_tensors<'a, T: Real>(
+    config: &ModelConfig,
+    run: &'a Run<T>,
+) -> Vec<(String, &'a [T], usize)> {
     let mut v = Vec::new();
     for modality in Modality::ALL {
+        let width = config.modality_dims(modality);
         if let Some(recon) = &run.recon {
             v.push((
                 format!("recon.{}", modality.name()),
-                &recon[modality.index()],
+                recon[modality.index()].data(),
+                width,
             ));
         }
         if let Some(prior) = &run.prior_next {
             v.push((
                 format!("prior.{}", modality.name()),
-                &prior[modality.index()],
+                prior[modality.index()].data(),
+                width,
             ));
         }
     }
     for id in ModuleId::ALL {
         let m = &run.modules[id.index()];
-        for (field, t) in [
-            ("mu_p", &m.mu_p),
-            ("sigma_p", &m.sigma_p),
-            ("mu_q", &m.mu_q),
-            ("sigma_q", &m.sigma_q),
-            ("d", &m.d),
-            ("prior_d", &m.prior_d),
-        ] {
-            v.push((format!("{}.{field}", id.name()), t));
+        let widths = ModuleStates::<T>::widths(config.module(id).z, config.module(id).d);
+        for ((field, data), width) in ModuleStates::<T>::FIELDS.iter().zip(m.fields()).zip(widths) {
+            v.push((format!("{}.{field}", id.name()), data.as_slice(), width));
         }
     }
     v
@@ -775,13 +776,20 @@ pub fn runs_to_bytes<T: Real>(
     let s = runs.len();
     let t_max = runs.iter().map(Run::steps).max().unwrap_or(0);
     let mut tensors = BTreeMap::new();
-    let names: Vec<String> = run_tensors(first).into_iter().map(|(n, _)| n).collect();
-    for (k, name) in names.iter().enumerate() {
-        let width = run_tensors(first)[k].1.shape()[1];
+    let layout = run_tensors(config, first);
+    for (k, (name, _, width)) in layout.iter().enumerate() {
+        let width = *width;
         let mut data = vec![0f32; s * t_max * width];
         for (i, run) in runs.iter().enumerate() {
-            let t = run_tensors(run)[k].1;
-            for (dst, src) in data[i * t_max * width..].iter_mut().zip(t.data()) {
+            let (other, t, _) = &run_tensors(config, run)[k];
+            if other != name || t.len() != run.steps() * width {
+                return Err(Error::InvalidArgument(format!(
+                    "run {i} does not match the first run's layout at {name} ({} numbers for {} steps of width {width})",
+                    t.len(),
+                    run.steps()
+                )));
+            }
+            for (dst, src) in data[i * t_max * width..].iter_mut().zip(t.iter()) {
                 *dst = src.to_f32();
             }
         }
@@ -937,13 +945,14 @@ pub fn load_runs(file: &TensorFile, config: &ModelConfig) -> Result<Vec<LoadedRu
                 prior_next: both(&prior),
                 modules: std::array::from_fn(|m| {
                     let [a, b, c, d, e, f] = &module_tensors[m];
-                    RunModule {
-                        mu_p: cut(a, i, len),
-                        sigma_p: cut(b, i, len),
-                        mu_q: cut(c, i, len),
-                        sigma_q: cut(d, i, len),
-                        d: cut(e, i, len),
-                        prior_d: cut(f, i, len),
+                    let cut = |x: &Tensor<f32>| cut(x, i, len).into_data();
+                    ModuleStates {
+                        mu_p: cut(a),
+                        sigma_p: cut(b),
+                        mu_q: cut(c),
+                        sigma_q: cut(d),
+                        d: cut(e),
+                        prior_d: cut(f),
                     }
                 }),
                 free_energy,

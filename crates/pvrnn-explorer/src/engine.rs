@@ -13,30 +13,9 @@ use web_time::{Duration, Instant};
 
 use crate::runs::RunKey;
 
-/// One module's states: at one step, or (in a `RunTrace`) at every step so far, row-major
-/// `[steps, width]`.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct ModuleStates {
-    pub mu_p: Vec<f32>,
-    pub sigma_p: Vec<f32>,
-    pub mu_q: Vec<f32>,
-    pub sigma_q: Vec<f32>,
-    pub d: Vec<f32>,
-    /// d of the one-step-ahead prior prediction.
-    pub prior_d: Vec<f32>,
-}
-
-impl ModuleStates {
-    /// Appends `other`'s steps.
-    pub fn extend(&mut self, other: &Self) {
-        self.mu_p.extend_from_slice(&other.mu_p);
-        self.sigma_p.extend_from_slice(&other.sigma_p);
-        self.mu_q.extend_from_slice(&other.mu_q);
-        self.sigma_q.extend_from_slice(&other.sigma_q);
-        self.d.extend_from_slice(&other.d);
-        self.prior_d.extend_from_slice(&other.prior_d);
-    }
-}
+/// One module's states at one step, or (in a `RunTrace`) at every step so far: the core's
+/// type, shared by the engine, the worker's messages and the views.
+pub type ModuleStates = pvrnn_core::infer::ModuleStates<f32>;
 
 /// What the views keep of one inference step: the latent states, from which every image is
 /// read out on demand, plus the few numbers that would cost a read-out to recompute.
@@ -82,17 +61,7 @@ impl StepLayout {
 impl CompactStep {
     pub fn from_output(out: &StepOutput<f32>) -> Self {
         Self {
-            modules: std::array::from_fn(|m| {
-                let s = &out.modules[m];
-                ModuleStates {
-                    mu_p: s.mu_p.clone(),
-                    sigma_p: s.sigma_p.clone(),
-                    mu_q: s.mu_q.clone(),
-                    sigma_q: s.sigma_q.clone(),
-                    d: s.d.clone(),
-                    prior_d: out.prior_d[m].clone(),
-                }
-            }),
+            modules: out.modules.clone(),
             free_energy: out.window_free_energy.total as f32,
             recon_error: out.recon_error.map(|e| e as f32),
             proprio_recon: out.recon[1].clone(),
@@ -104,7 +73,7 @@ impl CompactStep {
     pub fn to_f32s(&self) -> Vec<f32> {
         let mut v = Vec::new();
         for m in &self.modules {
-            for part in [&m.mu_p, &m.sigma_p, &m.mu_q, &m.sigma_q, &m.d, &m.prior_d] {
+            for part in m.fields() {
                 v.extend_from_slice(part);
             }
         }
@@ -130,13 +99,13 @@ impl CompactStep {
             rest = tail;
             head.to_vec()
         };
-        let modules = std::array::from_fn(|m| ModuleStates {
-            mu_p: take(layout.z[m]),
-            sigma_p: take(layout.z[m]),
-            mu_q: take(layout.z[m]),
-            sigma_q: take(layout.z[m]),
-            d: take(layout.d[m]),
-            prior_d: take(layout.d[m]),
+        let modules = std::array::from_fn(|m| {
+            let mut states = ModuleStates::default();
+            let widths = ModuleStates::widths(layout.z[m], layout.d[m]);
+            for (field, width) in states.fields_mut().into_iter().zip(widths) {
+                *field = take(width);
+            }
+            states
         });
         let free_energy = take(1)[0];
         let e = take(2);

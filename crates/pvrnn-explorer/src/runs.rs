@@ -166,15 +166,7 @@ impl RunTrace {
     pub fn from_run(run: &Run<f32>, model: &Model<f32>) -> Self {
         let mut trace = Self::new(&model.config);
         let steps = run.steps();
-        for (m, t) in trace.modules.iter_mut().enumerate() {
-            let r = &run.modules[m];
-            t.mu_p = r.mu_p.data().to_vec();
-            t.sigma_p = r.sigma_p.data().to_vec();
-            t.mu_q = r.mu_q.data().to_vec();
-            t.sigma_q = r.sigma_q.data().to_vec();
-            t.d = r.d.data().to_vec();
-            t.prior_d = r.prior_d.data().to_vec();
-        }
+        trace.modules = run.modules.clone();
         trace.free_energy = run.free_energy.iter().map(|f| f.total as f32).collect();
         trace.recon_error = run
             .recon_error

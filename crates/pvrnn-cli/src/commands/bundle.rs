@@ -121,7 +121,6 @@ fn stored_state_vision_error(
 ) -> f64 {
     let d: Vec<f32> = run.modules[ModuleId::Exteroceptive.index()]
         .d
-        .data()
         .iter()
         .map(|&v| storage.round_trip(v))
         .collect();

@@ -17,35 +17,58 @@ pub fn read_dropped(dropped: &[eframe::egui::DroppedFileHandle]) -> Vec<DroppedF
     for f in dropped {
         let path = f.path();
         if path.is_dir() {
-            let Ok(entries) = std::fs::read_dir(path) else {
-                out.push((
-                    path.display().to_string(),
-                    Err("cannot read the folder".into()),
-                ));
-                continue;
-            };
-            for entry in entries.flatten() {
-                let p = entry.path();
-                if p.is_file() {
-                    let name = p
-                        .file_name()
-                        .map(|n| n.to_string_lossy().into_owned())
-                        .unwrap_or_default();
-                    out.push((
-                        name,
-                        std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display())),
-                    ));
-                }
-            }
+            read_folder(path, &mut out);
         } else {
-            let name = path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            out.push((name, f.bytes()));
+            out.push((file_name(path), f.bytes()));
         }
     }
     out
+}
+
+/// Reads files and folders by path (a file dialog's choice), as [`read_dropped`] does.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn read_paths(paths: &[std::path::PathBuf]) -> Vec<DroppedFile> {
+    let mut out = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            read_folder(path, &mut out);
+        } else {
+            out.push((
+                file_name(path),
+                std::fs::read(path).map_err(|e| format!("{}: {e}", path.display())),
+            ));
+        }
+    }
+    out
+}
+
+/// The files directly in a folder (not its sub-folders), sorted by name.
+#[cfg(not(target_arch = "wasm32"))]
+fn read_folder(folder: &std::path::Path, out: &mut Vec<DroppedFile>) {
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        out.push((
+            folder.display().to_string(),
+            Err("cannot read the folder".into()),
+        ));
+        return;
+    };
+    let mut files: Vec<std::path::PathBuf> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    for p in files {
+        let bytes = std::fs::read(&p).map_err(|e| format!("{}: {e}", p.display()));
+        out.push((file_name(&p), bytes));
+    }
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+fn file_name(path: &std::path::Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// What a dropped safetensors file is.

@@ -528,3 +528,74 @@ fn the_shown_run_exports_as_csv() {
     assert_eq!(row[2].parse::<f32>().unwrap(), trace.free_energy[0]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_open_buttons_read_what_the_file_dialog_chose() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            maps: false,
+            ..ViewState::default()
+        },
+    ));
+    // Another model of the same shape, in a folder as a user would have it.
+    let dir = tempdir().join("chosen");
+    std::fs::create_dir_all(&dir).unwrap();
+    let other = pvrnn_core::Model::<f32>::init(common::config(), 1, 12, 99).unwrap();
+    let path = dir.join("other-model.safetensors");
+    io::save_model(&path, &other).unwrap();
+    let asked = std::rc::Rc::new(std::cell::RefCell::new(Vec::new()));
+    let log = asked.clone();
+    let answer = dir.clone();
+    h.state_mut().set_file_dialog(Box::new(move |folder: bool| {
+        log.borrow_mut().push(folder);
+        Some(vec![if folder {
+            answer.clone()
+        } else {
+            answer.join("other-model.safetensors")
+        }])
+    }));
+    for (button, folder) in [("Open files", false), ("Open folder", true)] {
+        h.get_by_label(button).click();
+        settle(&mut h);
+        assert_eq!(asked.borrow().last(), Some(&folder));
+        let bundle = h.state().bundle().unwrap();
+        let weights = |m: &pvrnn_core::Model<f32>| -> Vec<f32> {
+            m.params
+                .named()
+                .iter()
+                .flat_map(|(_, t, _)| t.data().to_vec())
+                .collect()
+        };
+        assert_eq!(
+            weights(&bundle.model),
+            weights(&other),
+            "{button}: the chosen model is shown"
+        );
+        assert_ne!(weights(&common::model()), weights(&other));
+        assert_eq!(
+            bundle.dataset.manifest.sequences.len(),
+            3,
+            "the dataset stays"
+        );
+    }
+    // Nothing chosen: the view stays and the message says what else works.
+    h.state_mut().set_file_dialog(Box::new(|_| None));
+    h.get_by_label("Open files").click();
+    h.step();
+    let status = format!("{:?}", h.state().status());
+    assert!(
+        status.contains("nothing opened") && status.contains("dropping files"),
+        "{status}"
+    );
+    // A file that is not a model: an error naming it.
+    std::fs::write(dir.join("broken.safetensors"), b"not a model").unwrap();
+    let broken = dir.join("broken.safetensors");
+    h.state_mut()
+        .set_file_dialog(Box::new(move |_| Some(vec![broken.clone()])));
+    h.get_by_label("Open files").click();
+    h.step();
+    let status = format!("{:?}", h.state().status());
+    assert!(status.contains("broken.safetensors"), "{status}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -27,15 +27,18 @@ impl ExplorerApp {
                 .response
                 .labelled_by(l.id);
             self.export_ui(ui);
-            #[cfg(target_arch = "wasm32")]
             for (label, folder) in [("Open files", false), ("Open folder", true)] {
                 if ui
                     .button(label)
                     .on_hover_text("a bundle folder, or a model file with a dataset's files")
                     .clicked()
-                    && let Err(e) = self.web.pick_files(folder)
                 {
-                    self.status = Status::Error(format!("cannot open the file picker: {e}"));
+                    #[cfg(target_arch = "wasm32")]
+                    if let Err(e) = self.web.pick_files(folder) {
+                        self.status = Status::Error(format!("cannot open the file picker: {e}"));
+                    }
+                    #[cfg(not(target_arch = "wasm32"))]
+                    self.open_with_dialog(folder);
                 }
             }
             ui.separator();

@@ -82,6 +82,34 @@ pub struct ExplorerApp {
     show_about: bool,
     #[cfg(target_arch = "wasm32")]
     web: crate::web::WebState,
+    /// Asks the user for files (or a folder): the system's dialog unless replaced.
+    #[cfg(not(target_arch = "wasm32"))]
+    file_dialog: FileDialog,
+}
+
+/// A file dialog: `true` asks for one folder, `false` for files; `None` when the user
+/// chose nothing (or no dialog could be shown).
+#[cfg(not(target_arch = "wasm32"))]
+pub type FileDialog = Box<dyn FnMut(bool) -> Option<Vec<std::path::PathBuf>>>;
+
+/// The system's file dialog (through rfd: the XDG desktop portal or zenity on Linux, the
+/// native dialogs on macOS and Windows).
+#[cfg(not(target_arch = "wasm32"))]
+pub fn system_file_dialog() -> FileDialog {
+    Box::new(|folder| {
+        let dialog = rfd::FileDialog::new().set_title(if folder {
+            "Open a bundle folder"
+        } else {
+            "Open a bundle, a model with a dataset, or runs"
+        });
+        if folder {
+            dialog.pick_folder().map(|p| vec![p])
+        } else {
+            dialog
+                .add_filter("model, dataset, runs, bundle", &["safetensors", "json"])
+                .pick_files()
+        }
+    })
 }
 
 impl std::fmt::Debug for ExplorerApp {
@@ -114,6 +142,8 @@ impl ExplorerApp {
             show_about: false,
             #[cfg(target_arch = "wasm32")]
             web: crate::web::WebState::default(),
+            #[cfg(not(target_arch = "wasm32"))]
+            file_dialog: system_file_dialog(),
         };
         if let Some(b) = bundle {
             app.set_bundle(b);
@@ -296,6 +326,35 @@ impl ExplorerApp {
         worked
     }
 
+    /// Replaces the file dialog (tests; an embedding application with its own).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn set_file_dialog(&mut self, dialog: FileDialog) {
+        self.file_dialog = dialog;
+    }
+
+    /// Asks for files (or a folder) and opens them as if they were dropped.
+    #[cfg(not(target_arch = "wasm32"))]
+    fn open_with_dialog(&mut self, folder: bool) {
+        let Some(paths) = (self.file_dialog)(folder) else {
+            self.status = Status::Info(
+                "nothing opened (on Linux the file dialog needs xdg-desktop-portal or zenity; \
+                 dropping files on the window, or --bundle DIR, works everywhere)"
+                    .into(),
+            );
+            return;
+        };
+        self.open_files(crate::drop::read_paths(&paths));
+    }
+
+    /// Shows what a set of files holds (a bundle, a model, a dataset, runs), keeping what
+    /// they do not replace.
+    fn open_files(&mut self, files: Vec<crate::drop::DroppedFile>) {
+        match crate::drop::assemble(files, self.bundle.as_ref()) {
+            Ok(bundle) => self.set_bundle(bundle),
+            Err(e) => self.status = Status::Error(e),
+        }
+    }
+
     /// Handles files dropped on the window: a bundle, a model, a dataset, runs.
     fn take_dropped(&mut self, ctx: &egui::Context) {
         let dropped = ctx.input(|i| i.raw.dropped_files.clone());
@@ -309,10 +368,7 @@ impl ExplorerApp {
             self.web.take_dropped()
         };
         if let Some(files) = files {
-            match crate::drop::assemble(files, self.bundle.as_ref()) {
-                Ok(bundle) => self.set_bundle(bundle),
-                Err(e) => self.status = Status::Error(e),
-            }
+            self.open_files(files);
         }
     }
 

@@ -302,6 +302,7 @@ pub fn simulate_with(spec: &TrialSpec, robot_free: bool) -> (Sequence, Vec<StepR
         joints,
         torques,
         subtask,
+        extra: Vec::new(),
         images_without_robot: without_robot,
     };
     (seq, records)

@@ -84,7 +84,8 @@ fn same_seed_gives_byte_identical_sequences() {
 fn shapes_ranges_and_labels() {
     for task in Task::ALL {
         let (seq, records) = simulated(task);
-        seq.validate("sim").unwrap();
+        seq.validate("sim", pvrnn_dataset::ProprioLayout::PAPER)
+            .unwrap();
         let t = seq.len();
         assert!(
             (270..=330).contains(&t),
@@ -331,16 +332,25 @@ fn simulate_import_format_load_round_trip() {
     use pvrnn_dataset::import::{import_sequence, write_recording};
     use pvrnn_dataset::{Dataset, proprio_ranges};
     let (seq, _) = simulated(Task::Wiping);
-    let cams = vec!["left".to_string(), "right".to_string()];
+    let layout = pvrnn_dataset::import::RecordingLayout::paper(
+        &["left".into(), "right".into()],
+        caresim::IMAGE_SIZE,
+    );
     let dir = tempfile::tempdir().unwrap();
-    write_recording(seq, &cams, dir.path()).unwrap();
-    let imported = import_sequence(dir.path(), &seq.info.name, &cams, caresim::IMAGE_SIZE).unwrap();
+    write_recording(seq, &layout, dir.path()).unwrap();
+    let imported = import_sequence(dir.path(), &seq.info.name, &layout).unwrap();
     // Everything survives; the seed travels in meta.json.
     assert!(
         imported == *seq,
         "the imported sequence differs from the simulated one"
     );
-    let ds = Dataset::new("round trip", cams, caresim::IMAGE_SIZE, vec![imported]).unwrap();
+    let ds = Dataset::new(
+        "round trip",
+        layout.cameras.clone(),
+        caresim::IMAGE_SIZE,
+        vec![imported],
+    )
+    .unwrap();
     let mut config = ModelConfig::default();
     config.normalisation = Some(proprio_ranges(&ds.split(None)));
     let obs = ds.observations(&ds.split(None), &config).unwrap();
@@ -379,6 +389,7 @@ fn robot_free_renders_differ_only_where_the_robot_is_and_survive_the_file() {
         &seq.info,
         seq.cameras,
         seq.image_size,
+        seq.proprio_layout(),
     )
     .unwrap();
     assert!(back == seq, "robot-free images lost in the file");

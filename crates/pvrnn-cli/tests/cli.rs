@@ -804,10 +804,11 @@ fn import_reads_recordings_into_a_dataset() {
         joints: vec![0.1; 3 * 14],
         torques: vec![1.5; 3 * 14],
         subtask: vec![0; 3],
+        extra: Vec::new(),
         images_without_robot: None,
     };
-    let cams = vec!["left".to_string(), "right".to_string()];
-    pvrnn_dataset::import::write_recording(&seq, &cams, &x.path("recordings").join("trial_a"))
+    let layout = pvrnn_dataset::import::RecordingLayout::default();
+    pvrnn_dataset::import::write_recording(&seq, &layout, &x.path("recordings").join("trial_a"))
         .unwrap();
     ok(&["import", "--from", &x.s("recordings"), "--out", &x.s("ds")]);
     let ds = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();

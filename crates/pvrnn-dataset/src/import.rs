@@ -4,14 +4,18 @@
 //!
 //! ```text
 //! <recordings>/
+//!   recordings.json             optional: the robot's layout, {"cameras": ["left", "right"],
+//!                               "image_size": 64, "joints": [...], "torques": [...],
+//!                               "extra": [...]}; every field optional, the paper's robot
+//!                               by default (see [`RecordingLayout`])
 //!   <sequence>/                 every sub-folder holding a meta.json is one sequence
 //!     meta.json                 {"task": "wiping", "split": "learn" | "test",
 //!                                "bed_height_mm": 650, "subtasks": ["reaching", ...]}
 //!     left/  000000.png ...     frames of each camera, PNG or JPEG, any size; ordered by
 //!     right/ 000000.jpg ...     the number in the file name, which must run without gaps
-//!     proprio.csv               header, then one row per frame with the columns
-//!                               left_q1..left_q7, right_q1..right_q7 (rad),
-//!                               left_tau1..left_tau7, right_tau1..right_tau7 (N m),
+//!     proprio.csv               header, then one row per frame with a column for every
+//!                               channel the layout names (by default left_q1..left_q7,
+//!                               right_q1..right_q7 in rad, left_tau1..right_tau7 in N m),
 //!                               optionally `subtask` (an index into meta.json's subtasks);
 //!                               other columns (e.g. a timestamp) are ignored
 //! ```
@@ -23,9 +27,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::resample::square_area_resample;
-use crate::{
-    Dataset, Result, Sequence, SequenceInfo, Split, format_err, io_err, joint_names, torque_names,
-};
+use crate::{Channels, Dataset, Result, Sequence, SequenceInfo, Split, format_err, io_err};
 
 /// A recording's `meta.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -41,17 +43,130 @@ pub struct RecordingMeta {
     pub seed: Option<u64>,
 }
 
+/// What a robot's recordings hold: camera folders, the square image size to import at, and
+/// the proprioceptive channels (the CSV columns) by name. On disk, `recordings.json` at the
+/// root of a recordings folder ([`LayoutFile`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordingLayout {
+    /// Camera folder names, in the order the model sees them.
+    pub cameras: Vec<String>,
+    /// Square image size after centre crop and area resampling.
+    pub image_size: usize,
+    /// Joint angles, torques and extra channels: the CSV columns, in the model's order.
+    pub channels: Channels,
+}
+
+/// `recordings.json`: every field optional. Without any channel list the channels are the
+/// paper's robot's; with one, the lists not given are empty (a robot without torque
+/// sensing lists only `joints`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LayoutFile {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cameras: Option<Vec<String>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image_size: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joints: Option<Vec<String>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torques: Option<Vec<String>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extra: Option<Vec<String>>,
+}
+
+impl From<LayoutFile> for RecordingLayout {
+    fn from(f: LayoutFile) -> Self {
+        let paper = Self::default();
+        let channels = if f.joints.is_none() && f.torques.is_none() && f.extra.is_none() {
+            paper.channels
+        } else {
+            Channels {
+                joints: f.joints.unwrap_or_default(),
+                torques: f.torques.unwrap_or_default(),
+                extra: f.extra.unwrap_or_default(),
+            }
+        };
+        Self {
+            cameras: f.cameras.unwrap_or(paper.cameras),
+            image_size: f.image_size.unwrap_or(paper.image_size),
+            channels,
+        }
+    }
+}
+
+impl From<&RecordingLayout> for LayoutFile {
+    fn from(l: &RecordingLayout) -> Self {
+        Self {
+            cameras: Some(l.cameras.clone()),
+            image_size: Some(l.image_size),
+            joints: Some(l.channels.joints.clone()),
+            torques: Some(l.channels.torques.clone()),
+            extra: Some(l.channels.extra.clone()),
+        }
+    }
+}
+
+impl Default for RecordingLayout {
+    /// The paper's robot: two cameras at 64x64, two 7-joint arms with torques.
+    fn default() -> Self {
+        Self {
+            cameras: vec!["left".into(), "right".into()],
+            image_size: 64,
+            channels: Channels::paper(),
+        }
+    }
+}
+
+impl RecordingLayout {
+    /// The paper's channels with these cameras and image size.
+    pub fn paper(cameras: &[String], image_size: usize) -> Self {
+        Self {
+            cameras: cameras.to_vec(),
+            image_size,
+            channels: Channels::paper(),
+        }
+    }
+
+    /// Reads `recordings.json` from a recordings folder; the paper's layout if there is
+    /// none.
+    pub fn of_recordings(from: &Path) -> Result<Self> {
+        let path = from.join(LAYOUT);
+        if !path.is_file() {
+            return Ok(Self::default());
+        }
+        let text = std::fs::read_to_string(&path).map_err(|e| io_err(&path, e))?;
+        let file: LayoutFile = serde_json::from_str(&text)
+            .map_err(|e| format_err(path.display(), format!("invalid: {e}")))?;
+        let layout = Self::from(file);
+        layout.validate(&path.display().to_string())?;
+        Ok(layout)
+    }
+
+    /// At least one camera, an image size of at least 2, valid channel names.
+    pub fn validate(&self, what: &str) -> Result<()> {
+        if self.cameras.is_empty() {
+            return Err(format_err(what, "names no camera"));
+        }
+        if self.image_size < 2 {
+            return Err(format_err(what, "the image size must be at least 2"));
+        }
+        self.channels.validate(what)
+    }
+}
+
 pub const META: &str = "meta.json";
+/// The optional layout file at the root of a recordings folder.
+pub const LAYOUT: &str = "recordings.json";
 pub const PROPRIO_CSV: &str = "proprio.csv";
 const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 
 /// Imports every recording under `from` (sub-folders with a `meta.json`, in name order).
 pub fn import_recordings(
     from: &Path,
-    cameras: &[String],
-    image_size: usize,
+    layout: &RecordingLayout,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Dataset> {
+    layout.validate("the recording layout")?;
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(from)
         .map_err(|e| io_err(from, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -71,23 +186,20 @@ pub fn import_recordings(
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         progress(&name);
-        sequences.push(import_sequence(dir, &name, cameras, image_size)?);
+        sequences.push(import_sequence(dir, &name, layout)?);
     }
-    Dataset::new(
+    Dataset::with_channels(
         &format!("imported from {}", from.display()),
-        cameras.to_vec(),
-        image_size,
+        layout.cameras.clone(),
+        layout.image_size,
+        layout.channels.clone(),
         sequences,
     )
 }
 
 /// Imports one recording folder.
-pub fn import_sequence(
-    dir: &Path,
-    name: &str,
-    cameras: &[String],
-    image_size: usize,
-) -> Result<Sequence> {
+pub fn import_sequence(dir: &Path, name: &str, layout: &RecordingLayout) -> Result<Sequence> {
+    let (cameras, image_size) = (&layout.cameras, layout.image_size);
     let meta_path = dir.join(META);
     let text = std::fs::read_to_string(&meta_path).map_err(|e| io_err(&meta_path, e))?;
     let meta: RecordingMeta = serde_json::from_str(&text)
@@ -110,7 +222,12 @@ pub fn import_sequence(
             ));
         }
     }
-    let (joints, torques, subtask) = read_proprio(&dir.join(PROPRIO_CSV), n, meta.subtasks.len())?;
+    let ([joints, torques, extra], subtask) = read_proprio(
+        &dir.join(PROPRIO_CSV),
+        &layout.channels,
+        n,
+        meta.subtasks.len(),
+    )?;
 
     let mut images = vec![0u8; n * cameras.len() * image_size * image_size * 3];
     let frame_bytes = image_size * image_size * 3;
@@ -141,10 +258,11 @@ pub fn import_sequence(
         images,
         joints,
         torques,
+        extra,
         subtask,
         images_without_robot: None,
     };
-    seq.validate(&dir.display().to_string())?;
+    seq.validate(&dir.display().to_string(), layout.channels.layout())?;
     Ok(seq)
 }
 
@@ -210,10 +328,17 @@ fn list_frames(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(frames.into_iter().map(|(_, p)| p).collect())
 }
 
-type Proprio = (Vec<f32>, Vec<f32>, Vec<u32>);
+/// Joint angles, torques and extra channels `[frames, n]` each, and the subtask labels.
+type Proprio = ([Vec<f32>; 3], Vec<u32>);
 
-/// Reads `proprio.csv`: `frames` rows of 28 named columns and an optional subtask column.
-fn read_proprio(path: &Path, frames: usize, subtasks: usize) -> Result<Proprio> {
+/// Reads `proprio.csv`: `frames` rows with a column for every named channel and an
+/// optional subtask column.
+fn read_proprio(
+    path: &Path,
+    channels: &Channels,
+    frames: usize,
+    subtasks: usize,
+) -> Result<Proprio> {
     let what = path.display().to_string();
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
@@ -224,20 +349,25 @@ fn read_proprio(path: &Path, frames: usize, subtasks: usize) -> Result<Proprio> 
         .map_err(|e| format_err(&what, csv_detail(&e)))?
         .clone();
     let column = |name: &str| headers.iter().position(|h| h == name);
-    let mut joint_cols = Vec::new();
-    let mut torque_cols = Vec::new();
-    for (names, cols) in [
-        (joint_names(), &mut joint_cols),
-        (torque_names(), &mut torque_cols),
-    ] {
-        for name in names {
-            cols.push(column(&name).ok_or_else(|| {
-                format_err(&what, format!("line 1: the header has no column `{name}` (need left_q1..right_q7, left_tau1..right_tau7)"))
+    let kinds = [&channels.joints, &channels.torques, &channels.extra];
+    let mut cols: [Vec<usize>; 3] = Default::default();
+    for (names, cols) in kinds.iter().zip(&mut cols) {
+        for name in names.iter() {
+            cols.push(column(name).ok_or_else(|| {
+                format_err(
+                    &what,
+                    format!(
+                        "line 1: the header has no column `{name}` (the layout names {}; \
+                         put the robot's channel names in recordings.json)",
+                        describe(channels)
+                    ),
+                )
             })?);
         }
     }
     let subtask_col = column("subtask");
-    let (mut joints, mut torques, mut labels) = (Vec::new(), Vec::new(), Vec::new());
+    let mut values: [Vec<f32>; 3] = Default::default();
+    let mut labels = Vec::new();
     let mut rows = 0;
     for record in reader.records() {
         let record = record.map_err(|e| format_err(&what, csv_detail(&e)))?;
@@ -258,11 +388,10 @@ fn read_proprio(path: &Path, frames: usize, subtasks: usize) -> Result<Proprio> 
             }
             Ok(v)
         };
-        for (col, name) in joint_cols.iter().zip(joint_names()) {
-            joints.push(field(*col, &name)?);
-        }
-        for (col, name) in torque_cols.iter().zip(torque_names()) {
-            torques.push(field(*col, &name)?);
+        for ((cols, names), out) in cols.iter().zip(kinds).zip(&mut values) {
+            for (col, name) in cols.iter().zip(names.iter()) {
+                out.push(field(*col, name)?);
+            }
         }
         labels.push(match subtask_col {
             Some(col) => {
@@ -293,7 +422,22 @@ fn read_proprio(path: &Path, frames: usize, subtasks: usize) -> Result<Proprio> 
             format!("{rows} rows, but there are {frames} frames per camera"),
         ));
     }
-    Ok((joints, torques, labels))
+    Ok((values, labels))
+}
+
+/// The channel names of a layout, shortened for a message.
+fn describe(channels: &Channels) -> String {
+    let short = |v: &[String]| match v {
+        [] => "none".to_string(),
+        [one] => one.clone(),
+        [first, .., last] => format!("{first}..{last}"),
+    };
+    format!(
+        "joints {}, torques {}, extra {}",
+        short(&channels.joints),
+        short(&channels.torques),
+        short(&channels.extra)
+    )
 }
 
 fn csv_detail(e: &csv::Error) -> String {
@@ -304,8 +448,11 @@ fn csv_detail(e: &csv::Error) -> String {
 }
 
 /// Writes a dataset sequence in the recordings layout (PNG frames, proprio.csv, meta.json):
-/// a template for real data, and the other half of the import round trip.
-pub fn write_recording(seq: &Sequence, cameras: &[String], dir: &Path) -> Result<()> {
+/// a template for real data, and the other half of the import round trip. The CSV's
+/// columns are `layout`'s channel names; `recordings.json` is the caller's to write
+/// ([`write_layout`]).
+pub fn write_recording(seq: &Sequence, layout: &RecordingLayout, dir: &Path) -> Result<()> {
+    let cameras = &layout.cameras;
     for (c, cam) in cameras.iter().enumerate() {
         let cam_dir = dir.join(cam);
         std::fs::create_dir_all(&cam_dir).map_err(|e| io_err(&cam_dir, e))?;
@@ -317,8 +464,7 @@ pub fn write_recording(seq: &Sequence, cameras: &[String], dir: &Path) -> Result
         }
     }
     let mut csv = String::new();
-    let mut header: Vec<String> = joint_names();
-    header.extend(torque_names());
+    let mut header: Vec<String> = layout.channels.names().cloned().collect();
     header.push("subtask".into());
     csv.push_str(&header.join(","));
     csv.push('\n');
@@ -345,4 +491,15 @@ pub fn write_recording(seq: &Sequence, cameras: &[String], dir: &Path) -> Result
     )
     .map_err(|e| io_err(&meta_path, e))?;
     Ok(())
+}
+
+/// Writes `recordings.json` into a recordings folder.
+pub fn write_layout(layout: &RecordingLayout, from: &Path) -> Result<()> {
+    std::fs::create_dir_all(from).map_err(|e| io_err(from, e))?;
+    let path = from.join(LAYOUT);
+    std::fs::write(
+        &path,
+        serde_json::to_string_pretty(&LayoutFile::from(layout)).expect("serialisable"),
+    )
+    .map_err(|e| io_err(&path, e))
 }

@@ -3,14 +3,15 @@
 //! - vision: for each resolution ascending (16, 32, 64), for each camera (left, right), the
 //!   image row-major and pixel-interleaved; the 32x32 and 16x16 images are 2x2 box averages
 //!   of the level above; values `v / 255 * 1.8 - 0.9`;
-//! - proprioception: joints 1-7 left, 1-7 right, torques likewise, each scaled to
-//!   [-0.9, 0.9] by the learning split's min and max (stored in the model; a constant
-//!   dimension maps to 0).
+//! - proprioception: the joint angles, then the torques, then any extra channels, in the
+//!   order the manifest names them (the paper's robot: joints 1-7 left, 1-7 right, torques
+//!   likewise), each scaled to [-0.9, 0.9] by the learning split's min and max (stored in
+//!   the model; a constant dimension maps to 0).
 
 use pvrnn_core::config::{ModelConfig, Normalisation, VisionLayout};
 use pvrnn_core::{Observations, Tensor};
 
-use crate::{Dataset, Manifest, PROPRIO_DIMS, Result, Sequence, Split, format_err};
+use crate::{Dataset, Manifest, Result, Sequence, Split, format_err};
 
 /// Which of a dataset's sequences to use.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -36,10 +37,12 @@ impl Selection {
     }
 }
 
-/// Per-dimension min and max of the raw proprioception over `sequences`.
+/// Per-dimension min and max of the raw proprioception over `sequences` (which share one
+/// channel layout, as a dataset's do).
 pub fn proprio_ranges(sequences: &[&Sequence]) -> Normalisation {
-    let mut lo = vec![f64::INFINITY; PROPRIO_DIMS];
-    let mut hi = vec![f64::NEG_INFINITY; PROPRIO_DIMS];
+    let dims = sequences.first().map_or(0, |s| s.proprio_layout().dims());
+    let mut lo = vec![f64::INFINITY; dims];
+    let mut hi = vec![f64::NEG_INFINITY; dims];
     for s in sequences {
         for t in 0..s.len() {
             for (i, v) in s.proprio(t).into_iter().enumerate() {
@@ -80,6 +83,63 @@ pub fn check_layout(manifest: &Manifest, layout: &VisionLayout) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// Fails with a message naming both sides unless the model's proprioception is this
+/// dataset's channels.
+pub fn check_proprio(manifest: &Manifest, config: &ModelConfig) -> Result<()> {
+    let layout = manifest.proprio_layout();
+    if layout.dims() != config.proprio_dims {
+        return Err(format_err(
+            "dataset",
+            format!(
+                "its {} proprioceptive channels ({} joint angles, {} torques, {} extra) do not fit the model's {} proprioceptive dimensions; \
+                 create the model for this dataset with `pvrnn init --dataset`",
+                layout.dims(),
+                layout.joints,
+                layout.torques,
+                layout.extra,
+                config.proprio_dims
+            ),
+        ));
+    }
+    if let Some(norm) = &config.normalisation
+        && norm.proprio_min.len() != layout.dims()
+    {
+        return Err(format_err(
+            "model",
+            format!(
+                "its proprioception ranges have {} dimensions, the dataset {}",
+                norm.proprio_min.len(),
+                layout.dims()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The configuration `config` adapted to a dataset: its cameras, its image size as the
+/// largest resolution (keeping the number of levels, each half the next) and its
+/// proprioceptive channels. Fails when the image size does not halve that often.
+pub fn fit_config(config: &ModelConfig, manifest: &Manifest) -> Result<ModelConfig> {
+    let mut fitted = config.clone();
+    let levels = config.vision.resolutions.len().max(1);
+    let top = manifest.image_size;
+    if top % (1 << (levels - 1)) != 0 || top >> (levels - 1) == 0 {
+        return Err(format_err(
+            "dataset",
+            format!(
+                "its {top}x{top} images cannot be halved {} times for the model's {levels} vision levels; \
+                 import with an --image-size divisible by {}",
+                levels - 1,
+                1 << (levels - 1)
+            ),
+        ));
+    }
+    fitted.vision.cameras = manifest.cameras.len();
+    fitted.vision.resolutions = (0..levels).rev().map(|l| top >> l).collect();
+    fitted.proprio_dims = manifest.proprio_layout().dims();
+    Ok(fitted)
 }
 
 /// A model without proprioception ranges gets the dataset's learning split's (the spec's
@@ -163,6 +223,7 @@ impl Dataset {
         config: &ModelConfig,
     ) -> Result<Observations<f32>> {
         check_layout(&self.manifest, &config.vision)?;
+        check_proprio(&self.manifest, config)?;
         let norm = config.normalisation.as_ref().ok_or_else(|| {
             format_err(
                 "model",
@@ -172,12 +233,13 @@ impl Dataset {
         let steps = sequences.iter().map(|s| s.len()).max().unwrap_or(0);
         let (s_count, dv) = (sequences.len(), config.vision.dims());
         let mut extero = vec![0f32; s_count * steps * dv];
-        let mut proprio = vec![0f32; s_count * steps * PROPRIO_DIMS];
+        let dp = config.proprio_dims;
+        let mut proprio = vec![0f32; s_count * steps * dp];
         for (i, seq) in sequences.iter().enumerate() {
             for t in 0..seq.len() {
                 let row = (i * steps + t) * dv;
                 vision_vector(seq, t, &config.vision, &mut extero[row..row + dv]);
-                let prow = (i * steps + t) * PROPRIO_DIMS;
+                let prow = (i * steps + t) * dp;
                 for (d, v) in seq.proprio(t).into_iter().enumerate() {
                     proprio[prow + d] = norm.proprio_to_model(d, v as f64) as f32;
                 }
@@ -185,7 +247,7 @@ impl Dataset {
         }
         Ok(Observations::new(
             Tensor::from_vec(&[s_count, steps, dv], extero)?,
-            Tensor::from_vec(&[s_count, steps, PROPRIO_DIMS], proprio)?,
+            Tensor::from_vec(&[s_count, steps, dp], proprio)?,
             Some(sequences.iter().map(|s| s.len()).collect()),
         )?)
     }

@@ -6,8 +6,11 @@
 //! dataset.json                      manifest (format, image size, cameras, channel names, sequences)
 //! <name>.safetensors                one file per sequence:
 //!     images   u8  [T, cameras, S, S, 3]   8-bit RGB, row-major, pixel-interleaved
-//!     joints   f32 [T, 14]                 rad: left arm joints 1-7, right arm joints 1-7
-//!     torques  f32 [T, 14]                 N m: same order
+//!     joints   f32 [T, J]                  rad, the manifest's `joints` in order (the paper's
+//!                                          robot: left arm joints 1-7, right arm joints 1-7)
+//!     torques  f32 [T, K]                  N m, the manifest's `torques` (absent when K = 0)
+//!     extra    f32 [T, E]                  any other channels, the manifest's `extra`
+//!                                          (absent when E = 0)
 //!     subtask  i64 [T]                     index into the sequence's `subtasks` names
 //!   metadata `sequence`: the sequence's manifest entry as JSON (the file describes itself)
 //! previews/<name>.png, .gif        optional contact sheet and animation
@@ -36,25 +39,106 @@ pub use inputs::{Selection, proprio_ranges};
 /// Manifest format identifier.
 pub const FORMAT: &str = "pvrnn-dataset/1";
 pub const MANIFEST: &str = "dataset.json";
-/// Joint angles per step (two 7-joint arms); as many torques follow them.
-pub const JOINTS: usize = 14;
-/// Joint angles and torques per step.
-pub const PROPRIO_DIMS: usize = 2 * JOINTS;
-
-/// Names of the 14 joints, left arm then right arm.
-pub fn joint_names() -> Vec<String> {
-    ["left", "right"]
-        .iter()
-        .flat_map(|arm| (1..=7).map(move |j| format!("{arm}_q{j}")))
-        .collect()
+/// How many proprioceptive channels of each kind a robot has. The model's proprioceptive
+/// vector is the joint angles, then the torques, then the extra channels, in the order the
+/// dataset manifest names them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ProprioLayout {
+    pub joints: usize,
+    pub torques: usize,
+    pub extra: usize,
 }
 
-/// Names of the 14 torques, same order as the joints.
-pub fn torque_names() -> Vec<String> {
-    ["left", "right"]
-        .iter()
-        .flat_map(|arm| (1..=7).map(move |j| format!("{arm}_tau{j}")))
-        .collect()
+impl ProprioLayout {
+    /// The paper's robot: two 7-joint arms, a torque sensor in every joint.
+    pub const PAPER: Self = Self {
+        joints: 14,
+        torques: 14,
+        extra: 0,
+    };
+
+    /// Proprioceptive dimensions per step (the model's `proprio_dims`).
+    pub fn dims(&self) -> usize {
+        self.joints + self.torques + self.extra
+    }
+
+    /// Where the joint angles, torques and extra channels sit in the proprioceptive vector.
+    pub fn ranges(&self) -> [std::ops::Range<usize>; 3] {
+        let (j, k) = (self.joints, self.joints + self.torques);
+        [0..j, j..k, k..self.dims()]
+    }
+}
+
+/// The proprioceptive channels of a robot, by name: the columns `pvrnn import` reads and
+/// the names a dataset manifest declares.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Channels {
+    /// Joint angles, rad.
+    pub joints: Vec<String>,
+    /// Joint torques, N m (empty for a robot without torque sensing).
+    #[serde(default)]
+    pub torques: Vec<String>,
+    /// Any other channels (a gripper's opening, a force sensor), in their own units.
+    #[serde(default)]
+    pub extra: Vec<String>,
+}
+
+impl Channels {
+    /// The paper's robot: `left_q1..left_q7, right_q1..right_q7`, then
+    /// `left_tau1..right_tau7`.
+    pub fn paper() -> Self {
+        let names = |kind: &str| -> Vec<String> {
+            ["left", "right"]
+                .iter()
+                .flat_map(|arm| (1..=7).map(move |j| format!("{arm}_{kind}{j}")))
+                .collect()
+        };
+        Self {
+            joints: names("q"),
+            torques: names("tau"),
+            extra: Vec::new(),
+        }
+    }
+
+    pub fn layout(&self) -> ProprioLayout {
+        ProprioLayout {
+            joints: self.joints.len(),
+            torques: self.torques.len(),
+            extra: self.extra.len(),
+        }
+    }
+
+    /// Every channel name, in the proprioceptive vector's order.
+    pub fn names(&self) -> impl Iterator<Item = &String> {
+        self.joints.iter().chain(&self.torques).chain(&self.extra)
+    }
+
+    /// At least one channel, no name twice, none empty; `what` names the file in errors.
+    pub fn validate(&self, what: &str) -> Result<()> {
+        if self.layout().dims() == 0 {
+            return Err(format_err(
+                what,
+                "names no proprioceptive channel (joints, torques or extra)",
+            ));
+        }
+        let mut seen = std::collections::HashSet::new();
+        for name in self.names() {
+            if name.trim().is_empty() {
+                return Err(format_err(
+                    what,
+                    "a proprioceptive channel has an empty name",
+                ));
+            }
+            if !seen.insert(name) {
+                return Err(format_err(
+                    what,
+                    format!("the channel name `{name}` appears twice"),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Everything that can go wrong reading or writing datasets and recordings.
@@ -135,12 +219,32 @@ pub struct Manifest {
     /// Square image size of every camera.
     pub image_size: usize,
     pub cameras: Vec<String>,
+    /// Joint-angle channels (rad), in the order of the proprioceptive vector.
     pub joints: Vec<String>,
+    /// Torque channels (N m); may be empty.
     pub torques: Vec<String>,
+    /// Other proprioceptive channels, after the torques; absent when there are none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub extra: Vec<String>,
     /// Free text: where the data comes from.
     #[serde(default)]
     pub source: String,
     pub sequences: Vec<SequenceInfo>,
+}
+
+impl Manifest {
+    /// The proprioceptive channels the dataset declares.
+    pub fn channels(&self) -> Channels {
+        Channels {
+            joints: self.joints.clone(),
+            torques: self.torques.clone(),
+            extra: self.extra.clone(),
+        }
+    }
+
+    pub fn proprio_layout(&self) -> ProprioLayout {
+        self.channels().layout()
+    }
 }
 
 /// One recorded (or simulated) sequence in memory.
@@ -151,10 +255,12 @@ pub struct Sequence {
     pub image_size: usize,
     /// `[T, cameras, S, S, 3]`
     pub images: Vec<u8>,
-    /// `[T, 14]` rad
+    /// `[T, J]` rad
     pub joints: Vec<f32>,
-    /// `[T, 14]` N m
+    /// `[T, K]` N m (empty without torque sensing)
     pub torques: Vec<f32>,
+    /// `[T, E]` other channels (usually empty)
+    pub extra: Vec<f32>,
     /// `[T]`
     pub subtask: Vec<u32>,
     /// `[T, cameras, S, S, 3]`: the same frames rendered without the robot, where a
@@ -175,12 +281,26 @@ impl Sequence {
         let start = (t * self.cameras + camera) * n;
         &self.images[start..start + n]
     }
-    /// Joint angles (14) then torques (14) at step t: the raw proprioceptive vector.
-    pub fn proprio(&self, t: usize) -> [f32; PROPRIO_DIMS] {
-        let mut v = [0.0; PROPRIO_DIMS];
-        v[..14].copy_from_slice(&self.joints[t * 14..(t + 1) * 14]);
-        v[14..].copy_from_slice(&self.torques[t * 14..(t + 1) * 14]);
-        v
+    /// Channels of each kind, from the data's sizes (checked against the manifest by
+    /// [`Self::validate`]).
+    pub fn proprio_layout(&self) -> ProprioLayout {
+        let t = self.info.length.max(1);
+        ProprioLayout {
+            joints: self.joints.len() / t,
+            torques: self.torques.len() / t,
+            extra: self.extra.len() / t,
+        }
+    }
+
+    /// Joint angles, then torques, then extra channels at step t: the raw proprioceptive
+    /// vector.
+    pub fn proprio(&self, t: usize) -> Vec<f32> {
+        let l = self.proprio_layout();
+        let row = |v: &[f32], n: usize| v[t * n..(t + 1) * n].to_vec();
+        let mut out = row(&self.joints, l.joints);
+        out.extend(row(&self.torques, l.torques));
+        out.extend(row(&self.extra, l.extra));
+        out
     }
 
     /// The same sequence seen without the robot (its robot-free renders as the images), if
@@ -194,13 +314,15 @@ impl Sequence {
             images,
             joints: self.joints.clone(),
             torques: self.torques.clone(),
+            extra: self.extra.clone(),
             subtask: self.subtask.clone(),
             images_without_robot: None,
         })
     }
 
-    /// Checks sizes and values; `what` names the sequence in errors.
-    pub fn validate(&self, what: &str) -> Result<()> {
+    /// Checks sizes and values against a channel layout; `what` names the sequence in
+    /// errors.
+    pub fn validate(&self, what: &str, layout: ProprioLayout) -> Result<()> {
         let t = self.info.length;
         let expect = |name: &str, got: usize, want: usize| {
             if got == want {
@@ -217,8 +339,9 @@ impl Sequence {
             self.images.len(),
             t * self.cameras * self.image_size * self.image_size * 3,
         )?;
-        expect("joints", self.joints.len(), t * 14)?;
-        expect("torques", self.torques.len(), t * 14)?;
+        expect("joints", self.joints.len(), t * layout.joints)?;
+        expect("torques", self.torques.len(), t * layout.torques)?;
+        expect("extra", self.extra.len(), t * layout.extra)?;
         expect("subtask", self.subtask.len(), t)?;
         if let Some(hidden) = &self.images_without_robot {
             expect(
@@ -230,14 +353,18 @@ impl Sequence {
         if t == 0 {
             return Err(format_err(what, "the sequence has no steps"));
         }
-        for (name, v) in [("joints", &self.joints), ("torques", &self.torques)] {
+        for (name, v, n) in [
+            ("joints", &self.joints, layout.joints),
+            ("torques", &self.torques, layout.torques),
+            ("extra", &self.extra, layout.extra),
+        ] {
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
                 return Err(format_err(
                     what,
                     format!(
                         "{name} holds a non-finite value at step {}, channel {}",
-                        i / 14,
-                        i % 14
+                        i / n,
+                        i % n
                     ),
                 ));
             }
@@ -268,14 +395,21 @@ impl Sequence {
             "images".to_string(),
             OutTensor::U8(vec![t, self.cameras, s, s, 3], Cow::Borrowed(&self.images)),
         );
-        tensors.insert(
-            "joints".to_string(),
-            OutTensor::F32(vec![t, 14], Cow::Borrowed(&self.joints)),
-        );
-        tensors.insert(
-            "torques".to_string(),
-            OutTensor::F32(vec![t, 14], Cow::Borrowed(&self.torques)),
-        );
+        let layout = self.proprio_layout();
+        // Joint angles always (a robot's only channels may be joints); the others only when
+        // the robot has them, so the paper's files stay as they were.
+        for (name, data, n) in [
+            ("joints", &self.joints, layout.joints),
+            ("torques", &self.torques, layout.torques),
+            ("extra", &self.extra, layout.extra),
+        ] {
+            if n > 0 || name == "joints" {
+                tensors.insert(
+                    name.to_string(),
+                    OutTensor::F32(vec![t, n], Cow::Borrowed(data)),
+                );
+            }
+        }
         tensors.insert(
             "subtask".to_string(),
             OutTensor::I64(vec![t], self.subtask.iter().map(|&x| x as i64).collect()),
@@ -296,13 +430,15 @@ impl Sequence {
         Ok(io::to_bytes(&tensors, meta)?)
     }
 
-    /// Reads a sequence file; `info` is the manifest's entry, checked against the file.
+    /// Reads a sequence file; `info` is the manifest's entry and `layout` its channels,
+    /// both checked against the file.
     pub fn from_bytes(
         bytes: Vec<u8>,
         what: &str,
         info: &SequenceInfo,
         cameras: usize,
         image_size: usize,
+        layout: ProprioLayout,
     ) -> Result<Self> {
         let file = TensorFile::from_bytes(bytes, what)?;
         let t = info.length;
@@ -313,8 +449,15 @@ impl Sequence {
         } else {
             None
         };
-        let joints = file.f32("joints", Some(&[t, 14]))?.into_data();
-        let torques = file.f32("torques", Some(&[t, 14]))?.into_data();
+        let channels = |name: &str, n: usize| -> Result<Vec<f32>> {
+            if n == 0 && !file.contains(name) {
+                return Ok(Vec::new());
+            }
+            Ok(file.f32(name, Some(&[t, n]))?.into_data())
+        };
+        let joints = channels("joints", layout.joints)?;
+        let torques = channels("torques", layout.torques)?;
+        let extra = channels("extra", layout.extra)?;
         let subtask: Vec<u32> = file
             .indices("subtask")?
             .into_iter()
@@ -327,10 +470,11 @@ impl Sequence {
             images,
             joints,
             torques,
+            extra,
             subtask,
             images_without_robot,
         };
-        seq.validate(what)?;
+        seq.validate(what, layout)?;
         Ok(seq)
     }
 }
@@ -343,13 +487,28 @@ pub struct Dataset {
 }
 
 impl Dataset {
-    /// A dataset of `sequences`, which must share camera count and image size.
+    /// A dataset of the paper's robot (two 7-joint arms with torques): `sequences` must
+    /// share camera count and image size.
     pub fn new(
         source: &str,
         cameras: Vec<String>,
         image_size: usize,
         sequences: Vec<Sequence>,
     ) -> Result<Self> {
+        Self::with_channels(source, cameras, image_size, Channels::paper(), sequences)
+    }
+
+    /// A dataset of any robot: `sequences` must share camera count and image size and
+    /// carry the named channels.
+    pub fn with_channels(
+        source: &str,
+        cameras: Vec<String>,
+        image_size: usize,
+        channels: Channels,
+        sequences: Vec<Sequence>,
+    ) -> Result<Self> {
+        channels.validate("the dataset's channels")?;
+        let layout = channels.layout();
         for s in &sequences {
             if s.cameras != cameras.len() || s.image_size != image_size {
                 return Err(format_err(
@@ -363,14 +522,15 @@ impl Dataset {
                     ),
                 ));
             }
-            s.validate(&s.info.name)?;
+            s.validate(&s.info.name, layout)?;
         }
         let manifest = Manifest {
             format: FORMAT.into(),
             image_size,
             cameras,
-            joints: joint_names(),
-            torques: torque_names(),
+            joints: channels.joints,
+            torques: channels.torques,
+            extra: channels.extra,
             source: source.into(),
             sequences: sequences.iter().map(|s| s.info.clone()).collect(),
         };
@@ -378,6 +538,19 @@ impl Dataset {
             manifest,
             sequences,
         })
+    }
+
+    /// A dataset of some of this one's sequences (or others of the same robot): the same
+    /// source, cameras, image size and channels.
+    pub fn subset(&self, sequences: Vec<Sequence>) -> Result<Self> {
+        let m = &self.manifest;
+        Self::with_channels(
+            &m.source,
+            m.cameras.clone(),
+            m.image_size,
+            m.channels(),
+            sequences,
+        )
     }
 
     /// Reads `dataset.json` and every sequence file of a dataset folder.
@@ -410,6 +583,7 @@ impl Dataset {
         mut read: impl FnMut(&SequenceInfo) -> Result<(Vec<u8>, String)>,
     ) -> Result<Self> {
         let mut sequences = Vec::with_capacity(manifest.sequences.len());
+        let layout = manifest.proprio_layout();
         for info in &manifest.sequences {
             let (bytes, name) = read(info)?;
             sequences.push(Sequence::from_bytes(
@@ -418,6 +592,7 @@ impl Dataset {
                 info,
                 manifest.cameras.len(),
                 manifest.image_size,
+                layout,
             )?);
         }
         Ok(Self {
@@ -459,9 +634,7 @@ fn parse_manifest(text: &str, what: &str) -> Result<Manifest> {
             format!("format `{}`, expected `{FORMAT}`", manifest.format),
         ));
     }
-    if manifest.joints.len() != 14 || manifest.torques.len() != 14 {
-        return Err(format_err(what, "needs 14 joint and 14 torque names"));
-    }
+    manifest.channels().validate(what)?;
     if manifest.cameras.is_empty() || manifest.image_size == 0 {
         return Err(format_err(
             what,
@@ -525,6 +698,7 @@ mod tests {
             torques: (0..t * 14)
                 .map(|i| (i as f32 * 0.02).cos() * seed as f32)
                 .collect(),
+            extra: Vec::new(),
             subtask: (0..t).map(|i| (i * 2 / t) as u32).collect(),
             images_without_robot: None,
         }
@@ -599,7 +773,10 @@ mod tests {
     fn non_finite_proprioception_is_rejected() {
         let mut s = sequence("s", Split::Learn, 3, 1);
         s.torques[17] = f32::NAN;
-        let e = s.validate("s").unwrap_err().to_string();
+        let e = s
+            .validate("s", ProprioLayout::PAPER)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("torques") && e.contains("step 1, channel 3"),
             "{e}"

@@ -86,6 +86,7 @@ pub fn caresim_like(
                         joints,
                         torques,
                         subtask: (0..steps).map(|t| (3 * t / steps.max(1)) as u32).collect(),
+                        extra: Vec::new(),
                         images_without_robot: without_robot,
                     });
                 }

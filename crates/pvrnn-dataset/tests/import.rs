@@ -5,11 +5,12 @@
 use std::path::Path;
 
 use image::RgbImage;
-use pvrnn_dataset::import::{import_recordings, import_sequence, write_recording};
+use pvrnn_dataset::import::{RecordingLayout, import_recordings, import_sequence, write_recording};
 use pvrnn_dataset::{Sequence, SequenceInfo, Split};
 
-fn cameras() -> Vec<String> {
-    vec!["left".into(), "right".into()]
+/// The paper's robot at 8x8 pixels.
+fn layout() -> RecordingLayout {
+    RecordingLayout::paper(&["left".into(), "right".into()], 8)
 }
 
 fn sequence(t: usize) -> Sequence {
@@ -34,18 +35,19 @@ fn sequence(t: usize) -> Sequence {
             .map(|i| (i as f32 * 0.031).cos() * 4.5)
             .collect(),
         subtask: (0..t).map(|i| (i * 3 / t) as u32).collect(),
+        extra: Vec::new(),
         images_without_robot: None,
     }
 }
 
 fn recording(dir: &Path, t: usize) -> Sequence {
     let seq = sequence(t);
-    write_recording(&seq, &cameras(), dir).unwrap();
+    write_recording(&seq, &layout(), dir).unwrap();
     seq
 }
 
 fn import_err(dir: &Path) -> String {
-    import_sequence(dir, "demo", &cameras(), 8)
+    import_sequence(dir, "demo", &layout())
         .unwrap_err()
         .to_string()
 }
@@ -54,14 +56,14 @@ fn import_err(dir: &Path) -> String {
 fn round_trip_through_the_recordings_layout() {
     let dir = tempfile::tempdir().unwrap();
     let seq = recording(dir.path(), 6);
-    let back = import_sequence(dir.path(), "demo", &cameras(), 8).unwrap();
+    let back = import_sequence(dir.path(), "demo", &layout()).unwrap();
     assert_eq!(back, seq);
     // Any frame size is centre-cropped and area-resampled: 16x24 -> 8x8.
     let big = RgbImage::from_fn(24, 16, |x, y| {
         image::Rgb([(x * 10) as u8, (y * 10) as u8, 99])
     });
     big.save(dir.path().join("left/000002.png")).unwrap();
-    let resized = import_sequence(dir.path(), "demo", &cameras(), 8).unwrap();
+    let resized = import_sequence(dir.path(), "demo", &layout()).unwrap();
     let px = &resized.image(2, 0)[..3];
     // Output pixel (0, 0) averages the crop's x in 4..6, y in 0..2: red (40 + 50) / 2, green 5.
     assert_eq!(px, &[45, 5, 99]);
@@ -73,10 +75,10 @@ fn a_folder_of_recordings_becomes_a_dataset() {
     recording(&root.path().join("b_second"), 4);
     recording(&root.path().join("a_first"), 5);
     std::fs::create_dir(root.path().join("notes")).unwrap();
-    let ds = import_recordings(root.path(), &cameras(), 8, &mut |_| {}).unwrap();
+    let ds = import_recordings(root.path(), &layout(), &mut |_| {}).unwrap();
     let names: Vec<&str> = ds.sequences.iter().map(|s| s.info.name.as_str()).collect();
     assert_eq!(names, ["a_first", "b_second"]);
-    let e = import_recordings(&root.path().join("notes"), &cameras(), 8, &mut |_| {})
+    let e = import_recordings(&root.path().join("notes"), &layout(), &mut |_| {})
         .unwrap_err()
         .to_string();
     assert!(
@@ -216,4 +218,88 @@ fn unreadable_images_and_bad_meta_are_named() {
     .unwrap();
     let e = import_err(dir.path());
     assert!(e.contains("right") && e.contains("No such file"), "{e}");
+}
+
+/// Any robot: the channels recordings.json names are the CSV columns read, in its order;
+/// a column it names that the CSV lacks, a name given twice and no channels at all are
+/// errors naming the file.
+#[test]
+fn a_robot_layout_names_the_columns() {
+    use pvrnn_dataset::import::{LAYOUT, RecordingLayout, write_layout};
+    use pvrnn_dataset::{Channels, Dataset, ProprioLayout};
+    let root = tempfile::tempdir().unwrap();
+    let layout = RecordingLayout {
+        cameras: vec!["wrist".into()],
+        image_size: 8,
+        channels: Channels {
+            joints: (1..=6).map(|j| format!("q{j}")).collect(),
+            torques: Vec::new(),
+            extra: vec!["gripper".into()],
+        },
+    };
+    let mut seq = sequence(5);
+    seq.cameras = 1;
+    seq.images.truncate(5 * 8 * 8 * 3);
+    seq.joints = (0..5 * 6).map(|i| i as f32 * 0.1).collect();
+    seq.torques = Vec::new();
+    seq.extra = vec![0.08, 0.08, 0.05, 0.02, 0.01];
+    write_recording(&seq, &layout, &root.path().join("t1")).unwrap();
+    write_layout(&layout, root.path()).unwrap();
+    let read = RecordingLayout::of_recordings(root.path()).unwrap();
+    assert_eq!(read, layout);
+    let ds = import_recordings(root.path(), &read, &mut |_| {}).unwrap();
+    assert_eq!(
+        ds.manifest.proprio_layout(),
+        ProprioLayout {
+            joints: 6,
+            torques: 0,
+            extra: 1
+        }
+    );
+    assert_eq!(
+        ds.sequences[0].proprio(2)[6],
+        0.05,
+        "the gripper comes last"
+    );
+    assert_eq!(ds.sequences[0].proprio(2)[0], 1.2);
+    // Written and read back: the torque tensor is absent, the channels stay.
+    let out = tempfile::tempdir().unwrap();
+    ds.write(out.path()).unwrap();
+    assert_eq!(Dataset::open(out.path()).unwrap(), ds);
+    // Only a joints list: no torques (not the paper's 14).
+    std::fs::write(root.path().join(LAYOUT), r#"{"joints": ["q1"]}"#).unwrap();
+    let only = RecordingLayout::of_recordings(root.path()).unwrap();
+    assert_eq!(only.channels.layout().dims(), 1);
+    assert_eq!(
+        only.cameras,
+        ["left", "right"],
+        "the other fields keep the defaults"
+    );
+    // A column the CSV lacks.
+    std::fs::write(
+        root.path().join(LAYOUT),
+        r#"{"cameras": ["wrist"], "image_size": 8, "joints": ["q1", "elbow"]}"#,
+    )
+    .unwrap();
+    let layout = RecordingLayout::of_recordings(root.path()).unwrap();
+    let e = import_recordings(root.path(), &layout, &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("proprio.csv")
+            && e.contains("no column `elbow`")
+            && e.contains("recordings.json"),
+        "{e}"
+    );
+    for (text, says) in [
+        (r#"{"joints": ["q1", "q1"]}"#, "`q1` appears twice"),
+        (r#"{"joints": []}"#, "names no proprioceptive channel"),
+        (r#"{"joint": ["q1"]}"#, "unknown field"),
+    ] {
+        std::fs::write(root.path().join(LAYOUT), text).unwrap();
+        let e = RecordingLayout::of_recordings(root.path())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(LAYOUT) && e.contains(says), "{text}: {e}");
+    }
 }

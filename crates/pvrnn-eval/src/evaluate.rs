@@ -172,14 +172,7 @@ pub fn evaluate(
     }
     settings.inference.validate(config)?;
     let manifest = &dataset.manifest;
-    if manifest.joints.len() + manifest.torques.len() != config.proprio_dims {
-        return Err(Error::Invalid(format!(
-            "the dataset has {} joint angles and {} torques, the model {} proprioceptive dimensions",
-            manifest.joints.len(),
-            manifest.torques.len(),
-            config.proprio_dims
-        )));
-    }
+    pvrnn_dataset::inputs::check_proprio(manifest, config)?;
     let sequences = dataset.select(selection)?;
     let data = dataset.observations(&sequences, config)?;
     data.check_fits(config)?;
@@ -187,8 +180,7 @@ pub fn evaluate(
     let groups = groups(
         config,
         &manifest.cameras,
-        manifest.joints.len(),
-        manifest.torques.len(),
+        manifest.proprio_layout(),
         &settings.inference.observed,
     );
     let threshold = (settings.change_threshold / 255.0 * 1.8) as f32;

@@ -5,6 +5,7 @@ use std::ops::Range;
 
 use pvrnn_core::config::VisionLayout;
 use pvrnn_core::{Modality, ModelConfig, Observed};
+use pvrnn_dataset::ProprioLayout;
 use serde::Serialize;
 
 /// A named set of input dimensions of one modality.
@@ -28,12 +29,11 @@ impl Group {
 }
 
 /// The groups of a model with the dataset's camera names and proprioception layout
-/// (`joints` angles first, then `torques`), under `observed`.
+/// (joint angles, then torques, then extra channels), under `observed`.
 pub fn groups(
     config: &ModelConfig,
     cameras: &[String],
-    joints: usize,
-    torques: usize,
+    proprio: ProprioLayout,
     observed: &Observed,
 ) -> Vec<Group> {
     let layout: &VisionLayout = &config.vision;
@@ -60,7 +60,10 @@ pub fn groups(
             });
         }
     }
-    for (name, dims) in [("joints", 0..joints), ("torques", joints..joints + torques)] {
+    for (name, dims) in ["joints", "torques", "extra"]
+        .into_iter()
+        .zip(proprio.ranges())
+    {
         if !dims.is_empty() {
             out.push(Group {
                 name: name.into(),

@@ -204,7 +204,12 @@ mod tests {
         let mut config = ModelConfig::default();
         config.vision = layout();
         let cams = ["left".to_string(), "right".to_string()];
-        let gs = groups(&config, &cams, 14, 14, &Observed::all(&config));
+        let gs = groups(
+            &config,
+            &cams,
+            pvrnn_dataset::ProprioLayout::PAPER,
+            &Observed::all(&config),
+        );
         let names: Vec<&str> = gs.iter().map(|g| g.name.as_str()).collect();
         assert_eq!(
             names,

@@ -44,6 +44,7 @@ fn sequence(name: &str, task: &str, split: Split, phase: usize) -> Sequence {
             .map(|i| (i as f32 * 0.05).cos() * (1 + phase) as f32)
             .collect(),
         subtask: (0..T).map(|t| (t * 2 / T) as u32).collect(),
+        extra: Vec::new(),
         images_without_robot: None,
     }
 }

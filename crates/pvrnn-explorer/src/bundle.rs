@@ -55,13 +55,15 @@ impl Bundle {
         }
         check_layout(&dataset.manifest, &model.config.vision)
             .map_err(|e| format!("the model does not fit the dataset: {e}"))?;
-        if model.config.proprio_dims != pvrnn_dataset::PROPRIO_DIMS {
+        let layout = dataset.manifest.proprio_layout();
+        if model.config.proprio_dims != layout.dims() {
             return Err(format!(
-                "the model does not fit the dataset: it has {} proprioceptive dimensions, the data {} ({} joint angles and {} torques)",
+                "the model does not fit the dataset: it has {} proprioceptive dimensions, the data {} ({} joint angles, {} torques, {} extra channels)",
                 model.config.proprio_dims,
-                pvrnn_dataset::PROPRIO_DIMS,
-                pvrnn_dataset::JOINTS,
-                pvrnn_dataset::JOINTS
+                layout.dims(),
+                layout.joints,
+                layout.torques,
+                layout.extra
             ));
         }
         ensure_normalisation(&mut model.config, &dataset).map_err(|e| e.to_string())?;

@@ -333,9 +333,9 @@ fn dataset_manifest_and_sequence_files() {
 fn recordings_for_import() {
     use pvrnn_dataset::import::{import_sequence, write_recording};
     let seq = common::sequence("rec", "wiping", Split::Learn, 6, 4);
-    let cams = vec!["left".to_string(), "right".to_string()];
+    let layout = pvrnn_dataset::import::RecordingLayout::paper(&["left".into(), "right".into()], 8);
     let dir = temp("recording");
-    write_recording(&seq, &cams, &dir).unwrap();
+    write_recording(&seq, &layout, &dir).unwrap();
     let parts = ["meta.json", "proprio.csv", "left/000002.png"];
     let valid: Vec<Vec<u8>> = parts
         .iter()
@@ -347,7 +347,7 @@ fn recordings_for_import() {
             std::fs::write(dir.join(part), original).unwrap();
         }
         std::fs::write(dir.join(parts[k]), bytes).unwrap();
-        import_sequence(&dir, "rec", &cams, 8).is_ok()
+        import_sequence(&dir, "rec", &layout).is_ok()
     });
     assert_no_panics("recordings", &tally);
 }

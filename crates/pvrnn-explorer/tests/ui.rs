@@ -599,3 +599,62 @@ fn the_open_buttons_read_what_the_file_dialog_chose() {
     assert!(status.contains("broken.safetensors"), "{status}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Another robot: one camera, one 6-joint arm without torque sensing, a gripper channel.
+#[test]
+fn a_robot_of_another_shape_is_shown_with_its_own_channels() {
+    use pvrnn_dataset::{Channels, Dataset, Split};
+    let channels = Channels {
+        joints: (1..=6).map(|j| format!("q{j}")).collect(),
+        torques: Vec::new(),
+        extra: vec!["gripper".into()],
+    };
+    let one_arm = |name: &str, split, t: usize, seed: u32| {
+        let mut s = common::sequence(name, "reach", split, t, seed);
+        s.cameras = 1;
+        s.images.truncate(t * 8 * 8 * 3);
+        s.joints = (0..t * 6).map(|i| (i as f32 * 0.1).sin()).collect();
+        s.torques = Vec::new();
+        s.extra = (0..t)
+            .map(|i| if i > t / 2 { 0.01 } else { 0.08 })
+            .collect();
+        s
+    };
+    let dataset = Dataset::with_channels(
+        "one arm",
+        vec!["wrist".into()],
+        8,
+        channels,
+        vec![
+            one_arm("learn", Split::Learn, 10, 1),
+            one_arm("test", Split::Test, 8, 2),
+        ],
+    )
+    .unwrap();
+    let mut config = common::config();
+    config.vision.cameras = 1;
+    // A model with the paper's 28 proprioceptive dimensions does not fit, and says why.
+    let paper = pvrnn_core::Model::<f32>::init(config.clone(), 1, 10, 3).unwrap();
+    let paper = Bundle::new("x".into(), paper, dataset.clone()).unwrap_err();
+    assert!(
+        paper.contains("6 joint angles, 0 torques, 1 extra"),
+        "{paper}"
+    );
+    config.proprio_dims = 7;
+    let model = pvrnn_core::Model::<f32>::init(config, 1, 10, 3).unwrap();
+    let bundle = Bundle::new("one arm".into(), model, dataset).unwrap();
+    let h = harness(ExplorerApp::new(Some(bundle), ViewState::default()));
+    let run = h.state().current_run().unwrap();
+    assert_eq!(run.trace.steps, 10, "the run is computed for every step");
+    assert_eq!(run.trace.proprio_recon.len(), 10 * 7);
+    // A plot per kind of channel the robot has: no torque plot.
+    let labels = format!("{:?}", h.root());
+    assert!(
+        labels.contains("joint angles (rad)") && labels.contains("extra channels"),
+        "{labels}"
+    );
+    assert!(
+        !labels.contains("torques (N m)"),
+        "no torque plot for a robot without them"
+    );
+}

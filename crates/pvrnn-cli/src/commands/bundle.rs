@@ -40,12 +40,13 @@ pub struct Args {
     /// Seed of the precomputed runs' noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Conditions to precompute, as VISION/PROPRIO (vision: all, none, or the lowest
-    /// resolutions such as 16 or 32+16; proprioception: on or off).
+    /// Conditions to precompute, as VISION/PROPRIO (vision: all, none, `low` for the lowest
+    /// resolution alone, or the lowest resolutions such as 16 or 32+16; proprioception: on
+    /// or off). The default is the explorer's four standard conditions.
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "all/on,16/on,16/off,none/on"
+        default_value = "all/on,low/on,low/off,none/on"
     )]
     conditions: Vec<String>,
     /// Store the weights as f32 instead of f16 (f16 halves the download; the bundle
@@ -75,6 +76,17 @@ pub struct Args {
 fn parse_condition(text: &str, model: &Model<f32>) -> Result<(Observed, String)> {
     let Some((vision, proprio)) = text.split_once('/') else {
         bail!("--conditions: `{text}` is not VISION/PROPRIO (e.g. 16/on)");
+    };
+    // `low`: the lowest resolution, so the default fits any model's pyramid.
+    let lowest = model
+        .config
+        .vision
+        .resolutions
+        .first()
+        .map(|r| r.to_string());
+    let vision = match (vision, &lowest) {
+        ("low", Some(r)) => r.as_str(),
+        _ => vision,
     };
     let observed = Observed {
         vision_levels: Observed::parse_vision(vision, &model.config)?,
@@ -178,12 +190,7 @@ pub fn run(a: Args) -> Result<()> {
         .collect::<Result<_>>()?;
     let selection = inputs::parse_split(Some(&a.split), Split::Test)?;
     let sequences: Vec<_> = dataset.select(&selection)?.into_iter().cloned().collect();
-    let subset = Dataset::new(
-        &dataset.manifest.source,
-        dataset.manifest.cameras.clone(),
-        dataset.manifest.image_size,
-        sequences,
-    )?;
+    let subset = dataset.subset(sequences)?;
     let refs: Vec<_> = subset.sequences.iter().collect();
     let data = subset.observations(&refs, &model.config)?;
     let learning = dataset

@@ -10,27 +10,37 @@ use crate::util;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Folder of recordings: one sub-folder per sequence with meta.json, a folder of frames
-    /// per camera and proprio.csv (see docs/dataset.md).
+    /// per camera and proprio.csv, and optionally recordings.json naming the robot's
+    /// cameras, image size and channels (see docs/dataset.md).
     #[arg(long)]
     from: PathBuf,
     /// Dataset folder to write.
     #[arg(long)]
     out: PathBuf,
-    /// Camera folder names, in the order the model sees them.
-    #[arg(long, value_delimiter = ',', default_values_t = ["left".to_string(), "right".to_string()])]
-    cameras: Vec<String>,
-    /// Square image size after centre crop and area resampling.
-    #[arg(long, default_value_t = 64)]
-    image_size: usize,
+    /// Camera folder names, in the order the model sees them [default: recordings.json's,
+    /// else left,right].
+    #[arg(long, value_delimiter = ',')]
+    cameras: Option<Vec<String>>,
+    /// Square image size in pixels after centre crop and area resampling [default:
+    /// recordings.json's, else 64].
+    #[arg(long)]
+    image_size: Option<usize>,
     /// Skip the contact sheets and animations.
     #[arg(long)]
     no_previews: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    anyhow::ensure!(a.image_size >= 2, "--image-size must be at least 2");
+    let mut layout = import::RecordingLayout::of_recordings(&a.from)?;
+    if let Some(cameras) = a.cameras {
+        layout.cameras = cameras;
+    }
+    if let Some(size) = a.image_size {
+        anyhow::ensure!(size >= 2, "--image-size must be at least 2");
+        layout.image_size = size;
+    }
     let bar = util::progress(0, "import");
-    let dataset = import::import_recordings(&a.from, &a.cameras, a.image_size, &mut |name| {
+    let dataset = import::import_recordings(&a.from, &layout, &mut |name| {
         bar.inc_length(1);
         bar.set_message(name.to_string());
         bar.inc(1);

@@ -17,8 +17,9 @@ pub struct Args {
     /// Steps per sequence T.
     #[arg(long, required_unless_present = "dataset")]
     steps: Option<usize>,
-    /// Size the model for a dataset folder's learning split (S, longest T) and store its
-    /// proprioception ranges.
+    /// Fit the model to a dataset folder: its cameras, image size (the largest vision
+    /// level, keeping the configuration's number of levels) and proprioceptive channels,
+    /// its learning split's S and longest T, and store its proprioception ranges.
     #[arg(long, conflicts_with_all = ["sequences", "steps"])]
     dataset: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
@@ -33,7 +34,14 @@ pub fn run(a: Args) -> Result<()> {
         Some(dir) => {
             let dataset = Dataset::open(dir)?;
             let learn = dataset.select(&Selection::Split(Split::Learn))?;
-            pvrnn_dataset::inputs::check_layout(&dataset.manifest, &config.vision)?;
+            let fitted = pvrnn_dataset::inputs::fit_config(&config, &dataset.manifest)?;
+            if fitted.vision != config.vision || fitted.proprio_dims != config.proprio_dims {
+                eprintln!(
+                    "fitted to the dataset: {} camera(s) at {:?} pixels, {} proprioceptive dimensions",
+                    fitted.vision.cameras, fitted.vision.resolutions, fitted.proprio_dims
+                );
+            }
+            config = fitted;
             config.normalisation = Some(proprio_ranges(&learn));
             (
                 learn.len(),

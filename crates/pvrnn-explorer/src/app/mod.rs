@@ -16,7 +16,6 @@ use crate::bundle::Bundle;
 use crate::images::{self, Rgb};
 use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
-use pvrnn_dataset::JOINTS;
 
 mod compare;
 mod controls;

@@ -150,23 +150,33 @@ impl ExplorerApp {
                 })
                 .collect()
         };
-        for (title, offset) in [("joint angles (rad)", 0), ("torques (N m)", JOINTS)] {
+        // The robot's channels as its dataset names them, one plot per kind it has.
+        let channels = bundle.dataset.manifest.channels();
+        let ranges = channels.layout().ranges();
+        let kinds = [
+            ("joint angles (rad)", &channels.joints),
+            ("torques (N m)", &channels.torques),
+            ("extra channels", &channels.extra),
+        ];
+        for ((title, names), range) in kinds.into_iter().zip(ranges) {
+            if names.is_empty() {
+                continue;
+            }
             let mut lines = Vec::new();
-            for j in 0..JOINTS {
-                let dim = offset + j;
-                let colour = arm_colour(j);
+            for (j, (dim, name)) in range.clone().zip(names.iter()).enumerate() {
+                let colour = channel_colour(j, names.len());
                 let actual: Vec<[f64; 2]> = (0..len)
                     .map(|s| [s as f64, seq.proprio(s)[dim] as f64])
                     .collect();
                 lines.push(
-                    Line::new(format!("{dim}"), PlotPoints::from(actual))
+                    Line::new(name.clone(), PlotPoints::from(actual))
                         .color(colour)
                         .width(1.2),
                 );
                 if trace.steps > 0 {
                     lines.push(
                         Line::new(
-                            format!("{dim} predicted"),
+                            format!("{name} predicted"),
                             PlotPoints::from(raw_pred(&trace.proprio_recon, dim)),
                         )
                         .color(colour)
@@ -175,7 +185,8 @@ impl ExplorerApp {
                     );
                 }
             }
-            if let Some(s) = plot(ui, format!("proprio {offset}"), title, 150.0, lines, None) {
+            let id = format!("proprio {}", range.start);
+            if let Some(s) = plot(ui, id, title, 150.0, lines, None) {
                 seek = Some(s);
             }
         }
@@ -256,6 +267,16 @@ pub(super) fn unit_colour(k: usize) -> Color32 {
     let hue = (k as f32 * 0.618_034) % 1.0;
     let c = egui::ecolor::Hsva::new(hue, 0.7, 0.95, 1.0);
     c.into()
+}
+
+/// Channel `i` of `n` of one kind: the paper's two 7-joint arms in two hue families (red
+/// left, blue right), any other robot's channels around the colour wheel.
+pub(super) fn channel_colour(i: usize, n: usize) -> Color32 {
+    if n == 14 {
+        arm_colour(i)
+    } else {
+        egui::ecolor::Hsva::new(i as f32 / n.max(1) as f32, 0.7, 0.7, 1.0).into()
+    }
 }
 
 pub(super) fn arm_colour(joint: usize) -> Color32 {

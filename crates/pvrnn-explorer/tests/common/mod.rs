@@ -51,6 +51,7 @@ pub fn sequence(name: &str, task: &str, split: Split, t: usize, seed: u32) -> Se
             .collect(),
         torques: (0..t * 14).map(|i| (i as f32 * 0.07).cos() * 3.0).collect(),
         subtask: (0..t).map(|i| (i * 2 / t) as u32).collect(),
+        extra: Vec::new(),
         images_without_robot: None,
     }
 }

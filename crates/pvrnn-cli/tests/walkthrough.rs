@@ -1,0 +1,130 @@
+//! `docs/walkthrough.md` as written: every `pvrnn` command of its `sh` blocks runs, in order,
+//! on the one-arm recordings in `tests/data/one-arm/`, and every line the document says a
+//! command prints (in the `text` block after it) is printed, except timings.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The document's code blocks in order: (language, lines).
+fn blocks(doc: &str) -> Vec<(String, Vec<String>)> {
+    let mut out = Vec::new();
+    let mut current: Option<(String, Vec<String>)> = None;
+    for line in doc.lines() {
+        match (&mut current, line.strip_prefix("```")) {
+            (None, Some(lang)) => current = Some((lang.trim().to_string(), Vec::new())),
+            (Some(_), Some(_)) => out.extend(current.take()),
+            (Some((_, lines)), None) => lines.push(line.to_string()),
+            (None, None) => {}
+        }
+    }
+    out
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        let target = to.join(path.file_name().unwrap());
+        if path.is_dir() {
+            copy_dir(&path, &target);
+        } else {
+            std::fs::copy(&path, &target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn the_walkthrough_runs_as_written() {
+    let doc = std::fs::read_to_string(repo().join("docs/walkthrough.md")).unwrap();
+    let work = tempfile::tempdir().unwrap();
+    copy_dir(
+        &repo().join("tests/data/one-arm"),
+        &work.path().join("tests/data/one-arm"),
+    );
+    let blocks = blocks(&doc);
+    let (mut ran, mut explorer) = (0, 0);
+    for (i, (lang, lines)) in blocks.iter().enumerate() {
+        if lang != "sh" {
+            continue;
+        }
+        for line in lines {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            match words.first() {
+                Some(&"pvrnn") => {}
+                Some(&"pvrnn-explorer") => {
+                    // A window; the explorer's own tests open bundles of this shape.
+                    explorer += 1;
+                    continue;
+                }
+                _ => panic!("an sh block line the test cannot run: `{line}`"),
+            }
+            let out = Command::new(env!("CARGO_BIN_EXE_pvrnn"))
+                .args(["--threads", "1"])
+                .args(&words[1..])
+                .current_dir(work.path())
+                .output()
+                .unwrap();
+            let printed = format!(
+                "{}{}",
+                String::from_utf8_lossy(&out.stdout),
+                String::from_utf8_lossy(&out.stderr)
+            );
+            assert!(out.status.success(), "`{line}` failed:\n{printed}");
+            ran += 1;
+            // What the document says it prints (timings and elisions aside).
+            if let Some((next, shown)) = blocks.get(i + 1)
+                && next == "text"
+            {
+                for expected in shown {
+                    let vary = expected.contains(" s each")
+                        || expected.contains("...")
+                        || expected.trim().is_empty();
+                    if !vary {
+                        assert!(
+                            printed.contains(expected.as_str()),
+                            "`{line}` did not print `{expected}`:\n{printed}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(
+        (ran, explorer),
+        (6, 1),
+        "import, init, train, infer, evaluate, bundle; then the explorer"
+    );
+
+    // The robot's shape travelled from recordings.json to the dataset, the model, the
+    // evaluation and the bundle.
+    let root = work.path().join("my-robot");
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("dataset/dataset.json")).unwrap()).unwrap();
+    assert_eq!(manifest["image_size"], 128);
+    assert_eq!(manifest["cameras"], serde_json::json!(["wrist"]));
+    assert_eq!(manifest["joints"].as_array().unwrap().len(), 6);
+    assert_eq!(manifest["torques"], serde_json::json!([]));
+    assert_eq!(manifest["extra"], serde_json::json!(["gripper"]));
+    let model = pvrnn_core::io::load_model(&root.join("trained.safetensors")).unwrap();
+    assert_eq!(model.config.vision.cameras, 1);
+    assert_eq!(model.config.vision.resolutions, [32, 64, 128]);
+    assert_eq!(model.config.proprio_dims, 7);
+    let summary = std::fs::read_to_string(root.join("eval/summary.md")).unwrap();
+    assert!(
+        summary.contains("| extra |") && summary.contains("| joints |"),
+        "{summary}"
+    );
+    assert!(!summary.contains("| torques |"), "{summary}");
+    for runs in ["all-on", "32-on", "32-off", "none-on"] {
+        assert!(
+            root.join(format!("bundle/runs-{runs}.safetensors"))
+                .is_file(),
+            "{runs}"
+        );
+    }
+}

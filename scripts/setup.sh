@@ -1,8 +1,16 @@
 #!/usr/bin/env bash
-# Installs what a fresh machine lacks to build and test everything. Idempotent: each step
-# is skipped when already done. Versions are pinned (see ../shared/notes/toolchain.md).
+# Installs what a fresh machine lacks. Idempotent: each step is skipped when already done.
+# Versions are pinned (see ../shared/notes/toolchain.md).
+#
+#   scripts/setup.sh serve   what building and serving the site needs: the wasm32 target,
+#                            wasm-bindgen-cli and trunk (rustup and cargo only: no root, no
+#                            browser), and binaryen's wasm-opt from npm when npm is there
+#   scripts/setup.sh [test]  also what the tests need: Node.js, npm, headless Chromium and
+#                            chromedriver (apt-get: root on Debian/Ubuntu) and the npm tools
 set -euo pipefail
 cd "$(dirname "$0")/.."
+mode=${1:-test}
+case "$mode" in serve | test) ;; *) echo "usage: scripts/setup.sh [serve|test]" >&2; exit 2 ;; esac
 
 WASM_BINDGEN_VERSION=0.2.130
 
@@ -19,6 +27,20 @@ if ! wasm-bindgen-test-runner --version 2>/dev/null | grep -q "$WASM_BINDGEN_VER
     cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
 fi
 
+if ! trunk --version 2>/dev/null | grep -q "0.21.14"; then
+    step "installing trunk 0.21.14 (about 7 minutes; 0.22 needs a newer rustc)"
+    cargo install trunk --version 0.21.14 --locked
+fi
+
+if [ "$mode" = serve ]; then
+    # wasm-opt shrinks the site; serving works without it (scripts/serve.sh says so).
+    if command -v npm >/dev/null 2>&1 && ! [ -x web/node_modules/.bin/wasm-opt ]; then
+        step "installing the web tools (binaryen 132) into web/node_modules"
+        (cd web && npm ci --no-audit --no-fund)
+    fi
+    exit 0
+fi
+
 if ! command -v node >/dev/null 2>&1; then
     step "installing Node.js (runs the wasm tests)"
     apt-get update -qq && apt-get install -y -qq nodejs
@@ -32,11 +54,6 @@ fi
 if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
     step "installing headless Chromium and chromedriver (web tests)"
     apt-get update -qq && apt-get install -y -qq chromium chromium-driver
-fi
-
-if ! trunk --version 2>/dev/null | grep -q "0.21.14"; then
-    step "installing trunk 0.21.14 (about 7 minutes; 0.22 needs a newer rustc)"
-    cargo install trunk --version 0.21.14 --locked
 fi
 
 if ! [ -x web/node_modules/.bin/wasm-opt ] || ! [ -d web/node_modules/playwright-core ]; then

@@ -34,7 +34,7 @@ pub struct ConditionArgs {
     /// Seed of the noise draws.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// eps = 0.
+    /// No noise: z = mu (eps = 0) instead of a seeded sample (for debugging).
     #[arg(long)]
     pub zero_noise: bool,
 }

@@ -27,7 +27,11 @@ struct Cli {
 enum Command {
     /// Create a freshly initialised model for S sequences of T steps.
     Init(commands::init::Args),
-    /// Print a configuration as TOML: the paper's defaults, or a model's own.
+    /// Print a configuration as TOML: the paper's defaults, or a model's own (fields:
+    /// docs/config.md).
+    #[command(
+        after_help = "Example:\n  pvrnn config > my.toml\n  pvrnn config --model run.safetensors"
+    )]
     Config {
         /// Print this model's configuration instead of the defaults.
         #[arg(long)]
@@ -79,5 +83,43 @@ fn main() {
     if let Err(e) = result {
         eprintln!("error: {e:#}");
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    /// Every command ends its help with an example, and every flag says what it is.
+    #[test]
+    fn every_command_has_an_example_and_every_flag_a_help() {
+        let mut missing = Vec::new();
+        let root = super::Cli::command();
+        let mut commands: Vec<clap::Command> = root.get_subcommands().cloned().collect();
+        while let Some(c) = commands.pop() {
+            if c.has_subcommands() {
+                commands.extend(c.get_subcommands().cloned());
+                continue;
+            }
+            let example = c
+                .get_after_help()
+                .is_some_and(|h| h.to_string().starts_with("Example"));
+            if !example {
+                missing.push(format!("{}: no example", c.get_name()));
+            }
+            for arg in c.get_arguments() {
+                let id = arg.get_id().as_str();
+                if id == "help" || id == "version" {
+                    continue;
+                }
+                if arg
+                    .get_help()
+                    .is_none_or(|h| h.to_string().trim().is_empty())
+                {
+                    missing.push(format!("{} --{id}: no help", c.get_name()));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "{missing:#?}");
     }
 }

@@ -112,7 +112,9 @@ pub struct ReadoutConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct VisionLayout {
+    /// Cameras, in the dataset's order (`pvrnn init --dataset` sets it from the dataset).
     pub cameras: usize,
+    /// Colour channels per pixel: 3 (RGB) for every dataset this project reads.
     pub channels: usize,
     /// Square image sizes, ascending; each lower level is a 2x2 box average of the next.
     pub resolutions: Vec<usize>,
@@ -181,7 +183,9 @@ impl AccuracyNormalisation {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TauOrder {
+    /// \[decided\] The first half of a module's units gets the smaller (faster) tau.
     FastFirst,
+    /// The first half gets the larger (slower) tau.
     SlowFirst,
 }
 
@@ -199,9 +203,13 @@ pub enum PosteriorInit {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RAdamConfig {
+    /// Learning rate (step size).
     pub lr: f64,
+    /// Decay of the first-moment (mean gradient) estimate.
     pub beta1: f64,
+    /// Decay of the second-moment (squared gradient) estimate.
     pub beta2: f64,
+    /// Added to the second moment's square root in the denominator.
     pub eps: f64,
     /// \[decided\] The adaptive (rectified) step is used once rho_t exceeds this (PyTorch: 5).
     pub rectify_threshold: f64,
@@ -213,6 +221,7 @@ pub struct RAdamConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainConfig {
+    /// The optimiser of weights and adaptive variables during learning.
     pub optimizer: RAdamConfig,
     /// The paper's run length.
     pub iterations: u64,
@@ -237,7 +246,9 @@ pub struct InferenceConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Normalisation {
+    /// Per proprioceptive dimension: the learning split's minimum (recorded units).
     pub proprio_min: Vec<f64>,
+    /// Per proprioceptive dimension: the learning split's maximum (recorded units).
     pub proprio_max: Vec<f64>,
 }
 
@@ -277,14 +288,22 @@ impl Normalisation {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
+    /// The top module: slowest time constants, no parent.
     pub executive: ModuleConfig,
+    /// Below the executive; the parent of both sensory modules.
     pub associative: ModuleConfig,
+    /// The vision module; its d is read out into images.
     pub exteroceptive: ModuleConfig,
+    /// The proprioception module; its d is read out into joint angles and other channels.
     pub proprioceptive: ModuleConfig,
+    /// From the exteroceptive module's d to the vision vector.
     pub exteroceptive_readout: ReadoutConfig,
+    /// From the proprioceptive module's d to the proprioceptive vector.
     pub proprioceptive_readout: ReadoutConfig,
+    /// Cameras and resolutions of the vision vector.
     pub vision: VisionLayout,
-    /// 14 joint angles then 14 torques (left arm 1-7, right arm 1-7 each).
+    /// Proprioceptive dimensions: the dataset's joint angles, then torques, then extra
+    /// channels (the paper's robot: 14 + 14 + 0; `pvrnn init --dataset` sets it).
     pub proprio_dims: usize,
     /// W: weight of every module's complexity term.
     pub kl_weight: f64,
@@ -300,7 +319,9 @@ pub struct ModelConfig {
     pub xavier_gain: f64,
     /// \[decided\] Initial adaptive variables.
     pub posterior_init: PosteriorInit,
+    /// Learning.
     pub train: TrainConfig,
+    /// Online inference (error regression).
     pub inference: InferenceConfig,
     /// Set when a model is trained on a dataset folder; absent for pre-normalised inputs.
     pub normalisation: Option<Normalisation>,

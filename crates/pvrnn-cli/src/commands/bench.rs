@@ -11,6 +11,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json"
+)]
 pub struct Args {
     /// Print one JSON object instead of a table.
     #[arg(long)]

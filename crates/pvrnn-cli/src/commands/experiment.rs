@@ -53,9 +53,11 @@ pub struct Args {
     /// Slurm: the `pvrnn` executable on the cluster.
     #[arg(long, default_value = "pvrnn")]
     slurm_pvrnn: String,
-    /// Slurm: time limit of a training task and of an inference task.
+    /// Slurm: time limit of a training task (HH:MM:SS); a training stopped by it (SIGTERM)
+    /// writes its checkpoint, and submitting the script again resumes it.
     #[arg(long, default_value = "24:00:00")]
     slurm_train_time: String,
+    /// Slurm: time limit of an inference task (HH:MM:SS).
     #[arg(long, default_value = "02:00:00")]
     slurm_infer_time: String,
     /// Slurm: CPUs per task.

@@ -9,7 +9,11 @@ use pvrnn_dataset::Split;
 use crate::inputs;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn free-energy --model run.safetensors --inputs caresim/ --zero-noise\n  pvrnn free-energy --model m.safetensors --inputs x.safetensors --grads g.safetensors"
+)]
 pub struct Args {
+    /// The model (or checkpoint) to evaluate.
     #[arg(long)]
     model: PathBuf,
     /// safetensors with `x_extero` [S, T, vision dims] and `x_proprio` [S, T, 28] (f32,

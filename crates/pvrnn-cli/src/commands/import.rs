@@ -8,6 +8,9 @@ use pvrnn_dataset::{import, preview, previews_dir};
 use crate::util;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn import --from tests/data/one-arm --out my-robot/dataset\n  pvrnn import --from recordings/ --out mine/ --cameras left,right --image-size 64"
+)]
 pub struct Args {
     /// Folder of recordings: one sub-folder per sequence with meta.json, a folder of frames
     /// per camera and proprio.csv, and optionally recordings.json naming the robot's

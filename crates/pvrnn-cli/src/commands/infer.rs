@@ -10,7 +10,11 @@ use crate::{inputs, util};
 use pvrnn_dataset::Split;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn infer --model run.safetensors --inputs caresim/ --out runs.safetensors --vision 16 --proprio on\n  pvrnn infer --model run.safetensors --inputs caresim/ --out abl.safetensors --ablate executive --ablation-mode readout"
+)]
 pub struct Args {
+    /// The trained model (or a training checkpoint).
     #[arg(long)]
     model: PathBuf,
     /// Inputs: a safetensors file (`x_extero`, `x_proprio`, optional `lengths`, normalised)

@@ -7,6 +7,9 @@ use pvrnn_dataset::{Dataset, Selection, Split, proprio_ranges};
 use crate::util;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn init --dataset caresim/ --out m.safetensors --seed 1\n  pvrnn init --config my.toml --sequences 18 --steps 300 --out m.safetensors"
+)]
 pub struct Args {
     /// TOML configuration (fields left out keep the paper's values; see `pvrnn config`).
     #[arg(long)]
@@ -22,8 +25,10 @@ pub struct Args {
     /// its learning split's S and longest T, and store its proprioception ranges.
     #[arg(long, conflicts_with_all = ["sequences", "steps"])]
     dataset: Option<PathBuf>,
+    /// Seed of the weight initialisation and the fixed recurrent biases.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// The model file to write (safetensors).
     #[arg(long)]
     out: PathBuf,
 }

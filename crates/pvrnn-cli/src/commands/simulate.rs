@@ -11,10 +11,15 @@ use rayon::prelude::*;
 use crate::util;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn simulate --out caresim/\n  pvrnn simulate --out caresim-matched/ --variability matched --robot-free"
+)]
 pub struct Args {
     /// Dataset folder to write.
     #[arg(long)]
     out: PathBuf,
+    /// Seed of every random choice (postures, timing, towel, wiping pattern, sensor noise):
+    /// the same seed writes the same bytes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Learning sequences per task and bed height (paper: 3).

@@ -11,6 +11,9 @@ use pvrnn_dataset::Split;
 use pvrnn_eval::training_log::TrainingLog;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example:\n  pvrnn train --model m.safetensors --inputs caresim/ --out run.safetensors --iterations 100000 --checkpoint-every 200 --keep-every 10000\n  pvrnn train --resume --inputs caresim/ --out run.safetensors --iterations 100000"
+)]
 pub struct Args {
     /// Model to start from (from `pvrnn init`); not needed with --resume.
     #[arg(long, required_unless_present = "resume")]
@@ -43,7 +46,7 @@ pub struct Args {
     /// eps = 0 (deterministic learning; for debugging).
     #[arg(long)]
     zero_noise: bool,
-    /// Override the configured learning rate.
+    /// Learning rate of weights and adaptive variables (default: the model's configuration, the paper's 0.001).
     #[arg(long)]
     lr: Option<f64>,
     /// Continue the run saved in --out.

@@ -125,7 +125,7 @@ pub fn fit_config(config: &ModelConfig, manifest: &Manifest) -> Result<ModelConf
     let mut fitted = config.clone();
     let levels = config.vision.resolutions.len().max(1);
     let top = manifest.image_size;
-    if top % (1 << (levels - 1)) != 0 || top >> (levels - 1) == 0 {
+    if !top.is_multiple_of(1 << (levels - 1)) || top >> (levels - 1) == 0 {
         return Err(format_err(
             "dataset",
             format!(

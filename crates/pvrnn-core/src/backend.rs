@@ -10,7 +10,7 @@
 //! above them changes.
 
 use crate::Real;
-use crate::config::ModelConfig;
+use crate::config::{Modality, ModelConfig};
 use crate::data::{Ablation, Observed};
 use crate::params::Params;
 
@@ -123,9 +123,25 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>>;
 }
 
-/// Weights ready for evaluation on one backend.
+/// Weights ready for evaluation on one backend. Everything the model computes goes through
+/// these methods, so a model, a learning run, online inference and the explorer's read-outs
+/// run on whichever backend loaded the weights.
 pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// Forward pass, free energy and (optionally) back-propagation through time for a batch
     /// of windows. The free energy is F = sum_steps [accuracy terms + W * complexity terms].
     fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T>;
+
+    /// The prior's pre-activations `(W_prior_mu d + b, W_prior_sigma d + b)` of every
+    /// module for the states `d` (one per module): the initial a of a new inference step.
+    fn prior_preactivations(&self, d: [&[T]; 4]) -> ([Vec<T>; 4], [Vec<T>; 4]);
+
+    /// The prior's pre-activations along a free-running rollout from the sequence start
+    /// with eps = 0 (the mean path), `[steps, z]` per module: the initial adaptive variables
+    /// of `posterior_init = "prior"`.
+    fn prior_rollout(&self, steps: usize) -> ([Vec<T>; 4], [Vec<T>; 4]);
+
+    /// The read-out of `n` module states `d` (`[n, d]` row-major) into predictions of every
+    /// dimension of `modality` (`[n, dims]`): how a compact run's images and
+    /// proprioception are reconstructed.
+    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T>;
 }

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::backend::{Backend, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window};
 use crate::config::{Modality, ModelConfig, ModuleId, RAdamConfig, validate_radam};
-use crate::cpu::{CpuBackend, prior_preactivations};
+use crate::cpu::CpuBackend;
 use crate::data::{Ablation, AblationMode, Observations, Observed};
 use crate::error::{Error, Result};
 use crate::free_energy::FreeEnergy;
@@ -333,10 +333,9 @@ impl<T: Real> OnlineInference<T> {
             observed_rows[modality.index()] = x[..k].to_vec();
         }
         // The newest step's a = prior pre-activations from d_{t-1}.
-        let (pre_mu, pre_sigma) = prior_preactivations(
-            &self.model.params,
-            std::array::from_fn(|m| self.last_d[m].as_slice()),
-        );
+        let (pre_mu, pre_sigma) = self
+            .loaded
+            .prior_preactivations(std::array::from_fn(|m| self.last_d[m].as_slice()));
         for m in 0..4 {
             self.a_mu[m].extend_from_slice(&pre_mu[m]);
             self.a_sigma[m].extend_from_slice(&pre_sigma[m]);
@@ -570,10 +569,9 @@ impl<T: Real> OnlineInference<T> {
         last_d: &[Vec<T>; 4],
         ablation: Ablation,
     ) -> ([Vec<T>; 2], [Vec<T>; 4]) {
-        let (pre_mu, pre_sigma) = prior_preactivations(
-            &self.model.params,
-            std::array::from_fn(|m| last_d[m].as_slice()),
-        );
+        let (pre_mu, pre_sigma) = self
+            .loaded
+            .prior_preactivations(std::array::from_fn(|m| last_d[m].as_slice()));
         let eps = self.eps(Stream::InferPrior, &[t as u64], 1);
         let window = Window {
             len: 1,
@@ -637,7 +635,7 @@ pub struct Run<T> {
     pub settings: InferenceSettings,
     /// Per modality `[steps, dims]`: reconstructions and one-step prior predictions of all
     /// dimensions. `None` in compact runs: they are the read-outs of `d` and `prior_d`
-    /// ([`crate::cpu::readout`]), so a compact run can still show them.
+    /// ([`crate::backend::LoadedModel::readout`]), so a compact run can still show them.
     pub recon: Option<[Tensor<T>; 2]>,
     pub prior_next: Option<[Tensor<T>; 2]>,
     /// Per module, stacked over steps.
@@ -694,6 +692,27 @@ pub fn run_sequence<T: Real>(
     keep_outputs: bool,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Run<T>> {
+    run_sequence_on(
+        &CpuBackend,
+        model,
+        settings,
+        data,
+        s,
+        keep_outputs,
+        progress,
+    )
+}
+
+/// [`run_sequence`] on `backend`.
+pub fn run_sequence_on<T: Real>(
+    backend: &dyn Backend<T>,
+    model: Arc<Model<T>>,
+    settings: InferenceSettings,
+    data: &Observations<T>,
+    s: usize,
+    keep_outputs: bool,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Run<T>> {
     data.check_fits(&model.config)?;
     if s >= data.sequences() {
         return Err(Error::InvalidArgument(format!(
@@ -701,7 +720,7 @@ pub fn run_sequence<T: Real>(
             data.sequences()
         )));
     }
-    let mut inference = OnlineInference::new(model, settings.clone())?;
+    let mut inference = OnlineInference::with_backend(model, settings.clone(), backend)?;
     let len = data.lengths()[s];
     let mut steps = Vec::with_capacity(len);
     for t in 0..len {

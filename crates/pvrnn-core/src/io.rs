@@ -507,7 +507,16 @@ pub fn checkpoint_iteration(file: &TensorFile) -> Option<u64> {
     Some(state.iteration)
 }
 
-/// Restores a learning run from a checkpoint.
+/// Restores a learning run from a checkpoint, to continue on `backend`.
+pub fn load_checkpoint_on(
+    path: &Path,
+    backend: Box<dyn crate::backend::Backend<f32>>,
+) -> Result<Trainer<f32>> {
+    Ok(load_checkpoint(path)?.with_backend(backend))
+}
+
+/// Restores a learning run from a checkpoint (on the CPU backend; see
+/// [`load_checkpoint_on`]).
 pub fn load_checkpoint(path: &Path) -> Result<Trainer<f32>> {
     let file = TensorFile::open(path)?;
     let model = model_from_file(&file)?;

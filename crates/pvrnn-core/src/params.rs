@@ -286,8 +286,21 @@ pub struct Model<T> {
 }
 
 impl<T: Real> Model<T> {
-    /// A fresh model for `sequences` training sequences of `steps` steps.
+    /// A fresh model for `sequences` training sequences of `steps` steps (its initial
+    /// adaptive variables computed on the CPU backend).
     pub fn init(
+        config: ModelConfig,
+        sequences: usize,
+        steps: usize,
+        seed: u64,
+    ) -> crate::Result<Self> {
+        Self::init_on(&crate::cpu::CpuBackend, config, sequences, steps, seed)
+    }
+
+    /// [`Self::init`] with the prior rollout of `posterior_init = "prior"` computed by
+    /// `backend`.
+    pub fn init_on(
+        backend: &dyn crate::backend::Backend<T>,
         config: ModelConfig,
         sequences: usize,
         steps: usize,
@@ -303,16 +316,14 @@ impl<T: Real> Model<T> {
         let mut adaptive = Adaptive::zeros(&config, sequences, steps);
         if config.posterior_init == PosteriorInit::Prior {
             // The prior rollout does not depend on data, so every sequence starts the same.
-            let rollout = crate::cpu::prior_rollout(&params, &config, steps);
+            let (a_mu, a_sigma) = backend.load(&params, &config).prior_rollout(steps);
             for id in ModuleId::ALL {
                 let i = id.index();
                 for s in 0..sequences {
-                    adaptive.a_mu[i]
-                        .sub_mut(&[s])
-                        .copy_from_slice(&rollout.a_mu[i]);
+                    adaptive.a_mu[i].sub_mut(&[s]).copy_from_slice(&a_mu[i]);
                     adaptive.a_sigma[i]
                         .sub_mut(&[s])
-                        .copy_from_slice(&rollout.a_sigma[i]);
+                        .copy_from_slice(&a_sigma[i]);
                 }
             }
         }

@@ -10,8 +10,9 @@ use wasm_bindgen_test::wasm_bindgen_test as test;
 use std::sync::Arc;
 
 use common::{sine_observations, tiny_config};
+use pvrnn_core::backend::Backend;
 use pvrnn_core::config::ModuleConfig;
-use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence};
+use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence, run_sequence_on};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{
     Ablation, AblationMode, Modality, Model, ModelConfig, ModuleId, NoiseMode, Observations,
@@ -49,10 +50,17 @@ fn mse(pred: &[f32], data: &Observations<f32>, modality: Modality, s: usize) -> 
 }
 
 fn trained(iterations: usize) -> (Trainer<f32>, Observations<f32>, f64, f64) {
+    trained_on(Box::new(pvrnn_core::cpu::CpuBackend), iterations)
+}
+
+fn trained_on(
+    backend: Box<dyn Backend<f32>>,
+    iterations: usize,
+) -> (Trainer<f32>, Observations<f32>, f64, f64) {
     let config = learning_config();
     let data = sine_observations::<f32>(&config, 2, 48);
-    let model = Model::<f32>::init(config, 2, 48, 1).unwrap();
-    let mut trainer = Trainer::new(model, NoiseMode::Sampled { seed: 1 });
+    let model = Model::<f32>::init_on(backend.as_ref(), config, 2, 48, 1).unwrap();
+    let mut trainer = Trainer::new(model, NoiseMode::Sampled { seed: 1 }).with_backend(backend);
     let first = trainer.step(&data).unwrap().total;
     let mut last = first;
     for _ in 1..iterations {
@@ -63,14 +71,28 @@ fn trained(iterations: usize) -> (Trainer<f32>, Observations<f32>, f64, f64) {
 
 #[test]
 fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence() {
-    let (trainer, data, first, last) = trained(400);
+    for (name, backend) in common::backends::<f32>() {
+        eprintln!("backend: {name}");
+        learning_and_inference_on(name, backend);
+    }
+}
+
+/// Learning on `backend`, then online inference on the same kind of backend.
+fn learning_and_inference_on(name: &str, backend: Box<dyn Backend<f32>>) {
+    let (trainer, data, first, last) = trained_on(backend, 400);
+    let (_, inference) = common::backends::<f32>()
+        .into_iter()
+        .find(|(n, _)| *n == name)
+        .unwrap();
+    let inference = inference.as_ref();
     assert!(last < 0.2 * first, "free energy {first} -> {last}");
 
     let model = Arc::new(trainer.model);
     let mut settings = InferenceSettings::from_config(&model.config, 3);
     settings.window = 8;
     settings.iterations = 20;
-    let run = run_sequence(
+    let run = run_sequence_on(
+        inference,
         model.clone(),
         settings.clone(),
         &data,
@@ -107,7 +129,16 @@ fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence() {
         vision_levels: 1,
         proprio: true,
     };
-    let run_partial = run_sequence(model.clone(), partial, &data, 0, true, &mut |_, _| {}).unwrap();
+    let run_partial = run_sequence_on(
+        inference,
+        model.clone(),
+        partial,
+        &data,
+        0,
+        true,
+        &mut |_, _| {},
+    )
+    .unwrap();
     let hidden_part = model.config.vision.observed_dims(1);
     let dims = model.config.vision.dims();
     let mut err = 0.0;

@@ -8,6 +8,8 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use pvrnn_core::backend::{Backend, LoadedModel};
+use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::io::{self, TensorFile};
 use pvrnn_core::{Model, Observations};
 use pvrnn_dataset::Dataset;
@@ -24,6 +26,9 @@ pub struct Bundle {
     /// The model's card, when the bundle has one.
     pub card: Option<ModelCard>,
     pub model: Arc<Model<f32>>,
+    /// The model's weights on the backend that reads images and proprioception out of
+    /// stored states.
+    pub loaded: Arc<dyn LoadedModel<f32>>,
     pub dataset: Dataset,
     /// Runs computed in advance (e.g. by `pvrnn bundle`).
     pub precomputed: Vec<(RunKey, RunTrace)>,
@@ -70,6 +75,7 @@ impl Bundle {
         Ok(Self {
             description,
             card: None,
+            loaded: Arc::from(CpuBackend.load(&model.params, &model.config)),
             model: Arc::new(model),
             dataset,
             precomputed: Vec::new(),
@@ -118,7 +124,7 @@ impl Bundle {
                 ));
                 continue;
             }
-            let trace = RunTrace::from_run(&loaded.run, &self.model);
+            let trace = RunTrace::from_run(&loaded.run, &self.model.config, self.loaded.as_ref());
             self.precomputed.push((
                 RunKey {
                     sequence: name,

@@ -6,7 +6,6 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use pvrnn_core::config::{ModelConfig, ModuleId};
-use pvrnn_core::cpu::readout;
 use pvrnn_core::infer::{InferenceSettings, Run};
 use pvrnn_core::{Ablation, AblationMode, Modality, Model, NoiseMode, Observations, Observed};
 
@@ -162,9 +161,14 @@ impl RunTrace {
         self.steps += 1;
     }
 
-    /// A stored (compact) run; proprioceptive predictions are re-read out from `d`.
-    pub fn from_run(run: &Run<f32>, model: &Model<f32>) -> Self {
-        let mut trace = Self::new(&model.config);
+    /// A stored (compact) run; proprioceptive predictions are re-read out from `d` by
+    /// `loaded` (the model's weights on a backend).
+    pub fn from_run(
+        run: &Run<f32>,
+        config: &ModelConfig,
+        loaded: &dyn pvrnn_core::backend::LoadedModel<f32>,
+    ) -> Self {
+        let mut trace = Self::new(config);
         let steps = run.steps();
         trace.modules = run.modules.clone();
         trace.free_energy = run.free_energy.iter().map(|f| f.total as f32).collect();
@@ -174,18 +178,9 @@ impl RunTrace {
             .map(|e| e.map(|v| v as f32))
             .collect();
         let p = ModuleId::Proprioceptive.index();
-        trace.proprio_recon = readout(
-            &model.params,
-            Modality::Proprioceptive,
-            &trace.modules[p].d,
-            steps,
-        );
-        trace.proprio_prior = readout(
-            &model.params,
-            Modality::Proprioceptive,
-            &trace.modules[p].prior_d,
-            steps,
-        );
+        trace.proprio_recon = loaded.readout(Modality::Proprioceptive, &trace.modules[p].d, steps);
+        trace.proprio_prior =
+            loaded.readout(Modality::Proprioceptive, &trace.modules[p].prior_d, steps);
         trace.steps = steps;
         trace
     }

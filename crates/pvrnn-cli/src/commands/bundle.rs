@@ -137,7 +137,12 @@ fn stored_state_vision_error(
         .map(|&v| storage.round_trip(v))
         .collect();
     let steps = run.steps();
-    let recon = pvrnn_core::cpu::readout(&model.params, Modality::Exteroceptive, &d, steps);
+    let loaded = pvrnn_core::backend::Backend::load(
+        &pvrnn_core::cpu::CpuBackend,
+        &model.params,
+        &model.config,
+    );
+    let recon = loaded.readout(Modality::Exteroceptive, &d, steps);
     let dims = data.dims(Modality::Exteroceptive);
     let sum: f64 = (0..steps)
         .flat_map(|t| {

@@ -58,6 +58,19 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
     fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T> {
         evaluate(self, windows, request)
     }
+
+    fn prior_preactivations(&self, d: [&[T]; 4]) -> ([Vec<T>; 4], [Vec<T>; 4]) {
+        prior_preactivations(&self.params, d)
+    }
+
+    fn prior_rollout(&self, steps: usize) -> ([Vec<T>; 4], [Vec<T>; 4]) {
+        let r = prior_rollout(&self.prepared, &self.config, steps);
+        (r.a_mu, r.a_sigma)
+    }
+
+    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
+        readout(&self.params, modality, d, n)
+    }
 }
 
 fn evaluate<T: Real>(
@@ -256,12 +269,11 @@ pub(crate) struct PriorRollout<T> {
     pub(crate) a_sigma: [Vec<T>; 4],
 }
 
-pub(crate) fn prior_rollout<T: Real>(
-    params: &Params<T>,
+fn prior_rollout<T: Real>(
+    prepared: &recurrent::Prepared<T>,
     config: &ModelConfig,
     steps: usize,
 ) -> PriorRollout<T> {
-    let prepared = recurrent::Prepared::new(params, config);
     let zeros: [Vec<T>; 4] = ModuleId::ALL.map(|id| vec![T::ZERO; steps * config.module(id).z]);
     let window = Window {
         len: steps,
@@ -270,7 +282,7 @@ pub(crate) fn prior_rollout<T: Real>(
         eps: std::array::from_fn(|m| zeros[m].as_slice()),
         targets: [Vec::new(), Vec::new()],
     };
-    let modules = recurrent::forward(&prepared, &window, &Ablation::none()).modules;
+    let modules = recurrent::forward(prepared, &window, &Ablation::none()).modules;
     PriorRollout {
         a_mu: std::array::from_fn(|m| modules[m].pre_mu_p.clone()),
         a_sigma: std::array::from_fn(|m| modules[m].log_sigma_p.clone()),
@@ -279,10 +291,7 @@ pub(crate) fn prior_rollout<T: Real>(
 
 /// The prior's pre-activations `(W_prior_mu d + b, W_prior_sigma d + b)` of every module
 /// for the state `d` (per module): the initial a of a new inference step.
-pub fn prior_preactivations<T: Real>(
-    params: &Params<T>,
-    d: [&[T]; 4],
-) -> ([Vec<T>; 4], [Vec<T>; 4]) {
+fn prior_preactivations<T: Real>(params: &Params<T>, d: [&[T]; 4]) -> ([Vec<T>; 4], [Vec<T>; 4]) {
     let product = |w: &crate::Tensor<T>, b: Option<&crate::Tensor<T>>, x: &[T]| -> Vec<T> {
         let cols = w.shape()[1];
         w.data()
@@ -310,7 +319,7 @@ pub fn prior_preactivations<T: Real>(
 
 /// The read-out of `n` module states `d` (`[n, d]` row-major) into predictions of every
 /// dimension of `modality` (`[n, dims]`): how a compact run's images are reconstructed.
-pub fn readout<T: Real>(params: &Params<T>, modality: Modality, d: &[T], n: usize) -> Vec<T> {
+fn readout<T: Real>(params: &Params<T>, modality: Modality, d: &[T], n: usize) -> Vec<T> {
     let r = &params.readouts[modality.index()];
     let acts = readout::hidden_forward(r, d, n);
     let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);

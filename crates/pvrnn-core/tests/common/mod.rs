@@ -1,6 +1,7 @@
 //! Small models and data shared by the integration tests.
 #![allow(dead_code)]
 
+use pvrnn_core::backend::Backend;
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
 use pvrnn_core::{Model, ModelConfig, Observations, Real, Tensor};
 
@@ -101,4 +102,19 @@ pub fn sine_observations<T: Real>(config: &ModelConfig, s: usize, t: usize) -> O
         None,
     )
     .unwrap()
+}
+
+/// Every backend the shared test suite runs on, by name. A new backend adds itself here and
+/// every gradient check, learning and inference test runs on it too (as candle runs one
+/// suite per device).
+pub fn backends<T: Real>() -> Vec<(&'static str, Box<dyn Backend<T>>)> {
+    vec![("cpu", Box::new(pvrnn_core::cpu::CpuBackend))]
+}
+
+/// Runs `test` on every backend of [`backends`], naming the backend if it fails.
+pub fn for_each_backend<T: Real>(mut test: impl FnMut(&dyn Backend<T>)) {
+    for (name, backend) in backends::<T>() {
+        eprintln!("backend: {name}");
+        test(backend.as_ref());
+    }
 }

@@ -18,7 +18,7 @@ pub(super) fn read_out_vision(bundle: &Bundle, rows: &[f32], count: usize) -> Ve
     if count == 0 {
         return Vec::new();
     }
-    readout(&bundle.model.params, Modality::Exteroceptive, rows, count)
+    bundle.loaded.readout(Modality::Exteroceptive, rows, count)
 }
 
 impl ExplorerApp {

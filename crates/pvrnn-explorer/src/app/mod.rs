@@ -8,7 +8,6 @@ use std::collections::HashMap;
 use eframe::egui::{self, Color32, RichText, TextureHandle, TextureOptions};
 use egui_plot::{Bar, BarChart, Legend, Line, LineStyle, Plot, PlotPoints, VLine};
 use pvrnn_core::config::ModuleId;
-use pvrnn_core::cpu::readout;
 use pvrnn_core::{AblationMode, Modality};
 use web_time::{Duration, Instant};
 

@@ -141,6 +141,7 @@ fn truncated(seq: &Sequence, steps: Option<usize>) -> Sequence {
     }
     s.joints.truncate(steps * per_step(seq.joints.len()));
     s.torques.truncate(steps * per_step(seq.torques.len()));
+    s.extra.truncate(steps * per_step(seq.extra.len()));
     s.subtask.truncate(steps);
     s.info.length = steps;
     s

@@ -56,6 +56,11 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
     apt-get update -qq && apt-get install -y -qq chromium chromium-driver
 fi
 
+if ! python3 -c "import safetensors, numpy" 2>/dev/null; then
+    step "installing the Python packages the walkthrough's snippet uses (safetensors, numpy)"
+    python3 -m pip install --quiet safetensors numpy
+fi
+
 if ! [ -x web/node_modules/.bin/wasm-opt ] || ! [ -d web/node_modules/playwright-core ]; then
     step "installing the web tools (binaryen 132, playwright-core) into web/node_modules"
     (cd web && npm ci --no-audit --no-fund)

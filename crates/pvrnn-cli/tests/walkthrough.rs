@@ -1,6 +1,9 @@
 //! `docs/walkthrough.md` as written: every `pvrnn` command of its `sh` blocks runs, in order,
 //! on the one-arm recordings in `tests/data/one-arm/`, and every line the document says a
-//! command prints (in the `text` block after it) is printed, except timings.
+//! command prints (in the `text` block after it) is printed, except timings. Its Python
+//! block then reads the outputs back (when python3 has `safetensors` and `numpy`, which
+//! `scripts/setup.sh` installs; `PVRNN_REQUIRE_PYTHON=1`, set by `scripts/test.sh`, makes
+//! their absence a failure).
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::{Path, PathBuf};
@@ -127,4 +130,37 @@ fn the_walkthrough_runs_as_written() {
             "{runs}"
         );
     }
+
+    // The Python snippet converts the outputs back to recorded units.
+    let python: Vec<&(String, Vec<String>)> =
+        blocks.iter().filter(|(lang, _)| lang == "python").collect();
+    assert_eq!(python.len(), 1, "one Python block");
+    let have = Command::new("python3")
+        .args(["-c", "import safetensors, numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !have {
+        assert!(
+            std::env::var_os("PVRNN_REQUIRE_PYTHON").is_none(),
+            "python3 with safetensors and numpy is required (scripts/setup.sh installs them)"
+        );
+        eprintln!("skipping the Python block: python3 lacks safetensors or numpy");
+        return;
+    }
+    std::fs::write(work.path().join("snippet.py"), python[0].1.join("\n")).unwrap();
+    let out = Command::new("python3")
+        .arg("snippet.py")
+        .current_dir(work.path())
+        .output()
+        .unwrap();
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "the Python block failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        printed.contains("q1..q6, gripper at step 0:") && printed.contains("128x128 camera 0"),
+        "{printed}"
+    );
 }

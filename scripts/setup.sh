@@ -27,6 +27,11 @@ if ! wasm-bindgen-test-runner --version 2>/dev/null | grep -q "$WASM_BINDGEN_VER
     cargo install wasm-bindgen-cli --version "$WASM_BINDGEN_VERSION"
 fi
 
+if [ "$mode" = test ] && ! command -v xvfb-run >/dev/null 2>&1; then
+    step "installing Xvfb and Mesa (the desktop app's smoke test draws in a virtual display)"
+    apt-get update -qq && apt-get install -y -qq xvfb xauth libgl1-mesa-dri
+fi
+
 if ! trunk --version 2>/dev/null | grep -q "0.21.14"; then
     step "installing trunk 0.21.14 (about 7 minutes; 0.22 needs a newer rustc)"
     cargo install trunk --version 0.21.14 --locked

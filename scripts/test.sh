@@ -34,6 +34,22 @@ step "the explorer's web entry and browser glue in headless Chromium"
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
     cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
 
+step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture"
+cargo build -p pvrnn-explorer
+mkdir -p target
+rm -f target/desktop-smoke.png
+timeout 300 xvfb-run -a -s "-screen 0 1440x920x24" target/debug/pvrnn-explorer \
+    --view 'seq=repositioning_590mm_test0&vision=1&ablate=1000' --screenshot target/desktop-smoke.png
+python3 - <<'PY'
+import struct
+png = open("target/desktop-smoke.png", "rb").read()
+assert png[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
+width, height = struct.unpack(">II", png[16:24])
+assert (width, height) == (1440, 920), (width, height)
+assert len(png) > 100_000, f"{len(png)} bytes: a blank window?"
+print(f"desktop window: {width}x{height}, {len(png)} bytes")
+PY
+
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release
 

@@ -25,6 +25,11 @@ struct Args {
     /// and then on a background thread; print steps per second of each, exit.
     #[arg(long)]
     bench_live: bool,
+    /// Open the window, wait until the view's runs are computed, save a picture of the
+    /// window to this PNG file and exit: a smoke test of the desktop app (with no display,
+    /// run it under `xvfb-run`).
+    #[arg(long, value_name = "FILE")]
+    screenshot: Option<std::path::PathBuf>,
 }
 
 #[cfg(not(target_arch = "wasm32"))]
@@ -87,14 +92,26 @@ fn main() {
     let result = eframe::run_native(
         "PV-RNN explorer",
         options,
-        Box::new(move |cc| {
-            let mut app = ExplorerApp::new(bundle, view);
-            app.compute_in_background(&cc.egui_ctx);
-            Ok(Box::new(app))
+        Box::new({
+            let screenshot = args.screenshot.clone();
+            move |cc| {
+                let mut app = ExplorerApp::new(bundle, view);
+                app.compute_in_background(&cc.egui_ctx);
+                if let Some(path) = screenshot {
+                    app.screenshot_and_close(path);
+                }
+                Ok(Box::new(app))
+            }
         }),
     );
     if let Err(e) = result {
         eprintln!("cannot open a window: {e}");
+        std::process::exit(1);
+    }
+    if let Some(path) = &args.screenshot
+        && !path.is_file()
+    {
+        eprintln!("no picture was saved to {}", path.display());
         std::process::exit(1);
     }
 }

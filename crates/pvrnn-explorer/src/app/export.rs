@@ -156,8 +156,40 @@ impl ExplorerApp {
         });
     }
 
-    /// Saves a picture that arrived (called from `logic`).
-    pub(super) fn take_picture(&mut self) {
+    /// Saves a picture of the window to `path` once the view's runs are computed, then
+    /// closes the window: `pvrnn-explorer --screenshot FILE`, a smoke test of the desktop
+    /// app (it needs a display: `xvfb-run` gives one).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn screenshot_and_close(&mut self, path: std::path::PathBuf) {
+        self.screenshot = Some((path, false));
+    }
+
+    /// Saves a picture that arrived (called from `logic`); with `--screenshot`, asks for it
+    /// when the view is ready and closes the window after saving it.
+    pub(super) fn take_picture(&mut self, ctx: &egui::Context) {
+        #[cfg(not(target_arch = "wasm32"))]
+        if let Some((path, asked)) = self.screenshot.clone() {
+            // Ready: the shown run is complete (or failed) and nothing else is computing.
+            let shown_done = self
+                .current_run()
+                .is_some_and(|e| e.complete || e.error.is_some());
+            if !asked && (self.bundle.is_none() || (shown_done && self.idle())) {
+                self.screenshot = Some((path.clone(), true));
+                self.request_picture(ctx);
+            }
+            let shot = self.pending_shot.lock().ok().and_then(|mut s| s.take());
+            if let Some(image) = shot {
+                let saved = png_bytes(&image)
+                    .and_then(|png| std::fs::write(&path, png).map_err(|e| e.to_string()));
+                match saved {
+                    Ok(()) => eprintln!("saved {}", path.display()),
+                    Err(e) => eprintln!("cannot save {}: {e}", path.display()),
+                }
+                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+            return;
+        }
+        let _ = ctx;
         let shot = self.pending_shot.lock().ok().and_then(|mut s| s.take());
         if let Some(image) = shot {
             match png_bytes(&image) {

@@ -78,6 +78,10 @@ pub struct ExplorerApp {
     last_run_note: Option<String>,
     /// Whether the "About this model" window is open.
     show_about: bool,
+    /// `--screenshot`: where to save a picture of the window once every run the view
+    /// needs is computed, then close (a desktop smoke test); whether it was asked for.
+    #[cfg(not(target_arch = "wasm32"))]
+    screenshot: Option<(std::path::PathBuf, bool)>,
     #[cfg(target_arch = "wasm32")]
     web: crate::web::WebState,
     /// Asks the user for files (or a folder): the system's dialog unless replaced.
@@ -138,6 +142,8 @@ impl ExplorerApp {
             last_hash: String::new(),
             last_run_note: None,
             show_about: false,
+            #[cfg(not(target_arch = "wasm32"))]
+            screenshot: None,
             #[cfg(target_arch = "wasm32")]
             web: crate::web::WebState::default(),
             #[cfg(not(target_arch = "wasm32"))]
@@ -381,7 +387,7 @@ impl ExplorerApp {
             }
         }
         self.take_dropped(ctx);
-        self.take_picture();
+        self.take_picture(ctx);
         // egui's clock rather than the wall clock, so tests can step time exactly.
         let now = ctx.input(|i| i.time);
         let dt = self

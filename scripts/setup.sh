@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what a fresh machine lacks. Idempotent: each step is skipped when already done.
-# Versions are pinned (see ../shared/notes/toolchain.md).
+# Versions are pinned: wasm-bindgen must equal the crate in Cargo.lock, and trunk 0.22 needs a
+# newer rustc than the workspace's 1.95 (README, Install).
 #
 #   scripts/setup.sh serve   what building and serving the site needs: the wasm32 target,
 #                            wasm-bindgen-cli and trunk (rustup and cargo only: no root, no
@@ -30,6 +31,11 @@ fi
 if [ "$mode" = test ] && ! command -v xvfb-run >/dev/null 2>&1; then
     step "installing Xvfb and Mesa (the desktop app's smoke test draws in a virtual display)"
     apt-get update -qq && apt-get install -y -qq xvfb xauth libgl1-mesa-dri
+fi
+
+if [ "$mode" = test ] && ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
+    step "installing Mesa's CPU Vulkan driver, lavapipe (the snapshot tests render with wgpu)"
+    apt-get update -qq && apt-get install -y -qq mesa-vulkan-drivers
 fi
 
 if ! trunk --version 2>/dev/null | grep -q "0.21.14"; then

@@ -15,8 +15,9 @@ cargo fmt --all -- --check
 step "cargo clippy"
 cargo clippy --workspace --all-targets -- -D warnings
 
-step "cargo clippy for WebAssembly (the explorer's web code)"
-cargo clippy -p pvrnn-explorer --target wasm32-unknown-unknown --all-targets -- -D warnings
+step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels)"
+cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-dataset -p caresim \
+    --target wasm32-unknown-unknown --all-targets -- -D warnings
 
 step "cargo doc with warnings denied"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
@@ -49,6 +50,10 @@ assert (width, height) == (1440, 920), (width, height)
 assert len(png) > 100_000, f"{len(png)} bytes: a blank window?"
 print(f"desktop window: {width}x{height}, {len(png)} bytes")
 PY
+
+step "the walkthrough with its explorer step, in a virtual display"
+PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
+    timeout 600 xvfb-run -a -s "-screen 0 1440x920x24" cargo test --workspace --test walkthrough
 
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release

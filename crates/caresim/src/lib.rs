@@ -1,5 +1,5 @@
 //! caresim: a seeded synthetic stand-in for the paper's robot recordings
-//! (`../shared/spec/caresim.md`).
+//! (its specification: `docs/caresim.md`).
 //!
 //! A dual-arm humanoid (two arms with the Franka Panda's 7-DOF kinematics hanging from its
 //! shoulders, a binocular camera pair in its head) stands at a bed at 590, 650 or 710 mm

@@ -1,6 +1,7 @@
 //! Shared helpers: thread pool, configuration files, progress bars.
 
 use std::path::Path;
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -67,7 +68,10 @@ pub fn config_to_toml(config: &ModelConfig) -> String {
 #[derive(Debug)]
 pub struct Progress {
     bar: ProgressBar,
-    plain: Option<std::sync::Mutex<Plain>>,
+    plain: Option<Arc<Mutex<Plain>>>,
+    /// Dropped with the progress: stops the thread that prints the plain line on time even
+    /// while one unit of work takes longer than the interval.
+    _ticker: Option<mpsc::Sender<()>>,
 }
 
 #[derive(Debug)]
@@ -81,9 +85,20 @@ struct Plain {
     first_pos: Option<u64>,
     last_print: Option<std::time::Instant>,
     every: Duration,
+    /// Finished or abandoned: the last line is out, the ticker says nothing more.
+    ended: bool,
 }
 
 impl Plain {
+    /// Prints the line when the interval has passed since the last one (or `force`).
+    fn report(&mut self, force: bool) {
+        let due = self.last_print.is_none_or(|t| t.elapsed() >= self.every);
+        if force || (due && !self.ended) {
+            eprintln!("{}", self.line());
+            self.last_print = Some(std::time::Instant::now());
+        }
+    }
+
     fn line(&self) -> String {
         let elapsed = self.start.elapsed().as_secs_f64();
         let done = self.pos.saturating_sub(self.first_pos.unwrap_or(0));
@@ -132,13 +147,7 @@ impl Progress {
 
     /// Prints the plain line when the interval has passed (or `force`).
     fn report(&self, force: bool) {
-        self.with_plain(|p| {
-            let due = p.last_print.is_none_or(|t| t.elapsed() >= p.every);
-            if force || due {
-                eprintln!("{}", p.line());
-                p.last_print = Some(std::time::Instant::now());
-            }
-        });
+        self.with_plain(|p| p.report(force));
     }
 
     pub fn set_position(&self, pos: u64) {
@@ -159,9 +168,9 @@ impl Progress {
         self.report(false);
     }
 
-    pub fn inc_length(&self, n: u64) {
-        self.bar.inc_length(n);
-        self.with_plain(|p| p.len += n);
+    pub fn set_length(&self, len: u64) {
+        self.bar.set_length(len);
+        self.with_plain(|p| p.len = len);
     }
 
     pub fn set_message(&self, message: String) {
@@ -179,17 +188,25 @@ impl Progress {
 
     pub fn finish(&self) {
         self.bar.finish();
-        self.report(true);
+        self.end();
     }
 
     pub fn finish_and_clear(&self) {
         self.bar.finish_and_clear();
-        self.report(true);
+        self.end();
     }
 
     pub fn abandon(&self) {
         self.bar.abandon();
-        self.report(true);
+        self.end();
+    }
+
+    /// The last plain line.
+    fn end(&self) {
+        self.with_plain(|p| {
+            p.report(true);
+            p.ended = true;
+        });
     }
 }
 
@@ -205,25 +222,47 @@ pub fn progress(len: u64, what: &str) -> Progress {
             .expect("valid template"),
         );
         bar.enable_steady_tick(Duration::from_millis(200));
-        return Progress { bar, plain: None };
+        return Progress {
+            bar,
+            plain: None,
+            _ticker: None,
+        };
     }
     let every = std::env::var("PVRNN_PROGRESS_EVERY")
         .ok()
         .and_then(|v| v.parse::<f64>().ok())
         .filter(|v| v.is_finite() && *v >= 0.0)
         .unwrap_or(60.0);
+    let every = Duration::from_secs_f64(every);
+    let plain = Arc::new(Mutex::new(Plain {
+        what: what.to_string(),
+        len,
+        pos: 0,
+        message: String::new(),
+        start: std::time::Instant::now(),
+        first_pos: None,
+        last_print: Some(std::time::Instant::now()),
+        every,
+        ended: false,
+    }));
+    // With an interval of 0 every update prints; otherwise a thread keeps the lines coming
+    // at the interval while the work is between updates (a slow iteration or sequence).
+    let ticker = (!every.is_zero()).then(|| {
+        let (stop, stopped) = mpsc::channel::<()>();
+        let plain = plain.clone();
+        std::thread::spawn(move || {
+            while let Err(mpsc::RecvTimeoutError::Timeout) = stopped.recv_timeout(every) {
+                if let Ok(mut p) = plain.lock() {
+                    p.report(false);
+                }
+            }
+        });
+        stop
+    });
     Progress {
         bar: ProgressBar::hidden(),
-        plain: Some(std::sync::Mutex::new(Plain {
-            what: what.to_string(),
-            len,
-            pos: 0,
-            message: String::new(),
-            start: std::time::Instant::now(),
-            first_pos: None,
-            last_print: Some(std::time::Instant::now()),
-            every: Duration::from_secs_f64(every),
-        })),
+        plain: Some(plain),
+        _ticker: ticker,
     }
 }
 
@@ -274,6 +313,7 @@ mod tests {
             first_pos: Some(200),
             last_print: None,
             every: Duration::ZERO,
+            ended: false,
         };
         // 200 iterations in 100 s: 0.5 s each, 600 left: 5 minutes.
         assert_eq!(

@@ -26,6 +26,19 @@ fn ok(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
+/// Runs `pvrnn` as a cluster job would (stderr not a terminal, plain progress lines every
+/// `every` seconds); asserts success and returns stderr.
+fn logged(args: &[&str], every: &str) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_pvrnn"))
+        .env("PVRNN_PROGRESS_EVERY", every)
+        .args(args)
+        .output()
+        .expect("runs pvrnn");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "pvrnn {args:?} failed:\n{err}");
+    err
+}
+
 fn fails(args: &[&str]) -> String {
     let out = pvrnn(args);
     assert!(!out.status.success(), "pvrnn {args:?} should fail");
@@ -218,8 +231,17 @@ fn train_checkpoints_resumes_and_lowers_free_energy() {
         "30",
         "--checkpoint-every",
         "10",
+        "--keep-every",
+        "15",
     ]);
     let f30: serde_json::Value = serde_json::from_str(first.trim()).unwrap();
+    // --keep-every: a copy at 15 and 30 besides the running checkpoint, the last equal to it.
+    assert!(x.path("run.iter15.safetensors").is_file());
+    assert!(!x.path("run.iter10.safetensors").exists());
+    assert_eq!(
+        io::load_model(&x.path("run.iter30.safetensors")).unwrap(),
+        io::load_model(&x.path("run.safetensors")).unwrap()
+    );
     // Without a terminal (as under nohup or a cluster), plain progress lines at the
     // interval PVRNN_PROGRESS_EVERY sets (0: every update).
     let logged = Command::new(env!("CARGO_BIN_EXE_pvrnn"))
@@ -307,6 +329,80 @@ fn train_checkpoints_resumes_and_lowers_free_energy() {
         "--inputs",
         &x.s("x.safetensors"),
     ]);
+}
+
+/// SIGTERM (a cluster's time limit, `kill`) writes the checkpoint as Ctrl-C does, and the
+/// run resumes from it.
+#[cfg(unix)]
+#[test]
+fn sigterm_writes_a_checkpoint_that_resumes() {
+    let x = Scratch::new();
+    setup(&x);
+    let run = x.s("run.safetensors");
+    let child = Command::new(env!("CARGO_BIN_EXE_pvrnn"))
+        .args([
+            "train",
+            "--model",
+            &x.s("m.safetensors"),
+            "--inputs",
+            &x.s("x.safetensors"),
+            "--out",
+            &run,
+            "--iterations",
+            "100000000",
+            "--checkpoint-every",
+            "100000000",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until it is learning (its log, written in blocks, has rows; or 10 s), then ask
+    // it to stop as a scheduler does.
+    let log = x.path("run.log.csv");
+    let start = std::time::Instant::now();
+    while std::fs::read_to_string(&log).map_or(0, |l| l.lines().count()) < 3
+        && start.elapsed().as_secs() < 10
+    {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert!(
+        !x.path("run.safetensors").exists(),
+        "checkpoint before the signal"
+    );
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("interrupted: checkpoint at iteration"),
+        "{err}"
+    );
+    let saved = io::load_checkpoint(&x.path("run.safetensors")).unwrap();
+    assert!(saved.iteration >= 1, "iteration {}", saved.iteration);
+    // Every logged iteration is in the checkpoint: nothing is lost.
+    let rows = std::fs::read_to_string(&log).unwrap().lines().count() as u64 - 1;
+    assert_eq!(rows, saved.iteration);
+    let resumed_to = (saved.iteration + 2).to_string();
+    ok(&[
+        "train",
+        "--resume",
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &run,
+        "--iterations",
+        &resumed_to,
+    ]);
+    assert_eq!(
+        io::load_checkpoint(&x.path("run.safetensors"))
+            .unwrap()
+            .iteration,
+        saved.iteration + 2
+    );
 }
 
 #[test]
@@ -507,21 +603,30 @@ fn config_prints_toml_that_init_accepts() {
 fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     let x = Scratch::new();
     let ds = x.s("ds");
-    ok(&[
-        "simulate",
-        "--out",
-        &ds,
-        "--tasks",
-        "wiping",
-        "--heights",
-        "650",
-        "--learn-per-height",
-        "1",
-        "--test-per-height",
-        "1",
-        "--seed",
-        "4",
-    ]);
+    let err = logged(
+        &[
+            "simulate",
+            "--out",
+            &ds,
+            "--tasks",
+            "wiping",
+            "--heights",
+            "650",
+            "--learn-per-height",
+            "1",
+            "--test-per-height",
+            "1",
+            "--seed",
+            "4",
+        ],
+        "0.2",
+    );
+    // Lines keep coming at the interval while a sequence (over a second each) is rendered,
+    // not only when one finishes.
+    assert!(
+        err.contains("simulate: 0/2 (0.0%)") && err.contains("simulate: 2/2 (100.0%)"),
+        "{err}"
+    );
     let dataset = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();
     assert_eq!(dataset.sequences.len(), 2);
     // The default: the paper's variability, no robot-free renders.
@@ -588,21 +693,28 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         "2",
     ]);
     let out = x.s("r.safetensors");
-    ok(&[
-        "infer",
-        "--model",
-        &run,
-        "--inputs",
-        &ds,
-        "--out",
-        &out,
-        "--vision",
-        "16",
-        "--iterations",
-        "2",
-        "--window",
-        "5",
-    ]);
+    let err = logged(
+        &[
+            "infer",
+            "--model",
+            &run,
+            "--inputs",
+            &ds,
+            "--out",
+            &out,
+            "--vision",
+            "16",
+            "--iterations",
+            "2",
+            "--window",
+            "5",
+        ],
+        "0",
+    );
+    assert!(
+        err.contains("infer: 3/") && err.contains(", sequence 0, window F "),
+        "{err}"
+    );
     let f = TensorFile::open(Path::new(&out)).unwrap();
     let names: Vec<String> = serde_json::from_str(f.metadata("sequence_names").unwrap()).unwrap();
     assert_eq!(names, ["wiping_650mm_test0"]);
@@ -690,21 +802,25 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     );
     // bundle: f16 weights, one runs file per condition, and the card with the evaluation.
     let b = x.s("bundle");
-    ok(&[
-        "bundle",
-        "--model",
-        &run,
-        "--dataset",
-        &ds,
-        "--out",
-        &b,
-        "--conditions",
-        "all/on,16/off",
-        "--evaluation",
-        &eval,
-        "--machine",
-        "the test machine",
-    ]);
+    let err = logged(
+        &[
+            "bundle",
+            "--model",
+            &run,
+            "--dataset",
+            &ds,
+            "--out",
+            &b,
+            "--conditions",
+            "all/on,16/off",
+            "--evaluation",
+            &eval,
+            "--machine",
+            "the test machine",
+        ],
+        "0",
+    );
+    assert!(err.contains(", sequence 0, window F "), "{err}");
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(x.path("bundle/bundle.json")).unwrap())
             .unwrap();
@@ -810,7 +926,14 @@ fn import_reads_recordings_into_a_dataset() {
     let layout = pvrnn_dataset::import::RecordingLayout::default();
     pvrnn_dataset::import::write_recording(&seq, &layout, &x.path("recordings").join("trial_a"))
         .unwrap();
-    ok(&["import", "--from", &x.s("recordings"), "--out", &x.s("ds")]);
+    let err = logged(
+        &["import", "--from", &x.s("recordings"), "--out", &x.s("ds")],
+        "0",
+    );
+    assert!(
+        err.contains("import: 0/1 (0.0%), trial_a") && err.contains("import: 1/1 (100.0%)"),
+        "{err}"
+    );
     let ds = pvrnn_dataset::Dataset::open(&x.path("ds")).unwrap();
     assert_eq!(ds.sequences[0].images, seq.images);
     assert!(x.path("ds").join("previews").join("trial_a.png").is_file());

@@ -3,7 +3,8 @@
 //! command prints (in the `text` block after it) is printed, except timings. Its Python
 //! block then reads the outputs back (when python3 has `safetensors` and `numpy`, which
 //! `scripts/setup.sh` installs; `PVRNN_REQUIRE_PYTHON=1`, set by `scripts/test.sh`, makes
-//! their absence a failure).
+//! their absence a failure). With `PVRNN_EXPLORER_BIN` (and a display) its explorer line
+//! opens the window too.
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::{Path, PathBuf};
@@ -41,6 +42,30 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
+/// Runs the explorer line as written plus `--screenshot`: the window opens on the
+/// walkthrough's bundle, computes the view's runs and saves a picture of itself.
+fn open_explorer(bin: &Path, args: &[&str], dir: &Path) {
+    let shot = dir.join("walkthrough-explorer.png");
+    let out = Command::new(bin)
+        .args(args)
+        .arg("--screenshot")
+        .arg(&shot)
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "pvrnn-explorer {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let png = std::fs::read(&shot).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 50_000,
+        "{} bytes: a blank window?",
+        png.len()
+    );
+}
+
 #[test]
 fn the_walkthrough_runs_as_written() {
     let doc = std::fs::read_to_string(repo().join("docs/walkthrough.md")).unwrap();
@@ -60,8 +85,13 @@ fn the_walkthrough_runs_as_written() {
             match words.first() {
                 Some(&"pvrnn") => {}
                 Some(&"pvrnn-explorer") => {
-                    // A window; the explorer's own tests open bundles of this shape.
+                    // A window: opened for real where the test is given the explorer and a
+                    // display (`scripts/test.sh` does, under Xvfb), else left to the
+                    // explorer's own tests, which open bundles of this shape.
                     explorer += 1;
+                    if let Some(bin) = std::env::var_os("PVRNN_EXPLORER_BIN") {
+                        open_explorer(Path::new(&bin), &words[1..], work.path());
+                    }
                     continue;
                 }
                 _ => panic!("an sh block line the test cannot run: `{line}`"),

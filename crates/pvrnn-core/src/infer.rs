@@ -683,14 +683,15 @@ impl<T: Real> Run<T> {
 }
 
 /// Runs online inference over sequence `s` of `data` (all of its steps), calling
-/// `progress(done, total)` after each step; `keep_outputs` as in [`Run::from_steps`].
+/// `progress(step, length)` after each step with its output (`step.t + 1` steps are done)
+/// and the sequence's length; `keep_outputs` as in [`Run::from_steps`].
 pub fn run_sequence<T: Real>(
     model: Arc<Model<T>>,
     settings: InferenceSettings,
     data: &Observations<T>,
     s: usize,
     keep_outputs: bool,
-    progress: &mut dyn FnMut(usize, usize),
+    progress: &mut dyn FnMut(&StepOutput<T>, usize),
 ) -> Result<Run<T>> {
     run_sequence_on(
         &CpuBackend,
@@ -711,7 +712,7 @@ pub fn run_sequence_on<T: Real>(
     data: &Observations<T>,
     s: usize,
     keep_outputs: bool,
-    progress: &mut dyn FnMut(usize, usize),
+    progress: &mut dyn FnMut(&StepOutput<T>, usize),
 ) -> Result<Run<T>> {
     data.check_fits(&model.config)?;
     if s >= data.sequences() {
@@ -724,11 +725,12 @@ pub fn run_sequence_on<T: Real>(
     let len = data.lengths()[s];
     let mut steps = Vec::with_capacity(len);
     for t in 0..len {
-        steps.push(inference.step(
+        let step = inference.step(
             data.step(Modality::Exteroceptive, s, t),
             data.step(Modality::Proprioceptive, s, t),
-        )?);
-        progress(t + 1, len);
+        )?;
+        progress(&step, len);
+        steps.push(step);
     }
     Ok(Run::from_steps(settings, &steps, keep_outputs))
 }

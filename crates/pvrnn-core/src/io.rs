@@ -518,8 +518,16 @@ pub fn load_checkpoint_on(
 /// Restores a learning run from a checkpoint (on the CPU backend; see
 /// [`load_checkpoint_on`]).
 pub fn load_checkpoint(path: &Path) -> Result<Trainer<f32>> {
-    let file = TensorFile::open(path)?;
-    let model = model_from_file(&file)?;
+    checkpoint_from_file(&TensorFile::open(path)?)
+}
+
+/// A learning run from a checkpoint file's bytes (`what` names it in errors).
+pub fn checkpoint_from_bytes(bytes: Vec<u8>, what: &str) -> Result<Trainer<f32>> {
+    checkpoint_from_file(&TensorFile::from_bytes(bytes, what)?)
+}
+
+fn checkpoint_from_file(file: &TensorFile) -> Result<Trainer<f32>> {
+    let model = model_from_file(file)?;
     let state: TrainingState = file
         .metadata("training")
         .ok_or_else(|| Error::Format {

@@ -160,11 +160,12 @@ pub const LAYOUT: &str = "recordings.json";
 pub const PROPRIO_CSV: &str = "proprio.csv";
 const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 
-/// Imports every recording under `from` (sub-folders with a `meta.json`, in name order).
+/// Imports every recording under `from` (sub-folders with a `meta.json`, in name order),
+/// calling `progress(done, total, name)` before each.
 pub fn import_recordings(
     from: &Path,
     layout: &RecordingLayout,
-    progress: &mut dyn FnMut(&str),
+    progress: &mut dyn FnMut(usize, usize, &str),
 ) -> Result<Dataset> {
     layout.validate("the recording layout")?;
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(from)
@@ -180,12 +181,12 @@ pub fn import_recordings(
         ));
     }
     let mut sequences = Vec::with_capacity(dirs.len());
-    for dir in &dirs {
+    for (done, dir) in dirs.iter().enumerate() {
         let name = dir
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        progress(&name);
+        progress(done, dirs.len(), &name);
         sequences.push(import_sequence(dir, &name, layout)?);
     }
     Dataset::with_channels(

@@ -75,10 +75,10 @@ fn a_folder_of_recordings_becomes_a_dataset() {
     recording(&root.path().join("b_second"), 4);
     recording(&root.path().join("a_first"), 5);
     std::fs::create_dir(root.path().join("notes")).unwrap();
-    let ds = import_recordings(root.path(), &layout(), &mut |_| {}).unwrap();
+    let ds = import_recordings(root.path(), &layout(), &mut |_, _, _| {}).unwrap();
     let names: Vec<&str> = ds.sequences.iter().map(|s| s.info.name.as_str()).collect();
     assert_eq!(names, ["a_first", "b_second"]);
-    let e = import_recordings(&root.path().join("notes"), &layout(), &mut |_| {})
+    let e = import_recordings(&root.path().join("notes"), &layout(), &mut |_, _, _| {})
         .unwrap_err()
         .to_string();
     assert!(
@@ -247,7 +247,7 @@ fn a_robot_layout_names_the_columns() {
     write_layout(&layout, root.path()).unwrap();
     let read = RecordingLayout::of_recordings(root.path()).unwrap();
     assert_eq!(read, layout);
-    let ds = import_recordings(root.path(), &read, &mut |_| {}).unwrap();
+    let ds = import_recordings(root.path(), &read, &mut |_, _, _| {}).unwrap();
     assert_eq!(
         ds.manifest.proprio_layout(),
         ProprioLayout {
@@ -282,7 +282,7 @@ fn a_robot_layout_names_the_columns() {
     )
     .unwrap();
     let layout = RecordingLayout::of_recordings(root.path()).unwrap();
-    let e = import_recordings(root.path(), &layout, &mut |_| {})
+    let e = import_recordings(root.path(), &layout, &mut |_, _, _| {})
         .unwrap_err()
         .to_string();
     assert!(

@@ -57,11 +57,15 @@ fn main() {
     };
     let mut view = ViewState::default();
     if let (Some(hash), Some(b)) = (&args.view, &bundle) {
-        view = ViewState::from_hash(
+        let notes;
+        (view, notes) = ViewState::from_hash(
             hash,
             &view,
             pvrnn_explorer::Condition::standard(&b.model.config),
         );
+        for note in notes {
+            eprintln!("--view: {note}");
+        }
     }
     if args.bench_frames.is_some() || args.bench_live {
         let Some(bundle) = bundle else {
@@ -93,9 +97,13 @@ fn main() {
         "PV-RNN explorer",
         options,
         Box::new({
-            let screenshot = args.screenshot.clone();
+            let (screenshot, hash) = (args.screenshot.clone(), args.view.clone());
             move |cc| {
-                let mut app = ExplorerApp::new(bundle, view);
+                let mut app = ExplorerApp::new(bundle, ViewState::default());
+                // Through the app, so what it ignores or corrects shows in its status line.
+                if let Some(hash) = &hash {
+                    app.apply_hash(hash);
+                }
                 app.compute_in_background(&cc.egui_ctx);
                 if let Some(path) = screenshot {
                     app.screenshot_and_close(path);

@@ -230,14 +230,24 @@ impl ViewState {
         parts.join("&")
     }
 
-    /// Reads a hash (with or without `#`); missing or malformed keys keep `base`'s values.
+    /// Reads a hash (with or without `#`); missing or malformed keys keep `base`'s values,
+    /// and each entry ignored that way is named in the returned notes (shown to the user).
     /// Condition keys need the `standard` condition to fill what the hash leaves out.
-    pub fn from_hash(hash: &str, base: &ViewState, standard: Condition) -> ViewState {
+    pub fn from_hash(
+        hash: &str,
+        base: &ViewState,
+        standard: Condition,
+    ) -> (ViewState, Vec<String>) {
         let mut v = base.clone();
         let mut c = base.condition.unwrap_or(standard);
         let mut condition_given = false;
+        let mut ignored = Vec::new();
         for pair in hash.trim_start_matches('#').split('&') {
+            if pair.is_empty() {
+                continue;
+            }
             let Some((key, value)) = pair.split_once('=') else {
+                ignored.push(pair.to_string());
                 continue;
             };
             let num = || value.parse::<u64>().ok();
@@ -246,79 +256,98 @@ impl ViewState {
                 "0" | "false" => Some(false),
                 _ => None,
             };
-            match key {
-                "seq" => v.sequence = decode(value).or(v.sequence.take()),
-                "t" => v.t = num().map_or(v.t, |n| n as usize),
-                "units" => v.units = parse_units(value).unwrap_or(v.units.clone()),
-                "d" => v.show_d = flag().unwrap_or(v.show_d),
-                "prior" => v.prior_images = flag().unwrap_or(v.prior_images),
-                "contours" => v.contours = flag().unwrap_or(v.contours),
-                "maps" => v.maps = flag().unwrap_or(v.maps),
+            // Whether the entry was read; a condition entry that was also sets the condition.
+            let (read, sets_condition) = match key {
+                "seq" => (
+                    decode(value).map(|name| v.sequence = Some(name)).is_some(),
+                    false,
+                ),
+                "t" => (num().map(|n| v.t = n as usize).is_some(), false),
+                "units" => (parse_units(value).map(|u| v.units = u).is_some(), false),
+                "d" => (flag().map(|f| v.show_d = f).is_some(), false),
+                "prior" => (flag().map(|f| v.prior_images = f).is_some(), false),
+                "contours" => (flag().map(|f| v.contours = f).is_some(), false),
+                "maps" => (flag().map(|f| v.maps = f).is_some(), false),
                 "compare" => {
-                    v.compare = match value {
-                        "off" | "0" => None,
-                        other => CompareSet::parse(other).or(v.compare),
-                    }
+                    let set = match value {
+                        "off" | "0" => Some(None),
+                        other => CompareSet::parse(other).map(Some),
+                    };
+                    (set.map(|set| v.compare = set).is_some(), false)
                 }
-                "vision" => {
-                    if let Some(n) = num() {
-                        c.vision_levels = n.min(8) as u8;
-                        condition_given = true;
+                "vision" => (
+                    num()
+                        .filter(|&n| n <= 8)
+                        .map(|n| c.vision_levels = n as u8)
+                        .is_some(),
+                    true,
+                ),
+                "proprio" => (flag().map(|f| c.proprio = f).is_some(), true),
+                "ablate" => {
+                    let ok = value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1');
+                    if ok {
+                        for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
+                            *slot = ch == '1';
+                        }
                     }
+                    (ok, true)
                 }
-                "proprio" => {
-                    if let Some(f) = flag() {
-                        c.proprio = f;
-                        condition_given = true;
-                    }
-                }
-                "ablate" if value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1') => {
-                    for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
-                        *slot = ch == '1';
-                    }
-                    condition_given = true;
-                }
-                "amode" => {
-                    if let Ok(mode) = pvrnn_core::AblationMode::parse(value) {
-                        c.ablation_mode = mode;
-                        condition_given = true;
-                    }
-                }
-                "H" => {
-                    if let Some(n) = num().filter(|&n| (1..=10_000).contains(&n)) {
-                        c.window = n as u16;
-                        condition_given = true;
-                    }
-                }
-                "iter" => {
-                    if let Some(n) = num().filter(|&n| n <= 10_000) {
-                        c.iterations = n as u16;
-                        condition_given = true;
-                    }
-                }
-                "lr" => {
-                    if let Some(lr) = value
+                "amode" => (
+                    pvrnn_core::AblationMode::parse(value)
+                        .map(|mode| c.ablation_mode = mode)
+                        .is_ok(),
+                    true,
+                ),
+                "H" => (
+                    num()
+                        .filter(|&n| (1..=10_000).contains(&n))
+                        .map(|n| c.window = n as u16)
+                        .is_some(),
+                    true,
+                ),
+                "iter" => (
+                    num()
+                        .filter(|&n| n <= 10_000)
+                        .map(|n| c.iterations = n as u16)
+                        .is_some(),
+                    true,
+                ),
+                "lr" => (
+                    value
                         .parse::<f64>()
                         .ok()
                         .filter(|lr| *lr > 0.0 && *lr <= 100.0)
-                    {
-                        c.set_lr(lr);
-                        condition_given = true;
-                    }
-                }
-                "seed" => {
-                    if let Some(n) = num().filter(|&n| n <= u32::MAX as u64) {
-                        c.seed = n as u32;
-                        condition_given = true;
-                    }
-                }
-                _ => {}
+                        .map(|lr| c.set_lr(lr))
+                        .is_some(),
+                    true,
+                ),
+                "seed" => (
+                    num()
+                        .filter(|&n| n <= u32::MAX as u64)
+                        .map(|n| c.seed = n as u32)
+                        .is_some(),
+                    true,
+                ),
+                _ => (false, false),
+            };
+            if read {
+                condition_given |= sets_condition;
+            } else {
+                ignored.push(pair.to_string());
             }
         }
         if condition_given {
             v.condition = Some(c);
         }
-        v
+        let notes = if ignored.is_empty() {
+            Vec::new()
+        } else {
+            vec![format!(
+                "ignored in the view's address: `{}` (unknown key or value out of range)",
+                ignored.join("`, `")
+            )]
+        };
+        (v, notes)
     }
 }
 
@@ -360,7 +389,9 @@ mod tests {
                 && hash.contains("amode=inference"),
             "{hash}"
         );
-        let back = ViewState::from_hash(&format!("#{hash}"), &ViewState::default(), standard());
+        let (back, notes) =
+            ViewState::from_hash(&format!("#{hash}"), &ViewState::default(), standard());
+        assert!(notes.is_empty(), "{notes:?}");
         assert_eq!(
             back,
             ViewState {
@@ -374,8 +405,14 @@ mod tests {
     #[test]
     fn malformed_values_keep_the_current_ones() {
         let base = ViewState::default();
-        let v = ViewState::from_hash("t=abc&units=3-1&vision=x&junk&ablate=12", &base, standard());
+        let (v, notes) =
+            ViewState::from_hash("t=abc&units=3-1&vision=x&junk&ablate=12", &base, standard());
         assert_eq!(v, base);
+        // Each ignored entry is named for the user.
+        assert_eq!(notes.len(), 1);
+        for entry in ["t=abc", "units=3-1", "vision=x", "junk", "ablate=12"] {
+            assert!(notes[0].contains(&format!("`{entry}`")), "{notes:?}");
+        }
         assert_eq!(parse_units("4, 2-3"), Some(vec![2, 3, 4]));
         assert_eq!(parse_units("a"), None);
     }

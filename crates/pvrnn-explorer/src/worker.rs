@@ -272,6 +272,20 @@ struct Ticker {
     port: web_sys::MessagePort,
 }
 
+impl Ticker {
+    /// Asks for the next tick; whether it was scheduled. A tick that cannot be scheduled
+    /// would leave the run "computing" for ever, so the page is told the worker failed.
+    fn schedule(&self, scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32) -> bool {
+        match self.port.post_message(&JsValue::NULL) {
+            Ok(()) => true,
+            Err(err) => {
+                report_fatal(scope, generation, &format!("cannot schedule work: {err:?}"));
+                false
+            }
+        }
+    }
+}
+
 /// The worker's entry point (called by `web/worker.js` after the module loaded).
 #[wasm_bindgen]
 pub fn run_worker() -> Result<(), JsValue> {
@@ -304,8 +318,7 @@ pub fn run_worker() -> Result<(), JsValue> {
             }
         }
         if s.engine.running().is_some() {
-            s.scheduled = true;
-            let _ = tick_ticker.port.post_message(&JsValue::NULL);
+            s.scheduled = tick_ticker.schedule(&tick_scope, s.generation);
         }
     });
     channel
@@ -322,8 +335,7 @@ pub fn run_worker() -> Result<(), JsValue> {
                 report_fatal(&scope_for_errors, s.generation, &err);
             }
             if s.engine.running().is_some() && !s.scheduled {
-                s.scheduled = true;
-                let _ = ticker.port.post_message(&JsValue::NULL);
+                s.scheduled = ticker.schedule(&scope_for_errors, s.generation);
             }
         });
     scope.set_onmessage(Some(on_message.as_ref().unchecked_ref()));

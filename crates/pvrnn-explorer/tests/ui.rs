@@ -126,7 +126,7 @@ fn vision_condition_and_sequence_pickers() {
     assert_eq!(h.state().current_run().unwrap().trace.steps, 12);
     // The view (with its condition) survives a trip through the URL hash.
     let hash = h.state().view().to_hash();
-    let back = ViewState::from_hash(
+    let (back, _) = ViewState::from_hash(
         &hash,
         &ViewState::default(),
         Condition::standard(&common::config()),
@@ -380,6 +380,15 @@ fn views_outside_the_bundle_are_brought_back_with_a_message() {
     assert_eq!(h.state().view().sequence.as_deref(), Some("wipe_test"));
     assert_eq!(h.state().view().t, 8);
     assert_eq!(h.state().condition().unwrap().vision_levels, 2);
+    // Entries the view cannot take are named in the status line, not dropped silently.
+    h.state_mut().apply_hash("t=3&H=0&lr=-1&colour=red");
+    h.step();
+    assert_eq!(h.state().view().t, 3);
+    let status = format!("{:?}", h.state().status());
+    assert!(
+        status.contains("`H=0`") && status.contains("`lr=-1`") && status.contains("`colour=red`"),
+        "{status}"
+    );
 }
 
 #[test]
@@ -657,4 +666,50 @@ fn a_robot_of_another_shape_is_shown_with_its_own_channels() {
         !labels.contains("torques (N m)"),
         "no torque plot for a robot without them"
     );
+}
+
+/// Whole views drawn by egui's wgpu renderer (on a CPU Vulkan device such as Mesa's
+/// lavapipe where there is no GPU) and compared with the pictures in `tests/snapshots/`:
+/// layout, plots, images and text, as a user sees them. `UPDATE_SNAPSHOTS=1 cargo test`
+/// rewrites the pictures after an intended change; look at them before committing.
+mod snapshots {
+    use super::*;
+    use egui_kittest::SnapshotOptions;
+
+    fn drawn(app: ExplorerApp) -> Harness<'static, ExplorerApp> {
+        let mut h = Harness::builder()
+            .with_size(eframe::egui::vec2(1400.0, 1000.0))
+            // Plots of computed runs may move by a fraction of a pixel between CPUs (fused
+            // multiply-adds); a few hundred anti-aliased edge pixels may differ, no more.
+            .with_options(SnapshotOptions::new().threshold(1.0).max_failed_pixels(600))
+            .wgpu()
+            .build_ui_state(|ui, app: &mut ExplorerApp| app.show(ui), app);
+        settle(&mut h);
+        h
+    }
+
+    #[test]
+    fn the_main_view() {
+        let view = ViewState {
+            t: 7,
+            ..ViewState::default()
+        };
+        drawn(ExplorerApp::new(Some(common::bundle()), view)).snapshot("main_view");
+    }
+
+    #[test]
+    fn the_comparison_view() {
+        let view = ViewState {
+            t: 5,
+            maps: false,
+            compare: Some(pvrnn_explorer::state::CompareSet::Vision),
+            ..ViewState::default()
+        };
+        drawn(ExplorerApp::new(Some(common::bundle()), view)).snapshot("comparison_view");
+    }
+
+    #[test]
+    fn the_view_without_a_model() {
+        drawn(ExplorerApp::new(None, ViewState::default())).snapshot("no_model");
+    }
 }

@@ -115,7 +115,13 @@ fn runs_of(
                 data,
                 s,
                 false,
-                &mut |_, _| bar.inc(1),
+                &mut |step, _| {
+                    bar.set_message(format!(
+                        "sequence {s}, window F {:.4}",
+                        step.window_free_energy.total
+                    ));
+                    bar.inc(1);
+                },
             )
         })
         .collect::<pvrnn_core::Result<Vec<_>>>()?;

@@ -43,11 +43,12 @@ pub fn run(a: Args) -> Result<()> {
         layout.image_size = size;
     }
     let bar = util::progress(0, "import");
-    let dataset = import::import_recordings(&a.from, &layout, &mut |name| {
-        bar.inc_length(1);
+    let dataset = import::import_recordings(&a.from, &layout, &mut |done, total, name| {
+        bar.set_length(total as u64);
         bar.set_message(name.to_string());
-        bar.inc(1);
+        bar.set_position(done as u64);
     })?;
+    bar.set_position(dataset.sequences.len() as u64);
     bar.finish();
     dataset.write(&a.out)?;
     if !a.no_previews {

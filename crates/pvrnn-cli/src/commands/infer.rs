@@ -65,7 +65,13 @@ pub fn run(a: Args) -> Result<()> {
             &data,
             s,
             !a.compact,
-            &mut |done, _| bar.set_position(done_before + done as u64),
+            &mut |step, _| {
+                bar.set_message(format!(
+                    "sequence {s}, window F {:.4}",
+                    step.window_free_energy.total
+                ));
+                bar.set_position(done_before + step.t as u64 + 1);
+            },
         )
         .with_context(|| format!("sequence {s}"))?;
         done_before += run.steps() as u64;

@@ -1,7 +1,7 @@
 //! The explorer's window. This module holds the app's state and its logic (loading,
 //! computing, playback, the URL hash: [`ExplorerApp::logic`]); each panel draws in its own
 //! file: `controls` (top bar), `status`, `time_panel`, `images_panel`, `traces`,
-//! `summaries`, `compare`.
+//! `summaries`, `compare`; `export` saves pictures and traces, `bench` times frames.
 
 use std::collections::HashMap;
 
@@ -9,13 +9,14 @@ use eframe::egui::{self, Color32, RichText, TextureHandle, TextureOptions};
 use egui_plot::{Bar, BarChart, Legend, Line, LineStyle, Plot, PlotPoints, VLine};
 use pvrnn_core::config::ModuleId;
 use pvrnn_core::{AblationMode, Modality};
-use web_time::{Duration, Instant};
+use web_time::Duration;
 
 use crate::bundle::Bundle;
 use crate::images::{self, Rgb};
 use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
 
+mod bench;
 mod compare;
 mod controls;
 mod export;
@@ -25,6 +26,9 @@ mod summaries;
 mod time_panel;
 mod traces;
 
+pub use bench::bench_frames;
+#[cfg(not(target_arch = "wasm32"))]
+pub use bench::bench_live;
 use compare::CompareCache;
 pub use compare::{CompareCell, compare_conditions};
 pub use controls::condition_label;
@@ -74,8 +78,10 @@ pub struct ExplorerApp {
     play_accum: f32,
     /// The hash last written to (or read from) the URL.
     last_hash: String,
-    /// How the last live run went (shown, and logged in the browser console).
-    last_run_note: Option<String>,
+    /// How the last live run went: what was computed (shown) and how fast (shown on
+    /// hover, so the status line does not change from run to run; logged in the browser
+    /// console).
+    last_run_note: Option<(String, String)>,
     /// Whether the "About this model" window is open.
     show_about: bool,
     /// `--screenshot`: where to save a picture of the window once every run the view
@@ -192,10 +198,11 @@ impl ExplorerApp {
         let standard = Condition::standard(&bundle.model.config);
         // Keep the view if its sequence exists; read a pending URL hash now that
         // conditions have defaults.
+        let mut notes = Vec::new();
         if !self.last_hash.is_empty() {
-            self.view = ViewState::from_hash(&self.last_hash, &self.view, standard);
+            (self.view, notes) = ViewState::from_hash(&self.last_hash, &self.view, standard);
         }
-        let notes = self.view.sanitize(&bundle);
+        notes.extend(self.view.sanitize(&bundle));
         self.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
         let notes: Vec<String> = bundle.notes.iter().cloned().chain(notes).collect();
@@ -219,18 +226,20 @@ impl ExplorerApp {
             self.last_hash = hash.to_string();
             return;
         };
-        self.view = ViewState::from_hash(hash, &self.view, Condition::standard(&b.model.config));
+        let (view, notes) =
+            ViewState::from_hash(hash, &self.view, Condition::standard(&b.model.config));
+        self.view = view;
         self.units_text = format_units(&self.view.units);
-        self.sanitize_view();
+        self.sanitize_view(notes);
     }
 
-    /// Keeps the view within what the bundle can show; says what it changed.
-    fn sanitize_view(&mut self) {
+    /// Keeps the view within what the bundle can show; says what it changed, after `notes`.
+    fn sanitize_view(&mut self, mut notes: Vec<String>) {
         if let Some(b) = &self.bundle {
-            let notes = self.view.sanitize(b);
-            if !notes.is_empty() {
-                self.status = Status::Info(notes.join("; "));
-            }
+            notes.extend(self.view.sanitize(b));
+        }
+        if !notes.is_empty() {
+            self.status = Status::Info(notes.join("; "));
         }
     }
     pub fn view_mut(&mut self) -> &mut ViewState {
@@ -401,7 +410,7 @@ impl ExplorerApp {
         // The view as the URL hash has it (or the hash as the view has it, after the last
         // frame's controls), then within what the bundle can show.
         self.sync_hash();
-        self.sanitize_view();
+        self.sanitize_view(Vec::new());
         self.keyboard(ctx);
         self.advance_playback(dt);
         // Inline runs advance only while frames are drawn; a worker's results repaint when
@@ -410,19 +419,21 @@ impl ExplorerApp {
             ctx.request_repaint();
         }
         for f in self.store.take_finished() {
-            let rate = f.steps as f64 / f.wall.as_secs_f64().max(1e-9);
-            let text = format!(
-                "run {} ({}) computed live: {} steps in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
+            let what = format!(
+                "run {} ({}) computed live: {} steps",
                 f.key.sequence,
                 condition_label(&f.key.condition),
                 f.steps,
+            );
+            let timing = format!(
+                "in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
                 f.wall.as_secs_f64(),
-                rate,
+                f.steps as f64 / f.wall.as_secs_f64().max(1e-9),
                 f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
             );
             #[cfg(target_arch = "wasm32")]
-            crate::web::log(&text);
-            self.last_run_note = Some(text);
+            crate::web::log(&format!("{what} {timing}"));
+            self.last_run_note = Some((what, timing));
         }
         if self.view.playing {
             ctx.request_repaint();
@@ -521,103 +532,5 @@ impl ExplorerApp {
     pub fn show(&mut self, ui: &mut egui::Ui) {
         self.logic(&ui.ctx().clone());
         self.draw(ui);
-    }
-}
-
-/// Draws `frames` frames headless (layout and tessellation, no GPU) while scrubbing through
-/// the first sequence, and prints the time per frame.
-pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
-    let ctx = egui::Context::default();
-    let input = || egui::RawInput {
-        screen_rect: Some(egui::Rect::from_min_size(
-            egui::Pos2::ZERO,
-            egui::vec2(1440.0, 920.0),
-        )),
-        ..Default::default()
-    };
-    // Let the shown run finish first: scrubbing is measured on computed runs.
-    while !app.idle() {
-        app.compute(Duration::from_millis(200));
-    }
-    let len = app.sequence_len().max(1);
-    // Headless: no textures are uploaded, so their deltas are dropped on purpose.
-    ctx.run_ui(input(), |ui| app.show(ui))
-        .textures_delta
-        .clear();
-    let mut times = Vec::with_capacity(frames);
-    for i in 0..frames {
-        app.view_mut().t = (i * 7) % len;
-        let start = Instant::now();
-        let mut out = ctx.run_ui(input(), |ui| app.show(ui));
-        out.textures_delta.clear();
-        let _ = ctx.tessellate(out.shapes, out.pixels_per_point);
-        times.push(start.elapsed().as_secs_f64() * 1000.0);
-    }
-    times.sort_by(f64::total_cmp);
-    let mean = times.iter().sum::<f64>() / times.len() as f64;
-    let p95 = times[(times.len() * 95 / 100).min(times.len() - 1)];
-    println!(
-        "{frames} frames while scrubbing: mean {mean:.2} ms, 95th percentile {p95:.2} ms per frame (layout + tessellation, one thread)"
-    );
-}
-
-/// Computes the shown run live while drawing frames headless as a window would (at most 60
-/// per second, vsync, and only as often as the app asks to be repainted), first in the
-/// frame loop (slices of each frame's budget), then on a background thread, and prints the
-/// steps per second of each. `make` gives a fresh app each time (the run not yet computed).
-#[cfg(not(target_arch = "wasm32"))]
-pub fn bench_live(make: impl Fn() -> ExplorerApp) {
-    const FRAME: Duration = Duration::from_micros(16_667);
-    for (label, background) in [
-        ("in the frame loop", false),
-        ("on a background thread", true),
-    ] {
-        let mut app = make();
-        let ctx = egui::Context::default();
-        if background {
-            app.compute_in_background(&ctx);
-        }
-        let input = || egui::RawInput {
-            screen_rect: Some(egui::Rect::from_min_size(
-                egui::Pos2::ZERO,
-                egui::vec2(1440.0, 920.0),
-            )),
-            ..Default::default()
-        };
-        let start = Instant::now();
-        let mut frames = 0usize;
-        while !app
-            .current_run()
-            .is_some_and(|r| r.complete || r.error.is_some())
-        {
-            let frame = Instant::now();
-            let mut out = ctx.run_ui(input(), |ui| app.show(ui));
-            out.textures_delta.clear();
-            // The next frame when the app asked for it (the background thread asks when
-            // results arrive), but not sooner than vsync.
-            let wanted = out
-                .viewport_output
-                .get(&egui::ViewportId::ROOT)
-                .map_or(FRAME, |v| v.repaint_delay)
-                .clamp(FRAME, crate::runs::REPAINT_EVERY);
-            let _ = ctx.tessellate(out.shapes, out.pixels_per_point);
-            frames += 1;
-            if let Some(rest) = wanted.checked_sub(frame.elapsed()) {
-                std::thread::sleep(rest);
-            }
-            if start.elapsed() > Duration::from_secs(600) {
-                println!("{label}: not finished in 10 minutes");
-                break;
-            }
-        }
-        let seconds = start.elapsed().as_secs_f64();
-        let steps = app.current_run().map_or(0, |r| r.trace.steps);
-        let key = app.current_key().map(|k| condition_label(&k.condition));
-        println!(
-            "live run {label}: {steps} steps in {seconds:.1} s = {:.2} steps/s, {:.0} frames/s ({})",
-            steps as f64 / seconds,
-            frames as f64 / seconds,
-            key.unwrap_or_default()
-        );
     }
 }

@@ -28,8 +28,8 @@ impl ExplorerApp {
                 ui.weak("all runs ready");
             }
         }
-        if let Some(note) = &self.last_run_note {
-            ui.weak(note.as_str());
+        if let Some((what, timing)) = &self.last_run_note {
+            ui.weak(what.as_str()).on_hover_text(timing.as_str());
         }
     }
 }

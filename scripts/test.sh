@@ -23,7 +23,7 @@ step "cargo doc with warnings denied"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 
 step "native tests"
-PVRNN_REQUIRE_PYTHON=1 cargo test --workspace
+PVRNN_REQUIRE_PYTHON=1 PVRNN_REQUIRE_R=1 cargo test --workspace
 
 step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown

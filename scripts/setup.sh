@@ -67,6 +67,11 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
     apt-get update -qq && apt-get install -y -qq chromium chromium-driver
 fi
 
+if ! command -v slurmctld >/dev/null 2>&1 || ! command -v munged >/dev/null 2>&1; then
+    step "installing Slurm and munge (the experiments' cluster scripts run on a one-node Slurm)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends slurm-wlm munge
+fi
+
 if ! command -v Rscript >/dev/null 2>&1; then
     step "installing R (base R checks the experiments' statistics: ART ANOVA, contrasts, t-tests)"
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends r-base-core

@@ -25,6 +25,9 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 step "native tests"
 PVRNN_REQUIRE_PYTHON=1 PVRNN_REQUIRE_R=1 cargo test --workspace
 
+step "an experiment's Slurm job arrays on a real one-node Slurm (munge, slurmctld, slurmd)"
+timeout 900 tests/slurm/run.sh target/debug/pvrnn
+
 step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown
 

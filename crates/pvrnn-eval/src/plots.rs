@@ -1,6 +1,6 @@
 //! PNG pictures: each sequence's error over time with its subtask bar, actual vs predicted
-//! images, and training curves. Text uses an embedded font, so pictures look the same on
-//! every machine.
+//! images, and training curves; bar charts also as SVG. Text uses an embedded font, so
+//! pictures look the same on every machine.
 
 use std::path::Path;
 use std::sync::Once;
@@ -519,9 +519,45 @@ pub struct Bar {
 }
 
 /// Bars in groups (e.g. one group per module, one bar per task) with ±SE whiskers; a linear
-/// y axis from 0. `series` names the bars of each group in order (the legend).
+/// y axis from 0. `series` names the bars of each group in order (the legend). Written as
+/// PNG to `path` and as SVG beside it (same name, `.svg`: scalable, for papers).
 pub fn bar_chart(
     path: &Path,
+    title: &str,
+    y_label: &str,
+    series: &[String],
+    groups: &[(String, Vec<Bar>)],
+) -> Result<()> {
+    let per_group = groups.iter().map(|g| g.1.len()).max().unwrap_or(0).max(1);
+    let width = (160 + groups.len() * (per_group * 44 + 40)).clamp(480, 1600) as u32;
+    let size = (width, 420);
+    draw_png(path, size, |root| {
+        draw_bars(root, title, y_label, series, groups)
+    })?;
+    draw_svg(&path.with_extension("svg"), size, |root| {
+        draw_bars(root, title, y_label, series, groups)
+    })
+}
+
+/// Draws into a `width x height` white SVG picture and writes it.
+fn draw_svg(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Result<()>,
+) -> Result<()> {
+    ensure_font();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        draw(&root)?;
+        root.present().map_err(plot_err)?;
+    }
+    write_file(path, svg.as_bytes())
+}
+
+fn draw_bars<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
     title: &str,
     y_label: &str,
     series: &[String],
@@ -542,8 +578,7 @@ pub fn bar_chart(
         .filter(|v| v.is_finite())
         .fold(0.0f64, f64::max);
     let top = if top > 0.0 { top * 1.15 } else { 1.0 };
-    let width = (160 + groups.len() * (per_group * 44 + 40)).clamp(480, 1600) as u32;
-    draw_png(path, (width, 420), |root| {
+    {
         let mut chart = ChartBuilder::on(root)
             .caption(title, (FONT, 17))
             .margin(10)
@@ -610,8 +645,8 @@ pub fn bar_chart(
             .position(SeriesLabelPosition::UpperRight)
             .draw()
             .map_err(plot_err)?;
-        Ok(())
-    })
+    }
+    Ok(())
 }
 
 /// Writes an RGB picture (`width x height`, 8-bit, row-major) as PNG.

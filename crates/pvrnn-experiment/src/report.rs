@@ -215,12 +215,117 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
     summary["results"] = body;
+    let scale = plan.scale.name();
+    pvrnn_core::io::write_atomic(
+        &out_dir.join("trials.csv"),
+        trials_csv(scale, &results.infers).as_bytes(),
+    )?;
+    pvrnn_core::io::write_atomic(
+        &out_dir.join("trainings.csv"),
+        trainings_csv(scale, &results.trains).as_bytes(),
+    )?;
+    md.push_str("## Data
+
+Every inference run (one row per network, test sequence, condition and trial; errors in model units) is in `trials.csv`, every training in `trainings.csv`: tidy tables for re-checking the statistics elsewhere (e.g. `read.csv` in R).
+");
     pvrnn_core::io::write_atomic(&out_dir.join("report.md"), md.as_bytes())?;
     pvrnn_core::io::write_atomic(
         &out_dir.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(out_dir)
+}
+
+/// A CSV field: quoted when it holds a comma, a quote or a line break.
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+/// A number for the CSVs: full precision, empty when missing or not finite.
+fn csv_number(v: Option<f64>) -> String {
+    v.filter(|v| v.is_finite())
+        .map_or_else(String::new, |v| v.to_string())
+}
+
+/// One row per inference run: what it ran and every score it recorded.
+fn trials_csv(scale: &str, infers: &[(InferResult, Option<Vec<Vec<f32>>>)]) -> String {
+    let modules: Vec<String> = module_names()
+        .iter()
+        .map(|m| m.to_lowercase().replace(' ', "_"))
+        .collect();
+    let error_keys: std::collections::BTreeSet<&String> =
+        infers.iter().flat_map(|(r, _)| r.errors.keys()).collect();
+    let mut header: Vec<String> = [
+        "scale",
+        "job",
+        "network",
+        "training",
+        "sequence",
+        "task",
+        "condition",
+        "trial",
+        "steps",
+    ]
+    .map(String::from)
+    .to_vec();
+    header.extend(error_keys.iter().map(|k| format!("error_{k}")));
+    for prefix in ["sigma_p", "sigma_p_change", "map_mean"] {
+        header.extend(modules.iter().map(|m| format!("{prefix}_{m}")));
+    }
+    let mut out = header.join(",") + "\n";
+    for (r, _) in infers {
+        let mut row: Vec<String> = [
+            scale,
+            &r.job,
+            &r.network.to_string(),
+            &r.training,
+            &r.sequence,
+            &r.task,
+            &r.condition,
+            &r.trial.to_string(),
+            &r.steps.to_string(),
+        ]
+        .iter()
+        .map(|f| csv_field(f))
+        .collect();
+        row.extend(
+            error_keys
+                .iter()
+                .map(|k| csv_number(r.errors.get(*k).copied())),
+        );
+        row.extend(r.sigma_p.iter().map(|v| csv_number(Some(*v))));
+        row.extend(r.sigma_p_change.iter().map(|v| csv_number(Some(*v))));
+        row.extend((0..4).map(|m| csv_number(r.map_means.map(|v| v[m]))));
+        out += &(row.join(",") + "\n");
+    }
+    out
+}
+
+/// One row per training.
+fn trainings_csv(scale: &str, trains: &[TrainResult]) -> String {
+    let mut out = String::from(
+        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused\n",
+    );
+    for t in trains {
+        let row = [
+            csv_field(scale),
+            csv_field(&t.job),
+            t.network.to_string(),
+            csv_field(&t.condition),
+            t.sequences.to_string(),
+            t.iterations.to_string(),
+            csv_number(t.final_free_energy),
+            csv_number(Some(t.seconds)),
+            csv_number(t.last_tenth_change),
+            csv_field(t.reused.as_deref().unwrap_or("")),
+        ];
+        out += &(row.join(",") + "\n");
+    }
+    out
 }
 
 fn module_names() -> Vec<String> {

@@ -73,6 +73,39 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
         "the report names the accuracy normalisation"
     );
     assert!(dir.join("robustness.png").is_file());
+    let svg = std::fs::read_to_string(dir.join("robustness.svg")).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("proprio on"),
+        "{svg}"
+    );
+    // Tidy tables of every run and training, for re-checking elsewhere.
+    let mut trials = csv::Reader::from_path(dir.join("trials.csv")).unwrap();
+    let header = trials.headers().unwrap().clone();
+    assert_eq!(
+        &header.iter().take(3).collect::<Vec<_>>(),
+        &["scale", "job", "network"]
+    );
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (error, condition) = (column("error_vision64"), column("condition"));
+    assert!(header.iter().any(|h| h == "sigma_p_executive"));
+    let rows: Vec<csv::StringRecord> = trials.records().map(Result::unwrap).collect();
+    assert_eq!(
+        rows.len(),
+        2 * 6 * 2 * 2,
+        "networks x conditions x sequences x trials"
+    );
+    assert!(
+        rows.iter()
+            .all(|r| r.len() == header.len() && &r[0] == "smoke")
+    );
+    assert!(rows.iter().all(|r| r[error].parse::<f64>().unwrap() > 0.0));
+    // A condition holds a comma and survives quoting.
+    assert!(
+        rows.iter()
+            .any(|r| &r[condition] == "vision 16, proprio off")
+    );
+    let trainings = std::fs::read_to_string(dir.join("trainings.csv")).unwrap();
+    assert_eq!(trainings.lines().count(), 3, "{trainings}");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["scale"], "smoke");

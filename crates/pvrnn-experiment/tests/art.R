@@ -11,6 +11,21 @@ args <- commandArgs(trailingOnly = TRUE)
 dir <- args[1]
 out <- function(key, value) cat(key, sprintf("%.12g", value), "\n")
 
+# Pairwise contrasts of the mean ranks `r` between the levels of `group`: t with the
+# model's residual mean square `mse` and `df`, Holm-adjusted together (ART-C).
+contrasts <- function(prefix, r, group, mse, df) {
+  means <- tapply(r, group, mean); counts <- tapply(r, group, length)
+  lv <- levels(group); ps <- c(); keys <- c()
+  for (i in 1:(length(lv) - 1)) for (j in (i + 1):length(lv)) {
+    t <- (means[i] - means[j]) / sqrt(mse * (1 / counts[i] + 1 / counts[j]))
+    key <- paste0(prefix, ".", lv[i], "-", lv[j])
+    out(paste0(key, ".t"), t)
+    ps <- c(ps, 2 * pt(-abs(t), df)); keys <- c(keys, key)
+  }
+  holm <- p.adjust(ps, "holm")
+  for (k in seq_along(ps)) out(paste0(keys[k], ".p_holm"), holm[k])
+}
+
 # Two-way aligned rank transform (Wobbrock et al. 2011) with the block as an additive
 # factor: align for each effect (residual from the cell means + the effect's estimate),
 # rank, then the ANOVA of the full model on those ranks; the effect's own F.
@@ -34,18 +49,7 @@ for (effect in names(aligned)) {
   ss <- tab[effect, "Sum Sq"]
   out(paste0("two_way.eta.", effect), ss / (ss + tab["Residuals", "Sum Sq"]))
   if (effect == "a") {
-    # ART-C contrasts of a: differences of the mean aligned ranks, t with the model's
-    # residual mean square, Holm-adjusted together.
-    mse <- tab["Residuals", "Mean Sq"]; df <- tab["Residuals", "Df"]
-    means <- tapply(d$r, d$a, mean); counts <- tapply(d$r, d$a, length)
-    lv <- levels(d$a); ps <- c(); names <- c()
-    for (i in 1:(length(lv) - 1)) for (j in (i + 1):length(lv)) {
-      t <- (means[i] - means[j]) / sqrt(mse * (1 / counts[i] + 1 / counts[j]))
-      key <- paste0("two_way.contrast_a.", lv[i], "-", lv[j])
-      out(paste0(key, ".t"), t)
-      ps <- c(ps, 2 * pt(-abs(t), df)); names <- c(names, key)
-    }
-    for (k in seq_along(ps)) out(paste0(names[k], ".p_holm"), p.adjust(ps, "holm")[k])
+    contrasts("two_way.contrast_a", d$r, d$a, tab["Residuals", "Mean Sq"], tab["Residuals", "Df"])
   }
 }
 # Cell contrasts (ART-C of a:b): the combined factor, aligned, is the data less a constant.
@@ -62,16 +66,7 @@ g$r <- rank(g$y)
 tab <- anova(lm(r ~ group, data = g))
 out("one_way.F", tab["group", "F value"])
 out("one_way.p", tab["group", "Pr(>F)"])
-mse <- tab["Residuals", "Mean Sq"]; df <- tab["Residuals", "Df"]
-means <- tapply(g$r, g$group, mean); counts <- tapply(g$r, g$group, length)
-lv <- levels(g$group); ps <- c(); names <- c()
-for (i in 1:(length(lv) - 1)) for (j in (i + 1):length(lv)) {
-  t <- (means[i] - means[j]) / sqrt(mse * (1 / counts[i] + 1 / counts[j]))
-  key <- paste0("one_way.contrast.", lv[i], "-", lv[j])
-  out(paste0(key, ".t"), t)
-  ps <- c(ps, 2 * pt(-abs(t), df)); names <- c(names, key)
-}
-for (k in seq_along(ps)) out(paste0(names[k], ".p_holm"), p.adjust(ps, "holm")[k])
+contrasts("one_way.contrast", g$r, g$group, tab["Residuals", "Mean Sq"], tab["Residuals", "Df"])
 
 # Paired t-test.
 p <- read.csv(file.path(dir, "paired.csv"))

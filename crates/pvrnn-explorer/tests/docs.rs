@@ -26,7 +26,12 @@ fn flags_after_mentions(line: &str) -> Vec<String> {
     let mut flags = Vec::new();
     for (i, _) in line.match_indices("pvrnn-explorer") {
         let rest = &line[i + "pvrnn-explorer".len()..];
-        let span = rest.split('`').next().unwrap_or("");
+        let mut span = rest.split('`').next().unwrap_or("");
+        // As cargo's package (`cargo test -p pvrnn-explorer --test ui`), the flags before
+        // ` -- ` are cargo's; only what follows it goes to the app.
+        if line[..i].ends_with("-p ") {
+            span = span.split_once(" -- ").map_or("", |(_, app)| app);
+        }
         flags.extend(
             span.split_whitespace()
                 .filter(|w| w.starts_with("--") && w.len() > 2)
@@ -81,4 +86,5 @@ fn mentions_are_read_up_to_the_end_of_their_code_span() {
         flags_after_mentions("`cargo run --release -p pvrnn-explorer -- --bench-frames 300`"),
         ["--bench-frames"]
     );
+    assert!(flags_after_mentions("`cargo test -p pvrnn-explorer --test ui`").is_empty());
 }

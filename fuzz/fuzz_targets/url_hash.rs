@@ -6,7 +6,7 @@ use pvrnn_core::{Model, ModelConfig};
 use pvrnn_dataset::{Dataset, Sequence, SequenceInfo, Split};
 use pvrnn_explorer::{Bundle, ExplorerApp, ViewState};
 
-/// One 6-step sequence of 4x4 images and a model with small modules.
+/// One 6-step test sequence (and a learning one) of 4x4 images and a model with small modules.
 fn bundle() -> Bundle {
     {
         let mut c = ModelConfig::default();
@@ -19,13 +19,15 @@ fn bundle() -> Bundle {
         c.inference.window = 2;
         c.inference.iterations = 1;
         let steps = 6;
-        let sequence = Sequence {
+        // A learning sequence as well as the test one: the bundle takes the proprioception
+        // ranges from the learning split.
+        let sequence = |name: &str, split| Sequence {
             info: SequenceInfo {
-                name: "only".into(),
-                file: "only.safetensors".into(),
+                name: name.into(),
+                file: format!("{name}.safetensors"),
                 task: "wiping".into(),
                 bed_height_mm: None,
-                split: Split::Test,
+                split,
                 seed: None,
                 length: steps,
                 subtasks: vec!["one".into()],
@@ -39,7 +41,8 @@ fn bundle() -> Bundle {
             extra: Vec::new(),
             images_without_robot: None,
         };
-        let dataset = Dataset::new("fuzz", vec!["l".into(), "r".into()], 4, vec![sequence])
+        let sequences = vec![sequence("learn", Split::Learn), sequence("only", Split::Test)];
+        let dataset = Dataset::new("fuzz", vec!["l".into(), "r".into()], 4, sequences)
             .expect("a valid dataset");
         let model = Model::<f32>::init(c, 1, steps, 1).expect("a valid model");
         Bundle::new("fuzz".into(), model, dataset).expect("a valid bundle")

@@ -331,3 +331,33 @@ mod tests {
         assert_eq!(back, ModelConfig::default());
     }
 }
+
+/// `--backend`: where the model's arithmetic runs.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct BackendArgs {
+    /// Where the arithmetic runs: `cpu`, or `wgpu` (a GPU through Vulkan, Metal or DX12; today
+    /// the read-outs' output layers, about 97% of a learning iteration's arithmetic, run there
+    /// and the recurrence stays on the CPU). `WGPU_ADAPTER_NAME` picks an adapter.
+    #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
+    pub backend: BackendKind,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BackendKind {
+    Cpu,
+    Wgpu,
+}
+
+impl BackendArgs {
+    /// Opens the backend and says in words what it runs on ("cpu" or the GPU adapter).
+    pub fn open(&self) -> Result<(Box<dyn pvrnn_core::backend::Backend<f32>>, String)> {
+        Ok(match self.backend {
+            BackendKind::Cpu => (Box::new(pvrnn_core::cpu::CpuBackend), "cpu".to_string()),
+            BackendKind::Wgpu => {
+                let gpu = pvrnn_wgpu::WgpuBackend::new().context("--backend wgpu")?;
+                let name = format!("wgpu on {}", gpu.adapter_name());
+                (Box::new(gpu), name)
+            }
+        })
+    }
+}

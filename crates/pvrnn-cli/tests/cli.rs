@@ -405,6 +405,66 @@ fn sigterm_writes_a_checkpoint_that_resumes() {
     );
 }
 
+/// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
+/// backend's free energy to f32 summation order, and inference runs; a run says which
+/// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.
+#[test]
+fn train_and_infer_run_on_the_wgpu_backend() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let x = Scratch::new();
+    setup(&x);
+    let train = |backend: &str| {
+        let out = pvrnn(&[
+            "train",
+            "--model",
+            &x.s("m.safetensors"),
+            "--inputs",
+            &x.s("x.safetensors"),
+            "--out",
+            &x.s(&format!("{backend}.safetensors")),
+            "--iterations",
+            "10",
+            "--backend",
+            backend,
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(
+            out.status.success(),
+            "train --backend {backend} failed:\n{err}"
+        );
+        let report: serde_json::Value =
+            serde_json::from_slice(&out.stdout).expect("train prints its final free energy");
+        (report["total"].as_f64().unwrap(), err)
+    };
+    let (cpu, _) = train("cpu");
+    let (gpu, err) = train("wgpu");
+    assert!(err.contains("backend: wgpu on "), "{err}");
+    assert!(
+        (cpu - gpu).abs() <= 1e-4 * cpu.abs(),
+        "after 10 iterations: cpu F {cpu}, wgpu F {gpu}"
+    );
+    ok(&[
+        "infer",
+        "--model",
+        &x.s("wgpu.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &x.s("r.safetensors"),
+        "--sequences",
+        "0",
+        "--backend",
+        "wgpu",
+    ]);
+    let f = TensorFile::open(&x.path("r.safetensors")).unwrap();
+    assert_eq!(
+        f.shape("recon.exteroceptive"),
+        Some(&[1, 12, small_config().vision.dims()][..])
+    );
+}
+
 #[test]
 fn infer_writes_per_step_outputs_under_conditions() {
     let x = Scratch::new();

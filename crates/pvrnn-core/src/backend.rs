@@ -123,6 +123,13 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>>;
 }
 
+/// A shared backend is a backend (one GPU serving several trainings and inference runs).
+impl<T: Real> Backend<T> for std::sync::Arc<dyn Backend<T>> {
+    fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>> {
+        (**self).load(params, config)
+    }
+}
+
 /// Weights ready for evaluation on one backend. Everything the model computes goes through
 /// these methods, so a model, a learning run, online inference and the explorer's read-outs
 /// run on whichever backend loaded the weights.
@@ -144,4 +151,45 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// dimension of `modality` (`[n, dims]`): how a compact run's images and
     /// proprioception are reconstructed.
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T>;
+}
+
+/// The fused output layer's results for `n` rows (see [`OutputLayer::loss`]).
+#[derive(Clone, Debug)]
+pub struct OutputLoss<T> {
+    /// Per row: (1/divisor) * sum over the first k dimensions of 1/2 (x - x^)^2.
+    pub row_loss: Vec<f64>,
+    /// d F / d input (the top hidden activation), `[n, hidden]`.
+    pub grad_in: Vec<T>,
+    /// d F / d W for the first k rows of W, `[k, hidden]` (when weight gradients were asked).
+    pub grad_w: Option<Vec<T>>,
+    /// d F / d b for the first k dimensions (when weight gradients were asked and b exists).
+    pub grad_b: Option<Vec<T>>,
+}
+
+/// A read-out's output layer, `x^ = tanh(W h + b)`, computed on other hardware. It carries
+/// about 97% of the model's arithmetic (the vision layer's 50 x 32,256 weights against
+/// every row), so a GPU that runs only this layer already takes most of the work; the CPU
+/// backend accepts one ([`crate::cpu::CpuBackend::load_with_output_layer`]) and calls it in
+/// place of its own fused kernel, keeping the recurrence, the hidden layers and the KL terms.
+/// The layer's weights are the ones given at load time.
+pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
+    /// The fused loss of the first `k` dimensions: forward, error, and (always) d F / d input,
+    /// plus d F / d W and d F / d b when `weight_grads`. `input` is `[n, hidden]`;
+    /// `targets[r]` holds at least `k` values; each row's squared error is divided by
+    /// `divisor`. `None` leaves the call to the CPU (for example shapes too small to pay
+    /// for a transfer).
+    fn loss(
+        &self,
+        modality: Modality,
+        input: &[T],
+        n: usize,
+        k: usize,
+        divisor: usize,
+        targets: &[&[T]],
+        weight_grads: bool,
+    ) -> Option<OutputLoss<T>>;
+
+    /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
+    /// the call to the CPU.
+    fn predict(&self, modality: Modality, input: &[T], n: usize) -> Option<Vec<T>>;
 }

@@ -4,6 +4,7 @@
 
 use std::sync::Arc;
 
+use pvrnn_core::backend::Backend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
 use pvrnn_core::{Modality, Model, Observations};
 use pvrnn_dataset::{Dataset, Selection, Split};
@@ -157,10 +158,11 @@ pub fn learning_mean(dataset: &Dataset, model: &Model<f32>) -> Result<[Vec<f32>;
 /// Per step, the vision dimensions that changed from the previous step (none at t = 0).
 type ChangeMasks = Vec<Option<Vec<bool>>>;
 
-/// Evaluates `model` on `selection` of `dataset`. `progress` is called with each finished
-/// inference step.
+/// Evaluates `model` on `selection` of `dataset`, running inference on `backend`.
+/// `progress` is called with each finished inference step.
 pub fn evaluate(
     model: Arc<Model<f32>>,
+    backend: &dyn Backend<f32>,
     dataset: &Dataset,
     selection: &Selection,
     settings: &EvalSettings,
@@ -260,6 +262,7 @@ pub fn evaluate(
         .map(|&(s, trial)| {
             run_trial(
                 &model,
+                backend,
                 &data,
                 s,
                 trial,
@@ -318,6 +321,7 @@ fn image_steps(len: usize, n: usize) -> Vec<usize> {
 
 fn run_trial(
     model: &Arc<Model<f32>>,
+    backend: &dyn Backend<f32>,
     data: &Observations<f32>,
     s: usize,
     trial: usize,
@@ -333,7 +337,7 @@ fn run_trial(
         },
         zero => zero,
     };
-    let mut inference = OnlineInference::new(model.clone(), inference_settings)?;
+    let mut inference = OnlineInference::with_backend(model.clone(), inference_settings, backend)?;
     let len = data.lengths()[s];
     let x = |t: usize| {
         [

@@ -42,6 +42,8 @@ pub struct ReportMeta {
     /// Wall-clock seconds the inference runs took, and on how many worker threads.
     pub seconds: f64,
     pub threads: usize,
+    /// Where the arithmetic ran: "cpu", or "wgpu on <adapter>" (`--backend`).
+    pub backend: String,
 }
 
 /// One trial's (or one deterministic baseline's) error on one sequence.
@@ -445,8 +447,8 @@ fn markdown(
     );
     let _ = writeln!(
         md,
-        "- **Compute**: {:.0} s of online inference on {} worker threads.",
-        meta.seconds, meta.threads
+        "- **Compute**: {:.0} s of online inference on {} worker threads, backend {}.",
+        meta.seconds, meta.threads, meta.backend
     );
     let _ = writeln!(
         md,

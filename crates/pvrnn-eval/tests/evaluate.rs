@@ -99,7 +99,15 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
     let ds = dataset();
     let model = Arc::new(model(&ds));
     let test = Selection::Split(Split::Test);
-    let eval = evaluate(model.clone(), &ds, &test, &settings(&model, 1, 2), &|| {}).unwrap();
+    let eval = evaluate(
+        model.clone(),
+        &pvrnn_core::cpu::CpuBackend,
+        &ds,
+        &test,
+        &settings(&model, 1, 2),
+        &|| {},
+    )
+    .unwrap();
     let names: Vec<&str> = eval.groups.iter().map(|g| g.name.as_str()).collect();
     assert_eq!(
         names,
@@ -194,7 +202,15 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
 
     // Upsampling only when some levels are observed and some not.
     assert!(seq.series.iter().any(|s| s.source == Source::Upsample));
-    let all = evaluate(model.clone(), &ds, &test, &settings(&model, 2, 1), &|| {}).unwrap();
+    let all = evaluate(
+        model.clone(),
+        &pvrnn_core::cpu::CpuBackend,
+        &ds,
+        &test,
+        &settings(&model, 2, 1),
+        &|| {},
+    )
+    .unwrap();
     assert!(
         all.sequences
             .iter()
@@ -257,6 +273,7 @@ fn reports_plots_and_the_progress_table_are_written() {
     let model = Arc::new(model(&ds));
     let eval = evaluate(
         model.clone(),
+        &pvrnn_core::cpu::CpuBackend,
         &ds,
         &Selection::Split(Split::Test),
         &settings(&model, 1, 2),
@@ -271,6 +288,7 @@ fn reports_plots_and_the_progress_table_are_written() {
         split: "test".into(),
         seconds: 1.5,
         threads: 2,
+        backend: "cpu".into(),
     };
     pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
     plots::write_plots(&eval, &dir.path().join("plots")).unwrap();

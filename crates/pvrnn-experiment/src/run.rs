@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
+use pvrnn_core::backend::Backend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
 use pvrnn_core::io::{self, OutTensor, TensorFile};
 use pvrnn_core::train::Trainer;
@@ -162,6 +163,7 @@ fn sequences<'a>(dataset: &'a Dataset, names: &[String]) -> Result<Vec<&'a Seque
 /// runs that one job (its dependencies must be done).
 pub fn run(
     dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
     parallel: usize,
     only: Option<usize>,
     stop: &AtomicBool,
@@ -186,7 +188,7 @@ pub fn run(
             "job {id} needs jobs {missing:?} done first"
         );
         if !plan.is_done(dir, id) {
-            run_job(&plan, dir, id, &cache, stop, events)?;
+            run_job(&plan, dir, backend, id, &cache, stop, events)?;
         }
         return Ok(());
     }
@@ -224,7 +226,7 @@ pub fn run(
                         std::thread::sleep(std::time::Duration::from_millis(50));
                         continue;
                     };
-                    match run_job(&plan, dir, id, &cache, stop, events) {
+                    match run_job(&plan, dir, backend, id, &cache, stop, events) {
                         Ok(()) => {
                             if let Ok(mut s) = state.lock() {
                                 s.0[id] = true;
@@ -261,6 +263,7 @@ pub fn run(
 fn run_job(
     plan: &Plan,
     dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
     id: usize,
     cache: &Cache,
     stop: &AtomicBool,
@@ -273,8 +276,8 @@ fn run_job(
     });
     let start = Instant::now();
     match &job.kind {
-        JobKind::Train { .. } => train(plan, dir, id, cache, stop, events)?,
-        JobKind::Infer { .. } => infer(plan, dir, id, cache, events)?,
+        JobKind::Train { .. } => train(plan, dir, backend, id, cache, stop, events)?,
+        JobKind::Infer { .. } => infer(plan, dir, backend, id, cache, events)?,
     }
     events(Event::Finished {
         id,
@@ -302,6 +305,7 @@ pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
 fn train(
     plan: &Plan,
     dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
     id: usize,
     cache: &Cache,
     stop: &AtomicBool,
@@ -369,7 +373,7 @@ fn train(
         .map(|s| truncated(s, plan.design.train_steps))
         .collect();
     let chosen_refs: Vec<&Sequence> = chosen.iter().collect();
-    let mut trainer = if checkpoint.is_file() {
+    let trainer = if checkpoint.is_file() {
         io::load_checkpoint(&checkpoint)
             .with_context(|| format!("{}: cannot resume", checkpoint.display()))?
     } else {
@@ -381,6 +385,7 @@ fn train(
         let model = Model::<f32>::init(config, chosen.len(), steps, *seed)?;
         Trainer::new(model, NoiseMode::Sampled { seed: *seed })
     };
+    let mut trainer = trainer.with_backend(Box::new(backend.clone()));
     let data = dataset.observations(&chosen_refs, &trainer.model.config)?;
     pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
@@ -467,6 +472,7 @@ fn mse(a: &[f32], b: &[f32]) -> f64 {
 fn infer(
     plan: &Plan,
     dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
     id: usize,
     cache: &Cache,
     events: &(dyn Fn(Event<'_>) + Sync),
@@ -495,7 +501,7 @@ fn infer(
     );
     let data = dataset.observations(&[&seq], &config)?;
     let settings = job_settings(&plan.design, &config, *trial, *vision_levels, *proprio);
-    let mut inference = OnlineInference::new(model.clone(), settings)?;
+    let mut inference = OnlineInference::with_backend(model.clone(), settings, backend.as_ref())?;
     if *maps {
         inference
             .set_readout_ablations(ModuleId::ALL.iter().map(|m| Ablation::of(&[*m])).collect());

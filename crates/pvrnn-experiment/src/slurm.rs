@@ -19,6 +19,9 @@ pub struct SlurmOptions {
     pub train_time: String,
     pub infer_time: String,
     pub cpus: usize,
+    /// `--backend` of the tasks: "cpu" or "wgpu" (then ask for a GPU with an extra line,
+    /// for example `--gres=gpu:1`).
+    pub backend: String,
     /// Extra `#SBATCH` lines (partition, account).
     pub extra: Vec<String>,
 }
@@ -76,10 +79,11 @@ pub fn emit(dir: &Path, options: &SlurmOptions) -> Result<PathBuf> {
         let mut s = header(name, time);
         let _ = writeln!(
             s,
-            "exec {} --threads {} experiment {experiment} --scale {scale} --out {} --job \"$SLURM_ARRAY_TASK_ID\"",
+            "exec {} --threads {} experiment {experiment} --scale {scale} --out {} --job \"$SLURM_ARRAY_TASK_ID\" --backend {}",
             options.pvrnn,
             options.cpus,
-            dir.display()
+            dir.display(),
+            options.backend
         );
         s
     };

@@ -8,6 +8,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use pvrnn_experiment::run::{Event, Interrupted, read_train_result};
 use pvrnn_experiment::{Experiment, JobKind, Plan, Scale, report, slurm};
 
+/// The CPU backend, shared as the runner takes it.
+fn cpu() -> std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>> {
+    std::sync::Arc::new(pvrnn_core::cpu::CpuBackend)
+}
+
 fn dataset(dir: &Path) {
     pvrnn_dataset::synthetic::caresim_like(&[590, 650, 710], 3, 1, 30)
         .unwrap()
@@ -37,7 +42,7 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
             stop.store(true, Ordering::SeqCst);
         }
     };
-    let e = pvrnn_experiment::run::run(&out, 1, None, &stop, &events).unwrap_err();
+    let e = pvrnn_experiment::run::run(&out, &cpu(), 1, None, &stop, &events).unwrap_err();
     assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
     let checkpoint = plan.checkpoint_path(&out, 0);
     let file = pvrnn_core::io::TensorFile::open(&checkpoint).unwrap();
@@ -46,7 +51,7 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
 
     // Running again resumes it and does everything else, two jobs at a time.
     let go = AtomicBool::new(false);
-    pvrnn_experiment::run::run(&out, 2, None, &go, &|_| {}).unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), 2, None, &go, &|_| {}).unwrap();
     assert!((0..plan.jobs.len()).all(|i| plan.is_done(&out, i)));
     let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
     assert_eq!(trained.iterations, 20);
@@ -124,7 +129,8 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
     }
 
     // One job for a cluster task: a done job is skipped; cluster scripts cover the rest.
-    pvrnn_experiment::run::run(&out, 1, Some(5), &go, &|_| panic!("job 5 is done")).unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), 1, Some(5), &go, &|_| panic!("job 5 is done"))
+        .unwrap();
     std::fs::remove_file(plan.result_path(&out, 9)).unwrap();
     let submit = slurm::emit(
         &out,
@@ -133,6 +139,7 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
             train_time: "10:00:00".into(),
             infer_time: "01:00:00".into(),
             cpus: 4,
+            backend: "cpu".into(),
             extra: vec!["--partition=cpu".into()],
         },
     )
@@ -157,7 +164,8 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
             .unwrap()
             .save(&out)
             .unwrap();
-        pvrnn_experiment::run::run(&out, 1, None, &AtomicBool::new(false), &|_| {}).unwrap();
+        pvrnn_experiment::run::run(&out, &cpu(), 1, None, &AtomicBool::new(false), &|_| {})
+            .unwrap();
         let dir = report::write(&out).unwrap();
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())

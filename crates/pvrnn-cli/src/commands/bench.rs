@@ -4,6 +4,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Result;
+use pvrnn_core::backend::Backend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor};
@@ -33,6 +34,8 @@ pub struct Args {
     /// Run only one part: `train` or `infer` (the other's figures are reported as null).
     #[arg(long)]
     only: Option<Part>,
+    #[command(flatten)]
+    backend: crate::util::BackendArgs,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,6 +46,8 @@ enum Part {
 
 #[derive(Serialize, Debug)]
 struct Report {
+    /// "cpu", or "wgpu on <adapter name (driver, API)>".
+    backend: String,
     threads: usize,
     sequences: usize,
     steps: usize,
@@ -88,6 +93,7 @@ fn random_tensor(shape: &[usize], seed: u64) -> Tensor<f32> {
 }
 
 fn infer_rate(
+    backend: &dyn Backend<f32>,
     model: &Arc<Model<f32>>,
     data: &Observations<f32>,
     observed: Observed,
@@ -96,7 +102,7 @@ fn infer_rate(
     let mut settings = InferenceSettings::from_config(&model.config, 1);
     settings.observed = observed;
     let window = settings.window;
-    let mut inf = OnlineInference::new(model.clone(), settings)?;
+    let mut inf = OnlineInference::with_backend(model.clone(), settings, backend)?;
     let steps = data.lengths()[0];
     anyhow::ensure!(
         steps >= window + timed,
@@ -120,6 +126,7 @@ fn infer_rate(
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let (backend, backend_name) = a.backend.open()?;
     let config = ModelConfig::default();
     let (s, t) = (a.sequences, a.steps);
     let say = |msg: &str| {
@@ -138,7 +145,9 @@ pub fn run(a: Args) -> Result<()> {
         None,
     )?;
     let model = Model::<f32>::init(config.clone(), s, t, 0)?;
-    let mut trainer = Trainer::new(model, NoiseMode::Sampled { seed: 0 });
+    let trainer = Trainer::new(model, NoiseMode::Sampled { seed: 0 });
+    let inference_backend = a.backend.open()?.0;
+    let mut trainer = trainer.with_backend(backend);
 
     let mut times = Vec::new();
     if a.only != Some(Part::Infer) {
@@ -158,6 +167,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.only != Some(Part::Train) {
         say("online inference, proprio + 16x16 observed...");
         p16 = Some(infer_rate(
+            inference_backend.as_ref(),
             &model,
             &data,
             Observed {
@@ -168,6 +178,7 @@ pub fn run(a: Args) -> Result<()> {
         )?);
         say("online inference, everything observed...");
         full = Some(infer_rate(
+            inference_backend.as_ref(),
             &model,
             &data,
             Observed::all(&config),
@@ -178,6 +189,7 @@ pub fn run(a: Args) -> Result<()> {
     let min = (!times.is_empty()).then(|| times.iter().copied().fold(f64::INFINITY, f64::min));
 
     let report = Report {
+        backend: backend_name,
         threads: rayon::current_num_threads(),
         sequences: s,
         steps: t,
@@ -191,6 +203,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
+        println!("backend                          {}", report.backend);
         println!("threads                          {}", report.threads);
         if let (Some(mean), Some(min)) = (mean, min) {
             println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");

@@ -39,6 +39,8 @@ pub struct Args {
     /// Report folder: summary.json, summary.md, per_sequence.csv, per_step.csv, plots/.
     #[arg(long)]
     out: PathBuf,
+    #[command(flatten)]
+    backend: util::BackendArgs,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -53,6 +55,10 @@ pub fn run(a: Args) -> Result<()> {
         a.change_threshold.is_finite() && (0.0..255.0).contains(&a.change_threshold),
         "--change-threshold must be in [0, 255) levels"
     );
+    let (backend, backend_name) = a.backend.open()?;
+    if a.backend.backend != util::BackendKind::Cpu {
+        eprintln!("backend: {backend_name}");
+    }
     let file = TensorFile::open(&a.model)?;
     let mut model = io::model_from_file(&file)?;
     let iteration = io::checkpoint_iteration(&file);
@@ -69,10 +75,14 @@ pub fn run(a: Args) -> Result<()> {
     let steps: usize = dataset.select(&selection)?.iter().map(|s| s.len()).sum();
     let bar = util::progress((steps * a.trials) as u64, "evaluate");
     let started = std::time::Instant::now();
-    let evaluation =
-        pvrnn_eval::evaluate(Arc::new(model), &dataset, &selection, &settings, &|| {
-            bar.inc(1)
-        })?;
+    let evaluation = pvrnn_eval::evaluate(
+        Arc::new(model),
+        backend.as_ref(),
+        &dataset,
+        &selection,
+        &settings,
+        &|| bar.inc(1),
+    )?;
     bar.finish();
     let meta = ReportMeta {
         model: a.model.display().to_string(),
@@ -81,6 +91,7 @@ pub fn run(a: Args) -> Result<()> {
         split: a.split.unwrap_or_else(|| "test".into()),
         seconds: started.elapsed().as_secs_f64(),
         threads: rayon::current_num_threads(),
+        backend: backend_name,
     };
     pvrnn_eval::write_report(&evaluation, &meta, &a.out)?;
     plots::write_plots(&evaluation, &a.out.join("plots"))?;

@@ -66,6 +66,8 @@ pub struct Args {
     /// Slurm: extra `#SBATCH` options, e.g. `--partition=cpu` (repeatable).
     #[arg(long)]
     slurm_option: Vec<String>,
+    #[command(flatten)]
+    backend: crate::util::BackendArgs,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -111,6 +113,10 @@ pub fn run(a: Args) -> Result<()> {
                 train_time: a.slurm_train_time,
                 infer_time: a.slurm_infer_time,
                 cpus: a.slurm_cpus,
+                backend: match a.backend.backend {
+                    crate::util::BackendKind::Cpu => "cpu".into(),
+                    crate::util::BackendKind::Wgpu => "wgpu".into(),
+                },
                 extra: a.slurm_option,
             },
         )?;
@@ -122,6 +128,11 @@ pub fn run(a: Args) -> Result<()> {
         return Ok(());
     }
     if !a.report {
+        let (backend, backend_name) = a.backend.open()?;
+        let backend: Arc<dyn pvrnn_core::backend::Backend<f32>> = Arc::from(backend);
+        if a.backend.backend != crate::util::BackendKind::Cpu {
+            eprintln!("backend: {backend_name}");
+        }
         let stop = Arc::new(AtomicBool::new(false));
         {
             let flag = stop.clone();
@@ -170,7 +181,7 @@ pub fn run(a: Args) -> Result<()> {
                 bar.set_message(format!("job {id}: step {done}/{total}"));
             }
         };
-        let result = pvrnn_experiment::run::run(&a.out, a.jobs, a.job, &stop, &events);
+        let result = pvrnn_experiment::run::run(&a.out, &backend, a.jobs, a.job, &stop, &events);
         bar.finish_and_clear();
         if let Err(e) = result {
             if e.downcast_ref::<Interrupted>().is_some() {

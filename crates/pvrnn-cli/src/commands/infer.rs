@@ -2,7 +2,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use pvrnn_core::infer::run_sequence;
+use pvrnn_core::infer::run_sequence_on;
 use pvrnn_core::io;
 
 use crate::condition::ConditionArgs;
@@ -37,9 +37,15 @@ pub struct Args {
     /// they are the read-outs of the stored `d` and `prior_d`.
     #[arg(long)]
     compact: bool,
+    #[command(flatten)]
+    backend: util::BackendArgs,
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let (backend, backend_name) = a.backend.open()?;
+    if a.backend.backend != util::BackendKind::Cpu {
+        eprintln!("backend: {backend_name}");
+    }
     let mut model = io::load_model(&a.model)?;
     let inputs = inputs::load(&a.inputs, a.split.as_deref(), Split::Test, &mut model)?;
     let (data, names) = (inputs.observations, inputs.names);
@@ -59,7 +65,8 @@ pub fn run(a: Args) -> Result<()> {
     let mut done_before = 0u64;
     for &s in &which {
         bar.set_message(format!("sequence {s}"));
-        let run = run_sequence(
+        let run = run_sequence_on(
+            backend.as_ref(),
             model.clone(),
             settings.clone(),
             &data,

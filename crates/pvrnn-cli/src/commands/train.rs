@@ -55,6 +55,8 @@ pub struct Args {
     /// Replace an existing --out instead of refusing.
     #[arg(long)]
     overwrite: bool,
+    #[command(flatten)]
+    backend: util::BackendArgs,
 }
 
 pub use pvrnn_eval::training_log::path_for as log_path;
@@ -69,7 +71,8 @@ pub fn kept_path(out: &Path, iteration: u64) -> PathBuf {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut trainer = if a.resume {
+    let (backend, backend_name) = a.backend.open()?;
+    let trainer = if a.resume {
         let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
         eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
         t
@@ -88,6 +91,10 @@ pub fn run(a: Args) -> Result<()> {
         };
         Trainer::new(model, noise)
     };
+    let mut trainer = trainer.with_backend(backend);
+    if a.backend.backend != util::BackendKind::Cpu {
+        eprintln!("backend: {backend_name}");
+    }
     let data = inputs::load(
         &a.inputs,
         a.split.as_deref(),

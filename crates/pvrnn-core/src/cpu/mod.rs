@@ -6,7 +6,8 @@ mod recurrent;
 
 use crate::Real;
 use crate::backend::{
-    Backend, BatchResult, FullOutputs, Grads, LoadedModel, Posterior, Request, Window, WindowResult,
+    Backend, BatchResult, FullOutputs, Grads, LoadedModel, OutputLayer, Posterior, Request, Window,
+    WindowResult,
 };
 use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Ablation;
@@ -19,12 +20,20 @@ pub struct CpuBackend;
 
 impl<T: Real> Backend<T> for CpuBackend {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>> {
-        Box::new(CpuModel {
-            prepared: recurrent::Prepared::new(params, config),
-            params: params.clone(),
-            config: config.clone(),
-            out_t: Default::default(),
-        })
+        Box::new(CpuModel::new(params, config, None))
+    }
+}
+
+impl CpuBackend {
+    /// Loads the weights with the read-outs' output layers computed by `output_layer` (a
+    /// GPU's, loaded with the same weights) and everything else on the CPU: how a backend
+    /// that accelerates only the dominant product builds its model.
+    pub fn load_with_output_layer<T: Real>(
+        params: &Params<T>,
+        config: &ModelConfig,
+        output_layer: Box<dyn OutputLayer<T>>,
+    ) -> Box<dyn LoadedModel<T>> {
+        Box::new(CpuModel::new(params, config, Some(output_layer)))
     }
 }
 
@@ -36,9 +45,25 @@ struct CpuModel<T> {
     prepared: recurrent::Prepared<T>,
     /// Output weights transposed, per modality, made on first use by online inference.
     out_t: [std::sync::OnceLock<Vec<T>>; 2],
+    /// Computes the output layers elsewhere when set (see [`OutputLayer`]).
+    output_layer: Option<Box<dyn OutputLayer<T>>>,
 }
 
 impl<T: Real> CpuModel<T> {
+    fn new(
+        params: &Params<T>,
+        config: &ModelConfig,
+        output_layer: Option<Box<dyn OutputLayer<T>>>,
+    ) -> Self {
+        Self {
+            prepared: recurrent::Prepared::new(params, config),
+            params: params.clone(),
+            config: config.clone(),
+            out_t: Default::default(),
+            output_layer,
+        }
+    }
+
     fn out_t(&self, mi: usize) -> &[T] {
         self.out_t[mi].get_or_init(|| {
             let w = &self.params.readouts[mi].out.weight;
@@ -69,7 +94,13 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
     }
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
-        readout(&self.params, modality, d, n)
+        let r = &self.params.readouts[modality.index()];
+        let acts = readout::hidden_forward(r, d, n);
+        let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
+        self.output_layer
+            .as_ref()
+            .and_then(|o| o.predict(modality, top, n))
+            .unwrap_or_else(|| readout::output_predict(&r.out, None, top, n))
     }
 }
 
@@ -135,7 +166,13 @@ fn evaluate<T: Real>(
             let divisor = config
                 .accuracy_normalisation
                 .divisor(k, config.modality_dims(modality));
-            let loss = readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads);
+            let loss = model
+                .output_layer
+                .as_ref()
+                .and_then(|o| o.loss(modality, top, n, k, divisor, &targets, all_grads))
+                .unwrap_or_else(|| {
+                    readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads)
+                });
             accuracy[mi] = loss.row_loss;
             if want_grads {
                 let (g_input, layer_grads) =
@@ -175,8 +212,13 @@ fn evaluate<T: Real>(
             }
             let n_rows = rows.len() / hl.max(1);
             let small = cfg!(target_arch = "wasm32") && n_rows <= readout::SMALL_ROWS;
-            let pred =
-                readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows);
+            let pred = model
+                .output_layer
+                .as_ref()
+                .and_then(|o| o.predict(modality, &rows, n_rows))
+                .unwrap_or_else(|| {
+                    readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows)
+                });
             let dims = config.modality_dims(modality);
             let mut start = 0;
             for (i, count) in per_window.into_iter().enumerate() {
@@ -315,13 +357,4 @@ fn prior_preactivations<T: Real>(params: &Params<T>, d: [&[T]; 4]) -> ([Vec<T>; 
         product(&p.w_prior_sigma, p.b_prior_sigma.as_ref(), d[m])
     });
     (mu, sigma)
-}
-
-/// The read-out of `n` module states `d` (`[n, d]` row-major) into predictions of every
-/// dimension of `modality` (`[n, dims]`): how a compact run's images are reconstructed.
-fn readout<T: Real>(params: &Params<T>, modality: Modality, d: &[T], n: usize) -> Vec<T> {
-    let r = &params.readouts[modality.index()];
-    let acts = readout::hidden_forward(r, d, n);
-    let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
-    readout::output_predict(&r.out, None, top, n)
 }

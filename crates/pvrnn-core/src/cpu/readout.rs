@@ -10,6 +10,7 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
+use crate::backend::OutputLoss;
 use crate::kernels::{LANES, prefetch, simd};
 use crate::parallel;
 use crate::params::{Dense, ReadoutParams};
@@ -137,17 +138,6 @@ fn column_sums<T: Real>(m: &[T], cols: usize) -> Vec<T> {
 }
 
 /// Loss and gradients of the output layer on its first `k` (observed) outputs.
-#[derive(Debug)]
-pub(crate) struct OutputLoss<T> {
-    /// Per row: (1/divisor) * sum 1/2 (x - y)^2.
-    pub(crate) row_loss: Vec<f64>,
-    /// d F / d input, `[n, hidden]`.
-    pub(crate) grad_in: Vec<T>,
-    /// d F / d W for the first k rows of W, `[k, hidden]`.
-    pub(crate) grad_w: Option<Vec<T>>,
-    pub(crate) grad_b: Option<Vec<T>>,
-}
-
 /// The fused, tiled output layer. `targets[r]` holds at least `k` values; each row's
 /// summed squared error is divided by `divisor` (k, or the modality's full dimension).
 /// `out_t` is the output weight transposed (`[hidden, dims]`); with it, few rows and no

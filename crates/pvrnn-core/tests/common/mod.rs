@@ -106,13 +106,43 @@ pub fn sine_observations<T: Real>(config: &ModelConfig, s: usize, t: usize) -> O
 
 /// Every backend the shared test suite runs on, by name. A new backend adds itself here and
 /// every gradient check, learning and inference test runs on it too (as candle runs one
-/// suite per device).
-pub fn backends<T: Real>() -> Vec<(&'static str, Box<dyn Backend<T>>)> {
-    vec![("cpu", Box::new(pvrnn_core::cpu::CpuBackend))]
+/// suite per device). The wgpu backend computes in f32 only, so it joins the f32 tests
+/// (learning, inference); the f64 finite-difference checks hold it through its agreement
+/// with the CPU backend (pvrnn-wgpu's `tests/agrees_with_cpu.rs`).
+pub fn backends<T: TestReal>() -> Vec<(&'static str, Box<dyn Backend<T>>)> {
+    let mut all: Vec<(&'static str, Box<dyn Backend<T>>)> =
+        vec![("cpu", Box::new(pvrnn_core::cpu::CpuBackend))];
+    all.extend(T::gpu_backends());
+    all
+}
+
+/// The precisions the suite runs in, and the backends each adds beyond the CPU.
+pub trait TestReal: Real {
+    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)>;
+}
+
+impl TestReal for f64 {
+    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)> {
+        Vec::new()
+    }
+}
+
+impl TestReal for f32 {
+    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)> {
+        #[cfg(not(target_arch = "wasm32"))]
+        match pvrnn_wgpu::WgpuBackend::new() {
+            Ok(b) => return vec![("wgpu", Box::new(b))],
+            Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
+                eprintln!("wgpu backend skipped (PVRNN_SKIP_WGPU): {e}");
+            }
+            Err(e) => panic!("{e} (set PVRNN_SKIP_WGPU=1 to skip the GPU backend's tests)"),
+        }
+        Vec::new()
+    }
 }
 
 /// Runs `test` on every backend of [`backends`], naming the backend if it fails.
-pub fn for_each_backend<T: Real>(mut test: impl FnMut(&dyn Backend<T>)) {
+pub fn for_each_backend<T: TestReal>(mut test: impl FnMut(&dyn Backend<T>)) {
     for (name, backend) in backends::<T>() {
         eprintln!("backend: {name}");
         test(backend.as_ref());

@@ -1,0 +1,216 @@
+//! The wgpu backend computes what the CPU backend computes: the free energy, every gradient,
+//! online inference and the read-outs, on the same inputs, to f32 summation order. The CPU
+//! backend's gradients are checked against finite differences (pvrnn-core's
+//! `tests/gradients.rs`), so agreement here makes the GPU's gradients exact too.
+//!
+//! Runs on whatever adapter wgpu finds: on a machine without a GPU, Mesa's lavapipe (a CPU
+//! Vulkan device). Set `PVRNN_SKIP_WGPU=1` to skip on a machine with no Vulkan driver.
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
+
+use std::sync::Arc;
+
+use pvrnn_core::backend::Backend;
+use pvrnn_core::config::{ModuleConfig, VisionLayout};
+use pvrnn_core::cpu::CpuBackend;
+use pvrnn_core::free_energy::{NoiseDraw, free_energy};
+use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
+use pvrnn_core::{Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor};
+use pvrnn_wgpu::{Tiling, WgpuBackend};
+
+fn gpu() -> Option<WgpuBackend> {
+    match WgpuBackend::new() {
+        Ok(b) => {
+            eprintln!("adapter: {}", b.adapter_name());
+            Some(b)
+        }
+        Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
+            eprintln!("skipped (PVRNN_SKIP_WGPU): {e}");
+            None
+        }
+        Err(e) => panic!("{e} (set PVRNN_SKIP_WGPU=1 to skip the GPU tests)"),
+    }
+}
+
+/// Small, but with the paper's 50-unit top hidden layer and enough vision columns and rows
+/// for several column tiles, row sub-tiles and (with small tiling) groups and chunks.
+fn config() -> ModelConfig {
+    let mut c = ModelConfig::default();
+    let m = |d, z, fast, slow| ModuleConfig {
+        d,
+        z,
+        tau: [fast, slow],
+    };
+    c.executive = m(6, 3, 4.0, 8.0);
+    c.associative = m(6, 3, 2.0, 4.0);
+    c.exteroceptive = m(8, 4, 1.5, 2.0);
+    c.proprioceptive = m(6, 3, 1.0, 2.0);
+    c.exteroceptive_readout.hidden = vec![12, 50];
+    c.proprioceptive_readout.hidden = vec![10];
+    c.vision = VisionLayout {
+        cameras: 2,
+        channels: 3,
+        resolutions: vec![4, 8],
+    };
+    c.proprio_dims = 6;
+    c.kl_weight = 0.1;
+    c
+}
+
+fn observations(config: &ModelConfig, sequences: usize, steps: usize) -> Observations<f32> {
+    let wave = |dims: usize, phase: f64| {
+        let mut v = Vec::with_capacity(sequences * steps * dims);
+        for s in 0..sequences {
+            for t in 0..steps {
+                for d in 0..dims {
+                    let x = 0.3 * t as f64 + 0.7 * d as f64 + 1.1 * s as f64 + phase;
+                    v.push((0.8 * x.sin()) as f32);
+                }
+            }
+        }
+        v
+    };
+    let (vd, pd) = (config.vision.dims(), config.proprio_dims);
+    Observations::new(
+        Tensor::from_vec(&[sequences, steps, vd], wave(vd, 0.0)).unwrap(),
+        Tensor::from_vec(&[sequences, steps, pd], wave(pd, 0.5)).unwrap(),
+        None,
+    )
+    .unwrap()
+}
+
+/// max |a - b| <= tol * max |a| (plus a floor for tensors that are all but zero).
+fn assert_close(name: &str, cpu: &[f32], gpu: &[f32], tol: f64) {
+    assert_eq!(cpu.len(), gpu.len(), "{name}: length");
+    let scale = cpu.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
+    let diff = cpu
+        .iter()
+        .zip(gpu)
+        .fold(0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()));
+    assert!(
+        diff <= tol * scale + 1e-9,
+        "{name}: max difference {diff:e} against max magnitude {scale:e}"
+    );
+}
+
+fn free_energy_and_gradients_agree(gpu: WgpuBackend) {
+    let config = config();
+    let data = observations(&config, 3, 21);
+    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
+    let (f_cpu, g_cpu) = free_energy(&CpuBackend, &model, &data, draw, true).unwrap();
+    let (f_gpu, g_gpu) = free_energy(&gpu, &model, &data, draw, true).unwrap();
+    let terms = |f: &pvrnn_core::FreeEnergy| {
+        [
+            f.total,
+            f.accuracy.exteroceptive,
+            f.accuracy.proprioceptive,
+            f.complexity.executive,
+            f.complexity.exteroceptive,
+        ]
+    };
+    for (a, b) in terms(&f_cpu).into_iter().zip(terms(&f_gpu)) {
+        assert!(
+            (a - b).abs() <= 1e-5 * a.abs(),
+            "free-energy term: cpu {a} gpu {b}"
+        );
+    }
+    let (g_cpu, g_gpu) = (g_cpu.unwrap(), g_gpu.unwrap());
+    for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
+        assert_close(&name, a.data(), b.data(), 1e-4);
+    }
+    for m in 0..4 {
+        assert_close(
+            "a_mu",
+            g_cpu.adaptive.a_mu[m].data(),
+            g_gpu.adaptive.a_mu[m].data(),
+            1e-4,
+        );
+        assert_close(
+            "a_sigma",
+            g_cpu.adaptive.a_sigma[m].data(),
+            g_gpu.adaptive.a_sigma[m].data(),
+            1e-4,
+        );
+    }
+}
+
+#[test]
+fn free_energy_and_every_gradient_match_the_cpu_backend() {
+    let Some(gpu) = gpu() else { return };
+    free_energy_and_gradients_agree(gpu);
+}
+
+#[test]
+fn many_groups_and_chunks_match_the_cpu_backend() {
+    let Some(gpu) = gpu() else { return };
+    // 15 column tiles in 4 groups of 4 (the last short), 4-row chunks (the last short).
+    free_energy_and_gradients_agree(gpu.with_tiling(Tiling {
+        max_groups: 4,
+        max_chunk_bytes: 8 << 10,
+    }));
+}
+
+#[test]
+fn online_inference_and_read_outs_match_the_cpu_backend() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let data = observations(&config, 1, 12);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 12, 3).unwrap());
+    let mut settings = InferenceSettings::from_config(&config, 2);
+    settings.window = 6;
+    settings.iterations = 5;
+    // The lower resolution and proprioception observed: the loss sees 96 of 480 columns,
+    // the reconstruction covers all of them.
+    settings.observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let run = |backend: &dyn Backend<f32>| {
+        run_sequence_on(
+            backend,
+            model.clone(),
+            settings.clone(),
+            &data,
+            0,
+            true,
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    let (cpu, gpu_run) = (run(&CpuBackend), run(&gpu));
+    for (a, b) in cpu.free_energy.iter().zip(&gpu_run.free_energy) {
+        assert!(
+            (a.total - b.total).abs() <= 1e-4 * a.total.abs(),
+            "{} vs {}",
+            a.total,
+            b.total
+        );
+    }
+    for mi in 0..2 {
+        assert_close(
+            "reconstruction",
+            cpu.recon.as_ref().unwrap()[mi].data(),
+            gpu_run.recon.as_ref().unwrap()[mi].data(),
+            1e-3,
+        );
+    }
+    // The explorer's read-out of stored states.
+    let d = cpu.modules[Modality::Exteroceptive.module().index()]
+        .d
+        .clone();
+    let n = d.len() / config.exteroceptive.d;
+    let on_cpu = CpuBackend.load(&model.params, &model.config);
+    let on_gpu = gpu.load(&model.params, &model.config);
+    assert_close(
+        "readout",
+        &on_cpu.readout(Modality::Exteroceptive, &d, n),
+        &on_gpu.readout(Modality::Exteroceptive, &d, n),
+        1e-5,
+    );
+}
+
+#[test]
+fn the_adapter_is_named() {
+    let Some(gpu) = gpu() else { return };
+    assert!(!gpu.adapter_name().trim().is_empty());
+}

@@ -6,6 +6,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use pvrnn_core::backend::Backend;
 use pvrnn_core::config::{ModelConfig, ModuleId};
 use pvrnn_core::infer::{OnlineInference, StepOutput};
 use pvrnn_core::{Modality, Model, Observations};
@@ -160,6 +161,8 @@ pub struct Engine {
     paused: HashMap<RunKey, Job>,
     /// Failures found when a run was asked for, reported by the next `work`.
     failures: Vec<Event>,
+    /// Where runs compute; `None`: the CPU backend.
+    backend: Option<Arc<dyn Backend<f32>>>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -173,10 +176,19 @@ impl std::fmt::Debug for Engine {
 }
 
 impl Engine {
+    /// An engine whose runs compute on `backend` (a GPU's, on the desktop).
+    pub fn on(backend: Arc<dyn Backend<f32>>) -> Self {
+        Self {
+            backend: Some(backend),
+            ..Self::default()
+        }
+    }
+
     /// A new model: every job and sequence is forgotten.
     pub fn set_model(&mut self, model: Arc<Model<f32>>) {
         *self = Self {
             model: Some(model),
+            backend: self.backend.take(),
             ..Self::default()
         };
     }
@@ -227,7 +239,13 @@ impl Engine {
             .ok_or_else(|| format!("no observations of sequence `{}`", key.sequence))?
             .clone();
         let settings = key.condition.settings(&model.config);
-        let inference = OnlineInference::new(model.clone(), settings).map_err(|e| e.to_string())?;
+        let inference = match &self.backend {
+            Some(backend) => {
+                OnlineInference::with_backend(model.clone(), settings, backend.as_ref())
+            }
+            None => OnlineInference::new(model.clone(), settings),
+        }
+        .map_err(|e| e.to_string())?;
         Ok(Job {
             key: key.clone(),
             inference,

@@ -30,6 +30,46 @@ struct Args {
     /// run it under `xvfb-run`).
     #[arg(long, value_name = "FILE")]
     screenshot: Option<std::path::PathBuf>,
+    /// Where live runs compute: `auto` (a GPU through wgpu if the machine has one, not a
+    /// CPU Vulkan device such as lavapipe; else the CPU), `cpu`, or `wgpu` (any adapter,
+    /// lavapipe included). The status bar says which.
+    #[arg(long, value_enum, default_value_t = Compute::Auto)]
+    backend: Compute,
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum Compute {
+    Auto,
+    Cpu,
+    Wgpu,
+}
+
+/// The backend `--backend` asks for, with its name; `None`: the CPU.
+#[cfg(not(target_arch = "wasm32"))]
+fn open_backend(
+    compute: Compute,
+) -> Option<(
+    std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>>,
+    String,
+)> {
+    if compute == Compute::Cpu {
+        return None;
+    }
+    match pvrnn_wgpu::WgpuBackend::new() {
+        Ok(gpu) if compute == Compute::Wgpu || !gpu.gpu().is_cpu() => {
+            let name = format!("wgpu on {}", gpu.adapter_name());
+            Some((std::sync::Arc::new(gpu), name))
+        }
+        Ok(_) => None,
+        Err(e) => {
+            if compute == Compute::Wgpu {
+                eprintln!("--backend wgpu: {e}");
+                std::process::exit(1);
+            }
+            None
+        }
+    }
 }
 
 #[cfg(not(target_arch = "wasm32"))]
@@ -97,14 +137,15 @@ fn main() {
         "PV-RNN explorer",
         options,
         Box::new({
-            let (screenshot, hash) = (args.screenshot.clone(), args.view.clone());
+            let (screenshot, hash, compute) =
+                (args.screenshot.clone(), args.view.clone(), args.backend);
             move |cc| {
                 let mut app = ExplorerApp::new(bundle, ViewState::default());
                 // Through the app, so what it ignores or corrects shows in its status line.
                 if let Some(hash) = &hash {
                     app.apply_hash(hash);
                 }
-                app.compute_in_background(&cc.egui_ctx);
+                app.compute_in_background_on(&cc.egui_ctx, open_backend(compute));
                 if let Some(path) = screenshot {
                     app.screenshot_and_close(path);
                 }

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
 use std::thread::JoinHandle;
 
+use pvrnn_core::backend::Backend;
 use pvrnn_core::{Model, Observations};
 use web_time::Duration;
 
@@ -40,13 +41,20 @@ impl std::fmt::Debug for ThreadClient {
 }
 
 impl ThreadClient {
-    /// Starts the thread; `repaint` is called when results arrive.
-    pub fn spawn(repaint: impl Fn() + Send + 'static) -> Result<Self, String> {
+    /// Starts the thread, computing on `backend` (`None`: the CPU); `repaint` is called
+    /// when results arrive.
+    pub fn spawn(
+        repaint: impl Fn() + Send + 'static,
+        backend: Option<Arc<dyn Backend<f32>>>,
+    ) -> Result<Self, String> {
         let (commands, command_rx) = mpsc::channel();
         let (event_tx, events) = mpsc::channel();
         let thread = std::thread::Builder::new()
             .name("pvrnn-inference".into())
-            .spawn(move || serve(&command_rx, &event_tx, &repaint))
+            .spawn(move || {
+                let engine = backend.map(Engine::on).unwrap_or_default();
+                serve(engine, &command_rx, &event_tx, &repaint)
+            })
             .map_err(|e| format!("cannot start the inference thread: {e}"))?;
         Ok(Self {
             commands,
@@ -115,8 +123,12 @@ impl Drop for ThreadClient {
 }
 
 /// The thread: waits for commands while idle, computes in ticks while a run is going.
-fn serve(commands: &Receiver<Command>, events: &Sender<(u64, Event)>, repaint: &dyn Fn()) {
-    let mut engine = Engine::default();
+fn serve(
+    mut engine: Engine,
+    commands: &Receiver<Command>,
+    events: &Sender<(u64, Event)>,
+    repaint: &dyn Fn(),
+) {
     let mut generation = 0;
     loop {
         let mut next = if engine.running().is_none() {

@@ -463,6 +463,50 @@ fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
     assert!(run.trace == expected, "the background run differs");
 }
 
+/// `--backend wgpu` on the desktop: the background thread computes on the GPU (lavapipe
+/// where there is none), the status bar names it, and the run agrees with the CPU's to
+/// f32 summation order.
+#[test]
+fn a_gpu_computes_the_run_and_the_status_bar_says_so() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let view = ViewState {
+        maps: false,
+        ..ViewState::default()
+    };
+    let inline = harness(ExplorerApp::new(Some(common::bundle()), view.clone()));
+    let expected = inline.state().predicted_vision().unwrap().to_vec();
+    let mut h = Harness::builder()
+        .with_size(eframe::egui::vec2(1400.0, 1000.0))
+        .build_ui_state(
+            |ui, app: &mut ExplorerApp| app.show(ui),
+            ExplorerApp::new(Some(common::bundle()), view),
+        );
+    let gpu = pvrnn_wgpu::WgpuBackend::new().unwrap();
+    let name = format!("wgpu on {}", gpu.adapter_name());
+    let ctx = h.ctx.clone();
+    h.state_mut()
+        .compute_in_background_on(&ctx, Some((std::sync::Arc::new(gpu), name.clone())));
+    for _ in 0..6000 {
+        h.step();
+        if h.state().current_run().is_some_and(|r| r.complete) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let run = h.state().current_run().expect("the shown run");
+    assert!(run.complete && run.error.is_none(), "not finished in 30 s");
+    assert_eq!(h.state().compute_label(), format!("compute: {name}"));
+    h.get_by_label(&format!("compute: {name}"));
+    let got = h.state().predicted_vision().unwrap();
+    let worst = expected
+        .iter()
+        .zip(got)
+        .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(worst < 1e-3, "the GPU's predicted image differs by {worst}");
+}
+
 #[test]
 fn the_comparison_view_computes_each_condition_side_by_side() {
     let mut h = harness(ExplorerApp::new(

@@ -76,6 +76,12 @@ impl Gpu {
         }
     }
 
+    /// Whether the adapter is a CPU implementation (lavapipe, SwiftShader, WARP): correct,
+    /// but slower than the CPU backend, so not chosen unless asked for.
+    pub fn is_cpu(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     pub(crate) fn limits(&self) -> wgpu::Limits {
         self.device.limits()
     }

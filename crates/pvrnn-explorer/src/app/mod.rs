@@ -84,6 +84,8 @@ pub struct ExplorerApp {
     last_run_note: Option<(String, String)>,
     /// Whether the "About this model" window is open.
     show_about: bool,
+    /// Where live runs compute, for the status bar ("compute: CPU", "compute: wgpu on ...").
+    compute_label: String,
     /// `--screenshot`: where to save a picture of the window once every run the view
     /// needs is computed, then close (a desktop smoke test); whether it was asked for.
     #[cfg(not(target_arch = "wasm32"))]
@@ -148,6 +150,7 @@ impl ExplorerApp {
             last_hash: String::new(),
             last_run_note: None,
             show_about: false,
+            compute_label: "compute: CPU".into(),
             #[cfg(not(target_arch = "wasm32"))]
             screenshot: None,
             #[cfg(target_arch = "wasm32")]
@@ -181,9 +184,28 @@ impl ExplorerApp {
     /// full frame rate; `ctx` repaints when results arrive.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn compute_in_background(&mut self, ctx: &egui::Context) {
+        self.compute_in_background_on(ctx, None);
+    }
+
+    /// As [`Self::compute_in_background`], with runs on `backend`: `(the backend, its name
+    /// for the status bar)`; `None`: the CPU.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn compute_in_background_on(
+        &mut self,
+        ctx: &egui::Context,
+        backend: Option<(
+            std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>>,
+            String,
+        )>,
+    ) {
         let ctx = ctx.clone();
         let repaint = move || ctx.request_repaint_after(crate::runs::REPAINT_EVERY);
-        match crate::thread::ThreadClient::spawn(repaint) {
+        let (backend, name) = match backend {
+            Some((b, name)) => (Some(b), name),
+            None => (None, "CPU".to_string()),
+        };
+        self.compute_label = format!("compute: {name}");
+        match crate::thread::ThreadClient::spawn(repaint, backend) {
             Ok(t) => self.store.set_executor(crate::runs::Executor::Thread(t)),
             Err(e) => self.status = Status::Error(e),
         }
@@ -248,6 +270,11 @@ impl ExplorerApp {
     pub fn bundle(&self) -> Option<&Bundle> {
         self.bundle.as_ref()
     }
+    /// Where live runs compute, as the status bar says it.
+    pub fn compute_label(&self) -> &str {
+        &self.compute_label
+    }
+
     pub fn status(&self) -> &Status {
         &self.status
     }

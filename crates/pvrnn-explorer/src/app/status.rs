@@ -31,5 +31,7 @@ impl ExplorerApp {
         if let Some((what, timing)) = &self.last_run_note {
             ui.weak(what.as_str()).on_hover_text(timing.as_str());
         }
+        ui.weak(self.compute_label.as_str())
+            .on_hover_text("where live runs compute (desktop: --backend auto|cpu|wgpu)");
     }
 }

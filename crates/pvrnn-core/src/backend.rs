@@ -65,6 +65,11 @@ pub struct Request {
     pub ablation: Ablation,
     pub grads: Grads,
     pub full_outputs: FullOutputs,
+    /// Set when the windows are every sequence of one [`crate::Observations`] from its
+    /// first step, in order (learning's full batch): its [`crate::Observations::id`]. The
+    /// same id promises the same targets, so a backend may keep them on its device across
+    /// calls instead of uploading them each time.
+    pub resident_targets: Option<u64>,
 }
 
 /// Per-step states of one module over a window, row-major `[len, dim]`.
@@ -178,6 +183,7 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
     /// `targets[r]` holds at least `k` values; each row's squared error is divided by
     /// `divisor`. `None` leaves the call to the CPU (for example shapes too small to pay
     /// for a transfer).
+    /// `resident`: [`Request::resident_targets`] (the targets may be kept across calls).
     fn loss(
         &self,
         modality: Modality,
@@ -186,6 +192,7 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
         k: usize,
         divisor: usize,
         targets: &[&[T]],
+        resident: Option<u64>,
         weight_grads: bool,
     ) -> Option<OutputLoss<T>>;
 

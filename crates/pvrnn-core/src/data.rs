@@ -9,11 +9,27 @@ use crate::{Real, Tensor};
 /// Normalised observations of S sequences: `extero [S, T, vision dims]`,
 /// `proprio [S, T, proprio dims]`, and each sequence's length (<= T; steps beyond it are
 /// padding and ignored).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct Observations<T> {
     extero: Tensor<T>,
     proprio: Tensor<T>,
     lengths: Vec<usize>,
+    /// Names this content (see [`Observations::id`]); a clone shares it.
+    id: u64,
+}
+
+impl<T: PartialEq> PartialEq for Observations<T> {
+    fn eq(&self, other: &Self) -> bool {
+        self.extero == other.extero
+            && self.proprio == other.proprio
+            && self.lengths == other.lengths
+    }
+}
+
+/// A fresh [`Observations::id`].
+fn next_id() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl<T: Real> Observations<T> {
@@ -55,7 +71,15 @@ impl<T: Real> Observations<T> {
             extero,
             proprio,
             lengths,
+            id: next_id(),
         })
+    }
+
+    /// Identifies this content for the process's lifetime: observations are immutable, so
+    /// two with the same id hold the same values (a clone keeps the id; every other
+    /// constructor makes a new one). A GPU backend keeps learning targets resident under it.
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     pub fn sequences(&self) -> usize {
@@ -113,6 +137,7 @@ impl<T: Real> Observations<T> {
             extero: self.extero.cast(),
             proprio: self.proprio.cast(),
             lengths: self.lengths.clone(),
+            id: next_id(),
         }
     }
 
@@ -135,6 +160,7 @@ impl<T: Real> Observations<T> {
             extero: pick(&self.extero)?,
             proprio: pick(&self.proprio)?,
             lengths: which.iter().map(|&s| self.lengths[s]).collect(),
+            id: next_id(),
         })
     }
 }

@@ -160,6 +160,8 @@ pub fn free_energy<T: Real>(
             Grads::None
         },
         full_outputs: FullOutputs::None,
+        // Every sequence from its first step, in order.
+        resident_targets: Some(data.id()),
     };
     let result = backend
         .load(&model.params, config)

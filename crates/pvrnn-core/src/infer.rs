@@ -386,6 +386,7 @@ impl<T: Real> OnlineInference<T> {
             ablation,
             grads,
             full_outputs: full,
+            resident_targets: None,
         };
         let mut result = self
             .loaded
@@ -591,6 +592,7 @@ impl<T: Real> OnlineInference<T> {
             ablation,
             grads: Grads::None,
             full_outputs: FullOutputs::LastStep,
+            resident_targets: None,
         };
         let mut result = self
             .loaded

@@ -93,6 +93,7 @@ fn the_prior_rollout_and_the_readouts_agree_with_evaluate() {
             ablation: Ablation::none(),
             grads: Grads::None,
             full_outputs: FullOutputs::AllSteps,
+            resident_targets: None,
         };
         let loaded = backend.load(&model.params, &config);
         let result = loaded.evaluate(&[window], &request).windows.remove(0);

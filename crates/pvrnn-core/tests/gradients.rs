@@ -280,6 +280,7 @@ fn inference_window_gradients_match_finite_differences() {
                     ablation,
                     grads,
                     full_outputs: FullOutputs::None,
+                    resident_targets: None,
                 };
                 let r = backend
                     .load(&model.params, &config)
@@ -352,6 +353,7 @@ fn unobserved_outputs_get_no_weight_gradient() {
             ablation: Ablation::none(),
             grads: Grads::All,
             full_outputs: FullOutputs::None,
+            resident_targets: None,
         };
         let r = backend
             .load(&model.params, &config)
@@ -400,6 +402,7 @@ fn full_accuracy_normalisation_scales_by_the_observed_fraction() {
                 ablation: Ablation::none(),
                 grads: Grads::None,
                 full_outputs: FullOutputs::None,
+                resident_targets: None,
             };
             let mut r = backend
                 .load(&model.params, &config)

@@ -24,6 +24,18 @@ pub(crate) struct Kernels {
     pub(crate) predict: wgpu::ComputePipeline,
 }
 
+/// Learning targets kept on the device: which observations, and how they were cut.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ResidentKey {
+    pub(crate) observations: u64,
+    pub(crate) rows: usize,
+    pub(crate) columns: usize,
+    pub(crate) chunk_rows: usize,
+}
+
+/// One modality's resident targets: a buffer per chunk of rows.
+pub(crate) type Resident = Option<(ResidentKey, Arc<Vec<wgpu::Buffer>>)>;
+
 /// An open GPU: device, queue and kernels, shared by every model loaded on it.
 #[derive(Debug)]
 pub struct Gpu {
@@ -31,6 +43,9 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
+    /// Per modality, the learning targets of the latest run (uploaded once, not per
+    /// iteration; a new run replaces them).
+    pub(crate) resident: Mutex<[Resident; 2]>,
 }
 
 impl Gpu {
@@ -58,6 +73,7 @@ impl Gpu {
             queue,
             info,
             kernels: Mutex::new(HashMap::new()),
+            resident: Mutex::new([None, None]),
         })
     }
 

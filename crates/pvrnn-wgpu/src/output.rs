@@ -9,7 +9,7 @@ use pvrnn_core::backend::{OutputLayer, OutputLoss};
 use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
 
-use crate::gpu::{Gpu, Kernels};
+use crate::gpu::{Gpu, Kernels, ResidentKey};
 
 /// Columns per tile and threads per workgroup of `output_loss.wgsl`.
 const TILE_COLUMNS: usize = 32;
@@ -115,6 +115,32 @@ impl GpuOutputLayer {
         }
     }
 
+    /// The targets of `key` on the device, uploaded on first use (one buffer per chunk of
+    /// rows) and kept until another run's replace them.
+    fn resident_targets(
+        &self,
+        modality: Modality,
+        key: ResidentKey,
+        targets: &[&[f32]],
+    ) -> Arc<Vec<wgpu::Buffer>> {
+        let mut resident = self.gpu.resident.lock().unwrap_or_else(|e| e.into_inner());
+        let slot = &mut resident[modality.index()];
+        if let Some((k, chunks)) = slot.as_ref()
+            && *k == key
+        {
+            return chunks.clone();
+        }
+        // Free the old run's targets before allocating the new ones.
+        *slot = None;
+        let chunks: Vec<wgpu::Buffer> = targets
+            .chunks(key.chunk_rows)
+            .map(|rows| storage(&self.gpu, "resident targets", &packed(rows, key.columns)))
+            .collect();
+        let chunks = Arc::new(chunks);
+        *slot = Some((key, chunks.clone()));
+        chunks
+    }
+
     fn chunk_limit(&self) -> usize {
         (self.gpu.limits().max_storage_buffer_binding_size as usize)
             .min(self.tiling.max_chunk_bytes)
@@ -123,6 +149,15 @@ impl GpuOutputLayer {
     fn layer(&self, modality: Modality) -> Option<&Layer> {
         self.layers[modality.index()].as_ref()
     }
+}
+
+/// The first `k` values of each row, contiguous.
+fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(rows.len() * k);
+    for row in rows {
+        out.extend_from_slice(&row[..k]);
+    }
+    out
 }
 
 fn storage(gpu: &Gpu, label: &str, data: &[f32]) -> wgpu::Buffer {
@@ -236,6 +271,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
         k: usize,
         divisor: usize,
         targets: &[&[f32]],
+        resident: Option<u64>,
         weight_grads: bool,
     ) -> Option<OutputLoss<f32>> {
         let layer = self.layer(modality)?;
@@ -255,7 +291,19 @@ impl OutputLayer<f32> for GpuOutputLayer {
             .min(gpu.limits().max_compute_workgroups_per_dimension as usize);
 
         let x = storage(gpu, "hidden", input);
-        let y = zeroed(gpu, "targets", chunk * k, wgpu::BufferUsages::empty());
+        let resident = resident.map(|observations| {
+            let key = ResidentKey {
+                observations,
+                rows: n,
+                columns: k,
+                chunk_rows: chunk,
+            };
+            self.resident_targets(modality, key, targets)
+        });
+        // Without resident targets, one buffer refilled for every chunk.
+        let streamed = resident
+            .is_none()
+            .then(|| zeroed(gpu, "targets", chunk * k, wgpu::BufferUsages::empty()));
         let part_in = zeroed(
             gpu,
             "partial d input",
@@ -279,15 +327,21 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let grad_in = zeroed(gpu, "d input", n * hl, wgpu::BufferUsages::COPY_SRC);
         let row_loss = zeroed(gpu, "row loss", n, wgpu::BufferUsages::COPY_SRC);
 
-        let mut packed = vec![0f32; chunk * k];
         let mut start = 0;
         while start < n {
             let rows = chunk.min(n - start);
-            for (r, t) in targets[start..start + rows].iter().enumerate() {
-                packed[r * k..(r + 1) * k].copy_from_slice(&t[..k]);
-            }
-            gpu.queue
-                .write_buffer(&y, 0, bytemuck::cast_slice(&packed[..rows * k]));
+            let y = match (&resident, &streamed) {
+                (Some(chunks), _) => &chunks[start / chunk],
+                (None, Some(buffer)) => {
+                    gpu.queue.write_buffer(
+                        buffer,
+                        0,
+                        bytemuck::cast_slice(&packed(&targets[start..start + rows], k)),
+                    );
+                    buffer
+                }
+                (None, None) => unreachable!("targets are resident or streamed"),
+            };
             let loss_params = uniform(
                 gpu,
                 &LossParams {
@@ -317,7 +371,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                     &x,
                     &layer.weight,
                     &layer.bias,
-                    &y,
+                    y,
                     &part_in,
                     &part_loss,
                     &gw,

@@ -150,6 +150,44 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
     }));
 }
 
+/// Learning's targets stay on the GPU between iterations (keyed by the observations' id):
+/// the same data again reuses them, other data replaces them, and both agree with the CPU.
+#[test]
+fn resident_targets_follow_the_data() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 2, 10, 4).unwrap();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 2 }, 0);
+    let first = observations(&config, 2, 10);
+    // Same shapes, other values: a stale cache would give the first data's free energy.
+    let second = {
+        let x = first
+            .tensor(Modality::Exteroceptive)
+            .data()
+            .iter()
+            .map(|v| -0.5 * v)
+            .collect();
+        let p = first.tensor(Modality::Proprioceptive).data().to_vec();
+        Observations::new(
+            Tensor::from_vec(first.tensor(Modality::Exteroceptive).shape(), x).unwrap(),
+            Tensor::from_vec(first.tensor(Modality::Proprioceptive).shape(), p).unwrap(),
+            None,
+        )
+        .unwrap()
+    };
+    assert_ne!(first.id(), second.id());
+    for data in [&first, &first, &second, &first] {
+        let (cpu, _) = free_energy(&CpuBackend, &model, data, draw, false).unwrap();
+        let (on_gpu, _) = free_energy(&gpu, &model, data, draw, false).unwrap();
+        assert!(
+            (cpu.total - on_gpu.total).abs() <= 1e-5 * cpu.total.abs(),
+            "cpu {} gpu {}",
+            cpu.total,
+            on_gpu.total
+        );
+    }
+}
+
 #[test]
 fn online_inference_and_read_outs_match_the_cpu_backend() {
     let Some(gpu) = gpu() else { return };

@@ -169,7 +169,18 @@ fn evaluate<T: Real>(
             let loss = model
                 .output_layer
                 .as_ref()
-                .and_then(|o| o.loss(modality, top, n, k, divisor, &targets, all_grads))
+                .and_then(|o| {
+                    o.loss(
+                        modality,
+                        top,
+                        n,
+                        k,
+                        divisor,
+                        &targets,
+                        req.resident_targets,
+                        all_grads,
+                    )
+                })
                 .unwrap_or_else(|| {
                     readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads)
                 });

@@ -272,6 +272,13 @@ pub fn evaluate(
                 progress,
             )
             .map(|(series, images)| (s, series, images))
+            // Name the run that failed (a diverged inference, say) so it can be rerun.
+            .map_err(|e| {
+                Error::Invalid(format!(
+                    "sequence `{}`, trial {trial}: {e}",
+                    sequences[s].info.name
+                ))
+            })
         })
         .collect::<Result<_>>()?;
 

@@ -434,14 +434,21 @@ fn tempdir() -> std::path::PathBuf {
     dir
 }
 
-#[test]
-fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
+/// The test bundle's first view (no maps) computed inline, and a harness of the same view
+/// whose runs compute on a background thread (on `backend`; `None`: the CPU), stepped
+/// until the shown run is complete or `seconds` pass.
+fn inline_and_background(
+    backend: Option<(
+        std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>>,
+        String,
+    )>,
+    seconds: u64,
+) -> (Harness<'static, ExplorerApp>, Harness<'static, ExplorerApp>) {
     let view = ViewState {
         maps: false,
         ..ViewState::default()
     };
     let inline = harness(ExplorerApp::new(Some(common::bundle()), view.clone()));
-    let expected = inline.state().current_run().unwrap().trace.clone();
     let mut h = Harness::builder()
         .with_size(eframe::egui::vec2(1400.0, 1000.0))
         .build_ui_state(
@@ -449,8 +456,8 @@ fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
             ExplorerApp::new(Some(common::bundle()), view),
         );
     let ctx = h.ctx.clone();
-    h.state_mut().compute_in_background(&ctx);
-    for _ in 0..3000 {
+    h.state_mut().compute_in_background_on(&ctx, backend);
+    for _ in 0..seconds * 200 {
         h.step();
         if h.state().current_run().is_some_and(|r| r.complete) {
             break;
@@ -458,7 +465,18 @@ fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
     let run = h.state().current_run().expect("the shown run");
-    assert!(run.complete && run.error.is_none(), "not finished in 15 s");
+    assert!(
+        run.complete && run.error.is_none(),
+        "not finished in {seconds} s"
+    );
+    (inline, h)
+}
+
+#[test]
+fn a_background_thread_computes_the_same_run_as_the_frame_loop() {
+    let (inline, h) = inline_and_background(None, 15);
+    let expected = inline.state().current_run().unwrap().trace.clone();
+    let run = h.state().current_run().expect("the shown run");
     // Same model, inputs and seed: the same numbers, whichever thread computed them.
     assert!(run.trace == expected, "the background run differs");
 }
@@ -471,32 +489,10 @@ fn a_gpu_computes_the_run_and_the_status_bar_says_so() {
     if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
         return;
     }
-    let view = ViewState {
-        maps: false,
-        ..ViewState::default()
-    };
-    let inline = harness(ExplorerApp::new(Some(common::bundle()), view.clone()));
-    let expected = inline.state().predicted_vision().unwrap().to_vec();
-    let mut h = Harness::builder()
-        .with_size(eframe::egui::vec2(1400.0, 1000.0))
-        .build_ui_state(
-            |ui, app: &mut ExplorerApp| app.show(ui),
-            ExplorerApp::new(Some(common::bundle()), view),
-        );
     let gpu = pvrnn_wgpu::WgpuBackend::new().unwrap();
     let name = format!("wgpu on {}", gpu.adapter_name());
-    let ctx = h.ctx.clone();
-    h.state_mut()
-        .compute_in_background_on(&ctx, Some((std::sync::Arc::new(gpu), name.clone())));
-    for _ in 0..6000 {
-        h.step();
-        if h.state().current_run().is_some_and(|r| r.complete) {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    let run = h.state().current_run().expect("the shown run");
-    assert!(run.complete && run.error.is_none(), "not finished in 30 s");
+    let (inline, h) = inline_and_background(Some((std::sync::Arc::new(gpu), name.clone())), 30);
+    let expected = inline.state().predicted_vision().unwrap().to_vec();
     assert_eq!(h.state().compute_label(), format!("compute: {name}"));
     h.get_by_label(&format!("compute: {name}"));
     let got = h.state().predicted_vision().unwrap();

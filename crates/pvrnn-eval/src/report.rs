@@ -42,7 +42,7 @@ pub struct ReportMeta {
     /// Wall-clock seconds the inference runs took, and on how many worker threads.
     pub seconds: f64,
     pub threads: usize,
-    /// Where the arithmetic ran: "cpu", or "wgpu on <adapter>" (`--backend`).
+    /// Where the arithmetic ran: `cpu`, or `wgpu on` and the adapter (`--backend`).
     pub backend: String,
 }
 

@@ -46,7 +46,7 @@ enum Part {
 
 #[derive(Serialize, Debug)]
 struct Report {
-    /// "cpu", or "wgpu on <adapter name (driver, API)>".
+    /// `cpu`, or `wgpu on` and the adapter: name (driver, API).
     backend: String,
     threads: usize,
     sequences: usize,

@@ -463,6 +463,83 @@ fn train_and_infer_run_on_the_wgpu_backend() {
         f.shape("recon.exteroceptive"),
         Some(&[1, 12, small_config().vision.dims()][..])
     );
+    // free-energy on either backend: the same terms to f32 summation order.
+    let free_energy = |backend: &str| {
+        let out = ok(&[
+            "free-energy",
+            "--model",
+            &x.s("m.safetensors"),
+            "--inputs",
+            &x.s("x.safetensors"),
+            "--backend",
+            backend,
+        ]);
+        let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        v["total"].as_f64().unwrap()
+    };
+    let (cpu, gpu) = (free_energy("cpu"), free_energy("wgpu"));
+    assert!(
+        (cpu - gpu).abs() <= 1e-5 * cpu.abs(),
+        "free-energy: cpu {cpu}, wgpu {gpu}"
+    );
+}
+
+/// `pvrnn bench --profile` says where a training iteration's time goes: phases that
+/// nest inside `evaluate`, each a non-negative number of milliseconds.
+#[test]
+fn bench_profile_names_the_phases_of_an_iteration() {
+    let bench = |extra: &[&str]| {
+        let mut args = vec![
+            "bench",
+            "--sequences",
+            "1",
+            "--steps",
+            "33",
+            "--train-iterations",
+            "1",
+            "--only",
+            "train",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        ok(&args)
+    };
+    let out = bench(&["--profile"]);
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert!(v["train_iter_s"].as_f64().unwrap() > 0.0, "{v}");
+    let parts = v["profile"].as_array().expect("a profile");
+    assert_eq!(parts.len(), 1, "only training was run: {v}");
+    assert_eq!(parts[0]["part"], "train");
+    let phases: Vec<(String, f64)> = parts[0]["phases"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (
+                p["phase"].as_str().unwrap().trim().to_string(),
+                p["ms"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let ms = |name: &str| {
+        phases
+            .iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("no phase {name} in {phases:?}"))
+            .1
+    };
+    for (_, t) in &phases {
+        assert!(*t >= 0.0, "{phases:?}");
+    }
+    // Parts never exceed the whole they are in.
+    let evaluate = ms("evaluate");
+    let inside = ms("recurrence forward") + ms("read-out output layer") + ms("recurrence backward");
+    assert!(inside <= evaluate * 1.001 + 1e-3, "{phases:?}");
+    assert!(ms("optimiser (RAdam)") > 0.0, "{phases:?}");
+    // Without --profile there is no profile.
+    let plain = bench(&[]);
+    let v: serde_json::Value = serde_json::from_str(plain.trim()).unwrap();
+    assert!(v.get("profile").is_none(), "{v}");
 }
 
 #[test]

@@ -65,10 +65,11 @@ pub struct Request {
     pub ablation: Ablation,
     pub grads: Grads,
     pub full_outputs: FullOutputs,
-    /// Set when the windows are every sequence of one [`crate::Observations`] from its
-    /// first step, in order (learning's full batch): its [`crate::Observations::id`]. The
-    /// same id promises the same targets, so a backend may keep them on its device across
-    /// calls instead of uploading them each time.
+    /// A promise about the targets: every call with the same id has the same windows'
+    /// target rows, so a backend may keep them on its device across calls instead of
+    /// uploading them each time. Learning's full batch passes its data's
+    /// [`crate::Observations::id`]; online inference a fresh id per step's window (its 50
+    /// updates see the same targets).
     pub resident_targets: Option<u64>,
 }
 

@@ -26,8 +26,9 @@ impl<T: PartialEq> PartialEq for Observations<T> {
     }
 }
 
-/// A fresh [`Observations::id`].
-fn next_id() -> u64 {
+/// A fresh id (an [`Observations::id`], or any other promise that the same id names the
+/// same targets: `Request::resident_targets`).
+pub(crate) fn next_id() -> u64 {
     static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
     NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }

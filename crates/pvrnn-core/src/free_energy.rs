@@ -126,9 +126,11 @@ pub fn free_energy<T: Real>(
     check_model_fits_data(model, data)?;
     let config = &model.config;
     let sequences = data.sequences();
+    let noise_phase = crate::profile::phase("noise");
     let eps: Vec<[Vec<T>; 4]> = crate::parallel::map(sequences, |s| {
         sequence_eps(config, data.lengths()[s], noise, s as u64)
     });
+    drop(noise_phase);
     let observed = Observed::all(config);
     let windows: Vec<Window<'_, T>> = (0..sequences)
         .map(|s| {
@@ -163,9 +165,15 @@ pub fn free_energy<T: Real>(
         // Every sequence from its first step, in order.
         resident_targets: Some(data.id()),
     };
-    let result = backend
-        .load(&model.params, config)
-        .evaluate(&windows, &request);
+    let loaded = {
+        let _phase = crate::profile::phase("load weights");
+        backend.load(&model.params, config)
+    };
+    let result = {
+        let _phase = crate::profile::phase("evaluate");
+        loaded.evaluate(&windows, &request)
+    };
+    let _phase = crate::profile::phase("collect gradients");
 
     let mut accuracy = [0.0; 2];
     let mut complexity = [0.0; 4];

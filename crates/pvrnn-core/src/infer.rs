@@ -200,11 +200,28 @@ pub struct StepOutput<T> {
     /// The reconstruction re-read with each of [`OnlineInference::set_readout_ablations`]'s
     /// ablations (in that order), per modality.
     pub ablated_recon: Vec<[Vec<T>; 2]>,
+    /// How often this step's updates diverged and were restarted from the step's start at
+    /// half the rate (0 almost always; see [`MAX_RATE_HALVINGS`]). The step's result is
+    /// then that of a rate of `lr / 2^rate_halvings`.
+    pub rate_halvings: u32,
 }
 
+/// How often a diverged step is restarted at half the rate before online inference gives
+/// up with an error. `lr / 2^30` is in effect no update: the step then keeps the prior it
+/// started from. Restarts are cheap (a diverging rate fails within a few updates); a
+/// trained network needed 24 on a test step whose prior sigma had grown to 6,000
+/// (docs/results/README.md, 80,000 iterations).
+pub const MAX_RATE_HALVINGS: u32 = 30;
+
 #[derive(Debug)]
-struct Pending {
+struct Pending<T> {
     iterations_done: usize,
+    /// The adaptive variables and the optimiser as `begin_step` left them: a step whose
+    /// window diverges (a non-finite free energy or gradient) restarts from here.
+    start: ([Vec<T>; 4], [Vec<T>; 4], RAdam<T>),
+    rate_halvings: u32,
+    /// Diverged `MAX_RATE_HALVINGS + 1` times: `finish_step` reports the error.
+    gave_up: bool,
 }
 
 /// Online inference over one sequence, one step at a time.
@@ -220,6 +237,9 @@ pub struct OnlineInference<T: Real> {
     a_sigma: [Vec<T>; 4],
     /// Observed part of each window step's input, per modality.
     observations: [Vec<Vec<T>>; 2],
+    /// Names the window's targets for the backend (`Request::resident_targets`): the same
+    /// for every pass of a step, new whenever `observations` changes.
+    targets_id: u64,
     /// The newest step's whole observation (for its reconstruction error).
     latest: [Vec<T>; 2],
     /// State after the newest finished step.
@@ -227,7 +247,7 @@ pub struct OnlineInference<T: Real> {
     last_d: [Vec<T>; 4],
     steps_done: usize,
     optimizer: RAdam<T>,
-    pending: Option<Pending>,
+    pending: Option<Pending<T>>,
     /// Extra read-outs of every step's final pass (contribution maps in one run).
     readout_ablations: Vec<Ablation>,
 }
@@ -251,6 +271,7 @@ impl<T: Real> OnlineInference<T> {
             a_mu: Default::default(),
             a_sigma: Default::default(),
             observations: Default::default(),
+            targets_id: crate::data::next_id(),
             latest: Default::default(),
             last_h: zeros_d.clone(),
             last_d: zeros_d,
@@ -343,6 +364,7 @@ impl<T: Real> OnlineInference<T> {
         for (rows, row) in self.observations.iter_mut().zip(observed_rows) {
             rows.push(row);
         }
+        self.targets_id = crate::data::next_id();
         self.latest = [x_extero.to_vec(), x_proprio.to_vec()];
         let sizes: Vec<usize> = (0..8).map(|i| self.a_mu[i % 4].len()).collect();
         if self.settings.reset_moments_each_step || self.steps_done == 0 {
@@ -354,7 +376,16 @@ impl<T: Real> OnlineInference<T> {
                 self.optimizer.v[i].resize(n, T::ZERO);
             }
         }
-        self.pending = Some(Pending { iterations_done: 0 });
+        self.pending = Some(Pending {
+            iterations_done: 0,
+            start: (
+                self.a_mu.clone(),
+                self.a_sigma.clone(),
+                self.optimizer.clone(),
+            ),
+            rate_halvings: 0,
+            gave_up: false,
+        });
         Ok(())
     }
 
@@ -386,7 +417,7 @@ impl<T: Real> OnlineInference<T> {
             ablation,
             grads,
             full_outputs: full,
-            resident_targets: None,
+            resident_targets: Some(self.targets_id),
         };
         let mut result = self
             .loaded
@@ -410,22 +441,37 @@ impl<T: Real> OnlineInference<T> {
     }
 
     fn iterate_here(&mut self, max: usize) -> usize {
-        let Some(done) = self.pending.as_ref().map(|p| p.iterations_done) else {
-            return 0;
-        };
-        let todo = max.min(self.settings.iterations - done);
         let t = self.steps_done as u64;
-        for k in 0..todo {
-            let eps = self.eps(
-                Stream::InferIteration,
-                &[t, (done + k) as u64],
-                self.window_len(),
-            );
+        let mut ran = 0;
+        while ran < max {
+            let Some(pending) = self.pending.as_ref() else {
+                return 0;
+            };
+            let done = pending.iterations_done;
+            if done >= self.settings.iterations {
+                break;
+            }
+            let eps = self.eps(Stream::InferIteration, &[t, done as u64], self.window_len());
             let ablation = self.settings.inference_ablation();
             let result = self.window_pass(&eps, ablation, Grads::Adaptive, FullOutputs::None);
             let (Some(g_mu), Some(g_sigma)) = (result.grad_a_mu, result.grad_a_sigma) else {
                 unreachable!("adaptive gradients requested")
             };
+            ran += 1;
+            let finite = result.accuracy.iter().flatten().all(|v| v.is_finite())
+                && result
+                    .trace
+                    .modules
+                    .iter()
+                    .all(|m| m.kl.iter().all(|v| v.is_finite()))
+                && g_mu
+                    .iter()
+                    .chain(g_sigma.iter())
+                    .all(|g| g.iter().all(|v| v.is_finite()));
+            if !finite {
+                self.restart_step_at_half_rate();
+                continue;
+            }
             let grads: Vec<&[T]> = g_mu
                 .iter()
                 .chain(g_sigma.iter())
@@ -438,10 +484,33 @@ impl<T: Real> OnlineInference<T> {
                 .map(Vec::as_mut_slice)
                 .collect();
             self.optimizer.update(&mut params, &grads);
+            if let Some(pending) = self.pending.as_mut() {
+                pending.iterations_done += 1;
+            }
         }
-        let pending = self.pending.as_mut().expect("checked above");
-        pending.iterations_done += todo;
-        self.settings.iterations - pending.iterations_done
+        self.iterations_left()
+    }
+
+    /// The step's window diverged: back to the step's start with half the rate (the same
+    /// noise draws again), or, after [`MAX_RATE_HALVINGS`] halvings, give up and let
+    /// `finish_step` report it.
+    fn restart_step_at_half_rate(&mut self) {
+        let Some(pending) = self.pending.as_mut() else {
+            return;
+        };
+        if pending.rate_halvings >= MAX_RATE_HALVINGS {
+            pending.gave_up = true;
+            pending.iterations_done = self.settings.iterations;
+            return;
+        }
+        pending.rate_halvings += 1;
+        pending.iterations_done = 0;
+        let (a_mu, a_sigma, optimizer) = &pending.start;
+        self.a_mu = a_mu.clone();
+        self.a_sigma = a_sigma.clone();
+        self.optimizer = optimizer.clone();
+        self.optimizer.config.lr =
+            self.settings.optimizer.lr / 2f64.powi(pending.rate_halvings as i32);
     }
 
     /// Final pass over the window and the outputs of the step; slides the window.
@@ -486,12 +555,19 @@ impl<T: Real> OnlineInference<T> {
         }
         let complexity: [f64; 4] = std::array::from_fn(|m| trace.modules[m].kl.iter().sum());
         let window_free_energy = FreeEnergy::from_terms(accuracy, complexity, config.kl_weight);
-        if !window_free_energy.total.is_finite() {
+        let (rate_halvings, gave_up) = self
+            .pending
+            .as_ref()
+            .map_or((0, false), |p| (p.rate_halvings, p.gave_up));
+        if gave_up || !window_free_energy.total.is_finite() {
             return Err(Error::Numerical(format!(
-                "online inference diverged at step {t} (window free energy {}); try a smaller inference lr",
+                "online inference diverged at step {t} (window free energy {}; restarted \
+                 {rate_halvings} times at half the rate); try a smaller inference lr",
                 window_free_energy.total
             )));
         }
+        // A halved rate is for the step that needed it; the next step starts at the rate set.
+        self.optimizer.config.lr = self.settings.optimizer.lr;
         let step_accuracy = [result.accuracy[0][len - 1], result.accuracy[1][len - 1]];
         let mut modules = last_step_states(&reported.trace, &config);
         let last_state = |tr: &Trace<T>, field: fn(&crate::backend::ModuleTrace<T>) -> &Vec<T>| {
@@ -546,6 +622,7 @@ impl<T: Real> OnlineInference<T> {
             for rows in &mut self.observations {
                 rows.remove(0);
             }
+            self.targets_id = crate::data::next_id();
         }
         self.pending = None;
         self.steps_done += 1;
@@ -558,6 +635,7 @@ impl<T: Real> OnlineInference<T> {
             window_free_energy,
             step_accuracy,
             ablated_recon,
+            rate_halvings,
         })
     }
 

@@ -26,6 +26,7 @@ pub mod noise;
 pub mod optim;
 mod parallel;
 pub mod params;
+pub mod profile;
 pub mod real;
 pub mod tensor;
 pub mod train;

@@ -67,11 +67,21 @@ impl<T: Real> RAdam<T> {
             plain: step_plain,
             rectified: step_rect,
         };
+        let _phase = crate::profile::phase("optimiser (RAdam)");
         for (i, p) in params.iter_mut().enumerate() {
             let (m, v) = (&mut self.m[i], &mut self.v[i]);
-            crate::kernels::simd(
-                #[inline(always)]
-                || update_tensor(&step, p, m, v, grads[i]),
+            let n = p.len();
+            crate::parallel::for_each_chunk4(
+                p,
+                &mut m[..n],
+                &mut v[..n],
+                &grads[i][..n],
+                |p, m, v, g| {
+                    crate::kernels::simd(
+                        #[inline(always)]
+                        || update_tensor(&step, p, m, v, g),
+                    )
+                },
             );
         }
     }

@@ -55,3 +55,32 @@ pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         f()
     }
 }
+
+/// Elements below which an element-wise pass stays on one thread.
+#[cfg(not(target_arch = "wasm32"))]
+const ELEMENTWISE_MIN: usize = 1 << 16;
+
+/// `f` on matching chunks of four equally long slices (an element-wise update of a
+/// parameter, its two optimiser moments and its gradient), in parallel for long slices.
+/// Element-wise work gives the same result whatever the split.
+pub(crate) fn for_each_chunk4<T: Send + Sync>(
+    a: &mut [T],
+    b: &mut [T],
+    c: &mut [T],
+    d: &[T],
+    f: impl Fn(&mut [T], &mut [T], &mut [T], &[T]) + Sync + Send,
+) {
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        use rayon::prelude::*;
+        if a.len() >= 2 * ELEMENTWISE_MIN && rayon::current_num_threads() > 1 {
+            a.par_chunks_mut(ELEMENTWISE_MIN)
+                .zip(b.par_chunks_mut(ELEMENTWISE_MIN))
+                .zip(c.par_chunks_mut(ELEMENTWISE_MIN))
+                .zip(d.par_chunks(ELEMENTWISE_MIN))
+                .for_each(|(((a, b), c), d)| f(a, b, c, d));
+            return;
+        }
+    }
+    f(a, b, c, d);
+}

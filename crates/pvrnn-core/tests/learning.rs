@@ -356,6 +356,52 @@ fn readout_ablation_rereads_the_standard_inference() {
     assert_eq!(plain.ablation_mode, AblationMode::Readout);
 }
 
+/// A step whose window diverges (here: a rate so large that a sigma overflows) restarts
+/// from the step's start at half the rate. Its result is then exactly that of a run at the
+/// halved rate, it says so, and a rate that still diverges after `MAX_RATE_HALVINGS`
+/// halvings is an error that says how often it was restarted.
+#[test]
+fn a_diverging_step_restarts_at_half_the_rate() {
+    use pvrnn_core::infer::MAX_RATE_HALVINGS;
+    let config = learning_config();
+    let data = sine_observations::<f32>(&config, 1, 4);
+    let model = Arc::new(Model::<f32>::init(config.clone(), 1, 4, 2).unwrap());
+    let first_step = |lr: f64| {
+        let mut s = InferenceSettings::from_config(&config, 3);
+        s.window = 4;
+        s.iterations = 20;
+        s.optimizer.lr = lr;
+        let mut inf = OnlineInference::new(model.clone(), s).unwrap();
+        inf.step(
+            data.step(Modality::Exteroceptive, 0, 0),
+            data.step(Modality::Proprioceptive, 0, 0),
+        )
+    };
+    // The smallest power of two that diverges: half of it does not.
+    let (exponent, restarted) = (0..80)
+        .find_map(|e| match first_step(2f64.powi(e)) {
+            Ok(out) if out.rate_halvings > 0 => Some((e, out)),
+            _ => None,
+        })
+        .expect("some rate diverges");
+    assert_eq!(restarted.rate_halvings, 1);
+    let halved = first_step(2f64.powi(exponent - 1)).unwrap();
+    assert_eq!(halved.rate_halvings, 0);
+    assert_eq!(restarted.recon, halved.recon);
+    assert_eq!(restarted.window_free_energy, halved.window_free_energy);
+    assert!(restarted.window_free_energy.total.is_finite());
+
+    let hopeless = (exponent..exponent + 40)
+        .find_map(|e| first_step(2f64.powi(e)).err())
+        .expect("a large enough rate diverges at every halving");
+    let message = hopeless.to_string();
+    assert!(
+        message.contains("diverged")
+            && message.contains(&format!("restarted {MAX_RATE_HALVINGS} times")),
+        "{message}"
+    );
+}
+
 #[test]
 fn bad_steps_are_rejected() {
     let config = learning_config();

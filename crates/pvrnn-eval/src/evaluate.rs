@@ -119,6 +119,17 @@ pub struct SequenceResult {
     pub meta: SequenceMeta,
     pub series: Vec<Series>,
     pub images: ImageSamples,
+    /// Steps whose online inference diverged and was restarted at a reduced rate.
+    pub restarts: Vec<Restart>,
+}
+
+/// A step of one trial that online inference restarted at `lr / 2^rate_halvings` after its
+/// window diverged (`pvrnn_core::infer::StepOutput::rate_halvings`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Restart {
+    pub trial: usize,
+    pub step: usize,
+    pub rate_halvings: u32,
 }
 
 /// A finished evaluation.
@@ -257,7 +268,8 @@ pub fn evaluate(
     let jobs: Vec<(usize, usize)> = (0..sequences.len())
         .flat_map(|s| (0..settings.trials).map(move |k| (s, k)))
         .collect();
-    let runs: Vec<(usize, [Series; 2], Option<ImageSamples>)> = jobs
+    type Run = (usize, [Series; 2], Option<ImageSamples>, Vec<Restart>);
+    let runs: Vec<Run> = jobs
         .par_iter()
         .map(|&(s, trial)| {
             run_trial(
@@ -271,7 +283,7 @@ pub fn evaluate(
                 &prepared[s].0,
                 progress,
             )
-            .map(|(series, images)| (s, series, images))
+            .map(|(series, images, restarts)| (s, series, images, restarts))
             // Name the run that failed (a diverged inference, say) so it can be rerun.
             .map_err(|e| {
                 Error::Invalid(format!(
@@ -296,10 +308,12 @@ pub fn evaluate(
             },
             series: baselines,
             images: ImageSamples::default(),
+            restarts: Vec::new(),
         })
         .collect();
-    for (s, series, images) in runs {
+    for (s, series, images, restarts) in runs {
         results[s].series.extend(series);
+        results[s].restarts.extend(restarts);
         if let Some(images) = images {
             results[s].images = images;
         }
@@ -336,7 +350,7 @@ fn run_trial(
     groups: &[Group],
     masks: &[Option<Vec<bool>>],
     progress: &(dyn Fn() + Sync),
-) -> Result<([Series; 2], Option<ImageSamples>)> {
+) -> Result<([Series; 2], Option<ImageSamples>, Vec<Restart>)> {
     let mut inference_settings: InferenceSettings = settings.inference.clone();
     inference_settings.noise = match inference_settings.noise {
         pvrnn_core::NoiseMode::Sampled { seed } => pvrnn_core::NoiseMode::Sampled {
@@ -358,8 +372,16 @@ fn run_trial(
     let shown = image_steps(len, settings.image_columns);
     let mut images = ImageSamples::default();
     let mut last_prior: Option<Vec<f32>> = None;
+    let mut restarts = Vec::new();
     for t in 0..len {
         let out = inference.step(x(t)[0], x(t)[1])?;
+        if out.rate_halvings > 0 {
+            restarts.push(Restart {
+                trial,
+                step: t,
+                rate_halvings: out.rate_halvings,
+            });
+        }
         recon.push(Some(score(
             groups,
             [&out.recon[0], &out.recon[1]],
@@ -394,6 +416,7 @@ fn run_trial(
     Ok((
         [series(Target::Recon, recon), series(Target::Next, next)],
         keep_images.then_some(images),
+        restarts,
     ))
 }
 

@@ -295,6 +295,28 @@ struct Summary<'a> {
     sequences: Vec<&'a crate::evaluate::SequenceMeta>,
     figures: &'a [Figure],
     comparisons: &'a [Comparison],
+    /// Steps whose online inference diverged and was restarted at a reduced rate (their
+    /// errors are in the figures, at that rate).
+    restarts: Vec<RestartRow<'a>>,
+}
+
+#[derive(Serialize)]
+struct RestartRow<'a> {
+    sequence: &'a str,
+    #[serde(flatten)]
+    restart: &'a crate::evaluate::Restart,
+}
+
+fn restart_rows(eval: &Evaluation) -> Vec<RestartRow<'_>> {
+    eval.sequences
+        .iter()
+        .flat_map(|s| {
+            s.restarts.iter().map(|restart| RestartRow {
+                sequence: &s.meta.name,
+                restart,
+            })
+        })
+        .collect()
 }
 
 /// The inference condition, in the CLI's terms.
@@ -388,6 +410,7 @@ pub fn write_report(eval: &Evaluation, meta: &ReportMeta, dir: &Path) -> Result<
         sequences: eval.sequences.iter().map(|s| &s.meta).collect(),
         figures: &figures,
         comparisons: &comparisons,
+        restarts: restart_rows(eval),
     };
     write_file(
         &dir.join("summary.json"),
@@ -458,6 +481,28 @@ fn markdown(
         condition.iterations,
         condition.lr
     );
+    let restarts = restart_rows(eval);
+    if restarts.is_empty() {
+        let _ = writeln!(md, "- **Stability**: no step's online inference diverged.");
+    } else {
+        let listed: Vec<String> = restarts
+            .iter()
+            .map(|r| {
+                format!(
+                    "`{}` trial {} step {} (lr / 2^{})",
+                    r.sequence, r.restart.trial, r.restart.step, r.restart.rate_halvings
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "- **Stability**: online inference diverged in {} step(s) and restarted each from the \
+             step's start at a halved rate until it did not: {}. Those steps' errors are in the \
+             tables, at that rate.",
+            restarts.len(),
+            listed.join(", ")
+        );
+    }
     let _ = writeln!(
         md,
         "- **Errors**: mean squared error in the model's normalised units (inputs in [-0.9, 0.9]). \

@@ -3,6 +3,8 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
+use crate::pool::{BufferPool, PooledBuffer};
+
 /// Why no GPU could be used.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -15,11 +17,12 @@ pub enum GpuError {
     NoDevice { adapter: String, reason: String },
 }
 
-/// Kernels compiled for one hidden width (the width is a constant of the WGSL source, so
-/// the tiles are fixed-size arrays in workgroup memory).
+/// Kernels compiled for one hidden width in vec4s (a constant of the WGSL source, so rows
+/// live in registers and tiles are fixed-size arrays in workgroup memory).
 #[derive(Debug)]
 pub(crate) struct Kernels {
-    pub(crate) output_loss: wgpu::ComputePipeline,
+    pub(crate) loss_rows: wgpu::ComputePipeline,
+    pub(crate) loss_columns: wgpu::ComputePipeline,
     pub(crate) reduce: wgpu::ComputePipeline,
     pub(crate) predict: wgpu::ComputePipeline,
 }
@@ -43,17 +46,22 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
-    /// Per modality, the learning targets of the latest run (uploaded once, not per
-    /// iteration; a new run replaces them).
+    /// Per modality, the targets of the latest resident key (learning's data, uploaded
+    /// once per run; an inference step's window, once per step); a new key replaces them.
     pub(crate) resident: Mutex<[Resident; 2]>,
+    pool: Arc<BufferPool>,
 }
 
 impl Gpu {
     /// Opens an adapter and a device with the adapter's own limits (larger buffers than
     /// WebGPU's defaults where the hardware allows them).
     pub fn new() -> Result<Self, GpuError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        // Vulkan, Metal, DX12 (and WebGPU) unless WGPU_BACKEND says otherwise: OpenGL has
+        // no use for compute here, and probing it through EGL beside eframe's own GL
+        // context panics inside wgpu-hal (BadAccess in make_current, seen under Xvfb).
+        descriptor.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
+        let instance = wgpu::Instance::new(descriptor);
         let adapter = pollster::block_on(wgpu::util::initialize_adapter_from_env_or_default(
             &instance, None,
         ))
@@ -74,6 +82,7 @@ impl Gpu {
             info,
             kernels: Mutex::new(HashMap::new()),
             resident: Mutex::new([None, None]),
+            pool: Arc::default(),
         })
     }
 
@@ -102,22 +111,74 @@ impl Gpu {
         self.device.limits()
     }
 
-    /// The kernels for hidden width `hl`, compiled on first use.
-    pub(crate) fn kernels(&self, hl: usize) -> Arc<Kernels> {
+    /// A storage buffer holding `data` (written at the next submission), from the pool.
+    pub(crate) fn upload(&self, label: &str, data: &[f32]) -> PooledBuffer {
+        let buffer = self.scratch(label, data.len(), wgpu::BufferUsages::empty());
+        if !data.is_empty() {
+            self.queue
+                .write_buffer(&buffer, 0, bytemuck::cast_slice(data));
+        }
+        buffer
+    }
+
+    /// A storage buffer of `floats` values whose contents are undefined (the pool's last
+    /// user's): for results the kernels write before anything reads them.
+    pub(crate) fn scratch(
+        &self,
+        label: &str,
+        floats: usize,
+        extra: wgpu::BufferUsages,
+    ) -> PooledBuffer {
+        self.pool.take(
+            &self.device,
+            label,
+            4 * floats as u64,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+        )
+    }
+
+    /// A uniform buffer holding `params`.
+    pub(crate) fn uniform<P: bytemuck::Pod>(&self, params: &P) -> PooledBuffer {
+        let bytes = bytemuck::bytes_of(params);
+        let buffer = self.pool.take(
+            &self.device,
+            "params",
+            bytes.len() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        self.queue.write_buffer(&buffer, 0, bytes);
+        buffer
+    }
+
+    /// A mappable buffer of `floats` values for reading results back.
+    pub(crate) fn staging(&self, floats: usize) -> PooledBuffer {
+        self.pool.take(
+            &self.device,
+            "read back",
+            4 * floats as u64,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        )
+    }
+
+    /// The kernels for a hidden width of `hv` vec4s, compiled on first use.
+    pub(crate) fn kernels(&self, hv: usize) -> Arc<Kernels> {
         let mut cache = self.kernels.lock().unwrap_or_else(|e| e.into_inner());
         cache
-            .entry(hl)
-            .or_insert_with(|| Arc::new(self.compile(hl)))
+            .entry(hv)
+            .or_insert_with(|| Arc::new(self.compile(hv)))
             .clone()
     }
 
-    fn compile(&self, hl: usize) -> Kernels {
-        let source = |text: &str| {
-            text.replace("{{HL}}", &hl.to_string())
-                .replace("{{HALF}}", &hl.div_ceil(2).to_string())
-                .replace("{{TC_HL}}", &(32 * hl).to_string())
-                .replace("{{TR_HL}}", &(16 * hl).to_string())
-        };
+    fn compile(&self, hv: usize) -> Kernels {
+        // Tile sizes in vec4s: 32 columns (loss_rows), 32 rows (loss_columns), 4 rows
+        // (predict) of hv each.
+        let constants = [
+            ("HV", hv),
+            ("CT_HV", 32 * hv),
+            ("RT_HV", 32 * hv),
+            ("RB_HV", 4 * hv),
+        ];
+        let source = |text: &str| crate::template::expand(text, &constants);
         let pipeline = |label: &str, text: &str| {
             let module = self
                 .device
@@ -136,7 +197,8 @@ impl Gpu {
                 })
         };
         Kernels {
-            output_loss: pipeline("output_loss", include_str!("shaders/output_loss.wgsl")),
+            loss_rows: pipeline("loss_rows", include_str!("shaders/loss_rows.wgsl")),
+            loss_columns: pipeline("loss_columns", include_str!("shaders/loss_columns.wgsl")),
             reduce: pipeline("reduce", include_str!("shaders/reduce.wgsl")),
             predict: pipeline("predict", include_str!("shaders/predict.wgsl")),
         }

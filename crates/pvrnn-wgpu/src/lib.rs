@@ -2,8 +2,9 @@
 //!
 //! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32`. What runs on the GPU
 //! today is the read-outs' output layer (`tanh(W h + b)` into every dimension, fused with
-//! its loss and both backward products: `shaders/output_loss.wgsl`), which is about 97% of
-//! a learning iteration's arithmetic (docs/gpu.md). The recurrence, the hidden read-out
+//! its loss and both backward products: `shaders/loss_rows.wgsl` and
+//! `shaders/loss_columns.wgsl`), which is about 97% of a learning iteration's arithmetic
+//! (docs/gpu.md). The recurrence, the hidden read-out
 //! layers, the KL terms and the optimiser stay on the CPU backend, which calls this crate
 //! through [`pvrnn_core::backend::OutputLayer`]. Those move over next (issue 12); the
 //! seam does not change when they do.
@@ -13,6 +14,8 @@
 
 mod gpu;
 mod output;
+mod pool;
+mod template;
 
 use std::sync::Arc;
 

@@ -10,19 +10,26 @@ use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{Gpu, Kernels, ResidentKey};
+use crate::pool::PooledBuffer;
 
-/// Columns per tile and threads per workgroup of `output_loss.wgsl`.
-const TILE_COLUMNS: usize = 32;
+/// Threads per workgroup of every kernel; rows per workgroup of `loss_rows.wgsl`, columns
+/// per workgroup of `loss_columns.wgsl`.
 const WORKGROUP: usize = 64;
+/// Columns per tile of `loss_rows.wgsl` (its splits are whole tiles).
+const TILE_COLUMNS: usize = 32;
+/// Rows per workgroup of `predict.wgsl`.
+const PREDICT_ROWS: usize = 4;
 
-/// How a call is cut into work: column groups (workgroups, each with its own split-K
-/// partial) and chunks of rows (one submission each). Results do not depend on it beyond
-/// f32 summation order; tests shrink it to run every path on small shapes.
+/// How a call is cut into work: column splits of the row pass (each with its own split-K
+/// partial) and chunks of rows (each binding at most `max_chunk_bytes`). Results do not
+/// depend on it beyond f32 summation order; tests shrink it to run every path on small
+/// shapes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tiling {
-    /// Column groups per chunk at most: enough to fill a large GPU, few enough that the
-    /// split-K partials stay small.
-    pub max_groups: usize,
+    /// Workgroups the row pass aims for per chunk: enough to fill a large GPU (the rows
+    /// alone give 85 workgroups of 64 at the paper's 5,400), few enough that the split-K
+    /// partials stay small.
+    pub target_workgroups: usize,
     /// Largest buffer a chunk binds (the device's binding limit applies too).
     pub max_chunk_bytes: usize,
 }
@@ -30,32 +37,48 @@ pub struct Tiling {
 impl Default for Tiling {
     fn default() -> Self {
         Self {
-            max_groups: 256,
+            target_workgroups: 1024,
             // Below WebGPU's default 128 MiB per binding.
             max_chunk_bytes: 64 << 20,
         }
     }
 }
-/// Hidden widths the kernels' workgroup memory holds within WebGPU's default 16 KiB.
+/// Hidden widths whose registers (two rows of width/4 vec4s per thread) the kernels are
+/// written for.
 const MAX_HIDDEN: usize = 64;
+
+/// Hidden width in vec4s: rows of weights and activations are zero-padded to it.
+pub(crate) fn vec4s(hidden: usize) -> usize {
+    hidden.div_ceil(4)
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct LossParams {
+struct RowsParams {
     rows: u32,
     k: u32,
-    tiles_per_group: u32,
-    weight_grads: u32,
+    cols_per_split: u32,
     scale: f32,
     row_offset: u32,
-    _pad: [u32; 2],
+    _pad: [u32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ColumnsParams {
+    rows: u32,
+    k: u32,
+    scale: f32,
+    row_offset: u32,
+    accumulate: u32,
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct ReduceParams {
     rows: u32,
-    groups: u32,
+    splits: u32,
     row_offset: u32,
     _pad: u32,
 }
@@ -75,8 +98,8 @@ struct Layer {
     hidden: usize,
     dims: usize,
     has_bias: bool,
-    weight: wgpu::Buffer,
-    bias: wgpu::Buffer,
+    weight: PooledBuffer,
+    bias: PooledBuffer,
 }
 
 /// The output layers of both read-outs, uploaded to a GPU.
@@ -100,12 +123,12 @@ impl GpuOutputLayer {
             let zeros = vec![0f32; dims];
             let bias = out.bias.as_ref().map_or(zeros.as_slice(), |b| b.data());
             Some(Layer {
-                kernels: gpu.kernels(hidden),
+                kernels: gpu.kernels(vec4s(hidden)),
                 hidden,
                 dims,
                 has_bias: out.bias.is_some(),
-                weight: storage(&gpu, "output weight", out.weight.data()),
-                bias: storage(&gpu, "output bias", bias),
+                weight: gpu.upload("output weight", &pad_rows(out.weight.data(), hidden)),
+                bias: gpu.upload("output bias", bias),
             })
         });
         Self {
@@ -134,7 +157,16 @@ impl GpuOutputLayer {
         *slot = None;
         let chunks: Vec<wgpu::Buffer> = targets
             .chunks(key.chunk_rows)
-            .map(|rows| storage(&self.gpu, "resident targets", &packed(rows, key.columns)))
+            .map(|rows| {
+                // Long-lived (not pooled): they stay until another key replaces them.
+                self.gpu
+                    .device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("resident targets"),
+                        contents: bytemuck::cast_slice(&packed(rows, key.columns)),
+                        usage: wgpu::BufferUsages::STORAGE,
+                    })
+            })
             .collect();
         let chunks = Arc::new(chunks);
         *slot = Some((key, chunks.clone()));
@@ -160,33 +192,24 @@ fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
     out
 }
 
-fn storage(gpu: &Gpu, label: &str, data: &[f32]) -> wgpu::Buffer {
-    // A binding may not be empty.
-    let data: &[f32] = if data.is_empty() { &[0.0] } else { data };
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: bytemuck::cast_slice(data),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-        })
+/// Rows of `width` values zero-padded to whole vec4s (the kernels' layout).
+fn pad_rows(data: &[f32], width: usize) -> Vec<f32> {
+    let padded = 4 * vec4s(width);
+    let mut out = vec![0f32; data.len() / width.max(1) * padded];
+    for (src, dst) in data.chunks_exact(width).zip(out.chunks_exact_mut(padded)) {
+        dst[..width].copy_from_slice(src);
+    }
+    out
 }
 
-fn uniform<P: Pod>(gpu: &Gpu, params: &P) -> wgpu::Buffer {
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("params"),
-            contents: bytemuck::bytes_of(params),
-            usage: wgpu::BufferUsages::UNIFORM,
-        })
-}
-
-fn zeroed(gpu: &Gpu, label: &str, floats: usize, extra: wgpu::BufferUsages) -> wgpu::Buffer {
-    gpu.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size: (floats.max(1) * 4) as u64,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
-        mapped_at_creation: false,
-    })
+/// The inverse of [`pad_rows`].
+fn unpad_rows(data: &[f32], width: usize) -> Vec<f32> {
+    let padded = 4 * vec4s(width);
+    let mut out = Vec::with_capacity(data.len() / padded * width);
+    for row in data.chunks_exact(padded) {
+        out.extend_from_slice(&row[..width]);
+    }
+    out
 }
 
 fn bind(gpu: &Gpu, pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
@@ -218,19 +241,15 @@ fn dispatch(
     pass.dispatch_workgroups(x, y, 1);
 }
 
-/// Copies `sources` (each `floats` long) into one mappable buffer, waits, and reads them.
+/// Copies `sources` (each `floats` long) into one mappable buffer, submits, waits, and
+/// reads them.
 fn read_back(
     gpu: &Gpu,
     mut encoder: wgpu::CommandEncoder,
     sources: &[(&wgpu::Buffer, usize)],
 ) -> Vec<Vec<f32>> {
     let total: usize = sources.iter().map(|&(_, n)| n).sum();
-    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("read back"),
-        size: (total.max(1) * 4) as u64,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
+    let staging = gpu.staging(total);
     let mut offset = 0;
     for &(buffer, n) in sources {
         if n > 0 {
@@ -239,7 +258,7 @@ fn read_back(
         offset += n;
     }
     gpu.queue.submit([encoder.finish()]);
-    let slice = staging.slice(..);
+    let slice = staging.slice(..(total.max(1) * 4) as u64);
     slice.map_async(wgpu::MapMode::Read, |r| {
         if let Err(e) = r {
             panic!("reading results back from the GPU failed: {e}");
@@ -248,17 +267,21 @@ fn read_back(
     if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
         panic!("waiting for the GPU failed: {e}");
     }
-    let view = match slice.get_mapped_range() {
-        Ok(v) => v,
-        Err(e) => panic!("reading results back from the GPU failed: {e}"),
-    };
-    let all: &[f32] = bytemuck::cast_slice(&view);
     let mut out = Vec::with_capacity(sources.len());
-    let mut offset = 0;
-    for &(_, n) in sources {
-        out.push(all[offset..offset + n].to_vec());
-        offset += n;
+    {
+        let view = match slice.get_mapped_range() {
+            Ok(v) => v,
+            Err(e) => panic!("reading results back from the GPU failed: {e}"),
+        };
+        let all: &[f32] = bytemuck::cast_slice(&view);
+        let mut offset = 0;
+        for &(_, n) in sources {
+            out.push(all[offset..offset + n].to_vec());
+            offset += n;
+        }
     }
+    // Back to the pool unmapped.
+    staging.unmap();
     out
 }
 
@@ -279,18 +302,27 @@ impl OutputLayer<f32> for GpuOutputLayer {
             return None;
         }
         let gpu = &*self.gpu;
-        let hl = layer.hidden;
+        let (hl, hv) = (layer.hidden, vec4s(layer.hidden));
         let limit = self.chunk_limit();
+        let max_groups = gpu.limits().max_compute_workgroups_per_dimension as usize;
+        // Rows per chunk: the chunk's targets fit one binding.
+        let chunk = (limit / (4 * k)).max(1).min(n);
+        // Column splits: enough workgroups to fill the GPU, partials within one binding.
         let tiles = k.div_ceil(TILE_COLUMNS);
-        let tiles_per_group = tiles.div_ceil(self.tiling.max_groups.max(1));
-        let groups = tiles.div_ceil(tiles_per_group);
-        // Rows per chunk: the chunk's targets and its split-K partials each fit one binding.
-        let chunk = (limit / (4 * k.max(groups * hl)))
-            .max(1)
-            .min(n)
-            .min(gpu.limits().max_compute_workgroups_per_dimension as usize);
+        let row_blocks = chunk.div_ceil(WORKGROUP);
+        let splits = self
+            .tiling
+            .target_workgroups
+            .div_ceil(row_blocks)
+            .min(limit / (16 * hv * chunk))
+            .min(max_groups)
+            .clamp(1, tiles);
+        let cols_per_split = tiles.div_ceil(splits) * TILE_COLUMNS;
+        let splits = k.div_ceil(cols_per_split);
+        let scale = (1.0 / divisor as f64) as f32;
 
-        let x = storage(gpu, "hidden", input);
+        let encode_phase = pvrnn_core::profile::phase("    GPU: upload and encode");
+        let x = gpu.upload("hidden", &pad_rows(input, hl));
         let resident = resident.map(|observations| {
             let key = ResidentKey {
                 observations,
@@ -300,119 +332,127 @@ impl OutputLayer<f32> for GpuOutputLayer {
             };
             self.resident_targets(modality, key, targets)
         });
-        // Without resident targets, one buffer refilled for every chunk.
-        let streamed = resident
-            .is_none()
-            .then(|| zeroed(gpu, "targets", chunk * k, wgpu::BufferUsages::empty()));
-        let part_in = zeroed(
-            gpu,
+        // Every element the read-back returns is written by a kernel first.
+        let part_in = gpu.scratch(
             "partial d input",
-            groups * chunk * hl,
+            splits * chunk * 4 * hv,
             wgpu::BufferUsages::empty(),
         );
-        let part_loss = zeroed(
-            gpu,
-            "partial loss",
-            groups * chunk,
-            wgpu::BufferUsages::empty(),
+        let part_loss = gpu.scratch("partial loss", splits * chunk, wgpu::BufferUsages::empty());
+        let gw = gpu.scratch(
+            "d W",
+            if weight_grads { k * 4 * hv } else { 1 },
+            wgpu::BufferUsages::COPY_SRC,
         );
-        let wg_floats = if weight_grads { k * hl } else { 1 };
-        let gw = zeroed(gpu, "d W", wg_floats, wgpu::BufferUsages::COPY_SRC);
-        let gb = zeroed(
-            gpu,
+        let gb = gpu.scratch(
             "d b",
             if weight_grads { k } else { 1 },
             wgpu::BufferUsages::COPY_SRC,
         );
-        let grad_in = zeroed(gpu, "d input", n * hl, wgpu::BufferUsages::COPY_SRC);
-        let row_loss = zeroed(gpu, "row loss", n, wgpu::BufferUsages::COPY_SRC);
+        let grad_in = gpu.scratch("d input", n * 4 * hv, wgpu::BufferUsages::COPY_SRC);
+        let row_loss = gpu.scratch("row loss", n, wgpu::BufferUsages::COPY_SRC);
 
+        // Every chunk in one submission; streamed targets and parameters get buffers per
+        // chunk, written before the submission runs and kept from the pool until it has.
+        let mut in_flight: Vec<PooledBuffer> = Vec::new();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
         let mut start = 0;
         while start < n {
             let rows = chunk.min(n - start);
-            let y = match (&resident, &streamed) {
+            let streamed = resident
+                .is_none()
+                .then(|| gpu.upload("targets", &packed(&targets[start..start + rows], k)));
+            let y: &wgpu::Buffer = match (&resident, &streamed) {
                 (Some(chunks), _) => &chunks[start / chunk],
-                (None, Some(buffer)) => {
-                    gpu.queue.write_buffer(
-                        buffer,
-                        0,
-                        bytemuck::cast_slice(&packed(&targets[start..start + rows], k)),
-                    );
-                    buffer
-                }
+                (None, Some(buffer)) => buffer,
                 (None, None) => unreachable!("targets are resident or streamed"),
             };
-            let loss_params = uniform(
+            let rows_params = gpu.uniform(&RowsParams {
+                rows: rows as u32,
+                k: k as u32,
+                cols_per_split: cols_per_split as u32,
+                scale,
+                row_offset: start as u32,
+                _pad: [0; 3],
+            });
+            let rows_group = bind(
                 gpu,
-                &LossParams {
-                    rows: rows as u32,
-                    k: k as u32,
-                    tiles_per_group: tiles_per_group as u32,
-                    weight_grads: weight_grads as u32,
-                    scale: (1.0 / divisor as f64) as f32,
-                    row_offset: start as u32,
-                    _pad: [0; 2],
-                },
-            );
-            let reduce_params = uniform(
-                gpu,
-                &ReduceParams {
-                    rows: rows as u32,
-                    groups: groups as u32,
-                    row_offset: start as u32,
-                    _pad: 0,
-                },
-            );
-            let loss_group = bind(
-                gpu,
-                &layer.kernels.output_loss,
+                &layer.kernels.loss_rows,
                 &[
-                    &loss_params,
+                    &rows_params,
                     &x,
                     &layer.weight,
                     &layer.bias,
                     y,
                     &part_in,
                     &part_loss,
-                    &gw,
-                    &gb,
                 ],
             );
+            dispatch(
+                &mut encoder,
+                &layer.kernels.loss_rows,
+                &rows_group,
+                rows.div_ceil(WORKGROUP) as u32,
+                splits as u32,
+            );
+            let reduce_params = gpu.uniform(&ReduceParams {
+                rows: rows as u32,
+                splits: splits as u32,
+                row_offset: start as u32,
+                _pad: 0,
+            });
             let reduce_group = bind(
                 gpu,
                 &layer.kernels.reduce,
                 &[&reduce_params, &part_in, &part_loss, &grad_in, &row_loss],
             );
-            let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            encoder.clear_buffer(&part_in, 0, None);
-            encoder.clear_buffer(&part_loss, 0, None);
-            dispatch(
-                &mut encoder,
-                &layer.kernels.output_loss,
-                &loss_group,
-                groups as u32,
-                1,
-            );
-            let reduce_groups = (rows * hl).div_ceil(WORKGROUP) as u32;
             dispatch(
                 &mut encoder,
                 &layer.kernels.reduce,
                 &reduce_group,
-                reduce_groups,
+                (rows * hv).div_ceil(WORKGROUP) as u32,
                 1,
             );
-            gpu.queue.submit([encoder.finish()]);
+            if weight_grads {
+                let columns_params = gpu.uniform(&ColumnsParams {
+                    rows: rows as u32,
+                    k: k as u32,
+                    scale,
+                    row_offset: start as u32,
+                    accumulate: (start > 0) as u32,
+                    _pad: [0; 3],
+                });
+                let columns_group = bind(
+                    gpu,
+                    &layer.kernels.loss_columns,
+                    &[&columns_params, &x, &layer.weight, &layer.bias, y, &gw, &gb],
+                );
+                dispatch(
+                    &mut encoder,
+                    &layer.kernels.loss_columns,
+                    &columns_group,
+                    k.div_ceil(WORKGROUP) as u32,
+                    1,
+                );
+                in_flight.push(columns_params);
+            }
+            in_flight.extend(streamed);
+            in_flight.push(rows_params);
+            in_flight.push(reduce_params);
             start += rows;
         }
 
-        let encoder = gpu.device.create_command_encoder(&Default::default());
-        let mut sources = vec![(&grad_in, n * hl), (&row_loss, n)];
+        let mut sources: Vec<(&wgpu::Buffer, usize)> = vec![(&grad_in, n * 4 * hv), (&row_loss, n)];
         if weight_grads {
-            sources.push((&gw, k * hl));
+            sources.push((&gw, k * 4 * hv));
             sources.push((&gb, k));
         }
+        drop(encode_phase);
+        let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
         let mut results = read_back(gpu, encoder, &sources).into_iter();
-        let grad_in = results.next().unwrap_or_default();
+        drop(in_flight);
+        drop(wait_phase);
+        let grad_in = unpad_rows(&results.next().unwrap_or_default(), hl);
         let half_over_divisor = 0.5 / divisor as f64;
         let row_loss = results
             .next()
@@ -420,7 +460,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
             .into_iter()
             .map(|s| s as f64 * half_over_divisor)
             .collect();
-        let grad_w = results.next();
+        let grad_w = results.next().map(|g| unpad_rows(&g, hl));
         let grad_b = results.next().filter(|_| layer.has_bias);
         Some(OutputLoss {
             row_loss,
@@ -441,21 +481,20 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let chunk = (limit / (4 * dims))
             .max(1)
             .min(n)
-            .min(gpu.limits().max_compute_workgroups_per_dimension as usize);
+            .min(PREDICT_ROWS * gpu.limits().max_compute_workgroups_per_dimension as usize);
+        let input = pad_rows(input, hl);
+        let padded = input.len() / n;
         let mut prediction = Vec::with_capacity(n * dims);
         let mut start = 0;
         while start < n {
             let rows = chunk.min(n - start);
-            let x = storage(gpu, "hidden", &input[start * hl..(start + rows) * hl]);
-            let out = zeroed(gpu, "prediction", rows * dims, wgpu::BufferUsages::COPY_SRC);
-            let params = uniform(
-                gpu,
-                &PredictParams {
-                    rows: rows as u32,
-                    dims: dims as u32,
-                    _pad: [0; 2],
-                },
-            );
+            let x = gpu.upload("hidden", &input[start * padded..(start + rows) * padded]);
+            let out = gpu.scratch("prediction", rows * dims, wgpu::BufferUsages::COPY_SRC);
+            let params = gpu.uniform(&PredictParams {
+                rows: rows as u32,
+                dims: dims as u32,
+                _pad: [0; 2],
+            });
             let group = bind(
                 gpu,
                 &layer.kernels.predict,
@@ -467,7 +506,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 &layer.kernels.predict,
                 &group,
                 dims.div_ceil(WORKGROUP) as u32,
-                rows as u32,
+                rows.div_ceil(PREDICT_ROWS) as u32,
             );
             let part = read_back(gpu, encoder, &[(&out, rows * dims)]);
             prediction.extend(part.into_iter().flatten());

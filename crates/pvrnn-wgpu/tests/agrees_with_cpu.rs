@@ -32,7 +32,7 @@ fn gpu() -> Option<WgpuBackend> {
 }
 
 /// Small, but with the paper's 50-unit top hidden layer and enough vision columns and rows
-/// for several column tiles, row sub-tiles and (with small tiling) groups and chunks.
+/// for several column tiles, row blocks and (with small tiling) splits and chunks.
 fn config() -> ModelConfig {
     let mut c = ModelConfig::default();
     let m = |d, z, fast, slow| ModuleConfig {
@@ -46,6 +46,8 @@ fn config() -> ModelConfig {
     c.proprioceptive = m(6, 3, 1.0, 2.0);
     c.exteroceptive_readout.hidden = vec![12, 50];
     c.proprioceptive_readout.hidden = vec![10];
+    // The paper's output layers have no bias; the option is tested on one of them.
+    c.exteroceptive_readout.output_bias = true;
     c.vision = VisionLayout {
         cameras: 2,
         channels: 3,
@@ -92,10 +94,10 @@ fn assert_close(name: &str, cpu: &[f32], gpu: &[f32], tol: f64) {
     );
 }
 
-fn free_energy_and_gradients_agree(gpu: WgpuBackend) {
+fn free_energy_and_gradients_agree(gpu: WgpuBackend, sequences: usize, steps: usize) {
     let config = config();
-    let data = observations(&config, 3, 21);
-    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
+    let data = observations(&config, sequences, steps);
+    let model = Model::<f32>::init_on(&CpuBackend, config, sequences, steps, 7).unwrap();
     let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
     let (f_cpu, g_cpu) = free_energy(&CpuBackend, &model, &data, draw, true).unwrap();
     let (f_gpu, g_gpu) = free_energy(&gpu, &model, &data, draw, true).unwrap();
@@ -137,17 +139,24 @@ fn free_energy_and_gradients_agree(gpu: WgpuBackend) {
 #[test]
 fn free_energy_and_every_gradient_match_the_cpu_backend() {
     let Some(gpu) = gpu() else { return };
-    free_energy_and_gradients_agree(gpu);
+    // 160 rows: three row blocks of the row pass (the last short), five row tiles of the
+    // column pass.
+    free_energy_and_gradients_agree(gpu, 4, 40);
 }
 
 #[test]
 fn many_groups_and_chunks_match_the_cpu_backend() {
     let Some(gpu) = gpu() else { return };
-    // 15 column tiles in 4 groups of 4 (the last short), 4-row chunks (the last short).
-    free_energy_and_gradients_agree(gpu.with_tiling(Tiling {
-        max_groups: 4,
-        max_chunk_bytes: 8 << 10,
-    }));
+    // 4-row chunks of 63 rows (the last short); 15 column tiles in 4 splits of 4 (the last
+    // short), so the input gradient is reduced from partials.
+    free_energy_and_gradients_agree(
+        gpu.with_tiling(Tiling {
+            target_workgroups: 4,
+            max_chunk_bytes: 8 << 10,
+        }),
+        3,
+        21,
+    );
 }
 
 /// Learning's targets stay on the GPU between iterations (keyed by the observations' id):

@@ -13,7 +13,7 @@ use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json"
+    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json\n  pvrnn bench --backend wgpu --only train --profile"
 )]
 pub struct Args {
     /// Print one JSON object instead of a table.
@@ -34,6 +34,10 @@ pub struct Args {
     /// Run only one part: `train` or `infer` (the other's figures are reported as null).
     #[arg(long)]
     only: Option<Part>,
+    /// Also say where the time goes: milliseconds per phase (noise, weights, recurrence,
+    /// read-outs, optimiser) per training iteration and per inference step.
+    #[arg(long)]
+    profile: bool,
     #[command(flatten)]
     backend: crate::util::BackendArgs,
 }
@@ -60,6 +64,36 @@ struct Report {
     /// Peak resident memory of the process after training (data included), and at the end.
     train_peak_rss_mb: f64,
     peak_rss_mb: f64,
+    /// With --profile: per part (`train`, `infer_p16`, `infer_full`), milliseconds per
+    /// phase per iteration or step; indented phases are parts of the one above.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    profile: Vec<PartProfile>,
+}
+
+#[derive(Serialize, Debug)]
+struct PartProfile {
+    part: &'static str,
+    phases: Vec<PhaseTime>,
+}
+
+#[derive(Serialize, Debug)]
+struct PhaseTime {
+    phase: String,
+    ms: f64,
+}
+
+/// The profiler's sums so far, per unit of work (`units` iterations or steps).
+fn take_profile(part: &'static str, units: usize) -> PartProfile {
+    PartProfile {
+        part,
+        phases: pvrnn_core::profile::take()
+            .into_iter()
+            .map(|(phase, seconds, _)| PhaseTime {
+                phase: phase.to_string(),
+                ms: seconds * 1e3 / units.max(1) as f64,
+            })
+            .collect(),
+    }
 }
 
 /// Peak resident set size (VmHWM) in MB, where the OS reports it.
@@ -98,6 +132,7 @@ fn infer_rate(
     data: &Observations<f32>,
     observed: Observed,
     timed: usize,
+    profile: bool,
 ) -> Result<f64> {
     let mut settings = InferenceSettings::from_config(&model.config, 1);
     settings.observed = observed;
@@ -118,6 +153,7 @@ fn infer_rate(
     for t in 0..window {
         step(&mut inf, t)?;
     }
+    pvrnn_core::profile::enable(profile);
     let start = Instant::now();
     for t in window..window + timed {
         step(&mut inf, t)?;
@@ -153,12 +189,17 @@ pub fn run(a: Args) -> Result<()> {
     if a.only != Some(Part::Infer) {
         say("training: 1 warm-up iteration...");
         trainer.step(&data)?;
+        pvrnn_core::profile::enable(a.profile);
         for i in 0..a.train_iterations {
             let start = Instant::now();
             trainer.step(&data)?;
             times.push(start.elapsed().as_secs_f64());
             say(&format!("  iteration {}: {:.3} s", i + 1, times[i]));
         }
+    }
+    let mut profile = Vec::new();
+    if a.profile && a.only != Some(Part::Infer) {
+        profile.push(take_profile("train", a.train_iterations));
     }
     let train_peak = peak_rss_mb();
     let model = Arc::new(trainer.model);
@@ -175,7 +216,11 @@ pub fn run(a: Args) -> Result<()> {
                 proprio: true,
             },
             a.infer_steps,
+            a.profile,
         )?);
+        if a.profile {
+            profile.push(take_profile("infer_p16", a.infer_steps));
+        }
         say("online inference, everything observed...");
         full = Some(infer_rate(
             inference_backend.as_ref(),
@@ -183,7 +228,11 @@ pub fn run(a: Args) -> Result<()> {
             &data,
             Observed::all(&config),
             a.infer_steps,
+            a.profile,
         )?);
+        if a.profile {
+            profile.push(take_profile("infer_full", a.infer_steps));
+        }
     }
     let mean = (!times.is_empty()).then(|| times.iter().sum::<f64>() / times.len() as f64);
     let min = (!times.is_empty()).then(|| times.iter().copied().fold(f64::INFINITY, f64::min));
@@ -199,6 +248,7 @@ pub fn run(a: Args) -> Result<()> {
         infer_full_steps_per_s: full,
         train_peak_rss_mb: train_peak,
         peak_rss_mb: peak_rss_mb(),
+        profile,
     };
     if a.json {
         println!("{}", serde_json::to_string(&report)?);
@@ -223,6 +273,17 @@ pub fn run(a: Args) -> Result<()> {
             "peak memory                      {:.0} MB",
             report.peak_rss_mb
         );
+        for part in &report.profile {
+            let unit = if part.part == "train" {
+                "iteration"
+            } else {
+                "step"
+            };
+            println!("where the time goes, {} (ms per {unit}):", part.part);
+            for p in &part.phases {
+                println!("  {:40} {:9.2}", p.phase, p.ms);
+            }
+        }
     }
     Ok(())
 }

@@ -1,16 +1,15 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::{NoiseMode, io};
 use pvrnn_dataset::Split;
 
-use crate::inputs;
+use crate::{inputs, util};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn free-energy --model run.safetensors --inputs caresim/ --zero-noise\n  pvrnn free-energy --model m.safetensors --inputs x.safetensors --grads g.safetensors"
+    after_help = "Example:\n  pvrnn free-energy --model run.safetensors --inputs caresim/ --zero-noise\n  pvrnn free-energy --model m.safetensors --inputs x.safetensors --grads g.safetensors\n  pvrnn free-energy --model m.safetensors --inputs caresim/ --backend wgpu"
 )]
 pub struct Args {
     /// The model (or checkpoint) to evaluate.
@@ -32,9 +31,15 @@ pub struct Args {
     /// Also write dF/d(every trainable tensor) here, named `grad.<tensor>`.
     #[arg(long)]
     grads: Option<PathBuf>,
+    #[command(flatten)]
+    backend: util::BackendArgs,
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let (backend, backend_name) = a.backend.open()?;
+    if a.backend.backend != util::BackendKind::Cpu {
+        eprintln!("backend: {backend_name}");
+    }
     let mut model = io::load_model(&a.model)?;
     let data = inputs::load(&a.inputs, a.split.as_deref(), Split::Learn, &mut model)?.observations;
     let mode = if a.zero_noise {
@@ -43,7 +48,7 @@ pub fn run(a: Args) -> Result<()> {
         NoiseMode::Sampled { seed: a.seed }
     };
     let (report, grads) = free_energy(
-        &CpuBackend,
+        backend.as_ref(),
         &model,
         &data,
         NoiseDraw::evaluation(mode),

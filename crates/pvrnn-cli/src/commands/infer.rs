@@ -73,6 +73,12 @@ pub fn run(a: Args) -> Result<()> {
             s,
             !a.compact,
             &mut |step, _| {
+                if step.rate_halvings > 0 {
+                    bar.println(format!(
+                        "sequence {s}, step {}: the window diverged; restarted at lr / 2^{}",
+                        step.t, step.rate_halvings
+                    ));
+                }
                 bar.set_message(format!(
                     "sequence {s}, window F {:.4}",
                     step.window_free_energy.total

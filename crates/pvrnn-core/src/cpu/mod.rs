@@ -110,9 +110,11 @@ fn evaluate<T: Real>(
     req: &Request,
 ) -> BatchResult<T> {
     let (params, config, prepared) = (&model.params, &model.config, &model.prepared);
+    let forward_phase = crate::profile::phase("  recurrence forward");
     let traces = parallel::map(windows.len(), |i| {
         recurrent::forward(prepared, &windows[i], &req.ablation)
     });
+    drop(forward_phase);
     let mut offsets = Vec::with_capacity(windows.len() + 1);
     let mut total = 0;
     offsets.push(total);
@@ -144,7 +146,9 @@ fn evaluate<T: Real>(
             input.extend_from_slice(&tr.modules[module.index()].d);
         }
         let r = &params.readouts[mi];
+        let hidden_phase = crate::profile::phase("  read-out hidden layers");
         let acts = readout::hidden_forward(r, &input, n);
+        drop(hidden_phase);
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(&input);
         let hl = top.len() / n.max(1);
 
@@ -166,6 +170,7 @@ fn evaluate<T: Real>(
             let divisor = config
                 .accuracy_normalisation
                 .divisor(k, config.modality_dims(modality));
+            let output_phase = crate::profile::phase("  read-out output layer");
             let loss = model
                 .output_layer
                 .as_ref()
@@ -184,8 +189,10 @@ fn evaluate<T: Real>(
                 .unwrap_or_else(|| {
                     readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads)
                 });
+            drop(output_phase);
             accuracy[mi] = loss.row_loss;
             if want_grads {
+                let _phase = crate::profile::phase("  read-out hidden layers");
                 let (g_input, layer_grads) =
                     readout::hidden_backward(r, &input, n, &acts, loss.grad_in, all_grads);
                 grad_d[mi] = Some(g_input);
@@ -239,6 +246,7 @@ fn evaluate<T: Real>(
         }
     }
 
+    let backward_phase = crate::profile::phase("  recurrence backward");
     let window_grads = want_grads.then(|| {
         parallel::map(windows.len(), |i| {
             let rows = offsets[i]..offsets[i + 1];
@@ -254,6 +262,8 @@ fn evaluate<T: Real>(
         })
     });
 
+    drop(backward_phase);
+    let _phase = crate::profile::phase("  collect results");
     let mut results = Vec::with_capacity(windows.len());
     let mut window_grads = window_grads.map(Vec::into_iter);
     for (i, (trace, outs)) in traces

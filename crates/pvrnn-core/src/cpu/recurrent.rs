@@ -203,9 +203,12 @@ fn forward_impl<T: Real>(p: &Prepared<T>, w: &Window<'_, T>, ablation: &Ablation
                 let sigma_q = a_sigma[j].exp();
                 let inv_var_p = (-two * ls_p[j]).exp();
                 let diff = mu_p - mu_q;
-                kl_out[j] = ls_p[j] - a_sigma[j]
-                    + half * (diff * diff + sigma_q * sigma_q) * inv_var_p
-                    - half;
+                // sigma_q^2 / sigma_p^2 from the logs: as a product of exponentials it is
+                // inf * 0 = NaN once both log sigmas pass ~44 (f32), which a trained
+                // network's prior reaches on unfamiliar states.
+                let var_ratio = (two * (a_sigma[j] - ls_p[j])).exp();
+                kl_out[j] =
+                    ls_p[j] - a_sigma[j] + half * (diff * diff * inv_var_p + var_ratio) - half;
                 pre_out[j] = pre[j];
                 mu_p_out[j] = mu_p;
                 ls_p_out[j] = ls_p[j];
@@ -367,18 +370,21 @@ fn backward_impl<T: Real>(
                 &mt.mu_q[row.clone()],
                 &mt.inv_var_p[row.clone()],
             );
-            let (sigma_q, zz) = (&mt.sigma_q[row.clone()], &mt.z[row.clone()]);
+            let (ls_q, ls_p) = (&mt.log_sigma_q[row.clone()], &mt.log_sigma_p[row.clone()]);
+            let zz = &mt.z[row.clone()];
             let (ga_mu, ga_sigma) = (&mut ga_mu[m][row.clone()], &mut ga_sigma[m][row.clone()]);
+            let two = T::from_f64(2.0);
             for j in 0..z {
-                let var_q = sigma_q[j] * sigma_q[j];
+                // sigma_q^2 / sigma_p^2, from the logs as in the forward pass.
+                let var_ratio = (two * (ls_q[j] - ls_p[j])).exp();
                 let diff = mu_q[j] - mu_p[j];
                 let g_mu_q = gz[j] + c * diff * ivp[j];
                 // z - mu_q = sigma_q * eps is d z / d log sigma_q.
-                let g_ls_q = gz[j] * (zz[j] - mu_q[j]) + c * (var_q * ivp[j] - T::ONE);
+                let g_ls_q = gz[j] * (zz[j] - mu_q[j]) + c * (var_ratio - T::ONE);
                 ga_mu[j] = g_mu_q * (T::ONE - mu_q[j] * mu_q[j]);
                 ga_sigma[j] = g_ls_q;
                 g_mu_p[j] = -c * diff * ivp[j] * (T::ONE - mu_p[j] * mu_p[j]);
-                g_ls_p[j] = c * (T::ONE - (diff * diff + var_q) * ivp[j]);
+                g_ls_p[j] = c * (T::ONE - diff * diff * ivp[j] - var_ratio);
             }
             gemv_padded(&mut gd_prev[m], &pm.w_prior, &gprior, pm.pd);
             if weight_grads {

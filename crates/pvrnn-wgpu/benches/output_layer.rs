@@ -1,0 +1,95 @@
+//! The output layer on the GPU at the paper's shapes: learning's full batch (5,400 rows x
+//! 32,256 vision columns, loss, input and weight gradients, targets resident) and online
+//! inference's window (30 rows, everything observed or 16x16 only, input gradient only).
+//!
+//! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
+//! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
+//! weight gradients, two without; the GPU's column pass recomputes the forward product, which
+//! is not counted). `WGPU_ADAPTER_NAME` / `WGPU_BACKEND` pick the adapter; `-- 16x16` runs only
+//! the cases whose name contains `16x16`.
+#![allow(clippy::unwrap_used)] // a benchmark: a failed unwrap is a failed run
+
+use std::time::Instant;
+
+use pvrnn_core::backend::OutputLayer;
+use pvrnn_core::params::Params;
+use pvrnn_core::{Modality, ModelConfig};
+use pvrnn_wgpu::{GpuOutputLayer, Tiling, WgpuBackend};
+
+fn values(n: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed | 1;
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            ((s >> 40) as f32 / (1u64 << 24) as f32) * 1.8 - 0.9
+        })
+        .collect()
+}
+
+fn main() {
+    let backend = match WgpuBackend::new() {
+        Ok(b) => b,
+        Err(e) => {
+            eprintln!("no GPU: {e}");
+            return;
+        }
+    };
+    println!("adapter: {}", backend.adapter_name());
+    let config = ModelConfig::default();
+    let params = Params::<f32>::init(&config, 0);
+    let layer = GpuOutputLayer::upload(backend.gpu().clone(), Tiling::default(), &params);
+    let hidden = *config.exteroceptive_readout.hidden.last().unwrap();
+    let dims = config.vision.dims();
+    let p16 = 2 * 3 * 16 * 16;
+
+    // (what, rows, observed columns, weight gradients, resident targets, repetitions)
+    let cases = [
+        ("learning, full batch", 5400, dims, true, true, 5),
+        ("inference, everything observed", 30, dims, false, false, 50),
+        ("inference, 16x16 observed", 30, p16, false, false, 50),
+    ];
+    // `cargo bench ... -- WORD` runs the cases whose name contains WORD.
+    let filter: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    for (what, n, k, weight_grads, resident, reps) in cases {
+        if !filter.iter().all(|f| what.contains(f.as_str())) {
+            continue;
+        }
+        let input = values(n * hidden, 1);
+        let target_data = values(n * k, 2);
+        let targets: Vec<&[f32]> = target_data.chunks_exact(k).collect();
+        let resident = resident.then_some(u64::MAX - 1);
+        let call = || {
+            layer
+                .loss(
+                    Modality::Exteroceptive,
+                    &input,
+                    n,
+                    k,
+                    k,
+                    &targets,
+                    resident,
+                    weight_grads,
+                )
+                .unwrap()
+        };
+        // Warm-up: compiles the kernels and, for resident targets, uploads them.
+        call();
+        let start = Instant::now();
+        for _ in 0..reps {
+            std::hint::black_box(call());
+        }
+        let s = start.elapsed().as_secs_f64() / reps as f64;
+        let products = if weight_grads { 3.0 } else { 2.0 };
+        let flops = products * 2.0 * (n * k * hidden) as f64;
+        println!(
+            "{what:32} {n:5} x {k:5}: {:8.3} ms per call, {:8.1} GFLOP/s",
+            s * 1e3,
+            flops / s / 1e9
+        );
+    }
+}

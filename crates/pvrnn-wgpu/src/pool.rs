@@ -1,0 +1,82 @@
+//! Reused device buffers. Learning allocates the same buffers every iteration and online
+//! inference every update (50 per step); creating, zero-filling and freeing them each time
+//! cost more than the kernels at inference's small shapes. A [`PooledBuffer`] goes back to
+//! the pool when dropped, and the next request of the same size and usage takes it again,
+//! with its old contents: every user writes what it later reads.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// Buffers kept per (size, usage) once returned; more are freed.
+const KEEP_PER_KEY: usize = 4;
+
+type Key = (u64, u32);
+
+#[derive(Debug, Default)]
+pub(crate) struct BufferPool {
+    free: Mutex<HashMap<Key, Vec<wgpu::Buffer>>>,
+}
+
+impl BufferPool {
+    /// A buffer of `bytes` (at least 4) with `usage`, reused when one is free.
+    pub(crate) fn take(
+        self: &Arc<Self>,
+        device: &wgpu::Device,
+        label: &str,
+        bytes: u64,
+        usage: wgpu::BufferUsages,
+    ) -> PooledBuffer {
+        let bytes = bytes.max(4).next_multiple_of(4);
+        let key = (bytes, usage.bits());
+        let reused = self
+            .free
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get_mut(&key)
+            .and_then(Vec::pop);
+        let buffer = reused.unwrap_or_else(|| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage,
+                mapped_at_creation: false,
+            })
+        });
+        PooledBuffer {
+            buffer: Some(buffer),
+            pool: self.clone(),
+        }
+    }
+
+    fn give(&self, buffer: wgpu::Buffer) {
+        let key = (buffer.size(), buffer.usage().bits());
+        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        let list = free.entry(key).or_default();
+        if list.len() < KEEP_PER_KEY {
+            list.push(buffer);
+        }
+    }
+}
+
+/// A buffer that returns to its pool when dropped.
+#[derive(Debug)]
+pub(crate) struct PooledBuffer {
+    buffer: Option<wgpu::Buffer>,
+    pool: Arc<BufferPool>,
+}
+
+impl std::ops::Deref for PooledBuffer {
+    type Target = wgpu::Buffer;
+
+    fn deref(&self) -> &wgpu::Buffer {
+        self.buffer.as_ref().expect("present until dropped")
+    }
+}
+
+impl Drop for PooledBuffer {
+    fn drop(&mut self) {
+        if let Some(buffer) = self.buffer.take() {
+            self.pool.give(buffer);
+        }
+    }
+}

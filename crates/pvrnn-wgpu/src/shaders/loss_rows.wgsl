@@ -1,0 +1,134 @@
+// The fused output layer of a read-out, by rows: x^ = tanh(W h + b), its squared error
+// against the targets, the error gradient g = (x^ - x)(1 - x^2) / divisor, and the input
+// gradient d h = g W, so the [rows x k] prediction never exists.
+//
+// Thread t of a workgroup owns one row: its hidden activations (xr*) and its input gradient
+// (gx*) stay in registers, HV vec4s each (the source is unrolled before compilation, see
+// template.rs), and it walks the workgroup's range of columns in tiles of CT whose weights
+// and targets are staged in workgroup memory (weights read by every thread at the same
+// address: a broadcast). Column ranges ("splits") make the grid large enough to fill a GPU;
+// each split writes its own partial input gradient and row loss, and `reduce.wgsl` adds the
+// splits in order (split-K without float atomics, which portable WGSL lacks). The weight
+// gradient is `loss_columns.wgsl`'s, which recomputes the forward product by columns: one
+// more product, but no [columns x rows] partials.
+//
+// Workgroup memory: CT * HV * 16 + RT * YS * 4 + CT * 4 bytes = 15.3 KiB at HV = 13, within
+// WebGPU's default 16 KiB.
+
+const HV: u32 = {{HV}}u;  // hidden width in vec4s (zero-padded)
+const RT: u32 = 64u;      // rows per workgroup (one per thread)
+const CT: u32 = 32u;      // columns per tile
+const YS: u32 = 33u;      // row stride of the target tile (odd: no bank conflicts)
+
+struct Params {
+    rows: u32,            // rows in this chunk
+    k: u32,               // observed columns (the targets' row length)
+    cols_per_split: u32,  // a multiple of CT
+    scale: f32,           // 1 / divisor
+    row_offset: u32,      // first row of this chunk in `x`
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;             // [all rows, HV]
+@group(0) @binding(2) var<storage, read> w: array<vec4<f32>>;             // [dims, HV]
+@group(0) @binding(3) var<storage, read> b: array<f32>;                   // [dims]
+@group(0) @binding(4) var<storage, read> y: array<f32>;                   // [rows, k]
+@group(0) @binding(5) var<storage, read_write> part_in: array<vec4<f32>>; // [splits, rows, HV]
+@group(0) @binding(6) var<storage, read_write> part_loss: array<f32>;     // [splits, rows]
+
+var<workgroup> w_tile: array<vec4<f32>, {{CT_HV}}>;
+var<workgroup> y_tile: array<f32, 2112>;  // RT * YS
+var<workgroup> b_tile: array<f32, 32>;    // CT
+
+// tanh that stays finite for any input (some implementations overflow exp(2a)).
+fn tanh_safe(a: f32) -> f32 {
+    return tanh(clamp(a, -15.0, 15.0));
+}
+
+fn sum4(v: vec4<f32>) -> f32 {
+    return (v.x + v.y) + (v.z + v.w);
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
+    let split = wg.y;
+    let r0 = wg.x * RT;
+    let row = r0 + t;
+    let live = row < p.rows;
+    // A dead thread reads row 0 (always present) and writes nothing.
+    let base = (p.row_offset + select(0u, row, live)) * HV;
+
+    //#unroll i HV
+    let xr{i} = x[base + {i}u];
+    var gx{i} = vec4<f32>(0.0);
+    //#end
+    var loss = 0.0;
+
+    let c_begin = split * p.cols_per_split;
+    let c_end = min(p.k, c_begin + p.cols_per_split);
+    for (var c0 = c_begin; c0 < c_end; c0 += CT) {
+        let n = min(CT, c_end - c0);
+        for (var i = t; i < CT * HV; i += RT) {
+            let c = c0 + i / HV;
+            var v = vec4<f32>(0.0);
+            if (c < c_end) {
+                v = w[c * HV + i % HV];
+            }
+            w_tile[i] = v;
+        }
+        if (t < CT) {
+            var v = 0.0;
+            if (t < n) {
+                v = b[c0 + t];
+            }
+            b_tile[t] = v;
+        }
+        // Targets: consecutive threads read consecutive columns of a row.
+        for (var i = t; i < RT * CT; i += RT) {
+            let rr = i / CT;
+            let cc = i % CT;
+            var v = 0.0;
+            if (r0 + rr < p.rows && cc < n) {
+                v = y[(r0 + rr) * p.k + c0 + cc];
+            }
+            y_tile[rr * YS + cc] = v;
+        }
+        workgroupBarrier();
+
+        // Two columns at a time (the tile's unused columns are zeros: g = 0 there, and
+        // the error is masked): two independent dot products in flight.
+        for (var c = 0u; c < n; c += 2u) {
+            let w0 = c * HV;
+            let w1 = w0 + HV;
+            var a0 = vec4<f32>(0.0);
+            var a1 = vec4<f32>(0.0);
+            //#unroll i HV
+            a0 = fma(xr{i}, w_tile[w0 + {i}u], a0);
+            a1 = fma(xr{i}, w_tile[w1 + {i}u], a1);
+            //#end
+            let yhat0 = tanh_safe(sum4(a0) + b_tile[c]);
+            let yhat1 = tanh_safe(sum4(a1) + b_tile[c + 1u]);
+            let e0 = yhat0 - y_tile[t * YS + c];
+            // Column c + 1 may lie past the tile's end (odd n).
+            let e1 = select(0.0, yhat1 - y_tile[t * YS + c + 1u], c + 1u < n);
+            loss += e0 * e0 + e1 * e1;
+            let g0 = vec4<f32>(p.scale * e0 * (1.0 - yhat0 * yhat0));
+            let g1 = vec4<f32>(p.scale * e1 * (1.0 - yhat1 * yhat1));
+            //#unroll i HV
+            gx{i} = fma(g1, w_tile[w1 + {i}u], fma(g0, w_tile[w0 + {i}u], gx{i}));
+            //#end
+        }
+        workgroupBarrier();
+    }
+
+    if (live) {
+        let at = split * p.rows + row;
+        //#unroll i HV
+        part_in[at * HV + {i}u] = gx{i};
+        //#end
+        part_loss[at] = loss;
+    }
+}

@@ -344,3 +344,61 @@ fn reports_plots_and_the_progress_table_are_written() {
     assert!(e.contains("iteration"), "{e}");
     assert!(progress::read_summary("{}", "c").is_err());
 }
+
+/// Steps whose online inference diverged and was restarted at a halved rate are listed in
+/// `summary.md` and `summary.json` (here provoked by rates far above the paper's 1.0; the
+/// smallest power of two that makes some step restart).
+#[test]
+fn restarted_steps_are_reported() {
+    let ds = dataset();
+    let model = Arc::new(model(&ds));
+    let meta = ReportMeta {
+        model: "m.safetensors".into(),
+        model_iteration: Some(1),
+        dataset: "ds".into(),
+        split: "test".into(),
+        seconds: 1.0,
+        threads: 1,
+        backend: "cpu".into(),
+    };
+    let run = |lr: f64| {
+        let mut s = settings(&model, 2, 1);
+        s.inference.optimizer.lr = lr;
+        evaluate(
+            model.clone(),
+            &pvrnn_core::cpu::CpuBackend,
+            &ds,
+            &Selection::Split(Split::Test),
+            &s,
+            &|| {},
+        )
+    };
+    let eval = (0..60)
+        .find_map(|e| match run(2f64.powi(e)) {
+            Ok(eval) if eval.sequences.iter().any(|s| !s.restarts.is_empty()) => Some(eval),
+            _ => None,
+        })
+        .expect("some rate makes a step restart");
+    let restarts: usize = eval.sequences.iter().map(|s| s.restarts.len()).sum();
+    let dir = tempfile::tempdir().unwrap();
+    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    assert!(
+        md.contains(&format!("diverged in {restarts} step(s)")) && md.contains("(lr / 2^"),
+        "{md}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap())
+            .unwrap();
+    let listed = json["restarts"].as_array().unwrap();
+    assert_eq!(listed.len(), restarts);
+    assert!(listed[0]["rate_halvings"].as_u64().unwrap() >= 1, "{json}");
+    assert!(listed[0]["sequence"].is_string(), "{json}");
+
+    // At the paper's rate nothing restarts, and the report says so.
+    let calm = run(1.0).unwrap();
+    assert!(calm.sequences.iter().all(|s| s.restarts.is_empty()));
+    pvrnn_eval::write_report(&calm, &meta, dir.path()).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    assert!(md.contains("no step's online inference diverged"), "{md}");
+}

@@ -121,6 +121,16 @@ pub struct SequenceResult {
     pub images: ImageSamples,
     /// Steps whose online inference diverged and was restarted at a reduced rate.
     pub restarts: Vec<Restart>,
+    /// Trials whose online inference diverged beyond repair: they have no model series.
+    pub failures: Vec<Failure>,
+}
+
+impl SequenceResult {
+    /// Whether no trial of the sequence finished: the sequence then leaves every figure,
+    /// baselines included, so the model and the baselines are scored on the same sequences.
+    pub fn excluded(&self) -> bool {
+        !self.series.iter().any(|s| s.source == Source::Model)
+    }
 }
 
 /// A step of one trial that online inference restarted at `lr / 2^rate_halvings` after its
@@ -130,6 +140,23 @@ pub struct Restart {
     pub trial: usize,
     pub step: usize,
     pub rate_halvings: u32,
+}
+
+/// A trial that stopped because online inference diverged even at the smallest rate
+/// (`pvrnn_core::Error::Numerical`). Its steps are left out of every figure; the other
+/// trials go on.
+#[derive(Clone, Debug, Serialize)]
+pub struct Failure {
+    pub trial: usize,
+    /// The step that could not be computed.
+    pub step: usize,
+    pub message: String,
+}
+
+/// What one trial's run gives: its series, pictures and restarts, or how it failed.
+enum TrialRun {
+    Finished([Series; 2], Option<ImageSamples>, Vec<Restart>),
+    Failed(Failure),
 }
 
 /// A finished evaluation.
@@ -268,8 +295,7 @@ pub fn evaluate(
     let jobs: Vec<(usize, usize)> = (0..sequences.len())
         .flat_map(|s| (0..settings.trials).map(move |k| (s, k)))
         .collect();
-    type Run = (usize, [Series; 2], Option<ImageSamples>, Vec<Restart>);
-    let runs: Vec<Run> = jobs
+    let runs: Vec<(usize, TrialRun)> = jobs
         .par_iter()
         .map(|&(s, trial)| {
             run_trial(
@@ -283,8 +309,8 @@ pub fn evaluate(
                 &prepared[s].0,
                 progress,
             )
-            .map(|(series, images, restarts)| (s, series, images, restarts))
-            // Name the run that failed (a diverged inference, say) so it can be rerun.
+            .map(|run| (s, run))
+            // Name the run that failed so it can be rerun.
             .map_err(|e| {
                 Error::Invalid(format!(
                     "sequence `{}`, trial {trial}: {e}",
@@ -309,13 +335,19 @@ pub fn evaluate(
             series: baselines,
             images: ImageSamples::default(),
             restarts: Vec::new(),
+            failures: Vec::new(),
         })
         .collect();
-    for (s, series, images, restarts) in runs {
-        results[s].series.extend(series);
-        results[s].restarts.extend(restarts);
-        if let Some(images) = images {
-            results[s].images = images;
+    for (s, run) in runs {
+        match run {
+            TrialRun::Finished(series, images, restarts) => {
+                results[s].series.extend(series);
+                results[s].restarts.extend(restarts);
+                if let Some(images) = images {
+                    results[s].images = images;
+                }
+            }
+            TrialRun::Failed(failure) => results[s].failures.push(failure),
         }
     }
     for (s, r) in results.iter_mut().enumerate() {
@@ -350,7 +382,7 @@ fn run_trial(
     groups: &[Group],
     masks: &[Option<Vec<bool>>],
     progress: &(dyn Fn() + Sync),
-) -> Result<([Series; 2], Option<ImageSamples>, Vec<Restart>)> {
+) -> Result<TrialRun> {
     let mut inference_settings: InferenceSettings = settings.inference.clone();
     inference_settings.noise = match inference_settings.noise {
         pvrnn_core::NoiseMode::Sampled { seed } => pvrnn_core::NoiseMode::Sampled {
@@ -374,7 +406,18 @@ fn run_trial(
     let mut last_prior: Option<Vec<f32>> = None;
     let mut restarts = Vec::new();
     for t in 0..len {
-        let out = inference.step(x(t)[0], x(t)[1])?;
+        let out = match inference.step(x(t)[0], x(t)[1]) {
+            Ok(out) => out,
+            Err(pvrnn_core::Error::Numerical(message)) => {
+                (t..len).for_each(|_| progress());
+                return Ok(TrialRun::Failed(Failure {
+                    trial,
+                    step: t,
+                    message,
+                }));
+            }
+            Err(e) => return Err(e.into()),
+        };
         if out.rate_halvings > 0 {
             restarts.push(Restart {
                 trial,
@@ -413,7 +456,7 @@ fn run_trial(
         trial: Some(trial),
         steps,
     };
-    Ok((
+    Ok(TrialRun::Finished(
         [series(Target::Recon, recon), series(Target::Next, next)],
         keep_images.then_some(images),
         restarts,

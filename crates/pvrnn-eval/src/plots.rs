@@ -254,14 +254,18 @@ pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
                 line_chart(
                     &parts[0],
                     &format!(
-                        "{}: {top} reconstruction of x_t ({}, mean of {} trials)",
+                        "{}: {top} reconstruction of x_t ({}, mean of {} trials{})",
                         seq.meta.name,
                         if top_observed {
                             "observed"
                         } else {
                             "not observed"
                         },
-                        eval.settings.trials
+                        eval.settings.trials - seq.failures.len(),
+                        match seq.failures.len() {
+                            0 => String::new(),
+                            n => format!("; {n} diverged"),
+                        }
                     ),
                     "step",
                     "MSE",
@@ -333,7 +337,10 @@ pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
                 subtask_bar(&bar, seq)
             },
         )?;
-        write_image_grid(eval, seq, &dir.join(format!("images_{stem}.png")))?;
+        // Pictures come from trial 0; there are none when it diverged.
+        if !seq.images.steps.is_empty() {
+            write_image_grid(eval, seq, &dir.join(format!("images_{stem}.png")))?;
+        }
     }
     Ok(())
 }

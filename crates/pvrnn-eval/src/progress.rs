@@ -31,6 +31,10 @@ pub struct Evaluated {
     pub model: Vec<Option<f64>>,
     /// Per column: the best applicable baseline and its name.
     pub best_baseline: Vec<Option<(f64, String)>>,
+    /// Trials whose online inference diverged beyond repair (left out of its figures), and
+    /// how many trials it ran in all.
+    pub failed_trials: usize,
+    pub total_trials: usize,
 }
 
 fn field<'a>(v: &'a Value, path: &[&str]) -> Option<&'a Value> {
@@ -144,11 +148,22 @@ pub fn read_summary(text: &str, what: &str) -> Result<Evaluated> {
                 .min_by(|a, b| a.0.total_cmp(&b.0))
         })
         .collect();
+    let failed_trials = v
+        .get("failures")
+        .and_then(Value::as_array)
+        .map_or(0, Vec::len);
+    let total_trials = v
+        .get("sequences")
+        .and_then(Value::as_array)
+        .map_or(0, Vec::len)
+        * v.get("trials").and_then(Value::as_u64).unwrap_or(0) as usize;
     Ok(Evaluated {
         iteration,
         condition,
         model,
         best_baseline,
+        failed_trials,
+        total_trials,
     })
 }
 
@@ -239,7 +254,14 @@ pub fn markdown(evaluations: &[Evaluated]) -> String {
                 .checked_sub(1)
                 .and_then(|p| max_relative_change(rows[p], e))
                 .map_or("—".into(), |c| format!("{:.1}%", c * 100.0));
-            let _ = writeln!(md, "| {} | {} | {change} |", e.iteration, cells.join(" | "));
+            let iteration = match e.failed_trials {
+                0 => e.iteration.to_string(),
+                n => format!(
+                    "{} ({n} of {} trials diverged, left out)",
+                    e.iteration, e.total_trials
+                ),
+            };
+            let _ = writeln!(md, "| {iteration} | {} | {change} |", cells.join(" | "));
         }
         if let Some(last) = rows.last() {
             let cells: Vec<String> = last

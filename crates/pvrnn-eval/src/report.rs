@@ -116,6 +116,9 @@ fn pooled(steps: &[Option<StepErrors>], group: usize, pixels: Pixels) -> Sse {
 pub fn trial_values(eval: &Evaluation) -> Vec<TrialValue> {
     let mut out = Vec::new();
     for (s, seq) in eval.sequences.iter().enumerate() {
+        if seq.excluded() {
+            continue;
+        }
         for series in &seq.series {
             for (g, group) in eval.groups.iter().enumerate() {
                 if !applicable(series.source, series.target, group) {
@@ -298,6 +301,28 @@ struct Summary<'a> {
     /// Steps whose online inference diverged and was restarted at a reduced rate (their
     /// errors are in the figures, at that rate).
     restarts: Vec<RestartRow<'a>>,
+    /// Trials whose online inference diverged beyond repair (left out of the figures; a
+    /// sequence none of whose trials finished is left out with its baselines).
+    failures: Vec<FailureRow<'a>>,
+}
+
+#[derive(Serialize)]
+struct FailureRow<'a> {
+    sequence: &'a str,
+    #[serde(flatten)]
+    failure: &'a crate::evaluate::Failure,
+}
+
+fn failure_rows(eval: &Evaluation) -> Vec<FailureRow<'_>> {
+    eval.sequences
+        .iter()
+        .flat_map(|s| {
+            s.failures.iter().map(|failure| FailureRow {
+                sequence: &s.meta.name,
+                failure,
+            })
+        })
+        .collect()
 }
 
 #[derive(Serialize)]
@@ -411,6 +436,7 @@ pub fn write_report(eval: &Evaluation, meta: &ReportMeta, dir: &Path) -> Result<
         figures: &figures,
         comparisons: &comparisons,
         restarts: restart_rows(eval),
+        failures: failure_rows(eval),
     };
     write_file(
         &dir.join("summary.json"),
@@ -501,6 +527,45 @@ fn markdown(
              tables, at that rate.",
             restarts.len(),
             listed.join(", ")
+        );
+    }
+    let failures = failure_rows(eval);
+    if !failures.is_empty() {
+        let listed: Vec<String> = failures
+            .iter()
+            .map(|f| {
+                format!(
+                    "`{}` trial {} at step {}",
+                    f.sequence, f.failure.trial, f.failure.step
+                )
+            })
+            .collect();
+        let excluded: Vec<String> = eval
+            .sequences
+            .iter()
+            .filter(|s| s.excluded())
+            .map(|s| format!("`{}`", s.meta.name))
+            .collect();
+        let _ = writeln!(
+            md,
+            "- **Failures**: online inference diverged beyond repair (even at lr / 2^{}) in {} of {} \
+             trials: {}. Those trials are left out of every figure{}. First message: {}",
+            pvrnn_core::infer::MAX_RATE_HALVINGS,
+            failures.len(),
+            eval.sequences.len() * trials,
+            listed.join(", "),
+            if excluded.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; {} had no trial that finished and {} left out with {} baselines, so the \
+                     model and the baselines are scored on the same sequences",
+                    excluded.join(", "),
+                    if excluded.len() == 1 { "is" } else { "are" },
+                    if excluded.len() == 1 { "its" } else { "their" },
+                )
+            },
+            failures[0].failure.message
         );
     }
     let _ = writeln!(

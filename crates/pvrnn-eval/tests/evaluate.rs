@@ -402,3 +402,104 @@ fn restarted_steps_are_reported() {
     let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
     assert!(md.contains("no step's online inference diverged"), "{md}");
 }
+
+/// A trial whose online inference diverges beyond repair does not stop the evaluation: it
+/// is listed and left out of the figures, and a sequence with no finished trial leaves
+/// every figure with its baselines, so the model and the baselines stay comparable.
+#[test]
+fn diverged_trials_are_left_out_and_reported() {
+    let ds = dataset();
+    let meta = ReportMeta {
+        model: "m.safetensors".into(),
+        model_iteration: Some(3000),
+        dataset: "ds".into(),
+        split: "test".into(),
+        seconds: 1.0,
+        threads: 1,
+        backend: "cpu".into(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+
+    // A proprioceptive prior whose log sigma is 1000 x the state: infinite or zero sigmas
+    // from the first step with a state on, in every trial.
+    let mut broken = model(&ds);
+    broken.params.modules[3]
+        .w_prior_sigma
+        .data_mut()
+        .fill(1000.0);
+    let broken = Arc::new(broken);
+    let eval = evaluate(
+        broken.clone(),
+        &pvrnn_core::cpu::CpuBackend,
+        &ds,
+        &Selection::Split(Split::Test),
+        &settings(&broken, 1, 2),
+        &|| {},
+    )
+    .unwrap();
+    for seq in &eval.sequences {
+        assert_eq!(seq.failures.len(), 2, "{}", seq.meta.name);
+        assert!(seq.excluded());
+        assert!(
+            seq.failures[0].message.contains("diverged"),
+            "{:?}",
+            seq.failures
+        );
+    }
+    assert!(report::trial_values(&eval).is_empty());
+    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
+    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    assert!(md.contains("in 4 of 4 trials"), "{md}");
+
+    // One of two sequences without a finished trial: its baselines leave the figures too.
+    let model = Arc::new(model(&ds));
+    let mut eval = evaluate(
+        model.clone(),
+        &pvrnn_core::cpu::CpuBackend,
+        &ds,
+        &Selection::Split(Split::Test),
+        &settings(&model, 1, 2),
+        &|| {},
+    )
+    .unwrap();
+    let lost = &mut eval.sequences[0];
+    lost.series.retain(|s| s.source != Source::Model);
+    lost.images = Default::default();
+    lost.failures = (0..2)
+        .map(|trial| pvrnn_eval::evaluate::Failure {
+            trial,
+            step: 4,
+            message: "online inference diverged at step 4".into(),
+        })
+        .collect();
+    let values = report::trial_values(&eval);
+    assert!(values.iter().all(|v| v.sequence == 1));
+    let figures = report::figures(&eval, &values);
+    let n = |source| {
+        figures
+            .iter()
+            .find(|f| f.scope == "all" && f.source == source && f.group == "v4")
+            .unwrap()
+            .n
+    };
+    assert_eq!((n(Source::Model), n(Source::Upsample)), (2, 1));
+    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
+    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    assert!(
+        md.contains("in 2 of 4 trials") && md.contains("`r_test0` had no trial that finished"),
+        "{md}"
+    );
+    let text = std::fs::read_to_string(dir.path().join("summary.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["failures"].as_array().unwrap().len(), 2);
+    assert_eq!(json["failures"][0]["sequence"], "r_test0");
+    let row = progress::read_summary(&text, "summary.json").unwrap();
+    assert_eq!((row.failed_trials, row.total_trials), (2, 4));
+    let table = progress::markdown(&[row]);
+    assert!(
+        table.contains("| 3000 (2 of 4 trials diverged, left out) |"),
+        "{table}"
+    );
+}

@@ -119,5 +119,28 @@ pub fn run(a: Args) -> Result<()> {
         "wrote {} (summary.md, summary.json, CSVs, plots/)",
         a.out.display()
     );
+    let failures: Vec<String> = evaluation
+        .sequences
+        .iter()
+        .flat_map(|s| {
+            s.failures
+                .iter()
+                .map(move |f| format!("`{}` trial {} at step {}", s.meta.name, f.trial, f.step))
+        })
+        .collect();
+    if evaluation.sequences.iter().all(|s| s.excluded()) {
+        bail!(
+            "online inference diverged in every trial ({}); the report has no figures. Try a smaller --lr",
+            failures.join(", ")
+        );
+    }
+    if !failures.is_empty() {
+        eprintln!(
+            "warning: online inference diverged beyond repair in {} trial(s), left out of the figures \
+             (see summary.md): {}",
+            failures.len(),
+            failures.join(", ")
+        );
+    }
     Ok(())
 }

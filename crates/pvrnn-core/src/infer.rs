@@ -561,7 +561,7 @@ impl<T: Real> OnlineInference<T> {
             .map_or((0, false), |p| (p.rate_halvings, p.gave_up));
         if gave_up || !window_free_energy.total.is_finite() {
             return Err(Error::Numerical(format!(
-                "online inference diverged at step {t} (window free energy {}; restarted \
+                "online inference diverged at step {t} (window free energy {:.4e}; restarted \
                  {rate_halvings} times at half the rate); try a smaller inference lr",
                 window_free_energy.total
             )));

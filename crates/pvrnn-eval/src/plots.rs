@@ -108,6 +108,8 @@ fn line_chart(
     let mut chart = ChartBuilder::on(area)
         .caption(title, (FONT, 18))
         .margin(8)
+        // Room for the last x tick's label (e.g. 100000), centred on the right edge.
+        .margin_right(28)
         .x_label_area_size(32)
         .y_label_area_size(64)
         .build_cartesian_2d(0f64..x_max.max(1.0), (lo..hi).log_scale())

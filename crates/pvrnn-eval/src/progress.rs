@@ -35,6 +35,8 @@ pub struct Evaluated {
     /// how many trials it ran in all.
     pub failed_trials: usize,
     pub total_trials: usize,
+    /// Sequences none of whose trials finished (left out of every figure, baselines too).
+    pub excluded_sequences: usize,
 }
 
 fn field<'a>(v: &'a Value, path: &[&str]) -> Option<&'a Value> {
@@ -148,22 +150,33 @@ pub fn read_summary(text: &str, what: &str) -> Result<Evaluated> {
                 .min_by(|a, b| a.0.total_cmp(&b.0))
         })
         .collect();
-    let failed_trials = v
+    let failures: Vec<&str> = v
         .get("failures")
         .and_then(Value::as_array)
-        .map_or(0, Vec::len);
+        .map_or(Vec::new(), |f| {
+            f.iter()
+                .filter_map(|f| f.get("sequence").and_then(Value::as_str))
+                .collect()
+        });
+    let trials = v.get("trials").and_then(Value::as_u64).unwrap_or(0) as usize;
     let total_trials = v
         .get("sequences")
         .and_then(Value::as_array)
         .map_or(0, Vec::len)
-        * v.get("trials").and_then(Value::as_u64).unwrap_or(0) as usize;
+        * trials;
+    let mut per_sequence: BTreeMap<&str, usize> = BTreeMap::new();
+    for name in &failures {
+        *per_sequence.entry(name).or_default() += 1;
+    }
+    let excluded_sequences = per_sequence.values().filter(|&&n| n >= trials).count();
     Ok(Evaluated {
         iteration,
         condition,
         model,
         best_baseline,
-        failed_trials,
+        failed_trials: failures.len(),
         total_trials,
+        excluded_sequences,
     })
 }
 
@@ -254,16 +267,22 @@ pub fn markdown(evaluations: &[Evaluated]) -> String {
                 .checked_sub(1)
                 .and_then(|p| max_relative_change(rows[p], e))
                 .map_or("—".into(), |c| format!("{:.1}%", c * 100.0));
-            let iteration = match e.failed_trials {
-                0 => e.iteration.to_string(),
-                n => format!(
+            let iteration = match (e.failed_trials, e.excluded_sequences) {
+                (0, _) => e.iteration.to_string(),
+                (n, 0) => format!(
                     "{} ({n} of {} trials diverged, left out)",
+                    e.iteration, e.total_trials
+                ),
+                (n, k) => format!(
+                    "{} ({n} of {} trials diverged, left out; {k} sequence(s) left out with them)",
                     e.iteration, e.total_trials
                 ),
             };
             let _ = writeln!(md, "| {iteration} | {} | {change} |", cells.join(" | "));
         }
-        if let Some(last) = rows.last() {
+        // Baselines over every sequence: a row that left sequences out scores them on fewer.
+        let complete = rows.iter().rev().find(|e| e.failed_trials == 0);
+        if let Some(last) = complete.or(rows.last()) {
             let cells: Vec<String> = last
                 .best_baseline
                 .iter()

@@ -300,45 +300,31 @@ struct Summary<'a> {
     comparisons: &'a [Comparison],
     /// Steps whose online inference diverged and was restarted at a reduced rate (their
     /// errors are in the figures, at that rate).
-    restarts: Vec<RestartRow<'a>>,
+    restarts: Vec<SequenceRow<'a, crate::evaluate::Restart>>,
     /// Trials whose online inference diverged beyond repair (left out of the figures; a
     /// sequence none of whose trials finished is left out with its baselines).
-    failures: Vec<FailureRow<'a>>,
+    failures: Vec<SequenceRow<'a, crate::evaluate::Failure>>,
 }
 
+/// One entry of a per-sequence list (a restart, a failure), named by its sequence.
 #[derive(Serialize)]
-struct FailureRow<'a> {
+struct SequenceRow<'a, T> {
     sequence: &'a str,
     #[serde(flatten)]
-    failure: &'a crate::evaluate::Failure,
+    entry: &'a T,
 }
 
-fn failure_rows(eval: &Evaluation) -> Vec<FailureRow<'_>> {
+/// Every sequence's entries of one list, in sequence order.
+fn sequence_rows<T>(
+    eval: &Evaluation,
+    list: impl Fn(&crate::evaluate::SequenceResult) -> &Vec<T>,
+) -> Vec<SequenceRow<'_, T>> {
     eval.sequences
         .iter()
         .flat_map(|s| {
-            s.failures.iter().map(|failure| FailureRow {
+            list(s).iter().map(|entry| SequenceRow {
                 sequence: &s.meta.name,
-                failure,
-            })
-        })
-        .collect()
-}
-
-#[derive(Serialize)]
-struct RestartRow<'a> {
-    sequence: &'a str,
-    #[serde(flatten)]
-    restart: &'a crate::evaluate::Restart,
-}
-
-fn restart_rows(eval: &Evaluation) -> Vec<RestartRow<'_>> {
-    eval.sequences
-        .iter()
-        .flat_map(|s| {
-            s.restarts.iter().map(|restart| RestartRow {
-                sequence: &s.meta.name,
-                restart,
+                entry,
             })
         })
         .collect()
@@ -435,8 +421,8 @@ pub fn write_report(eval: &Evaluation, meta: &ReportMeta, dir: &Path) -> Result<
         sequences: eval.sequences.iter().map(|s| &s.meta).collect(),
         figures: &figures,
         comparisons: &comparisons,
-        restarts: restart_rows(eval),
-        failures: failure_rows(eval),
+        restarts: sequence_rows(eval, |s| &s.restarts),
+        failures: sequence_rows(eval, |s| &s.failures),
     };
     write_file(
         &dir.join("summary.json"),
@@ -507,7 +493,7 @@ fn markdown(
         condition.iterations,
         condition.lr
     );
-    let restarts = restart_rows(eval);
+    let restarts = sequence_rows(eval, |s| &s.restarts);
     if restarts.is_empty() {
         let _ = writeln!(md, "- **Stability**: no step's online inference diverged.");
     } else {
@@ -516,7 +502,7 @@ fn markdown(
             .map(|r| {
                 format!(
                     "`{}` trial {} step {} (lr / 2^{})",
-                    r.sequence, r.restart.trial, r.restart.step, r.restart.rate_halvings
+                    r.sequence, r.entry.trial, r.entry.step, r.entry.rate_halvings
                 )
             })
             .collect();
@@ -529,14 +515,14 @@ fn markdown(
             listed.join(", ")
         );
     }
-    let failures = failure_rows(eval);
+    let failures = sequence_rows(eval, |s| &s.failures);
     if !failures.is_empty() {
         let listed: Vec<String> = failures
             .iter()
             .map(|f| {
                 format!(
                     "`{}` trial {} at step {}",
-                    f.sequence, f.failure.trial, f.failure.step
+                    f.sequence, f.entry.trial, f.entry.step
                 )
             })
             .collect();
@@ -565,7 +551,7 @@ fn markdown(
                     if excluded.len() == 1 { "its" } else { "their" },
                 )
             },
-            failures[0].failure.message
+            failures[0].entry.message
         );
     }
     let _ = writeln!(

@@ -496,10 +496,28 @@ fn diverged_trials_are_left_out_and_reported() {
     assert_eq!(json["failures"].as_array().unwrap().len(), 2);
     assert_eq!(json["failures"][0]["sequence"], "r_test0");
     let row = progress::read_summary(&text, "summary.json").unwrap();
-    assert_eq!((row.failed_trials, row.total_trials), (2, 4));
-    let table = progress::markdown(&[row]);
+    assert_eq!(
+        (row.failed_trials, row.total_trials, row.excluded_sequences),
+        (2, 4, 1)
+    );
+    let table = progress::markdown(std::slice::from_ref(&row));
     assert!(
-        table.contains("| 3000 (2 of 4 trials diverged, left out) |"),
+        table.contains(
+            "| 3000 (2 of 4 trials diverged, left out; 1 sequence(s) left out with them) |"
+        ),
         "{table}"
     );
+    // The best-baseline line comes from the last row over every sequence.
+    let mut complete = row.clone();
+    complete.iteration = 2000;
+    complete.failed_trials = 0;
+    for b in complete.best_baseline.iter_mut().flatten() {
+        b.0 = 123.0;
+    }
+    let table = progress::markdown(&[complete, row]);
+    let baseline_line = table
+        .lines()
+        .find(|l| l.starts_with("| best baseline"))
+        .unwrap();
+    assert!(baseline_line.contains("123.0"), "{table}");
 }

@@ -829,6 +829,53 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         "--iterations",
         "2",
     ]);
+    // Early stopping: scored on the dataset's sequences every iteration, the best kept; a
+    // resumed run goes on with the same log.
+    let early = x.s("early.safetensors");
+    let validate = |iterations: &str, resume: bool| {
+        let mut args = vec![
+            "train",
+            "--inputs",
+            &ds,
+            "--out",
+            &early,
+            "--iterations",
+            iterations,
+            "--validate",
+            &ds,
+            "--validate-every",
+            "1",
+        ];
+        if resume {
+            args.push("--resume");
+        } else {
+            args.extend(["--model", &m]);
+        }
+        logged(&args, "0")
+    };
+    let err = validate("2", false);
+    assert!(
+        err.contains("validation at iteration 1: reconstruction error")
+            && err.contains("validation at iteration 2: reconstruction error")
+            && err.contains("warning: --validate")
+            && err.contains("is the training data"),
+        "{err}"
+    );
+    validate("3", true);
+    let rows = pvrnn_eval::validation::read_log(&x.path("early.validation.csv")).unwrap();
+    assert_eq!(
+        rows.iter().map(|r| r.iteration).collect::<Vec<_>>(),
+        [1, 2, 3]
+    );
+    assert!(
+        rows.iter()
+            .all(|r| r.trials == 2 && r.failed_trials == 0 && r.recon_vision_top.is_finite()),
+        "{rows:?}"
+    );
+    let best = pvrnn_eval::validation::best(&rows).unwrap().iteration;
+    let kept = TensorFile::open(&x.path("early.best.safetensors")).unwrap();
+    assert_eq!(io::checkpoint_iteration(&kept), Some(best));
+
     let out = x.s("r.safetensors");
     let err = logged(
         &[

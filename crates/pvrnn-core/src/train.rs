@@ -99,6 +99,11 @@ impl<T: Real> Trainer<T> {
         self
     }
 
+    /// The arithmetic the trainer runs on (also for scoring its model as it goes).
+    pub fn backend(&self) -> &dyn Backend<T> {
+        self.backend.as_ref()
+    }
+
     /// One full-batch iteration; returns the free energy at which the gradient was taken.
     pub fn step(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
         crate::parallel::in_pool(|| self.step_here(data))

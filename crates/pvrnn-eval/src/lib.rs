@@ -14,6 +14,7 @@
 //!   images), and training curves from a training log.
 //! - [`progress`]: error against training iterations, from several evaluations.
 //! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
+//! - [`validation`]: early stopping, a training run scored on held-out sequences as it goes.
 
 pub mod evaluate;
 pub mod groups;
@@ -22,6 +23,7 @@ pub mod plots;
 pub mod progress;
 pub mod report;
 pub mod training_log;
+pub mod validation;
 
 use std::path::Path;
 

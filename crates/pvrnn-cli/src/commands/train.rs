@@ -9,6 +9,7 @@ use pvrnn_core::{FreeEnergy, NoiseMode, io};
 use crate::{inputs, util};
 use pvrnn_dataset::Split;
 use pvrnn_eval::training_log::TrainingLog;
+use pvrnn_eval::validation;
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -55,6 +56,18 @@ pub struct Args {
     /// Replace an existing --out instead of refusing.
     #[arg(long)]
     overwrite: bool,
+    /// Held-out sequences for early stopping: a dataset folder none of whose sequences the
+    /// run learns from (e.g. `pvrnn simulate --seed 1`). Every --validate-every iterations
+    /// the run is scored on all of them (online inference with the lowest vision resolution
+    /// and proprioception observed, one trial: the error of the highest resolution's
+    /// reconstruction; diverged trials count first), the scores go to `<out
+    /// stem>.validation.csv`, and the best checkpoint so far is kept as `<out
+    /// stem>.best.safetensors`.
+    #[arg(long)]
+    validate: Option<PathBuf>,
+    /// Validate every this many iterations (with --validate).
+    #[arg(long, default_value_t = 5000, requires = "validate")]
+    validate_every: u64,
     #[command(flatten)]
     backend: util::BackendArgs,
 }
@@ -68,6 +81,94 @@ pub fn kept_path(out: &Path, iteration: u64) -> PathBuf {
         .file_stem()
         .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
     out.with_file_name(format!("{stem}.iter{iteration}.safetensors"))
+}
+
+/// `run.safetensors` -> `run.<suffix>` beside it.
+fn sibling(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.{suffix}"))
+}
+
+/// Where `--validate` keeps its scores and the best checkpoint.
+pub fn validation_paths(out: &Path) -> (PathBuf, PathBuf) {
+    (
+        sibling(out, "validation.csv"),
+        sibling(out, "best.safetensors"),
+    )
+}
+
+/// Early stopping's state: the held-out data, the scores so far (of iterations up to the
+/// checkpoint's: a resumed run forgets the rest) and the paths.
+struct Validation {
+    dataset: pvrnn_dataset::Dataset,
+    every: u64,
+    rows: Vec<validation::ValidationRow>,
+    log: PathBuf,
+    best: PathBuf,
+}
+
+impl Validation {
+    fn open(dir: &Path, every: u64, out: &Path, iteration: u64) -> Result<Self> {
+        anyhow::ensure!(every >= 1, "--validate-every must be at least 1");
+        let dataset = pvrnn_dataset::Dataset::open(dir)
+            .with_context(|| format!("--validate {}", dir.display()))?;
+        let (log, best) = validation_paths(out);
+        let mut rows = validation::read_log(&log)?;
+        rows.retain(|r| r.iteration <= iteration);
+        Ok(Self {
+            dataset,
+            every,
+            rows,
+            log,
+            best,
+        })
+    }
+
+    /// Whether the checkpoint's own iteration is due a validation that is not in the log
+    /// (the run stopped during it).
+    fn missed(&self, iteration: u64) -> bool {
+        iteration > 0
+            && iteration.is_multiple_of(self.every)
+            && self.rows.last().map(|r| r.iteration) != Some(iteration)
+    }
+
+    /// Scores the trainer's model; keeps its checkpoint when it is the best so far.
+    fn run(
+        &mut self,
+        trainer: &Trainer<f32>,
+        last: Option<FreeEnergy>,
+        bar: &util::Progress,
+    ) -> Result<()> {
+        bar.set_message("validating".into());
+        let row = validation::validate(
+            Arc::new(trainer.model.clone()),
+            trainer.backend(),
+            &self.dataset,
+            trainer.iteration,
+        )?;
+        let is_best = validation::best(&self.rows).is_none_or(|b| row.better_than(b));
+        bar.println(format!(
+            "validation at iteration {}: reconstruction error {:.5} ({} of {} trials diverged, {:.0} s){}",
+            row.iteration,
+            row.recon_vision_top,
+            row.failed_trials,
+            row.trials,
+            row.seconds,
+            if is_best {
+                format!("; best so far, kept {}", self.best.display())
+            } else {
+                String::new()
+            }
+        ));
+        if is_best {
+            io::save_checkpoint(&self.best, trainer, last)?;
+        }
+        self.rows.push(row);
+        validation::write_log(&self.log, &self.rows)?;
+        Ok(())
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -118,6 +219,19 @@ pub fn run(a: Args) -> Result<()> {
         .unwrap_or(trainer.model.config.train.iterations);
     let log = log_path(&a.out);
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
+    let mut validation = a
+        .validate
+        .as_deref()
+        .map(|dir| Validation::open(dir, a.validate_every, &a.out, trainer.iteration))
+        .transpose()?;
+    if let Some(dir) = &a.validate
+        && std::fs::canonicalize(dir).ok() == std::fs::canonicalize(&a.inputs).ok()
+    {
+        eprintln!(
+            "warning: --validate {} is the training data: early stopping needs sequences the run does not learn from",
+            dir.display()
+        );
+    }
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {
@@ -129,6 +243,11 @@ pub fn run(a: Args) -> Result<()> {
     let bar = util::progress(total, "train");
     bar.set_position(trainer.iteration);
     let mut last: Option<FreeEnergy> = None;
+    if let Some(v) = validation.as_mut()
+        && v.missed(trainer.iteration)
+    {
+        v.run(&trainer, None, &bar)?;
+    }
     while trainer.iteration < total {
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
@@ -147,6 +266,12 @@ pub fn run(a: Args) -> Result<()> {
             let kept = kept_path(&a.out, trainer.iteration);
             io::save_checkpoint(&kept, &trainer, last)?;
             bar.println(format!("kept {}", kept.display()));
+        }
+        if let Some(v) = validation.as_mut()
+            && !stop
+            && trainer.iteration.is_multiple_of(v.every)
+        {
+            v.run(&trainer, last, &bar)?;
         }
         if stop {
             bar.abandon();

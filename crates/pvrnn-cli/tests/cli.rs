@@ -875,6 +875,22 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     let best = pvrnn_eval::validation::best(&rows).unwrap().iteration;
     let kept = TensorFile::open(&x.path("early.best.safetensors")).unwrap();
     assert_eq!(io::checkpoint_iteration(&kept), Some(best));
+    let missing = x.s("no-such-dataset");
+    let e = fails(&[
+        "train",
+        "--model",
+        &m,
+        "--inputs",
+        &ds,
+        "--out",
+        &x.s("never.safetensors"),
+        "--validate",
+        &missing,
+    ]);
+    assert!(
+        e.contains("--validate") && e.contains("no-such-dataset"),
+        "{e}"
+    );
 
     let out = x.s("r.safetensors");
     let err = logged(

@@ -77,10 +77,7 @@ pub use pvrnn_eval::training_log::path_for as log_path;
 /// Where `--keep-every` keeps the checkpoint of `iteration`: `run.safetensors` ->
 /// `run.iter10000.safetensors`.
 pub fn kept_path(out: &Path, iteration: u64) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
-    out.with_file_name(format!("{stem}.iter{iteration}.safetensors"))
+    sibling(out, &format!("iter{iteration}.safetensors"))
 }
 
 /// `run.safetensors` -> `run.<suffix>` beside it.
@@ -110,10 +107,16 @@ struct Validation {
 }
 
 impl Validation {
-    fn open(dir: &Path, every: u64, out: &Path, iteration: u64) -> Result<Self> {
+    fn open(dir: &Path, every: u64, out: &Path, trainer: &Trainer<f32>) -> Result<Self> {
         anyhow::ensure!(every >= 1, "--validate-every must be at least 1");
         let dataset = pvrnn_dataset::Dataset::open(dir)
             .with_context(|| format!("--validate {}", dir.display()))?;
+        // Now rather than at the first validation, hours into the run.
+        let config = &trainer.model.config;
+        pvrnn_dataset::inputs::check_layout(&dataset.manifest, &config.vision)
+            .and_then(|()| pvrnn_dataset::inputs::check_proprio(&dataset.manifest, config))
+            .with_context(|| format!("--validate {}: the model does not fit it", dir.display()))?;
+        let iteration = trainer.iteration;
         let (log, best) = validation_paths(out);
         let mut rows = validation::read_log(&log)?;
         rows.retain(|r| r.iteration <= iteration);
@@ -222,7 +225,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut validation = a
         .validate
         .as_deref()
-        .map(|dir| Validation::open(dir, a.validate_every, &a.out, trainer.iteration))
+        .map(|dir| Validation::open(dir, a.validate_every, &a.out, &trainer))
         .transpose()?;
     if let Some(dir) = &a.validate
         && std::fs::canonicalize(dir).ok() == std::fs::canonicalize(&a.inputs).ok()

@@ -94,20 +94,41 @@ fn settings(model: &Model<f32>, vision_levels: usize, trials: usize) -> EvalSett
     }
 }
 
+/// `evaluate` on the CPU over the test split.
+fn evaluate_test(
+    ds: &Dataset,
+    model: &Arc<Model<f32>>,
+    settings: &EvalSettings,
+) -> pvrnn_eval::Result<pvrnn_eval::Evaluation> {
+    evaluate(
+        model.clone(),
+        &pvrnn_core::cpu::CpuBackend,
+        ds,
+        &Selection::Split(Split::Test),
+        settings,
+        &|| {},
+    )
+}
+
+/// A report header for a model at training `iteration`.
+fn meta(iteration: u64) -> ReportMeta {
+    ReportMeta {
+        model: "m.safetensors".into(),
+        model_iteration: Some(iteration),
+        dataset: "ds".into(),
+        split: "test".into(),
+        seconds: 1.0,
+        threads: 1,
+        backend: "cpu".into(),
+    }
+}
+
 #[test]
 fn errors_match_the_core_and_baselines_match_their_definitions() {
     let ds = dataset();
     let model = Arc::new(model(&ds));
     let test = Selection::Split(Split::Test);
-    let eval = evaluate(
-        model.clone(),
-        &pvrnn_core::cpu::CpuBackend,
-        &ds,
-        &test,
-        &settings(&model, 1, 2),
-        &|| {},
-    )
-    .unwrap();
+    let eval = evaluate_test(&ds, &model, &settings(&model, 1, 2)).unwrap();
     let names: Vec<&str> = eval.groups.iter().map(|g| g.name.as_str()).collect();
     assert_eq!(
         names,
@@ -202,15 +223,7 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
 
     // Upsampling only when some levels are observed and some not.
     assert!(seq.series.iter().any(|s| s.source == Source::Upsample));
-    let all = evaluate(
-        model.clone(),
-        &pvrnn_core::cpu::CpuBackend,
-        &ds,
-        &test,
-        &settings(&model, 2, 1),
-        &|| {},
-    )
-    .unwrap();
+    let all = evaluate_test(&ds, &model, &settings(&model, 2, 1)).unwrap();
     assert!(
         all.sequences
             .iter()
@@ -271,15 +284,7 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
 fn reports_plots_and_the_progress_table_are_written() {
     let ds = dataset();
     let model = Arc::new(model(&ds));
-    let eval = evaluate(
-        model.clone(),
-        &pvrnn_core::cpu::CpuBackend,
-        &ds,
-        &Selection::Split(Split::Test),
-        &settings(&model, 1, 2),
-        &|| {},
-    )
-    .unwrap();
+    let eval = evaluate_test(&ds, &model, &settings(&model, 1, 2)).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut meta = ReportMeta {
         model: "m.safetensors".into(),
@@ -352,26 +357,11 @@ fn reports_plots_and_the_progress_table_are_written() {
 fn restarted_steps_are_reported() {
     let ds = dataset();
     let model = Arc::new(model(&ds));
-    let meta = ReportMeta {
-        model: "m.safetensors".into(),
-        model_iteration: Some(1),
-        dataset: "ds".into(),
-        split: "test".into(),
-        seconds: 1.0,
-        threads: 1,
-        backend: "cpu".into(),
-    };
+    let meta = meta(1);
     let run = |lr: f64| {
         let mut s = settings(&model, 2, 1);
         s.inference.optimizer.lr = lr;
-        evaluate(
-            model.clone(),
-            &pvrnn_core::cpu::CpuBackend,
-            &ds,
-            &Selection::Split(Split::Test),
-            &s,
-            &|| {},
-        )
+        evaluate_test(&ds, &model, &s)
     };
     let eval = (0..60)
         .find_map(|e| match run(2f64.powi(e)) {
@@ -409,15 +399,7 @@ fn restarted_steps_are_reported() {
 #[test]
 fn diverged_trials_are_left_out_and_reported() {
     let ds = dataset();
-    let meta = ReportMeta {
-        model: "m.safetensors".into(),
-        model_iteration: Some(3000),
-        dataset: "ds".into(),
-        split: "test".into(),
-        seconds: 1.0,
-        threads: 1,
-        backend: "cpu".into(),
-    };
+    let meta = meta(3000);
     let dir = tempfile::tempdir().unwrap();
 
     // A proprioceptive prior whose log sigma is 1000 x the state: infinite or zero sigmas
@@ -428,15 +410,7 @@ fn diverged_trials_are_left_out_and_reported() {
         .data_mut()
         .fill(1000.0);
     let broken = Arc::new(broken);
-    let eval = evaluate(
-        broken.clone(),
-        &pvrnn_core::cpu::CpuBackend,
-        &ds,
-        &Selection::Split(Split::Test),
-        &settings(&broken, 1, 2),
-        &|| {},
-    )
-    .unwrap();
+    let eval = evaluate_test(&ds, &broken, &settings(&broken, 1, 2)).unwrap();
     for seq in &eval.sequences {
         assert_eq!(seq.failures.len(), 2, "{}", seq.meta.name);
         assert!(seq.excluded());
@@ -454,15 +428,7 @@ fn diverged_trials_are_left_out_and_reported() {
 
     // One of two sequences without a finished trial: its baselines leave the figures too.
     let model = Arc::new(model(&ds));
-    let mut eval = evaluate(
-        model.clone(),
-        &pvrnn_core::cpu::CpuBackend,
-        &ds,
-        &Selection::Split(Split::Test),
-        &settings(&model, 1, 2),
-        &|| {},
-    )
-    .unwrap();
+    let mut eval = evaluate_test(&ds, &model, &settings(&model, 1, 2)).unwrap();
     let lost = &mut eval.sequences[0];
     lost.series.retain(|s| s.source != Source::Model);
     lost.images = Default::default();

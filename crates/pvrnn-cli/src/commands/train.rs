@@ -275,6 +275,7 @@ pub fn run(a: Args) -> Result<()> {
             && trainer.iteration.is_multiple_of(v.every)
         {
             v.run(&trainer, last, &bar)?;
+            bar.set_message(format!("F {:.4}", report.total));
         }
         if stop {
             bar.abandon();

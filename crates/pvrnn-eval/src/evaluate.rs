@@ -102,9 +102,11 @@ pub struct Series {
     pub steps: Vec<Option<StepErrors>>,
 }
 
-/// Vision vectors of a few steps of trial 0, for pictures.
+/// Vision vectors of a few steps of one trial (the first that finished), for pictures.
 #[derive(Clone, Debug, Default)]
 pub struct ImageSamples {
+    /// The trial they come from.
+    pub trial: usize,
     pub steps: Vec<usize>,
     pub actual: Vec<Vec<f32>>,
     pub recon: Vec<Vec<f32>>,
@@ -155,7 +157,7 @@ pub struct Failure {
 
 /// What one trial's run gives: its series, pictures and restarts, or how it failed.
 enum TrialRun {
-    Finished([Series; 2], Option<ImageSamples>, Vec<Restart>),
+    Finished([Series; 2], Box<ImageSamples>, Vec<Restart>),
     Failed(Failure),
 }
 
@@ -343,8 +345,9 @@ pub fn evaluate(
             TrialRun::Finished(series, images, restarts) => {
                 results[s].series.extend(series);
                 results[s].restarts.extend(restarts);
-                if let Some(images) = images {
-                    results[s].images = images;
+                // Jobs come in trial order: the first finished trial shows its pictures.
+                if results[s].images.steps.is_empty() {
+                    results[s].images = *images;
                 }
             }
             TrialRun::Failed(failure) => results[s].failures.push(failure),
@@ -400,9 +403,11 @@ fn run_trial(
     };
     let mut recon = Vec::with_capacity(len);
     let mut next = Vec::with_capacity(len);
-    let keep_images = trial == 0;
     let shown = image_steps(len, settings.image_columns);
-    let mut images = ImageSamples::default();
+    let mut images = ImageSamples {
+        trial,
+        ..ImageSamples::default()
+    };
     let mut last_prior: Option<Vec<f32>> = None;
     let mut restarts = Vec::new();
     for t in 0..len {
@@ -439,15 +444,13 @@ fn run_trial(
                 masks[t + 1].as_deref(),
             )
         }));
-        if keep_images && shown.contains(&t) {
+        if shown.contains(&t) {
             images.steps.push(t);
             images.actual.push(x(t)[0].to_vec());
             images.recon.push(out.recon[0].clone());
             images.predicted.push(last_prior.take());
         }
-        if keep_images {
-            last_prior = Some(out.prior_next[0].clone());
-        }
+        last_prior = Some(out.prior_next[0].clone());
         progress();
     }
     let series = |target, steps| Series {
@@ -458,7 +461,7 @@ fn run_trial(
     };
     Ok(TrialRun::Finished(
         [series(Target::Recon, recon), series(Target::Next, next)],
-        keep_images.then_some(images),
+        Box::new(images),
         restarts,
     ))
 }

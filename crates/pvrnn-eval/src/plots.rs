@@ -339,7 +339,7 @@ pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
                 subtask_bar(&bar, seq)
             },
         )?;
-        // Pictures come from trial 0; there are none when it diverged.
+        // Pictures come from the first trial that finished; none when every one diverged.
         if !seq.images.steps.is_empty() {
             write_image_grid(eval, seq, &dir.join(format!("images_{stem}.png")))?;
         }
@@ -417,12 +417,13 @@ fn write_image_grid(eval: &Evaluation, seq: &SequenceResult, path: &Path) -> Res
                 .map_err(plot_err)?;
         }
         let note = format!(
-            "{} ({}), camera {}, {}x{}; trial 0",
+            "{} ({}), camera {}, {}x{}; trial {}",
             seq.meta.name,
             crate::report::Condition::of(eval).label(),
             eval.cameras.first().map_or("0", |c| c.as_str()),
             r,
-            r
+            r,
+            images.trial
         );
         root.draw(&Text::new(note, (6, height as i32 - 20), (FONT, 13)))
             .map_err(plot_err)?;

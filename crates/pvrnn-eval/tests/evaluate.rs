@@ -285,6 +285,12 @@ fn reports_plots_and_the_progress_table_are_written() {
     let ds = dataset();
     let model = Arc::new(model(&ds));
     let eval = evaluate_test(&ds, &model, &settings(&model, 1, 2)).unwrap();
+    // Pictures of the first trial that finished: here trial 0.
+    assert!(
+        eval.sequences
+            .iter()
+            .all(|s| s.images.trial == 0 && s.images.steps.len() == 4)
+    );
     let dir = tempfile::tempdir().unwrap();
     let mut meta = ReportMeta {
         model: "m.safetensors".into(),

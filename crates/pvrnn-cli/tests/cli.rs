@@ -1207,6 +1207,46 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
             .unwrap(),
         before
     );
+    // A network whose prior sigma blows up (log sigma = 1000 x the state): its inference
+    // runs diverge beyond repair, are recorded as such, and the report leaves them out
+    // instead of the experiment failing.
+    let net1 = x.path("unc/networks/smoke-train-net1.safetensors");
+    let mut broken = io::load_checkpoint(&net1).unwrap();
+    broken.model.params.modules[3]
+        .w_prior_sigma
+        .data_mut()
+        .fill(1000.0);
+    io::save_checkpoint(&net1, &broken, None).unwrap();
+    for entry in std::fs::read_dir(x.path("unc/results")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "safetensors") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let rerun = pvrnn(&[
+        "experiment",
+        "uncertainty",
+        "--scale",
+        "smoke",
+        "--out",
+        &out,
+    ]);
+    let log = String::from_utf8_lossy(&rerun.stderr);
+    assert!(rerun.status.success(), "{log}");
+    assert!(log.contains("diverged beyond repair at step"), "{log}");
+    let md = std::fs::read_to_string(x.path("unc/report/report.md")).unwrap();
+    assert!(
+        md.contains("**Diverged**") && md.contains("network 1 on") && !md.contains("network 0 on"),
+        "{md}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(x.path("unc/report/summary.json")).unwrap())
+            .unwrap();
+    let diverged = summary["diverged"].as_array().unwrap();
+    assert!(
+        !diverged.is_empty() && diverged.iter().all(|d| d["network"] == 1),
+        "{summary}"
+    );
     // A second experiment sharing the networks folder trains nothing.
     let shared = x.s("shared");
     ok(&[

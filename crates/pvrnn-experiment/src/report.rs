@@ -26,7 +26,10 @@ pub const PERMUTATIONS: usize = 2000;
 
 struct Results {
     trains: Vec<TrainResult>,
+    /// The inference runs every analysis uses.
     infers: Vec<(InferResult, Option<Vec<Vec<f32>>>)>,
+    /// Inference runs that diverged beyond repair: left out of every analysis, listed.
+    diverged: Vec<InferResult>,
     done: usize,
     total: usize,
 }
@@ -35,6 +38,7 @@ fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
     let mut r = Results {
         trains: Vec::new(),
         infers: Vec::new(),
+        diverged: Vec::new(),
         done: 0,
         total: plan.jobs.len(),
     };
@@ -46,7 +50,14 @@ fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
         let path = plan.result_path(dir, job.id);
         match job.kind {
             JobKind::Train { .. } => r.trains.push(read_train_result(&path)?),
-            JobKind::Infer { .. } => r.infers.push(read_infer_result(&path)?),
+            JobKind::Infer { .. } => {
+                let (result, maps) = read_infer_result(&path)?;
+                if result.diverged.is_some() {
+                    r.diverged.push(result);
+                } else {
+                    r.infers.push((result, maps));
+                }
+            }
         }
     }
     Ok(r)
@@ -181,6 +192,29 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
             results.done, results.total
         );
     }
+    if !results.diverged.is_empty() {
+        let listed: Vec<String> = results
+            .diverged
+            .iter()
+            .map(|x| {
+                format!(
+                    "network {} on `{}` ({}, trial {}) at step {}",
+                    x.network,
+                    x.sequence,
+                    x.condition,
+                    x.trial,
+                    x.diverged.as_ref().map_or(0, |d| d.step)
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "**Diverged**: online inference diverged beyond repair in {} of {} inference runs, which every analysis below leaves out: {}.\n",
+            results.diverged.len(),
+            results.diverged.len() + results.infers.len(),
+            listed.join("; ")
+        );
+    }
     md.push_str("## Learning curves\n\nHow flat each network's learning curve ended: the relative change of the mean free energy from the second-to-last to the last tenth of its iterations (negative = still falling).\n\n| network | training | iterations | final F | last-tenth change | time |\n|---|---|---|---|---|---|\n");
     for t in &results.trains {
         let _ = writeln!(
@@ -207,6 +241,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         "jobs_done": results.done,
         "jobs_total": results.total,
         "trainings": results.trains,
+        "diverged": results.diverged,
     });
     let body = match plan.experiment {
         Experiment::Hierarchy => hierarchy(&results, &out_dir, &stamp, &mut md)?,
@@ -915,6 +950,7 @@ mod tests {
                 subtask,
                 map_means: None,
                 occlusion: None,
+                diverged: None,
             },
             None,
         )

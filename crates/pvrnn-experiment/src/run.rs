@@ -49,6 +49,12 @@ pub enum Event<'a> {
         name: &'a str,
         seconds: f64,
     },
+    /// An inference run diverged beyond repair at `step`: recorded, the report leaves it out.
+    Diverged {
+        id: usize,
+        name: &'a str,
+        step: usize,
+    },
 }
 
 /// Stopped on request (Ctrl-C, SIGTERM); checkpoints are written.
@@ -109,6 +115,18 @@ pub struct InferResult {
     /// them).
     #[serde(default)]
     pub occlusion: Option<OcclusionScores>,
+    /// Set when online inference diverged beyond repair (`pvrnn_core::Error::Numerical`):
+    /// the run stopped there, every figure above covers only the `steps` before it, and
+    /// the report leaves the run out.
+    #[serde(default)]
+    pub diverged: Option<Diverged>,
+}
+
+/// Where and how an inference run diverged beyond repair.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Diverged {
+    pub step: usize,
+    pub message: String,
 }
 
 /// Datasets and trained networks shared by the jobs of one process.
@@ -525,11 +543,26 @@ fn infer(
         }
         None => None,
     };
-    let steps = seq.len();
-    for t in 0..steps {
+    let mut steps = seq.len();
+    let mut diverged = None;
+    for t in 0..seq.len() {
         let x = data.step(pvrnn_core::Modality::Exteroceptive, 0, t);
         let p = data.step(pvrnn_core::Modality::Proprioceptive, 0, t);
-        let out = inference.step(x, p)?;
+        let out = match inference.step(x, p) {
+            Ok(out) => out,
+            // Not the job's failure: the network's, recorded so the report can say so.
+            Err(pvrnn_core::Error::Numerical(message)) => {
+                events(Event::Diverged {
+                    id,
+                    name: &job.name,
+                    step: t,
+                });
+                diverged = Some(Diverged { step: t, message });
+                steps = t;
+                break;
+            }
+            Err(e) => return Err(e.into()),
+        };
         if let Some((truth, scorer)) = occlusion.as_mut() {
             let truth = truth.step(pvrnn_core::Modality::Exteroceptive, 0, t);
             scorer.step(
@@ -608,7 +641,7 @@ fn infer(
         sigma_p: sigma.map(|v| v / n),
         sigma_p_change: sigma_change.map(|v| v / changes),
         executive_change,
-        subtask: seq.subtask.clone(),
+        subtask: seq.subtask[..steps].to_vec(),
         map_means: maps.then(|| {
             std::array::from_fn(|m| {
                 maps_mean[m].iter().map(|v| *v as f64).sum::<f64>()
@@ -616,6 +649,7 @@ fn infer(
             })
         }),
         occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
+        diverged,
     };
     let mut tensors = BTreeMap::new();
     if *maps {

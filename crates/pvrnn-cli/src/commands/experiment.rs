@@ -180,6 +180,16 @@ pub fn run(a: Args) -> Result<()> {
             Event::Inferring { id, done, total } => {
                 bar.set_message(format!("job {id}: step {done}/{total}"));
             }
+            Event::Diverged { id, name, step } => {
+                let line = format!(
+                    "job {id} ({name}): online inference diverged beyond repair at step {step}; recorded, the report leaves it out"
+                );
+                if tty {
+                    bar.println(line)
+                } else {
+                    eprintln!("{line}")
+                }
+            }
         };
         let result = pvrnn_experiment::run::run(&a.out, &backend, a.jobs, a.job, &stop, &events);
         bar.finish_and_clear();

@@ -1247,6 +1247,24 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
         !diverged.is_empty() && diverged.iter().all(|d| d["network"] == 1),
         "{summary}"
     );
+    // The tidy table keeps every run; a diverged one says where and has no scores.
+    let trials = std::fs::read_to_string(x.path("unc/report/trials.csv")).unwrap();
+    let header: Vec<&str> = trials.lines().next().unwrap().split(',').collect();
+    // Counted from the end: the condition column is quoted and holds a comma.
+    let from_end = header.len()
+        - header
+            .iter()
+            .position(|h| *h == "diverged_at_step")
+            .unwrap();
+    let flagged = trials
+        .lines()
+        .skip(1)
+        .filter(|l| {
+            let fields: Vec<&str> = l.split(',').collect();
+            !fields[fields.len() - from_end].is_empty()
+        })
+        .count();
+    assert_eq!(flagged, diverged.len(), "{trials}");
     // A second experiment sharing the networks folder trains nothing.
     let shared = x.s("shared");
     ok(&[

@@ -253,7 +253,16 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
     let scale = plan.scale.name();
     pvrnn_core::io::write_atomic(
         &out_dir.join("trials.csv"),
-        trials_csv(scale, &results.infers).as_bytes(),
+        trials_csv(
+            scale,
+            &results
+                .infers
+                .iter()
+                .map(|(r, _)| r)
+                .chain(&results.diverged)
+                .collect::<Vec<_>>(),
+        )
+        .as_bytes(),
     )?;
     pvrnn_core::io::write_atomic(
         &out_dir.join("trainings.csv"),
@@ -287,13 +296,15 @@ fn csv_number(v: Option<f64>) -> String {
 }
 
 /// One row per inference run: what it ran and every score it recorded.
-fn trials_csv(scale: &str, infers: &[(InferResult, Option<Vec<Vec<f32>>>)]) -> String {
+/// One row per inference run; a run that diverged has its step in `diverged_at_step` and
+/// no scores (they would cover only the steps before it).
+fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
     let modules: Vec<String> = module_names()
         .iter()
         .map(|m| m.to_lowercase().replace(' ', "_"))
         .collect();
     let error_keys: std::collections::BTreeSet<&String> =
-        infers.iter().flat_map(|(r, _)| r.errors.keys()).collect();
+        runs.iter().flat_map(|r| r.errors.keys()).collect();
     let mut header: Vec<String> = [
         "scale",
         "job",
@@ -304,6 +315,7 @@ fn trials_csv(scale: &str, infers: &[(InferResult, Option<Vec<Vec<f32>>>)]) -> S
         "condition",
         "trial",
         "steps",
+        "diverged_at_step",
     ]
     .map(String::from)
     .to_vec();
@@ -312,7 +324,8 @@ fn trials_csv(scale: &str, infers: &[(InferResult, Option<Vec<Vec<f32>>>)]) -> S
         header.extend(modules.iter().map(|m| format!("{prefix}_{m}")));
     }
     let mut out = header.join(",") + "\n";
-    for (r, _) in infers {
+    for r in runs {
+        let diverged = r.diverged.as_ref().map(|d| d.step.to_string());
         let mut row: Vec<String> = [
             scale,
             &r.job,
@@ -323,10 +336,17 @@ fn trials_csv(scale: &str, infers: &[(InferResult, Option<Vec<Vec<f32>>>)]) -> S
             &r.condition,
             &r.trial.to_string(),
             &r.steps.to_string(),
+            diverged.as_deref().unwrap_or(""),
         ]
         .iter()
         .map(|f| csv_field(f))
         .collect();
+        if diverged.is_some() {
+            let scores = error_keys.len() + 3 * modules.len();
+            row.extend(std::iter::repeat_n(String::new(), scores));
+            out += &(row.join(",") + "\n");
+            continue;
+        }
         row.extend(
             error_keys
                 .iter()

@@ -3,6 +3,7 @@
 //! files and the progress table come out.
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
+use std::path::Path;
 use std::sync::Arc;
 
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
@@ -10,7 +11,7 @@ use pvrnn_core::infer::{InferenceSettings, run_sequence};
 use pvrnn_core::{Modality, Model, ModelConfig, Observed};
 use pvrnn_dataset::{Dataset, Selection, Sequence, SequenceInfo, Split, proprio_ranges};
 use pvrnn_eval::report::{self, Pixels};
-use pvrnn_eval::{EvalSettings, ReportMeta, Source, Target, evaluate, plots, progress};
+use pvrnn_eval::{EvalSettings, Evaluation, ReportMeta, Source, Target, evaluate, plots, progress};
 
 const T: usize = 10;
 
@@ -99,7 +100,7 @@ fn evaluate_test(
     ds: &Dataset,
     model: &Arc<Model<f32>>,
     settings: &EvalSettings,
-) -> pvrnn_eval::Result<pvrnn_eval::Evaluation> {
+) -> pvrnn_eval::Result<Evaluation> {
     evaluate(
         model.clone(),
         &pvrnn_core::cpu::CpuBackend,
@@ -121,6 +122,15 @@ fn meta(iteration: u64) -> ReportMeta {
         threads: 1,
         backend: "cpu".into(),
     }
+}
+
+/// Writes the report (and, with `plots`, the pictures) into `dir`; returns `summary.md`.
+fn report_md(eval: &Evaluation, meta: &ReportMeta, dir: &Path, plots: bool) -> String {
+    pvrnn_eval::write_report(eval, meta, dir).unwrap();
+    if plots {
+        plots::write_plots(eval, &dir.join("plots")).unwrap();
+    }
+    std::fs::read_to_string(dir.join("summary.md")).unwrap()
 }
 
 #[test]
@@ -301,9 +311,7 @@ fn reports_plots_and_the_progress_table_are_written() {
         threads: 2,
         backend: "cpu".into(),
     };
-    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
-    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
-    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    let md = report_md(&eval, &meta, dir.path(), true);
     assert!(
         md.contains("2 sequences") && md.contains("2 inference trials"),
         "{md}"
@@ -377,8 +385,7 @@ fn restarted_steps_are_reported() {
         .expect("some rate makes a step restart");
     let restarts: usize = eval.sequences.iter().map(|s| s.restarts.len()).sum();
     let dir = tempfile::tempdir().unwrap();
-    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
-    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    let md = report_md(&eval, &meta, dir.path(), false);
     assert!(
         md.contains(&format!("diverged in {restarts} step(s)")) && md.contains("(lr / 2^"),
         "{md}"
@@ -394,8 +401,7 @@ fn restarted_steps_are_reported() {
     // At the paper's rate nothing restarts, and the report says so.
     let calm = run(1.0).unwrap();
     assert!(calm.sequences.iter().all(|s| s.restarts.is_empty()));
-    pvrnn_eval::write_report(&calm, &meta, dir.path()).unwrap();
-    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    let md = report_md(&calm, &meta, dir.path(), false);
     assert!(md.contains("no step's online inference diverged"), "{md}");
 }
 
@@ -427,9 +433,7 @@ fn diverged_trials_are_left_out_and_reported() {
         );
     }
     assert!(report::trial_values(&eval).is_empty());
-    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
-    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
-    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    let md = report_md(&eval, &meta, dir.path(), true);
     assert!(md.contains("in 4 of 4 trials"), "{md}");
 
     // One of two sequences without a finished trial: its baselines leave the figures too.
@@ -456,9 +460,7 @@ fn diverged_trials_are_left_out_and_reported() {
             .n
     };
     assert_eq!((n(Source::Model), n(Source::Upsample)), (2, 1));
-    pvrnn_eval::write_report(&eval, &meta, dir.path()).unwrap();
-    plots::write_plots(&eval, &dir.path().join("plots")).unwrap();
-    let md = std::fs::read_to_string(dir.path().join("summary.md")).unwrap();
+    let md = report_md(&eval, &meta, dir.path(), true);
     assert!(
         md.contains("in 2 of 4 trials") && md.contains("`r_test0` had no trial that finished"),
         "{md}"

@@ -1,6 +1,8 @@
 //! The statistics of the paper's figures: paired t-tests, Holm's correction, the aligned
-//! rank transform (ART) ANOVA for a two-factor design blocked by network and for one
-//! between-networks factor, ART-C contrasts, and a permutation test helper.
+//! rank transform (ART) ANOVA for a two-factor design blocked by network (and, to check it
+//! against ARTool's reference values, split-plot and between-subjects layouts) and for one
+//! between-networks factor, and ART-C contrasts. (The boundary permutation test lives in
+//! `report.rs`.)
 //!
 //! ART (Wobbrock et al. 2011): for each effect, the responses are aligned (residuals of the
 //! full factorial cell means plus that effect's estimate), ranked, and analysed by the
@@ -93,15 +95,20 @@ pub fn holm(p: &[f64]) -> Vec<f64> {
     adjusted
 }
 
-/// Ranks 1..n with ties given their average rank.
+/// Ranks 1..n with ties given their average rank. Values within 1e-10 of the largest
+/// magnitude of each other are ties: aligned responses that are equal in exact arithmetic
+/// differ by rounding, and splitting those ties changes the F values (ARTool's reference
+/// values for Higgins et al.'s data need them tied).
 pub fn ranks(values: &[f64]) -> Vec<f64> {
     let mut order: Vec<usize> = (0..values.len()).collect();
     order.sort_by(|&i, &j| values[i].total_cmp(&values[j]));
+    let scale = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let tolerance = 1e-10 * scale;
     let mut out = vec![0.0; values.len()];
     let mut start = 0;
     while start < order.len() {
         let mut end = start + 1;
-        while end < order.len() && values[order[end]] == values[order[start]] {
+        while end < order.len() && values[order[end]] - values[order[end - 1]] <= tolerance {
             end += 1;
         }
         let average = (start + end + 1) as f64 / 2.0;
@@ -162,17 +169,47 @@ pub struct ArtTwoWay {
     pub cell_contrasts: Vec<Contrast>,
 }
 
+/// How the units `y[k][i][j]` of a balanced two-factor design (factors A with levels i, B
+/// with levels j) relate to its cells; it decides each effect's error term.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Block k (a network) sees every cell once: the randomised complete block design, whose
+    /// F tests are those of the random-intercept model. Every effect is tested against the
+    /// residual after blocks. The experiments' design.
+    Blocked,
+    /// Block (i, k) belongs to level i of A and sees every level of B once (a split plot,
+    /// e.g. trays within moisture levels): A is tested against blocks within A, B and A:B
+    /// against the within-block residual.
+    SplitPlot,
+    /// k counts independent replicates of each cell (completely randomised): every effect
+    /// is tested against the within-cell error.
+    Between,
+}
+
 struct Anova2 {
     ss: [f64; 3],
-    ss_error: f64,
     df: [f64; 3],
-    df_error: f64,
+    /// Each effect's error: sum of squares and degrees of freedom.
+    error: [(f64, f64); 3],
     a_means: Vec<f64>,
     b_means: Vec<f64>,
     cell_means: Vec<Vec<f64>>,
 }
 
-fn anova_blocked(y: &[Vec<Vec<f64>>]) -> Anova2 {
+impl Anova2 {
+    fn effect(&self, e: usize, name: &str) -> Effect {
+        let (ss_error, df_error) = self.error[e];
+        effect(name, self.ss[e], self.df[e], ss_error, df_error)
+    }
+
+    /// Mean square and degrees of freedom of effect `e`'s error.
+    fn error_ms(&self, e: usize) -> (f64, f64) {
+        let (ss, df) = self.error[e];
+        (ss / df, df)
+    }
+}
+
+fn anova2(y: &[Vec<Vec<f64>>], layout: Layout) -> Anova2 {
     let (n, a, b) = (y.len(), y[0].len(), y[0][0].len());
     let all: Vec<f64> = y.iter().flatten().flatten().copied().collect();
     let grand = all.iter().sum::<f64>() / all.len() as f64;
@@ -205,12 +242,41 @@ fn anova_blocked(y: &[Vec<Vec<f64>>]) -> Anova2 {
         }
     }
     ss_ab *= n as f64;
-    let ss_error = (ss_total - ss_block - ss_a - ss_b - ss_ab).max(0.0);
+    let (nf, af, bf) = (n as f64, a as f64, b as f64);
+    let error = match layout {
+        Layout::Blocked => {
+            let e = (
+                (ss_total - ss_block - ss_a - ss_b - ss_ab).max(0.0),
+                (nf - 1.0) * (af * bf - 1.0),
+            );
+            [e; 3]
+        }
+        Layout::SplitPlot => {
+            // Blocks within A: each block's mean about its level of A.
+            let ss_blocks_in_a = bf
+                * (0..a)
+                    .flat_map(|i| (0..n).map(move |k| (i, k)))
+                    .map(|(i, k)| (y[k][i].iter().sum::<f64>() / bf - a_means[i]).powi(2))
+                    .sum::<f64>();
+            let whole = (ss_blocks_in_a, af * (nf - 1.0));
+            let within = (
+                (ss_total - ss_a - ss_blocks_in_a - ss_b - ss_ab).max(0.0),
+                af * (nf - 1.0) * (bf - 1.0),
+            );
+            [whole, within, within]
+        }
+        Layout::Between => {
+            let e = (
+                (ss_total - ss_a - ss_b - ss_ab).max(0.0),
+                af * bf * (nf - 1.0),
+            );
+            [e; 3]
+        }
+    };
     Anova2 {
         ss: [ss_a, ss_b, ss_ab],
-        ss_error,
-        df: [(a - 1) as f64, (b - 1) as f64, ((a - 1) * (b - 1)) as f64],
-        df_error: ((n - 1) * (a * b - 1)) as f64,
+        df: [af - 1.0, bf - 1.0, (af - 1.0) * (bf - 1.0)],
+        error,
         a_means,
         b_means,
         cell_means,
@@ -303,12 +369,15 @@ fn reshape(values: &[f64], n: usize, a: usize, b: usize) -> Vec<Vec<Vec<f64>>> {
         .collect()
 }
 
-/// The two-way ART ANOVA (factors A and B, blocks = networks) and its ART-C contrasts.
-pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
-    let y = &design.y;
+/// The ART F tests of a balanced two-factor design `y[k][i][j]` under `layout`: for each
+/// effect (A, B, A:B) the responses are aligned with the full-factorial cell means, ranked
+/// (average ties) and analysed by the layout's ANOVA, of which only that effect's F test is
+/// read. Also returns each effect's ANOVA of its aligned ranks (for contrasts). None for a
+/// design too small to test (fewer than 2 units per cell or 2 levels of A) or ragged.
+fn art_aligned(y: &[Vec<Vec<f64>>], layout: Layout) -> Option<(Vec<Effect>, Vec<Anova2>)> {
     let n = y.len();
-    let a = design.a_levels.len();
-    let b = design.b_levels.len();
+    let a = y.first()?.len();
+    let b = y.first()?.first()?.len();
     if n < 2
         || a < 2
         || b < 1
@@ -317,7 +386,7 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
     {
         return None;
     }
-    let raw = anova_blocked(y);
+    let raw = anova2(y, layout);
     let grand = raw.a_means.iter().sum::<f64>() / a as f64;
     let flat = |f: &dyn Fn(usize, usize, usize) -> f64| -> Vec<f64> {
         let mut v = Vec::with_capacity(n * a * b);
@@ -342,19 +411,33 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
     let mut effects = Vec::new();
     let mut ranked = Vec::new();
     for (e, values) in aligned.iter().enumerate() {
-        let r = reshape(&ranks(values), n, a, b);
-        let an = anova_blocked(&r);
+        let an = anova2(&reshape(&ranks(values), n, a, b), layout);
         if b > 1 || e == 0 {
-            effects.push(effect(
-                names[e],
-                an.ss[e],
-                an.df[e],
-                an.ss_error,
-                an.df_error,
-            ));
+            effects.push(an.effect(e, names[e]));
         }
         ranked.push(an);
     }
+    Some((effects, ranked))
+}
+
+/// The two-factor ART ANOVA under any [`Layout`]: the F tests of A, B and A:B (B and A:B
+/// only when B has two levels or more), named "A", "B", "A:B".
+pub fn art_anova(y: &[Vec<Vec<f64>>], layout: Layout) -> Option<Vec<Effect>> {
+    art_aligned(y, layout).map(|(effects, _)| effects)
+}
+
+/// The two-way ART ANOVA (factors A and B, blocks = networks) and its ART-C contrasts.
+pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
+    let y = &design.y;
+    let n = y.len();
+    let a = design.a_levels.len();
+    let b = design.b_levels.len();
+    if y.first()
+        .is_none_or(|blk| blk.len() != a || blk.iter().any(|r| r.len() != b))
+    {
+        return None;
+    }
+    let (effects, ranked) = art_aligned(y, Layout::Blocked)?;
     let raw_a: Vec<Vec<f64>> = (0..a)
         .map(|i| y.iter().flat_map(|blk| blk[i].iter().copied()).collect())
         .collect();
@@ -365,22 +448,23 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
                 .collect()
         })
         .collect();
-    let ms = |an: &Anova2| an.ss_error / an.df_error;
+    let (ms_a, df_a) = ranked[0].error_ms(0);
     let a_contrasts = pairwise(
         &design.a_levels,
         &ranked[0].a_means,
         &vec![n * b; a],
-        ms(&ranked[0]),
-        ranked[0].df_error,
+        ms_a,
+        df_a,
         &raw_a,
     );
     let b_contrasts = if b > 1 {
+        let (ms_b, df_b) = ranked[1].error_ms(1);
         pairwise(
             &design.b_levels,
             &ranked[1].b_means,
             &vec![n * a; b],
-            ms(&ranked[1]),
-            ranked[1].df_error,
+            ms_b,
+            df_b,
             &raw_b,
         )
     } else {
@@ -388,12 +472,12 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
     };
     // Cells: the combined factor's alignment is the raw data less a constant.
     let cells = a * b;
-    let cell_ranks = reshape(&ranks(&flat(&|k, i, j| y[k][i][j])), n, 1, cells);
+    let cell_ranks = reshape(&ranks(&y.concat().concat()), n, 1, cells);
     let cell_values: Vec<Vec<Vec<f64>>> = cell_ranks
         .iter()
         .map(|blk| blk[0].iter().map(|v| vec![*v]).collect())
         .collect();
-    let cell_anova = anova_blocked(&cell_values);
+    let cell_anova = anova2(&cell_values, Layout::Blocked);
     let cell_labels: Vec<String> = (0..a)
         .flat_map(|i| (0..b).map(move |j| (i, j)))
         .map(|(i, j)| format!("{} / {}", design.a_levels[i], design.b_levels[j]))
@@ -403,12 +487,13 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
         .map(|(i, j)| y.iter().map(|blk| blk[i][j]).collect())
         .collect();
     let cell_contrasts = if b > 1 {
+        let (ms_cells, df_cells) = cell_anova.error_ms(0);
         pairwise(
             &cell_labels,
             &cell_anova.a_means,
             &vec![n; cells],
-            ms(&cell_anova),
-            cell_anova.df_error,
+            ms_cells,
+            df_cells,
             &raw_cells,
         )
     } else {

@@ -216,6 +216,15 @@ pub struct Job {
     pub after: Vec<usize>,
 }
 
+impl Job {
+    /// The network the job trains or reads.
+    pub fn network(&self) -> usize {
+        match self.kind {
+            JobKind::Train { network, .. } | JobKind::Infer { network, .. } => network,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
     pub format: String,

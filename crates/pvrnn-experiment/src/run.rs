@@ -177,19 +177,55 @@ fn sequences<'a>(dataset: &'a Dataset, names: &[String]) -> Result<Vec<&'a Seque
         .collect()
 }
 
-/// Runs every job not done yet, `parallel` at a time, in dependency order. With `only`,
-/// runs that one job (its dependencies must be done).
+/// Which of a plan's jobs a run does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Selection {
+    /// Every job not done yet.
+    All,
+    /// This one job (a cluster array task); its dependencies must be done.
+    Job(usize),
+    /// One network's jobs: its trainings, then its inference runs. Finishing networks one
+    /// by one gives complete results early, and splits a run across sessions or machines.
+    Network(usize),
+}
+
+impl Selection {
+    fn includes(self, plan: &Plan, id: usize) -> bool {
+        match self {
+            Selection::All => true,
+            Selection::Job(k) => k == id,
+            Selection::Network(k) => plan.jobs[id].network() == k,
+        }
+    }
+
+    /// The jobs of `plan` this selection covers.
+    pub fn jobs(self, plan: &Plan) -> Vec<usize> {
+        (0..plan.jobs.len())
+            .filter(|&i| self.includes(plan, i))
+            .collect()
+    }
+}
+
+/// Runs the selected jobs not done yet, `parallel` at a time, in dependency order.
 pub fn run(
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
     parallel: usize,
-    only: Option<usize>,
+    selection: Selection,
     stop: &AtomicBool,
     events: &(dyn Fn(Event<'_>) + Sync),
 ) -> Result<()> {
     let plan = Plan::load(dir)?;
     let cache = Cache::default();
-    if let Some(id) = only {
+    if let Selection::Network(k) = selection {
+        let networks = plan.jobs.iter().map(|j| j.network() + 1).max().unwrap_or(0);
+        ensure!(
+            k < networks,
+            "--network {k}: the plan has networks 0..{}",
+            networks.saturating_sub(1)
+        );
+    }
+    if let Selection::Job(id) = selection {
         ensure!(
             id < plan.jobs.len(),
             "--job {id}: the plan has jobs 0..{}",
@@ -218,8 +254,12 @@ pub fn run(
     let next = || -> Option<usize> {
         let mut s = state.lock().ok()?;
         let (done, taken) = &mut *s;
-        let id = (0..plan.jobs.len())
-            .find(|&i| !done[i] && !taken[i] && plan.jobs[i].after.iter().all(|&a| done[a]))?;
+        let id = (0..plan.jobs.len()).find(|&i| {
+            selection.includes(&plan, i)
+                && !done[i]
+                && !taken[i]
+                && plan.jobs[i].after.iter().all(|&a| done[a])
+        })?;
         taken[id] = true;
         Some(id)
     };

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use pvrnn_experiment::run::{Event, Interrupted, read_train_result};
+use pvrnn_experiment::run::{Event, Interrupted, Selection, read_train_result};
 use pvrnn_experiment::{Experiment, JobKind, Plan, Scale, report, slurm};
 
 /// The CPU backend, shared as the runner takes it.
@@ -42,16 +42,33 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
             stop.store(true, Ordering::SeqCst);
         }
     };
-    let e = pvrnn_experiment::run::run(&out, &cpu(), 1, None, &stop, &events).unwrap_err();
+    let e =
+        pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::All, &stop, &events).unwrap_err();
     assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
     let checkpoint = plan.checkpoint_path(&out, 0);
     let file = pvrnn_core::io::TensorFile::open(&checkpoint).unwrap();
     assert_eq!(pvrnn_core::io::checkpoint_iteration(&file), Some(7));
     assert!(!plan.is_done(&out, 0));
 
-    // Running again resumes it and does everything else, two jobs at a time.
+    // Running network 0 resumes its training and does its inference runs, nothing else.
     let go = AtomicBool::new(false);
-    pvrnn_experiment::run::run(&out, &cpu(), 2, None, &go, &|_| {}).unwrap();
+    let e = pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::Network(2), &go, &|_| {})
+        .unwrap_err();
+    assert!(e.to_string().contains("networks 0..1"), "{e:#}");
+    pvrnn_experiment::run::run(&out, &cpu(), 2, Selection::Network(0), &go, &|_| {}).unwrap();
+    let of_network_0 = Selection::Network(0).jobs(&plan);
+    assert_eq!(of_network_0.len(), 1 + 2 * 6 * 2);
+    for (i, job) in plan.jobs.iter().enumerate() {
+        assert_eq!(
+            plan.is_done(&out, i),
+            job.network() == 0,
+            "job {}",
+            job.name
+        );
+    }
+
+    // Running again does everything else, two jobs at a time.
+    pvrnn_experiment::run::run(&out, &cpu(), 2, Selection::All, &go, &|_| {}).unwrap();
     assert!((0..plan.jobs.len()).all(|i| plan.is_done(&out, i)));
     let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
     assert_eq!(trained.iterations, 20);
@@ -129,8 +146,10 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
     }
 
     // One job for a cluster task: a done job is skipped; cluster scripts cover the rest.
-    pvrnn_experiment::run::run(&out, &cpu(), 1, Some(5), &go, &|_| panic!("job 5 is done"))
-        .unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::Job(5), &go, &|_| {
+        panic!("job 5 is done")
+    })
+    .unwrap();
     std::fs::remove_file(plan.result_path(&out, 9)).unwrap();
     let submit = slurm::emit(
         &out,
@@ -164,8 +183,15 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
             .unwrap()
             .save(&out)
             .unwrap();
-        pvrnn_experiment::run::run(&out, &cpu(), 1, None, &AtomicBool::new(false), &|_| {})
-            .unwrap();
+        pvrnn_experiment::run::run(
+            &out,
+            &cpu(),
+            1,
+            Selection::All,
+            &AtomicBool::new(false),
+            &|_| {},
+        )
+        .unwrap();
         let dir = report::write(&out).unwrap();
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())

@@ -8,13 +8,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use pvrnn_experiment::run::{Event, Interrupted};
+use pvrnn_experiment::run::{Event, Interrupted, Selection};
 use pvrnn_experiment::slurm::SlurmOptions;
 use pvrnn_experiment::{Experiment, Plan, Scale, report};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn experiment robustness --scale smoke --dataset data/caresim --out runs/robustness-smoke\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --report"
+    after_help = "Example:\n  pvrnn experiment robustness --scale smoke --dataset data/caresim --out runs/robustness-smoke\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --network 0\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --report"
 )]
 pub struct Args {
     /// hierarchy (Figs 2-3), uncertainty (Fig 4), robustness (Fig 5) or interference (Fig 6).
@@ -36,6 +36,11 @@ pub struct Args {
     /// Run only this job of the plan (a cluster array task); its dependencies must be done.
     #[arg(long, conflicts_with_all = ["report", "emit"])]
     job: Option<usize>,
+    /// Run only this network's jobs (its trainings, then its inference runs), then write the
+    /// report of what is done: networks finish one by one, so a run split across sessions or
+    /// machines gives complete networks early.
+    #[arg(long, conflicts_with_all = ["job", "report", "emit"])]
+    network: Option<usize>,
     /// Only rebuild the report from the results there are.
     #[arg(long, conflicts_with = "emit")]
     report: bool,
@@ -139,8 +144,17 @@ pub fn run(a: Args) -> Result<()> {
             ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
                 .context("cannot install the Ctrl-C / SIGTERM handler")?;
         }
-        let total = plan.jobs.len();
-        let done_before = (0..total).filter(|&i| plan.is_done(&a.out, i)).count();
+        let selection = match (a.job, a.network) {
+            (Some(id), _) => Selection::Job(id),
+            (None, Some(k)) => Selection::Network(k),
+            (None, None) => Selection::All,
+        };
+        let selected = selection.jobs(&plan);
+        let total = selected.len();
+        let done_before = selected
+            .iter()
+            .filter(|&&i| plan.is_done(&a.out, i))
+            .count();
         let bar = crate::util::progress(total as u64, "jobs");
         bar.set_position(done_before as u64);
         let tty = std::io::stderr().is_terminal();
@@ -191,7 +205,8 @@ pub fn run(a: Args) -> Result<()> {
                 }
             }
         };
-        let result = pvrnn_experiment::run::run(&a.out, &backend, a.jobs, a.job, &stop, &events);
+        let result =
+            pvrnn_experiment::run::run(&a.out, &backend, a.jobs, selection, &stop, &events);
         bar.finish_and_clear();
         if let Err(e) = result {
             if e.downcast_ref::<Interrupted>().is_some() {

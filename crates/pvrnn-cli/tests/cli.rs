@@ -1286,13 +1286,20 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
         &x.s("r1"),
         "--networks",
         &shared,
+        "--network",
+        "0",
     ]);
     assert!(second.status.success());
     let log = String::from_utf8_lossy(&second.stderr);
+    // Only network 0's jobs ran (`--network`), and the report of what is done came out.
     assert!(
-        log.contains("train-net0") && !log.contains("iteration 1/"),
+        log.contains("train-net0")
+            && !log.contains("iteration 1/")
+            && log.contains("infer-net0")
+            && !log.contains("-net1"),
         "{log}"
     );
+    assert!(x.path("r1/report/report.md").is_file());
     // Hierarchy on data with robot-free renders scores the hidden pixels beside baselines.
     ok(&[
         "experiment",

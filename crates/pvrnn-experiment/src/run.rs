@@ -86,7 +86,7 @@ pub struct TrainResult {
 }
 
 /// The result of an inference job (metadata `result` of its safetensors file; contribution
-/// maps as the tensor `maps` [4 modules, top-level vision dims]).
+/// maps as the f16 tensor `maps` [4 modules, top-level vision dims]).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct InferResult {
     pub job: String,
@@ -694,10 +694,13 @@ fn infer(
     let mut tensors = BTreeMap::new();
     if *maps {
         let width = top.1 - top.0;
-        tensors.insert(
-            "maps".to_string(),
-            OutTensor::F32(vec![4, width], maps_mean.concat().into()),
-        );
+        // f16: pictures need no more, and it halves the results a run commits.
+        let maps: Vec<half::f16> = maps_mean
+            .concat()
+            .into_iter()
+            .map(half::f16::from_f32)
+            .collect();
+        tensors.insert("maps".to_string(), OutTensor::F16(vec![4, width], maps));
     }
     let metadata = HashMap::from([
         (

@@ -130,13 +130,16 @@ impl Design {
                 test_steps: None,
                 inference_window: None,
                 inference_iterations: None,
-                primary_tasks: vec!["repositioning".into()],
+                // Wiping: the paper's positive finding (Fig 6B, errors rise with added
+                // repositioning data) is the one a replication can test at 3 networks;
+                // repositioning's null result (Fig 6A) cannot be told from low power.
+                primary_tasks: vec!["wiping".into()],
                 added: vec![0, 3, 6, 9],
                 estimated_training_hours: 0.0,
                 note: if interference {
-                    "about 12 h of 2-core training: 3 networks x 4 conditions x 5,000 iterations, repositioning as the primary task; networks are not trained to convergence".into()
+                    "about 12 h of 2-core training: 3 networks x 4 conditions x 5,000 iterations, wiping as the primary task (Fig 6B); networks are not trained to convergence".into()
                 } else {
-                    "about 12 h of 2-core training: 3 networks x 10,000 iterations on all 18 learning sequences (network 0 may reuse the campaign's 10,000-iteration checkpoint, which is the same training); 2 trials".into()
+                    "about 12 h of 2-core training: 3 networks x 10,000 iterations on all 18 learning sequences (network 0 may reuse a 10,000-iteration checkpoint of the same seed and data); 2 trials".into()
                 },
             },
             Scale::Paper => Design {

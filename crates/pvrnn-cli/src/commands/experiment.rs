@@ -47,8 +47,9 @@ pub struct Args {
     /// Write cluster scripts for the jobs not done yet instead of running them.
     #[arg(long, value_parser = ["slurm"])]
     emit: Option<String>,
-    /// A trained checkpoint to use as network 0 (reduced scale: the campaign's
-    /// `training/caresim-seed0.iter10000.safetensors` is that network's exact training).
+    /// A trained checkpoint to use as network 0 instead of training it: same seed (0), data
+    /// and iterations (reduced scale: a 10,000-iteration checkpoint of `pvrnn train` on
+    /// all 18 learning sequences).
     #[arg(long)]
     reuse: Option<PathBuf>,
     /// A folder for the trained networks shared by experiments at the same scale

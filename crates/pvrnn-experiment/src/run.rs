@@ -550,6 +550,14 @@ fn infer(
     else {
         unreachable!("an inference job")
     };
+    let shared = SharedRun::of(plan, dir, job)?;
+    if !*maps && let Some(mut result) = shared.as_ref().and_then(SharedRun::read) {
+        // The same run, done by another experiment: its scores, under this job's name.
+        result.job = job.name.clone();
+        result.map_means = None;
+        result.occlusion = None;
+        return write_infer_result(plan, dir, id, &result, None, shared.as_ref());
+    }
     let model = Arc::new(io::load_model(&plan.checkpoint_path(dir, *train_job))?);
     let config = model.config.clone();
     let dataset = cache.dataset(&plan.dataset)?;
@@ -691,28 +699,109 @@ fn infer(
         occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
         diverged,
     };
+    let maps = maps.then_some(maps_mean.as_slice());
+    write_infer_result(plan, dir, id, &result, maps, shared.as_ref())
+}
+
+/// Writes an inference job's result file (and, when the run is shared, the shared copy).
+fn write_infer_result(
+    plan: &Plan,
+    dir: &Path,
+    id: usize,
+    result: &InferResult,
+    maps: Option<&[Vec<f32>]>,
+    shared: Option<&SharedRun>,
+) -> Result<()> {
     let mut tensors = BTreeMap::new();
-    if *maps {
-        let width = top.1 - top.0;
+    if let Some(maps) = maps {
+        let width = maps.first().map_or(0, Vec::len);
         // f16: pictures need no more, and it halves the results a run commits.
-        let maps: Vec<half::f16> = maps_mean
-            .concat()
-            .into_iter()
-            .map(half::f16::from_f32)
-            .collect();
+        let maps: Vec<half::f16> = maps.concat().into_iter().map(half::f16::from_f32).collect();
         tensors.insert("maps".to_string(), OutTensor::F16(vec![4, width], maps));
     }
-    let metadata = HashMap::from([
+    let mut metadata = HashMap::from([
         (
             "format".to_string(),
             "pvrnn-experiment-result/1".to_string(),
         ),
-        ("result".to_string(), serde_json::to_string(&result)?),
+        ("result".to_string(), serde_json::to_string(result)?),
     ]);
+    if let Some(shared) = shared {
+        metadata.insert("network".to_string(), shared.network.clone());
+    }
+    let bytes = io::to_bytes(&tensors, metadata)?;
     let path = plan.result_path(dir, id);
     std::fs::create_dir_all(path.parent().expect("a folder"))?;
-    io::write_atomic(&path, &io::to_bytes(&tensors, metadata)?)?;
+    io::write_atomic(&path, &bytes)?;
+    if let Some(shared) = shared
+        && !shared.path.is_file()
+    {
+        std::fs::create_dir_all(shared.path.parent().expect("a folder"))?;
+        io::write_atomic(&shared.path, &bytes)?;
+    }
     Ok(())
+}
+
+/// An inference run as experiments sharing a networks folder see it. The same network,
+/// test sequence, trial (noise seed), observed modalities and inference settings give the
+/// same run in every experiment (hierarchy's runs with everything observed are
+/// uncertainty's, and robustness's "64 (all), proprioception on" ones: the contribution
+/// maps are read out after each step and change nothing), so it is computed once and kept
+/// in `<networks>/runs/`; a job without maps takes it from there.
+struct SharedRun {
+    path: std::path::PathBuf,
+    /// The trained network's identity (its iterations and final free energy): a network
+    /// trained again after a run was kept does not reuse that run.
+    network: String,
+}
+
+impl SharedRun {
+    fn of(plan: &Plan, dir: &Path, job: &crate::plan::Job) -> Result<Option<Self>> {
+        let (
+            Some(networks),
+            JobKind::Infer {
+                train_job,
+                sequence,
+                trial,
+                vision_levels,
+                proprio,
+                ..
+            },
+        ) = (&plan.networks_dir, &job.kind)
+        else {
+            return Ok(None);
+        };
+        let checkpoint = plan.checkpoint_path(dir, *train_job);
+        let Some(stem) = checkpoint.file_stem() else {
+            return Ok(None);
+        };
+        let trained = read_train_result(&plan.result_path(dir, *train_job))?;
+        let d = &plan.design;
+        let setting = |v: Option<usize>| v.map_or("model".to_string(), |v| v.to_string());
+        let name = format!(
+            "{sequence}-trial{trial}-vision{vision_levels}-proprio{}-window{}-updates{}-steps{}.safetensors",
+            if *proprio { "on" } else { "off" },
+            setting(d.inference_window),
+            setting(d.inference_iterations),
+            setting(d.test_steps),
+        );
+        Ok(Some(Self {
+            path: networks.join("runs").join(stem).join(name),
+            network: format!(
+                "{} iterations, final free energy {:?}",
+                trained.iterations, trained.final_free_energy
+            ),
+        }))
+    }
+
+    /// The kept run, if there is one of this network.
+    fn read(&self) -> Option<InferResult> {
+        let file = TensorFile::open(&self.path).ok()?;
+        if file.metadata("network") != Some(self.network.as_str()) {
+            return None;
+        }
+        read_infer_result(&self.path).ok().map(|(result, _)| result)
+    }
 }
 
 /// Reads an inference job's result (and its maps, if any).

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use pvrnn_experiment::run::{Event, Interrupted, Selection, read_train_result};
+use pvrnn_experiment::run::{Event, Interrupted, Selection, read_infer_result, read_train_result};
 use pvrnn_experiment::{Experiment, JobKind, Plan, Scale, report, slurm};
 
 /// The CPU backend, shared as the runner takes it.
@@ -281,4 +281,62 @@ fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
         )
         .is_err()
     );
+}
+
+/// Experiments sharing a networks folder compute each inference run once: uncertainty's
+/// runs are hierarchy's (everything observed; the maps are read out after each step), taken
+/// from `<networks>/runs/`, and they are exactly what uncertainty computes on its own.
+#[test]
+fn shared_networks_compute_each_run_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let networks = tmp.path().join("networks");
+    let go = AtomicBool::new(false);
+    let mut plans = Vec::new();
+    for (experiment, name, shared) in [
+        (Experiment::Hierarchy, "hierarchy", true),
+        (Experiment::Uncertainty, "uncertainty", true),
+        (Experiment::Uncertainty, "uncertainty-alone", false),
+    ] {
+        let out = tmp.path().join(name);
+        let mut plan = Plan::new(experiment, Scale::Smoke, &data, None).unwrap();
+        if shared {
+            plan.claim_networks_dir(&networks).unwrap();
+        }
+        plan.save(&out).unwrap();
+        let inferred = std::sync::atomic::AtomicUsize::new(0);
+        let events = |e: Event<'_>| {
+            if let Event::Inferring { done: 1, .. } = e {
+                inferred.fetch_add(1, Ordering::SeqCst);
+            }
+        };
+        pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::All, &go, &events).unwrap();
+        let runs = plan
+            .jobs
+            .iter()
+            .filter(|j| matches!(j.kind, JobKind::Infer { .. }))
+            .count();
+        let expected = if name == "uncertainty" { 0 } else { runs };
+        assert_eq!(inferred.into_inner(), expected, "{name}");
+        plans.push((out, plan));
+    }
+    let (shared_dir, shared) = &plans[1];
+    let (alone_dir, alone) = &plans[2];
+    for (a, b) in shared.jobs.iter().zip(&alone.jobs) {
+        if !matches!(a.kind, JobKind::Infer { .. }) {
+            continue;
+        }
+        let (x, maps) = read_infer_result(&shared.result_path(shared_dir, a.id)).unwrap();
+        let (y, _) = read_infer_result(&alone.result_path(alone_dir, b.id)).unwrap();
+        assert!(maps.is_none() && x.map_means.is_none());
+        assert_eq!(x.job, a.name);
+        assert_eq!(
+            (&x.errors, x.sigma_p, x.sigma_p_change, &x.executive_change),
+            (&y.errors, y.sigma_p, y.sigma_p_change, &y.executive_change),
+            "{}",
+            a.name
+        );
+    }
+    assert!(networks.join("runs").is_dir());
 }

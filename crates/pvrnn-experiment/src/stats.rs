@@ -420,6 +420,17 @@ fn art_aligned(y: &[Vec<Vec<f64>>], layout: Layout) -> Option<(Vec<Effect>, Vec<
     Some((effects, ranked))
 }
 
+/// The ordinary (parametric) two-factor ANOVA of `y[k][i][j]` under `layout`: the F tests
+/// of A, B and A:B, the engine the ART runs on its aligned ranks.
+pub fn anova(y: &[Vec<Vec<f64>>], layout: Layout) -> Vec<Effect> {
+    let an = anova2(y, layout);
+    ["A", "B", "A:B"]
+        .iter()
+        .enumerate()
+        .map(|(e, name)| an.effect(e, name))
+        .collect()
+}
+
 /// The two-factor ART ANOVA under any [`Layout`]: the F tests of A, B and A:B (B and A:B
 /// only when B has two levels or more), named "A", "B", "A:B".
 pub fn art_anova(y: &[Vec<Vec<f64>>], layout: Layout) -> Option<Vec<Effect>> {

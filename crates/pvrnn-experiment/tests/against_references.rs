@@ -1,5 +1,7 @@
-//! The ART against ARTool's own reference values: the F tests that ARTool's test suite
-//! (`tests/testthat/test.anova.art.R` in mjskay/ARTool) expects for the example data of
+//! The statistics against published reference values: textbook examples for the ANOVA and
+//! the paired t-test (at the end), and the ART against ARTool's own: the F tests that
+//! ARTool's test suite (`tests/testthat/test.anova.art.R` in mjskay/ARTool) expects for the
+//! example data of
 //! Higgins, Blair & Tashtoush (1990), which it ships as `Higgins1990Table1` and
 //! `Higgins1990Table5`. ARTool prints F to 4 decimals; ours must agree to that.
 //!
@@ -108,4 +110,41 @@ fn ties_split_by_rounding_would_move_the_f_values() {
     response[6] += 1e-6;
     let effects = art_anova(&table(&response, 3, 3, 4), Layout::Between).unwrap();
     assert!((effects[1].f - 77.8668).abs() > 1e-3, "{:?}", effects[1]);
+}
+
+/// The ANOVA engine itself against a textbook: Montgomery, *Design and Analysis of
+/// Experiments*, Example 5.1 (battery life, 3 materials x 3 temperatures, 4 replicates):
+/// material F(2, 27) = 7.91, temperature 28.97, interaction F(4, 27) = 3.56.
+#[test]
+fn two_way_anova_matches_montgomery_example_5_1() {
+    use pvrnn_experiment::stats::anova;
+    #[rustfmt::skip]
+    let life = [
+        130.0, 155.0, 74.0, 180.0,   34.0, 40.0, 80.0, 75.0,     20.0, 70.0, 82.0, 58.0,
+        150.0, 188.0, 159.0, 126.0,  136.0, 122.0, 106.0, 115.0, 25.0, 70.0, 58.0, 45.0,
+        138.0, 110.0, 168.0, 160.0,  174.0, 120.0, 150.0, 139.0, 96.0, 104.0, 82.0, 60.0,
+    ];
+    let effects = anova(&table(&life, 3, 3, 4), Layout::Between);
+    for (e, (f, df1)) in effects.iter().zip([(7.91, 2.0), (28.97, 2.0), (3.56, 4.0)]) {
+        assert!(
+            (e.f - f).abs() < 5e-3,
+            "{}: F = {:.4}, textbook {f}",
+            e.effect,
+            e.f
+        );
+        assert_eq!((e.df1, e.df2), (df1, 27.0));
+    }
+}
+
+/// The paired t-test against Student's sleep data (Cushny & Peebles; R's `sleep`): extra
+/// hours of sleep under two drugs for the same 10 patients, t(9) = -4.0621, p = 0.002833.
+#[test]
+fn paired_t_matches_students_sleep_data() {
+    use pvrnn_experiment::stats::paired_t;
+    let drug1 = [0.7, -1.6, -0.2, -1.2, -0.1, 3.4, 3.7, 0.8, 0.0, 2.0];
+    let drug2 = [1.9, 0.8, 1.1, 0.1, -0.1, 4.4, 5.5, 1.6, 4.6, 3.4];
+    let t = paired_t(&drug1, &drug2).unwrap();
+    assert!((t.t + 4.0621).abs() < 5e-5, "{t:?}");
+    assert_eq!(t.df, 9.0);
+    assert!((t.p.unwrap() - 0.002833).abs() < 5e-7, "{t:?}");
 }

@@ -6,9 +6,11 @@
 //! - [`occlusion`]: scoring what the model makes of body parts the arms hide.
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
+//! - [`paper`]: the paper's findings beside ours (the table every report ends with).
 //! - [`slurm`]: the same plan as Slurm job arrays.
 
 pub mod occlusion;
+pub mod paper;
 pub mod plan;
 pub mod report;
 pub mod run;

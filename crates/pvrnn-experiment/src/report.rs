@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use pvrnn_core::{AblationMode, ModuleId};
+use pvrnn_core::{AblationMode, ModelConfig, ModuleId};
 use pvrnn_eval::plots::{Bar, bar_chart, write_png};
 use pvrnn_eval::report::sig;
 use rand::{RngExt, SeedableRng};
@@ -249,7 +249,14 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Robustness => robustness(&results, &out_dir, &stamp, &mut md)?,
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
+    let findings = crate::paper::findings(plan.experiment, &body);
+    md.push_str(&crate::paper::markdown(
+        &findings,
+        &stamp,
+        plan.design.networks,
+    ));
     summary["results"] = body;
+    summary["paper"] = serde_json::to_value(&findings)?;
     let scale = plan.scale.name();
     pvrnn_core::io::write_atomic(
         &out_dir.join("trials.csv"),
@@ -669,15 +676,27 @@ fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<
         ("mean absolute change of prior sigma", 1),
     ] {
         let mut groups = Vec::new();
-        for (m, name) in module_names().iter().enumerate() {
+        // The four modules, then all of them (the paper's "All": every latent unit alike,
+        // so modules weigh by their z units; the experiments train the default sizes).
+        let units = ModuleId::ALL.map(|id| ModelConfig::default().module(id).z as f64);
+        let mut names = module_names();
+        names.push("all modules".into());
+        for (m, name) in names.iter().enumerate() {
+            let value = |x: &InferResult| {
+                let v = if measure == 0 {
+                    x.sigma_p
+                } else {
+                    x.sigma_p_change
+                };
+                if m < 4 {
+                    v[m]
+                } else {
+                    v.iter().zip(&units).map(|(a, w)| a * w).sum::<f64>()
+                        / units.iter().sum::<f64>()
+                }
+            };
             let of = |task: &'static str| {
-                per_network(&r.infers, &|x| x.task == task, &|x| {
-                    Some(if measure == 0 {
-                        x.sigma_p[m]
-                    } else {
-                        x.sigma_p_change[m]
-                    })
-                })
+                per_network(&r.infers, &|x| x.task == task, &|x| Some(value(x)))
             };
             let (a, b) = (of("repositioning"), of("wiping"));
             let paired: Vec<usize> = a.keys().filter(|k| b.contains_key(k)).copied().collect();

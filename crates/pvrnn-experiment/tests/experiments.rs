@@ -196,6 +196,18 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
                 .unwrap();
+        // Every report ends with the paper's findings beside ours.
+        let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        let findings = summary["paper"].as_array().unwrap();
+        assert!(
+            md.contains("## Compared with the paper") && findings.len() >= 2,
+            "{md}"
+        );
+        assert!(
+            findings
+                .iter()
+                .all(|f| !f["ours"].as_str().unwrap().is_empty())
+        );
         match experiment {
             Experiment::Hierarchy => {
                 assert!(dir.join("contribution_maps.png").is_file());
@@ -219,7 +231,7 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
             }
             _ => {
                 let comparisons = summary["results"]["comparisons"].as_array().unwrap();
-                assert_eq!(comparisons.len(), 8);
+                assert_eq!(comparisons.len(), 10);
                 assert!(comparisons.iter().all(|c| c["paired_t"]["df"] == 1.0));
                 assert!(dir.join("sigma_p.png").is_file());
             }

@@ -1,0 +1,416 @@
+//! The paper's findings set beside ours: every report ends with a table of what the paper
+//! found (its numbers, from the figures' captions and the text), what this run found, and
+//! whether they agree, read from the report's own results (`summary.json`'s `results`).
+//!
+//! "Agrees" means the same direction and the same verdict at p < 0.05 (a difference the
+//! paper found significant is significant here too, one it found not significant is not).
+//! With fewer networks than the paper's 5 a test has less power, so a miss on significance
+//! alone is marked as such rather than as a contradiction.
+
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::plan::Experiment;
+
+/// One finding: the paper's, ours, and whether they agree (None: not testable here).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Finding {
+    pub finding: String,
+    pub paper: String,
+    pub ours: String,
+    pub agrees: Option<bool>,
+    /// Why they disagree or cannot be compared, when they do not simply agree.
+    pub note: String,
+}
+
+const ALPHA: f64 = 0.05;
+
+fn num(v: &Value) -> Option<f64> {
+    v.as_f64()
+}
+
+fn p_text(p: Option<f64>) -> String {
+    match p {
+        Some(p) if p < 0.001 => "p < 0.001".into(),
+        Some(p) => format!("p = {p:.3}"),
+        None => "p = –".into(),
+    }
+}
+
+/// A test's F as "F(df1, df2) = f, p".
+fn f_text(effect: &Value) -> String {
+    match (num(&effect["f"]), num(&effect["df1"]), num(&effect["df2"])) {
+        (Some(f), Some(a), Some(b)) => {
+            format!("F({a}, {b}) = {f:.2}, {}", p_text(num(&effect["p"])))
+        }
+        _ => "not computed (too few networks)".into(),
+    }
+}
+
+fn t_text(t: &Value) -> String {
+    match (num(&t["t"]), num(&t["df"])) {
+        (Some(v), Some(df)) => format!("t({df}) = {v:.2}, {}", p_text(num(&t["p"]))),
+        _ => "not computed (too few networks)".into(),
+    }
+}
+
+/// Agreement of a test with the paper's verdict `significant` (and, when the paper's effect
+/// has a direction, `direction_ok`): (agrees, note).
+fn verdict(p: Option<f64>, significant: bool, direction_ok: bool) -> (Option<bool>, String) {
+    let Some(p) = p else {
+        return (None, "no test: too few complete networks".into());
+    };
+    match (significant, p < ALPHA, direction_ok) {
+        (_, _, false) => (Some(false), "the opposite direction".into()),
+        (true, true, true) | (false, false, true) => (Some(true), String::new()),
+        (true, false, true) => (
+            Some(false),
+            "same direction, not significant here (fewer networks than the paper's 5: less power)"
+                .into(),
+        ),
+        (false, true, true) => (Some(false), "significant here, not in the paper".into()),
+    }
+}
+
+fn finding(
+    finding: &str,
+    paper: &str,
+    ours: String,
+    (agrees, note): (Option<bool>, String),
+) -> Finding {
+    Finding {
+        finding: finding.into(),
+        paper: paper.into(),
+        ours,
+        agrees,
+        note,
+    }
+}
+
+/// Mean of a JSON map's (or array's) numbers.
+fn mean_of(v: &Value) -> Option<f64> {
+    let values: Vec<f64> = match v {
+        Value::Object(m) => m.values().filter_map(num).collect(),
+        Value::Array(a) => a.iter().filter_map(num).collect(),
+        _ => Vec::new(),
+    };
+    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+}
+
+/// The findings of `experiment` beside the paper's, from the report's `results`.
+pub fn findings(experiment: Experiment, results: &Value) -> Vec<Finding> {
+    match experiment {
+        Experiment::Hierarchy => hierarchy(results),
+        Experiment::Uncertainty => uncertainty(results),
+        Experiment::Robustness => robustness(results),
+        Experiment::Interference => interference(results),
+    }
+}
+
+fn hierarchy(r: &Value) -> Vec<Finding> {
+    let boundary = &r["executive_boundary"];
+    let difference = mean_of(&boundary["near_minus_elsewhere_per_network"]);
+    let p = num(&boundary["p"]);
+    let mut out = vec![finding(
+        "The executive module's latent state changes most at subtask boundaries (Figs 2A, 3A)",
+        "described from single runs, no test",
+        match difference {
+            Some(d) => format!(
+                "near − elsewhere mean |Δμ_q| = {d:.3e}, permutation {}",
+                p_text(p)
+            ),
+            None => "no run with a subtask boundary".into(),
+        },
+        verdict(p, true, difference.is_none_or(|d| d > 0.0)),
+    )];
+    let tests = &r["occlusion"]["paired_t"];
+    for (baseline, key) in [
+        ("the mean learning image", "mean image"),
+        ("each pixel's last unhidden observation", "last seen"),
+    ] {
+        let t = &tests[key];
+        let lower = num(&t["mean_difference"]).is_none_or(|d| d < 0.0);
+        out.push(finding(
+            &format!(
+                "Body parts hidden by the arms are inferred (Fig 3B): the model's reconstruction of hidden pixels beats {baseline}"
+            ),
+            "shown in pictures, not measured",
+            if r["occlusion"].is_null() {
+                "no robot-free renders in the data".into()
+            } else {
+                format!(
+                    "model − baseline MSE = {}, {}",
+                    num(&t["mean_difference"]).map_or("–".into(), |d| format!("{d:.3e}")),
+                    t_text(t)
+                )
+            },
+            verdict(num(&t["p"]), true, lower),
+        ));
+    }
+    out
+}
+
+fn uncertainty(r: &Value) -> Vec<Finding> {
+    let pick = |measure: &str| {
+        r["comparisons"]
+            .as_array()
+            .and_then(|c| {
+                c.iter()
+                    .find(|x| x["module"] == "all modules" && x["measure"] == measure)
+            })
+            .map(|x| x["paired_t"].clone())
+            .unwrap_or(Value::Null)
+    };
+    let level = pick("prior sigma");
+    let change = pick("mean absolute change of prior sigma");
+    vec![
+        finding(
+            "Mean prior σ (all modules) does not differ between repositioning and wiping (Fig 4A)",
+            "t(4) = 1.67, p = 0.17 (n.s.)",
+            t_text(&level),
+            verdict(num(&level["p"]), false, true),
+        ),
+        finding(
+            "Prior σ changes less over time in repositioning than in wiping (Fig 4B)",
+            "t(4) = −8.15, p = 0.0012",
+            t_text(&change),
+            verdict(
+                num(&change["p"]),
+                true,
+                num(&change["t"]).is_none_or(|t| t < 0.0),
+            ),
+        ),
+    ]
+}
+
+fn robustness(r: &Value) -> Vec<Finding> {
+    let effects = &r["art"]["effects"];
+    // cells[vision][proprio] = {network: error}; vision 64, 32+16, 16; proprio on, off.
+    let cell = |v: usize, p: usize| mean_of(&r["cells"][v][p]);
+    let by_vision: Vec<Option<f64>> = (0..3)
+        .map(|v| Some((cell(v, 0)? + cell(v, 1)?) / 2.0))
+        .collect();
+    let rising = match (by_vision[0], by_vision[1], by_vision[2]) {
+        (Some(a), Some(b), Some(c)) => a <= b && b <= c,
+        _ => true,
+    };
+    let on: Option<f64> = (0..3).map(|v| cell(v, 0)).sum::<Option<f64>>();
+    let off: Option<f64> = (0..3).map(|v| cell(v, 1)).sum::<Option<f64>>();
+    let helps = match (on, off) {
+        (Some(a), Some(b)) => a < b,
+        _ => true,
+    };
+    let simple = r["art"]["cell_contrasts"].as_array().and_then(|c| {
+        c.iter().find(|x| {
+            let (a, b) = (x["a"].as_str().unwrap_or(""), x["b"].as_str().unwrap_or(""));
+            a.starts_with("16 /") && b.starts_with("16 /")
+        })
+    });
+    let simple_p = simple.and_then(|x| num(&x["p_holm"]));
+    let simple_helps = match (cell(2, 0), cell(2, 1)) {
+        (Some(a), Some(b)) => a < b,
+        _ => true,
+    };
+    vec![
+        finding(
+            "The 64x64 error rises as the observed resolution drops (Fig 5B)",
+            "F(2, 20) = 105.57, p < 0.001",
+            format!(
+                "{}; mean error 64 / 32+16 / 16: {}",
+                f_text(&effects[0]),
+                by_vision
+                    .iter()
+                    .map(|v| v.map_or("–".into(), |v| format!("{v:.3e}")))
+                    .collect::<Vec<_>>()
+                    .join(" / ")
+            ),
+            verdict(num(&effects[0]["p"]), true, rising),
+        ),
+        finding(
+            "Proprioception lowers the error (Fig 5B)",
+            "F(1, 20) = 46.09, p < 0.001",
+            f_text(&effects[1]),
+            verdict(num(&effects[1]["p"]), true, helps),
+        ),
+        finding(
+            "Resolution and proprioception interact: proprioception helps most at low resolution (Fig 5B)",
+            "F(2, 20) = 13.57, p < 0.001",
+            f_text(&effects[2]),
+            verdict(num(&effects[2]["p"]), true, true),
+        ),
+        finding(
+            "With 16x16 vision only, proprioception still lowers the error (simple effect)",
+            "p = 0.034",
+            format!(
+                "ART-C cell contrast 16 / on vs 16 / off, Holm over all 15 cell pairs: {}",
+                p_text(simple_p)
+            ),
+            verdict(simple_p, true, simple_helps),
+        ),
+    ]
+}
+
+fn interference(r: &Value) -> Vec<Finding> {
+    let mut out = Vec::new();
+    let Some(primaries) = r.as_object() else {
+        return out;
+    };
+    for (primary, v) in primaries {
+        let art = &v["art"]["pooled"];
+        let effect = &art["effect"];
+        if primary == "repositioning" {
+            out.push(finding(
+                "Adding wiping data does not change repositioning's error (Fig 6A)",
+                "F(3, 16) = 0.62, p = 0.61 (n.s.)",
+                f_text(effect),
+                verdict(num(&effect["p"]), false, true),
+            ));
+            continue;
+        }
+        // Wiping: errors rise with added repositioning data.
+        let means: Vec<Option<f64>> = v["per_network"][2]
+            .as_array()
+            .map(|c| c.iter().map(mean_of).collect())
+            .unwrap_or_default();
+        let rising = means
+            .first()
+            .copied()
+            .flatten()
+            .zip(means.last().copied().flatten());
+        out.push(finding(
+            "Adding repositioning data raises wiping's error (Fig 6B)",
+            "F(3, 16) = 19.16, p < 0.001",
+            format!(
+                "{}; pooled error with 0 / 3 / 6 / 9 added: {}",
+                f_text(effect),
+                means
+                    .iter()
+                    .map(|m| m.map_or("–".into(), |m| format!("{m:.3e}")))
+                    .collect::<Vec<_>>()
+                    .join(" / ")
+            ),
+            verdict(
+                num(&effect["p"]),
+                true,
+                rising.is_none_or(|(first, last)| first < last),
+            ),
+        ));
+        let added = |label: &str| label.rsplit(' ').next().unwrap_or("").to_string();
+        for (few, many, paper_p) in [
+            ("0", "6", "p < 0.001"),
+            ("0", "9", "p < 0.001"),
+            ("3", "6", "p = 0.0033"),
+            ("3", "9", "p = 0.0033"),
+        ] {
+            let contrast = art["contrasts"].as_array().and_then(|c| {
+                c.iter().find(|x| {
+                    let (a, b) = (
+                        added(x["a"].as_str().unwrap_or("")),
+                        added(x["b"].as_str().unwrap_or("")),
+                    );
+                    (a == few && b == many) || (a == many && b == few)
+                })
+            });
+            let p = contrast.and_then(|x| num(&x["p_holm"]));
+            // Lower error (rank) with fewer added sequences.
+            let lower = contrast.is_none_or(|x| {
+                let d = num(&x["rank_difference"]).unwrap_or(0.0);
+                if added(x["a"].as_str().unwrap_or("")) == few {
+                    d < 0.0
+                } else {
+                    d > 0.0
+                }
+            });
+            out.push(finding(
+                &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
+                paper_p,
+                format!("ART-C, Holm over the 6 pairs: {}", p_text(p)),
+                verdict(p, true, lower),
+            ));
+        }
+    }
+    out
+}
+
+/// The findings as a Markdown section.
+pub fn markdown(findings: &[Finding], stamp: &str, networks: usize) -> String {
+    let mut md = format!(
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} networks). Agrees = same direction and same verdict at p < 0.05.\n\n| finding | paper | ours | agrees |\n|---|---|---|---|\n"
+    );
+    for f in findings {
+        let agrees = match f.agrees {
+            Some(true) => "yes".to_string(),
+            Some(false) => format!("no: {}", f.note),
+            None => format!("–: {}", f.note),
+        };
+        md.push_str(&format!(
+            "| {} | {} | {} | {agrees} |\n",
+            f.finding, f.paper, f.ours
+        ));
+    }
+    md.push('\n');
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn verdicts_follow_direction_then_significance() {
+        assert_eq!(verdict(Some(0.01), true, true).0, Some(true));
+        assert_eq!(verdict(Some(0.20), false, true).0, Some(true));
+        assert_eq!(verdict(Some(0.20), true, true).0, Some(false));
+        assert!(verdict(Some(0.20), true, true).1.contains("less power"));
+        assert_eq!(verdict(Some(0.01), true, false).0, Some(false));
+        assert_eq!(verdict(None, true, true).0, None);
+    }
+
+    #[test]
+    fn uncertainty_reads_the_all_modules_tests() {
+        let r = json!({"comparisons": [
+            {"module": "all modules", "measure": "prior sigma",
+             "paired_t": {"t": 0.5, "df": 2.0, "p": 0.66}},
+            {"module": "all modules", "measure": "mean absolute change of prior sigma",
+             "paired_t": {"t": 5.0, "df": 2.0, "p": 0.04}},
+        ]});
+        let f = findings(Experiment::Uncertainty, &r);
+        assert_eq!(f.len(), 2);
+        assert_eq!(f[0].agrees, Some(true));
+        assert_eq!(f[0].ours, "t(2) = 0.50, p = 0.660");
+        // Significant, but wiping's change is the smaller: the opposite of the paper.
+        assert_eq!(f[1].agrees, Some(false));
+        assert!(f[1].note.contains("opposite"));
+    }
+
+    #[test]
+    fn interference_reads_the_pooled_contrasts() {
+        let contrast = |a: &str, b: &str, d: f64, p: f64| {
+            json!({"a": format!("wiping 9 + repositioning {a}"),
+                   "b": format!("wiping 9 + repositioning {b}"),
+                   "rank_difference": d, "p_holm": p})
+        };
+        let r = json!({"wiping": {
+            "per_network": [[], [], [[1.0, 1.0], [2.0], [3.0], [4.0]]],
+            "art": {"pooled": {
+                "effect": {"f": 9.0, "df1": 3.0, "df2": 8.0, "p": 0.006},
+                "contrasts": [
+                    contrast("0", "6", -5.0, 0.01),
+                    contrast("0", "9", -6.0, 0.20),
+                    contrast("3", "6", 2.0, 0.01),
+                    contrast("3", "9", -4.0, 0.04),
+                ],
+            }},
+        }});
+        let f = findings(Experiment::Interference, &r);
+        assert_eq!(f.len(), 5);
+        assert_eq!(f[0].agrees, Some(true), "{:?}", f[0]);
+        assert!(f[0].ours.contains("1.000e0 / 2.000e0"), "{}", f[0].ours);
+        assert_eq!(f[1].agrees, Some(true));
+        assert_eq!(f[2].agrees, Some(false));
+        assert_eq!(f[3].agrees, Some(false));
+        assert!(f[3].note.contains("opposite"));
+        assert_eq!(f[4].agrees, Some(true));
+    }
+}

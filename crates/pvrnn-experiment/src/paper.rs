@@ -61,7 +61,11 @@ fn verdict(p: Option<f64>, significant: bool, direction_ok: bool) -> (Option<boo
         return (None, "no test: too few complete networks".into());
     };
     match (significant, p < ALPHA, direction_ok) {
-        (_, _, false) => (Some(false), "the opposite direction".into()),
+        (_, true, false) => (Some(false), "the opposite direction, significant".into()),
+        (_, false, false) => (
+            Some(false),
+            "the opposite direction (not significant)".into(),
+        ),
         (true, true, true) | (false, false, true) => (Some(true), String::new()),
         (true, false, true) => (
             Some(false),
@@ -116,7 +120,8 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
         "described from single runs, no test",
         match difference {
             Some(d) => format!(
-                "near − elsewhere mean |Δμ_q| = {d:.3e}, permutation {}",
+                // No `|` in the text: it would split the Markdown table's cell.
+                "mean absolute Δμ_q near − elsewhere = {d:.3e}, permutation {}",
                 p_text(p)
             ),
             None => "no run with a subtask boundary".into(),
@@ -338,6 +343,7 @@ pub fn markdown(findings: &[Finding], stamp: &str, networks: usize) -> String {
         "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} networks). Agrees = same direction and same verdict at p < 0.05.\n\n| finding | paper | ours | agrees |\n|---|---|---|---|\n"
     );
     for f in findings {
+        debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
         let agrees = match f.agrees {
             Some(true) => "yes".to_string(),
             Some(false) => format!("no: {}", f.note),

@@ -40,17 +40,18 @@ fn check(effects: &[Effect], expected: &[(&str, f64, f64, f64)]) {
     }
 }
 
+/// Higgins et al.'s Table 1: Row (A) x Column (B), 4 subjects per cell, in the file's
+/// order: row 1 column 1's four responses, row 1 column 2's, ...
+#[rustfmt::skip]
+const TABLE_1: [f64; 36] = [
+    11.5, 10.1, 9.9, 10.6,   9.0, 7.4, 8.8, 8.8,    3.8, 6.3, 4.9, 5.3,
+    9.9, 9.8, 9.3, 9.1,      9.3, 7.4, 7.7, 7.9,    4.1, 6.3, 5.5, 5.4,
+    13.9, 16.0, 14.2, 15.2,  13.0, 13.4, 11.2, 12.8, 9.6, 9.6, 11.0, 13.4,
+];
+
 #[test]
 fn higgins_1990_table_1_between_subjects() {
-    // Row (A) x Column (B), 4 subjects per cell, in the file's order: row 1 column 1's four
-    // responses, row 1 column 2's, ...
-    #[rustfmt::skip]
-    let response = [
-        11.5, 10.1, 9.9, 10.6,   9.0, 7.4, 8.8, 8.8,    3.8, 6.3, 4.9, 5.3,
-        9.9, 9.8, 9.3, 9.1,      9.3, 7.4, 7.7, 7.9,    4.1, 6.3, 5.5, 5.4,
-        13.9, 16.0, 14.2, 15.2,  13.0, 13.4, 11.2, 12.8, 9.6, 9.6, 11.0, 13.4,
-    ];
-    let y = table(&response, 3, 3, 4);
+    let y = table(&TABLE_1, 3, 3, 4);
     let effects = art_anova(&y, Layout::Between).unwrap();
     // art(Response ~ Row * Column): Row F(2, 27) = 29.9925, Column 77.8668, Row:Column
     // F(4, 27) = 0.6417.
@@ -101,12 +102,7 @@ fn higgins_1990_table_5_split_plot() {
 fn ties_split_by_rounding_would_move_the_f_values() {
     // The same Table 1 with one response nudged far beyond rounding: the ranks, and so the
     // F values, change (the comparison above is not insensitive to the data).
-    #[rustfmt::skip]
-    let mut response = vec![
-        11.5, 10.1, 9.9, 10.6,   9.0, 7.4, 8.8, 8.8,    3.8, 6.3, 4.9, 5.3,
-        9.9, 9.8, 9.3, 9.1,      9.3, 7.4, 7.7, 7.9,    4.1, 6.3, 5.5, 5.4,
-        13.9, 16.0, 14.2, 15.2,  13.0, 13.4, 11.2, 12.8, 9.6, 9.6, 11.0, 13.4,
-    ];
+    let mut response = TABLE_1.to_vec();
     response[6] += 1e-6;
     let effects = art_anova(&table(&response, 3, 3, 4), Layout::Between).unwrap();
     assert!((effects[1].f - 77.8668).abs() > 1e-3, "{:?}", effects[1]);

@@ -4,7 +4,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use pvrnn_core::ModelConfig;
 
@@ -337,9 +337,15 @@ mod tests {
 pub struct BackendArgs {
     /// Where the arithmetic runs: `cpu`, or `wgpu` (a GPU through Vulkan, Metal or DX12; today
     /// the read-outs' output layers, about 97% of a learning iteration's arithmetic, run there
-    /// and the recurrence stays on the CPU). `WGPU_ADAPTER_NAME` picks an adapter.
+    /// and the recurrence stays on the CPU unless `--gpu-recurrence`). `WGPU_ADAPTER_NAME`
+    /// picks an adapter.
     #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
     pub backend: BackendKind,
+    /// With `--backend wgpu`: run the recurrence (forward, back-propagation through time,
+    /// its weight gradients) on the GPU too, one workgroup per window. Not yet timed on a
+    /// real GPU against the CPU's recurrence (docs/gpu.md), hence off by default.
+    #[arg(long)]
+    pub gpu_recurrence: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -352,10 +358,20 @@ impl BackendArgs {
     /// Opens the backend and says in words what it runs on ("cpu" or the GPU adapter).
     pub fn open(&self) -> Result<(Box<dyn pvrnn_core::backend::Backend<f32>>, String)> {
         Ok(match self.backend {
-            BackendKind::Cpu => (Box::new(pvrnn_core::cpu::CpuBackend), "cpu".to_string()),
+            BackendKind::Cpu => {
+                if self.gpu_recurrence {
+                    bail!("--gpu-recurrence needs --backend wgpu");
+                }
+                (Box::new(pvrnn_core::cpu::CpuBackend), "cpu".to_string())
+            }
             BackendKind::Wgpu => {
-                let gpu = pvrnn_wgpu::WgpuBackend::new().context("--backend wgpu")?;
-                let name = format!("wgpu on {}", gpu.adapter_name());
+                let gpu = pvrnn_wgpu::WgpuBackend::new()
+                    .context("--backend wgpu")?
+                    .with_recurrence_on_gpu(self.gpu_recurrence);
+                let mut name = format!("wgpu on {}", gpu.adapter_name());
+                if self.gpu_recurrence {
+                    name.push_str(", recurrence on the GPU");
+                }
                 (Box::new(gpu), name)
             }
         })

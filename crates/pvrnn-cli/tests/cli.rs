@@ -415,40 +415,47 @@ fn train_and_infer_run_on_the_wgpu_backend() {
     }
     let x = Scratch::new();
     setup(&x);
-    let train = |backend: &str| {
-        let out = pvrnn(&[
-            "train",
-            "--model",
-            &x.s("m.safetensors"),
-            "--inputs",
-            &x.s("x.safetensors"),
-            "--out",
-            &x.s(&format!("{backend}.safetensors")),
-            "--iterations",
-            "10",
-            "--backend",
-            backend,
-        ]);
+    let train = |backend: &[&str]| {
+        let name = backend.join(" ");
+        let file = backend.join("_").replace("--", "");
+        let mut args = vec![
+            "train".to_string(),
+            "--model".into(),
+            x.s("m.safetensors"),
+            "--inputs".into(),
+            x.s("x.safetensors"),
+            "--out".into(),
+            x.s(&format!("{file}.safetensors")),
+            "--iterations".into(),
+            "10".into(),
+        ];
+        args.extend(backend.iter().map(|a| a.to_string()));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = pvrnn(&args);
         let err = String::from_utf8_lossy(&out.stderr).into_owned();
-        assert!(
-            out.status.success(),
-            "train --backend {backend} failed:\n{err}"
-        );
+        assert!(out.status.success(), "train {name} failed:\n{err}");
         let report: serde_json::Value =
             serde_json::from_slice(&out.stdout).expect("train prints its final free energy");
         (report["total"].as_f64().unwrap(), err)
     };
-    let (cpu, _) = train("cpu");
-    let (gpu, err) = train("wgpu");
+    let (cpu, _) = train(&["--backend", "cpu"]);
+    let (gpu, err) = train(&["--backend", "wgpu"]);
     assert!(err.contains("backend: wgpu on "), "{err}");
     assert!(
         (cpu - gpu).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu F {gpu}"
     );
+    // The recurrence on the GPU too: the same learning, and the run says so.
+    let (all_gpu, err) = train(&["--backend", "wgpu", "--gpu-recurrence"]);
+    assert!(err.contains("recurrence on the GPU"), "{err}");
+    assert!(
+        (cpu - all_gpu).abs() <= 1e-4 * cpu.abs(),
+        "after 10 iterations: cpu F {cpu}, wgpu with the recurrence F {all_gpu}"
+    );
     ok(&[
         "infer",
         "--model",
-        &x.s("wgpu.safetensors"),
+        &x.s("backend_wgpu.safetensors"),
         "--inputs",
         &x.s("x.safetensors"),
         "--out",
@@ -623,6 +630,16 @@ fn bad_inputs_give_clear_errors() {
         e.contains("missing.safetensors") && e.contains("No such file"),
         "{e}"
     );
+
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--gpu-recurrence",
+    ]);
+    assert!(e.contains("--gpu-recurrence needs --backend wgpu"), "{e}");
 
     write_inputs(&x.path("nan.safetensors"), &small_config(), 2, 12, true);
     let e = fails(&[

@@ -175,7 +175,7 @@ pub struct OutputLoss<T> {
 /// A read-out's output layer, `x^ = tanh(W h + b)`, computed on other hardware. It carries
 /// about 97% of the model's arithmetic (the vision layer's 50 x 32,256 weights against
 /// every row), so a GPU that runs only this layer already takes most of the work; the CPU
-/// backend accepts one ([`crate::cpu::CpuBackend::load_with_output_layer`]) and calls it in
+/// backend accepts one ([`crate::cpu::CpuBackend::load_with`]) and calls it in
 /// place of its own fused kernel, keeping the recurrence, the hidden layers and the KL terms.
 /// The layer's weights are the ones given at load time.
 pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
@@ -200,4 +200,55 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
     /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
     /// the call to the CPU.
     fn predict(&self, modality: Modality, input: &[T], n: usize) -> Option<Vec<T>>;
+}
+
+/// Gradients of one module's recurrent weights, summed over a batch's windows and steps
+/// (row-major, the parameters' shapes). `w_dh` is empty for the top module.
+#[derive(Clone, Debug)]
+pub struct ModuleWeightGrads<T> {
+    pub w_dd: Vec<T>,
+    pub w_dz: Vec<T>,
+    pub w_dh: Vec<T>,
+    pub w_prior_mu: Vec<T>,
+    pub w_prior_sigma: Vec<T>,
+    pub b_prior_mu: Vec<T>,
+    pub b_prior_sigma: Vec<T>,
+}
+
+/// What back-propagation through the recurrence returns for a batch.
+#[derive(Clone, Debug)]
+pub struct RecurrenceGrads<T> {
+    /// Per window, d F / d a_mu and d F / d a_sigma per module, `[len, z]`.
+    pub a_mu: Vec<[Vec<T>; 4]>,
+    pub a_sigma: Vec<[Vec<T>; 4]>,
+    /// Per module, summed over the windows in their order (when weight gradients were asked).
+    pub weights: Option<[ModuleWeightGrads<T>; 4]>,
+}
+
+/// The recurrence (the modules' MTRNN updates, priors, posteriors and KL terms over a batch
+/// of windows), computed on other hardware. The CPU backend accepts one
+/// ([`crate::cpu::CpuBackend::load_with`]) and calls it in place of its own kernels; the
+/// weights are the ones given at load time.
+pub trait Recurrence<T: Real>: Send + Sync + std::fmt::Debug {
+    /// Runs every window forward. `None` leaves the batch to the CPU (for example shapes
+    /// the kernels do not hold).
+    fn forward<'a>(
+        &'a self,
+        windows: &[Window<'_, T>],
+        ablation: &Ablation,
+    ) -> Option<Box<dyn RecurrencePass<T> + 'a>>;
+}
+
+/// A batch run forward: its states, and what back-propagation needs of them (a GPU keeps
+/// them on the device, so the backward pass uploads only the read-outs' gradients).
+pub trait RecurrencePass<T: Real>: Send + std::fmt::Debug {
+    /// Every window's states, in the windows' order.
+    fn traces(&self) -> &[Trace<T>];
+
+    /// Back-propagation through time. `grad_d[w][m]` is d F / d d_t of module m from its
+    /// read-out in window w (`[len, d]`), if the module has an observed read-out.
+    fn backward(&self, grad_d: &[[Option<&[T]>; 4]], weight_grads: bool) -> RecurrenceGrads<T>;
+
+    /// The states, given up.
+    fn into_traces(self: Box<Self>) -> Vec<Trace<T>>;
 }

@@ -1,7 +1,7 @@
 //! The device, its queue, and the compiled kernels (one set per hidden width).
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::pool::{BufferPool, PooledBuffer};
 
@@ -27,6 +27,15 @@ pub(crate) struct Kernels {
     pub(crate) predict: wgpu::ComputePipeline,
 }
 
+/// The recurrence's kernels (shapes come from a table at run time, so one set serves every
+/// model).
+#[derive(Debug)]
+pub(crate) struct RecurrenceKernels {
+    pub(crate) forward: wgpu::ComputePipeline,
+    pub(crate) backward: wgpu::ComputePipeline,
+    pub(crate) weights: wgpu::ComputePipeline,
+}
+
 /// Learning targets kept on the device: which observations, and how they were cut.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct ResidentKey {
@@ -46,6 +55,7 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
+    recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
     /// Per modality, the targets of the latest resident key (learning's data, uploaded
     /// once per run; an inference step's window, once per step); a new key replaces them.
     pub(crate) resident: Mutex<[Resident; 2]>,
@@ -81,6 +91,7 @@ impl Gpu {
             queue,
             info,
             kernels: Mutex::new(HashMap::new()),
+            recurrence_kernels: OnceLock::new(),
             resident: Mutex::new([None, None]),
             pool: Arc::default(),
         })
@@ -117,6 +128,16 @@ impl Gpu {
         if !data.is_empty() {
             self.queue
                 .write_buffer(&buffer, 0, bytemuck::cast_slice(data));
+        }
+        buffer
+    }
+
+    /// A storage buffer holding 32-bit words (tables of shapes and offsets).
+    pub(crate) fn upload_words(&self, label: &str, words: &[u32]) -> PooledBuffer {
+        let buffer = self.scratch(label, words.len(), wgpu::BufferUsages::empty());
+        if !words.is_empty() {
+            self.queue
+                .write_buffer(&buffer, 0, bytemuck::cast_slice(words));
         }
         buffer
     }
@@ -179,28 +200,56 @@ impl Gpu {
             ("RB_HV", 4 * hv),
         ];
         let source = |text: &str| crate::template::expand(text, &constants);
-        let pipeline = |label: &str, text: &str| {
-            let module = self
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(label),
-                    source: wgpu::ShaderSource::Wgsl(source(text).into()),
-                });
-            self.device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(label),
-                    layout: None,
-                    module: &module,
-                    entry_point: Some("main"),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-        };
         Kernels {
-            loss_rows: pipeline("loss_rows", include_str!("shaders/loss_rows.wgsl")),
-            loss_columns: pipeline("loss_columns", include_str!("shaders/loss_columns.wgsl")),
-            reduce: pipeline("reduce", include_str!("shaders/reduce.wgsl")),
-            predict: pipeline("predict", include_str!("shaders/predict.wgsl")),
+            loss_rows: self.pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
+            loss_columns: self.pipeline(
+                "loss_columns",
+                source(include_str!("shaders/loss_columns.wgsl")),
+            ),
+            reduce: self.pipeline("reduce", source(include_str!("shaders/reduce.wgsl"))),
+            predict: self.pipeline("predict", source(include_str!("shaders/predict.wgsl"))),
         }
+    }
+
+    /// The recurrence's kernels, compiled on first use.
+    pub(crate) fn recurrence_kernels(&self) -> Arc<RecurrenceKernels> {
+        self.recurrence_kernels
+            .get_or_init(|| {
+                let common = include_str!("shaders/recurrence_common.wgsl");
+                let source = |text: &str| format!("{common}\n{text}");
+                Arc::new(RecurrenceKernels {
+                    forward: self.pipeline(
+                        "recurrence forward",
+                        source(include_str!("shaders/recurrence_forward.wgsl")),
+                    ),
+                    backward: self.pipeline(
+                        "recurrence backward",
+                        source(include_str!("shaders/recurrence_backward.wgsl")),
+                    ),
+                    weights: self.pipeline(
+                        "recurrence weights",
+                        source(include_str!("shaders/recurrence_weights.wgsl")),
+                    ),
+                })
+            })
+            .clone()
+    }
+
+    fn pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        self.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
     }
 }

@@ -1,13 +1,15 @@
 //! GPU compute for the scalable PV-RNN through wgpu (Vulkan, Metal, DX12; WebGPU later).
 //!
-//! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32`. What runs on the GPU
-//! today is the read-outs' output layer (`tanh(W h + b)` into every dimension, fused with
-//! its loss and both backward products: `shaders/loss_rows.wgsl` and
-//! `shaders/loss_columns.wgsl`), which is about 97% of a learning iteration's arithmetic
-//! (docs/gpu.md). The recurrence, the hidden read-out
-//! layers, the KL terms and the optimiser stay on the CPU backend, which calls this crate
-//! through [`pvrnn_core::backend::OutputLayer`]. Those move over next (issue 12); the
-//! seam does not change when they do.
+//! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32`. What runs on the GPU:
+//! the read-outs' output layer (`tanh(W h + b)` into every dimension, fused with its loss
+//! and both backward products: `shaders/loss_rows.wgsl` and `shaders/loss_columns.wgsl`),
+//! about 97% of a learning iteration's arithmetic (docs/gpu.md), through
+//! [`pvrnn_core::backend::OutputLayer`]; and, when asked for
+//! ([`WgpuBackend::with_recurrence_on_gpu`]), the recurrence forward and backward with its
+//! weight gradients (`shaders/recurrence_*.wgsl`, one workgroup per window), through
+//! [`pvrnn_core::backend::Recurrence`]. The hidden read-out layers, the KL sums and the
+//! optimiser stay on the CPU backend, which calls this crate through those two seams;
+//! they move over next (issue 12).
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device).
@@ -15,23 +17,26 @@
 mod gpu;
 mod output;
 mod pool;
+mod recurrence;
 mod template;
 
 use std::sync::Arc;
 
 use pvrnn_core::ModelConfig;
-use pvrnn_core::backend::{Backend, LoadedModel};
-use pvrnn_core::cpu::CpuBackend;
+use pvrnn_core::backend::{Backend, LoadedModel, Recurrence};
+use pvrnn_core::cpu::{CpuBackend, Offload};
 use pvrnn_core::params::Params;
 
 pub use gpu::{Gpu, GpuError};
 pub use output::{GpuOutputLayer, Tiling};
+pub use recurrence::GpuRecurrence;
 
 /// The model's arithmetic with the output layers on a GPU (see the crate docs).
 #[derive(Clone, Debug)]
 pub struct WgpuBackend {
     gpu: Arc<Gpu>,
     tiling: Tiling,
+    recurrence_on_gpu: bool,
 }
 
 impl WgpuBackend {
@@ -42,7 +47,22 @@ impl WgpuBackend {
         Ok(Self {
             gpu: Arc::new(Gpu::new()?),
             tiling: Tiling::default(),
+            recurrence_on_gpu: false,
         })
+    }
+
+    /// Runs the recurrence (forward, back-propagation through time and its weight
+    /// gradients) on the GPU too, instead of the CPU. Off by default: its states still come
+    /// back to the CPU for the hidden read-out layers every call, and it has not yet been
+    /// timed on a real GPU against the CPU's recurrence (docs/gpu.md).
+    pub fn with_recurrence_on_gpu(mut self, on: bool) -> Self {
+        self.recurrence_on_gpu = on;
+        self
+    }
+
+    /// Whether the recurrence runs on the GPU (see [`Self::with_recurrence_on_gpu`]).
+    pub fn recurrence_on_gpu(&self) -> bool {
+        self.recurrence_on_gpu
     }
 
     /// The same GPU with another cut of the work (tests use small tiles and chunks).
@@ -64,6 +84,17 @@ impl WgpuBackend {
 impl Backend<f32> for WgpuBackend {
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
         let layer = GpuOutputLayer::upload(self.gpu.clone(), self.tiling, params);
-        CpuBackend::load_with_output_layer(params, config, Box::new(layer))
+        let recurrence = self.recurrence_on_gpu.then(|| {
+            Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
+                as Box<dyn Recurrence<f32>>
+        });
+        CpuBackend::load_with(
+            params,
+            config,
+            Offload {
+                output_layer: Some(Box::new(layer)),
+                recurrence,
+            },
+        )
     }
 }

@@ -212,7 +212,11 @@ fn unpad_rows(data: &[f32], width: usize) -> Vec<f32> {
     out
 }
 
-fn bind(gpu: &Gpu, pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+pub(crate) fn bind(
+    gpu: &Gpu,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
         .iter()
         .enumerate()
@@ -228,7 +232,7 @@ fn bind(gpu: &Gpu, pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]) 
     })
 }
 
-fn dispatch(
+pub(crate) fn dispatch(
     encoder: &mut wgpu::CommandEncoder,
     pipeline: &wgpu::ComputePipeline,
     group: &wgpu::BindGroup,
@@ -243,7 +247,7 @@ fn dispatch(
 
 /// Copies `sources` (each `floats` long) into one mappable buffer, submits, waits, and
 /// reads them.
-fn read_back(
+pub(crate) fn read_back(
     gpu: &Gpu,
     mut encoder: wgpu::CommandEncoder,
     sources: &[(&wgpu::Buffer, usize)],

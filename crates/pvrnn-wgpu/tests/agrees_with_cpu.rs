@@ -9,13 +9,18 @@
 
 use std::sync::Arc;
 
-use pvrnn_core::backend::Backend;
+use pvrnn_core::backend::Recurrence;
+use pvrnn_core::backend::{
+    Backend, FullOutputs, Grads, Posterior, Request, Trace, Window, WindowResult,
+};
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
-use pvrnn_core::{Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor};
-use pvrnn_wgpu::{Tiling, WgpuBackend};
+use pvrnn_core::{
+    Ablation, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
+};
+use pvrnn_wgpu::{GpuRecurrence, Tiling, WgpuBackend};
 
 fn gpu() -> Option<WgpuBackend> {
     match WgpuBackend::new() {
@@ -95,7 +100,15 @@ fn assert_close(name: &str, cpu: &[f32], gpu: &[f32], tol: f64) {
 }
 
 fn free_energy_and_gradients_agree(gpu: WgpuBackend, sequences: usize, steps: usize) {
-    let config = config();
+    free_energy_and_gradients_agree_with(gpu, config(), sequences, steps);
+}
+
+fn free_energy_and_gradients_agree_with(
+    gpu: WgpuBackend,
+    config: ModelConfig,
+    sequences: usize,
+    steps: usize,
+) {
     let data = observations(&config, sequences, steps);
     let model = Model::<f32>::init_on(&CpuBackend, config, sequences, steps, 7).unwrap();
     let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
@@ -198,8 +211,168 @@ fn resident_targets_follow_the_data() {
 }
 
 #[test]
+fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
+    let Some(gpu) = gpu() else { return };
+    // Windows of 30 steps, weight gradients from the third kernel summed over 3 windows,
+    // the prior's biases learned too.
+    let mut config = config();
+    config.prior_bias = true;
+    free_energy_and_gradients_agree_with(gpu.with_recurrence_on_gpu(true), config, 3, 30);
+}
+
+/// Every field of every window's states and the adaptive variables' gradients, from the
+/// recurrence kernels against `cpu::recurrent`: windows of different lengths in one
+/// dispatch, one starting from a held state, one whose posterior is the prior, and an
+/// ablated module.
+#[test]
+fn the_recurrence_kernels_match_the_cpu_state_by_state() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let mut config = config();
+    // The prior's optional biases too, with values that matter.
+    config.prior_bias = true;
+    let mut model = Model::<f32>::init_on(&CpuBackend, config.clone(), 3, 9, 11).unwrap();
+    for (name, t, _) in model.params.named_mut() {
+        if name.contains("b_prior") {
+            for (i, v) in t.data_mut().iter_mut().enumerate() {
+                *v = 0.3 * (1.7 * i as f32).sin();
+            }
+        }
+    }
+    let data = observations(&config, 3, 9);
+    let wave = |n: usize, phase: f32| -> Vec<f32> {
+        (0..n).map(|i| (0.37 * i as f32 + phase).sin()).collect()
+    };
+    let dims = |m: usize| {
+        (
+            model.config.module(pvrnn_core::ModuleId::ALL[m]).d,
+            model.config.module(pvrnn_core::ModuleId::ALL[m]).z,
+        )
+    };
+    let lens = [9, 4, 7];
+    let eps: Vec<[Vec<f32>; 4]> = lens
+        .iter()
+        .enumerate()
+        .map(|(w, &len)| std::array::from_fn(|m| wave(len * dims(m).1, w as f32 + m as f32)))
+        .collect();
+    let h0: [Vec<f32>; 4] = std::array::from_fn(|m| wave(dims(m).0, 2.0 + m as f32));
+    let windows: Vec<Window<'_, f32>> = lens
+        .iter()
+        .enumerate()
+        .map(|(w, &len)| {
+            let a = &model.adaptive;
+            let rows = |m: usize| 0..len * dims(m).1;
+            Window {
+                len,
+                h0: (w == 1).then(|| std::array::from_fn(|m| h0[m].as_slice())),
+                posterior: if w == 2 {
+                    Posterior::Prior
+                } else {
+                    Posterior::Adaptive {
+                        a_mu: std::array::from_fn(|m| {
+                            &a.a_mu[m].data()[w * 9 * dims(m).1..][rows(m)]
+                        }),
+                        a_sigma: std::array::from_fn(|m| {
+                            &a.a_sigma[m].data()[w * 9 * dims(m).1..][rows(m)]
+                        }),
+                    }
+                },
+                eps: std::array::from_fn(|m| eps[w][m].as_slice()),
+                targets: std::array::from_fn(|mi| {
+                    let modality = Modality::ALL[mi];
+                    let x = data.tensor(modality);
+                    let width = x.shape()[2];
+                    (0..len)
+                        .map(|t| &x.data()[(w * 9 + t) * width..][..width])
+                        .collect()
+                }),
+            }
+        })
+        .collect();
+    let request = Request {
+        observed: Observed::all(&config),
+        ablation: Ablation([false, true, false, false]),
+        grads: Grads::Adaptive,
+        full_outputs: FullOutputs::None,
+        resident_targets: None,
+    };
+    // The kernels take this batch (a `None` would leave it to the CPU, and the comparison
+    // below would compare the CPU with itself).
+    let direct = GpuRecurrence::upload(gpu.gpu().clone(), &model.params, &config);
+    assert!(direct.forward(&windows, &request.ablation).is_some());
+    let on_cpu = CpuBackend
+        .load(&model.params, &config)
+        .evaluate(&windows, &request);
+    let on_gpu = gpu
+        .load(&model.params, &config)
+        .evaluate(&windows, &request);
+    for (w, (a, b)) in on_cpu.windows.iter().zip(&on_gpu.windows).enumerate() {
+        let (a, b): (&WindowResult<f32>, &WindowResult<f32>) = (a, b);
+        let fields = |t: &Trace<f32>, m: usize| {
+            let s = &t.modules[m];
+            [
+                ("h0", s.h0.clone()),
+                ("d0", s.d0.clone()),
+                ("h", s.h.clone()),
+                ("d", s.d.clone()),
+                ("mu_p", s.mu_p.clone()),
+                ("pre_mu_p", s.pre_mu_p.clone()),
+                ("log_sigma_p", s.log_sigma_p.clone()),
+                ("inv_var_p", s.inv_var_p.clone()),
+                ("mu_q", s.mu_q.clone()),
+                ("log_sigma_q", s.log_sigma_q.clone()),
+                ("sigma_q", s.sigma_q.clone()),
+                ("z", s.z.clone()),
+            ]
+        };
+        for m in 0..4 {
+            for ((name, x), (_, y)) in fields(&a.trace, m).into_iter().zip(fields(&b.trace, m)) {
+                assert_close(&format!("window {w} module {m} {name}"), &x, &y, 1e-5);
+            }
+            for (k, l) in a.trace.modules[m].kl.iter().zip(&b.trace.modules[m].kl) {
+                assert!(
+                    (k - l).abs() <= 1e-5 * k.abs().max(1.0),
+                    "window {w} module {m} kl: {k} vs {l}"
+                );
+            }
+            let grads = |r: &WindowResult<f32>| {
+                (
+                    r.grad_a_mu.clone().unwrap()[m].clone(),
+                    r.grad_a_sigma.clone().unwrap()[m].clone(),
+                )
+            };
+            let ((mu_a, sigma_a), (mu_b, sigma_b)) = (grads(a), grads(b));
+            assert_close(
+                &format!("window {w} module {m} dF/da_mu"),
+                &mu_a,
+                &mu_b,
+                1e-4,
+            );
+            assert_close(
+                &format!("window {w} module {m} dF/da_sigma"),
+                &sigma_a,
+                &sigma_b,
+                1e-4,
+            );
+        }
+        // The ablated module's z is exactly 0.
+        assert!(b.trace.modules[1].z.iter().all(|&z| z == 0.0));
+    }
+}
+
+#[test]
 fn online_inference_and_read_outs_match_the_cpu_backend() {
     let Some(gpu) = gpu() else { return };
+    online_inference_agrees(gpu);
+}
+
+#[test]
+fn online_inference_with_the_recurrence_on_the_gpu_matches_the_cpu_backend() {
+    let Some(gpu) = gpu() else { return };
+    online_inference_agrees(gpu.with_recurrence_on_gpu(true));
+}
+
+fn online_inference_agrees(gpu: WgpuBackend) {
     let config = config();
     let data = observations(&config, 1, 12);
     let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 12, 3).unwrap());

@@ -6,8 +6,8 @@ mod recurrent;
 
 use crate::Real;
 use crate::backend::{
-    Backend, BatchResult, FullOutputs, Grads, LoadedModel, OutputLayer, Posterior, Request, Window,
-    WindowResult,
+    Backend, BatchResult, FullOutputs, Grads, LoadedModel, ModuleWeightGrads, OutputLayer,
+    Posterior, Recurrence, RecurrenceGrads, RecurrencePass, Request, Trace, Window, WindowResult,
 };
 use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Ablation;
@@ -20,20 +20,37 @@ pub struct CpuBackend;
 
 impl<T: Real> Backend<T> for CpuBackend {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>> {
-        Box::new(CpuModel::new(params, config, None))
+        Box::new(CpuModel::new(params, config, Offload::default()))
+    }
+}
+
+/// Parts of the model's arithmetic computed elsewhere (a GPU's, loaded with the same
+/// weights); whatever is `None`, or declines a call, runs on the CPU.
+#[derive(Debug)]
+pub struct Offload<T: Real> {
+    pub output_layer: Option<Box<dyn OutputLayer<T>>>,
+    pub recurrence: Option<Box<dyn Recurrence<T>>>,
+}
+
+impl<T: Real> Default for Offload<T> {
+    fn default() -> Self {
+        Self {
+            output_layer: None,
+            recurrence: None,
+        }
     }
 }
 
 impl CpuBackend {
-    /// Loads the weights with the read-outs' output layers computed by `output_layer` (a
-    /// GPU's, loaded with the same weights) and everything else on the CPU: how a backend
-    /// that accelerates only the dominant product builds its model.
-    pub fn load_with_output_layer<T: Real>(
+    /// Loads the weights with some of the work computed elsewhere (see [`Offload`]): how a
+    /// backend that accelerates part of the model builds its model, the rest (learning's
+    /// bookkeeping, and what it does not take) staying here.
+    pub fn load_with<T: Real>(
         params: &Params<T>,
         config: &ModelConfig,
-        output_layer: Box<dyn OutputLayer<T>>,
+        offload: Offload<T>,
     ) -> Box<dyn LoadedModel<T>> {
-        Box::new(CpuModel::new(params, config, Some(output_layer)))
+        Box::new(CpuModel::new(params, config, offload))
     }
 }
 
@@ -47,21 +64,33 @@ struct CpuModel<T> {
     out_t: [std::sync::OnceLock<Vec<T>>; 2],
     /// Computes the output layers elsewhere when set (see [`OutputLayer`]).
     output_layer: Option<Box<dyn OutputLayer<T>>>,
+    /// Computes the recurrence elsewhere when set (see [`Recurrence`]).
+    recurrence: Option<Box<dyn Recurrence<T>>>,
 }
 
 impl<T: Real> CpuModel<T> {
-    fn new(
-        params: &Params<T>,
-        config: &ModelConfig,
-        output_layer: Option<Box<dyn OutputLayer<T>>>,
-    ) -> Self {
+    fn new(params: &Params<T>, config: &ModelConfig, offload: Offload<T>) -> Self {
         Self {
             prepared: recurrent::Prepared::new(params, config),
             params: params.clone(),
             config: config.clone(),
             out_t: Default::default(),
-            output_layer,
+            output_layer: offload.output_layer,
+            recurrence: offload.recurrence,
         }
+    }
+
+    /// The recurrence forward over `windows`, where the offloaded one takes it, else here.
+    fn recurrence_forward<'a>(
+        &'a self,
+        windows: &[Window<'_, T>],
+        ablation: &Ablation,
+    ) -> Box<dyn RecurrencePass<T> + 'a> {
+        let _phase = crate::profile::phase("  recurrence forward");
+        self.recurrence
+            .as_ref()
+            .and_then(|r| r.forward(windows, ablation))
+            .unwrap_or_else(|| Box::new(CpuPass::forward(&self.prepared, windows, *ablation)))
     }
 
     fn out_t(&self, mi: usize) -> &[T] {
@@ -89,8 +118,7 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
     }
 
     fn prior_rollout(&self, steps: usize) -> ([Vec<T>; 4], [Vec<T>; 4]) {
-        let r = prior_rollout(&self.prepared, &self.config, steps);
-        (r.a_mu, r.a_sigma)
+        prior_rollout(self, steps)
     }
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
@@ -109,12 +137,9 @@ fn evaluate<T: Real>(
     windows: &[Window<'_, T>],
     req: &Request,
 ) -> BatchResult<T> {
-    let (params, config, prepared) = (&model.params, &model.config, &model.prepared);
-    let forward_phase = crate::profile::phase("  recurrence forward");
-    let traces = parallel::map(windows.len(), |i| {
-        recurrent::forward(prepared, &windows[i], &req.ablation)
-    });
-    drop(forward_phase);
+    let (params, config) = (&model.params, &model.config);
+    let pass = model.recurrence_forward(windows, &req.ablation);
+    let traces = pass.traces();
     let mut offsets = Vec::with_capacity(windows.len() + 1);
     let mut total = 0;
     offsets.push(total);
@@ -142,7 +167,7 @@ fn evaluate<T: Real>(
         }
         let d = config.module(module).d;
         let mut input = Vec::with_capacity(n * d);
-        for tr in &traces {
+        for tr in traces {
             input.extend_from_slice(&tr.modules[module.index()].d);
         }
         let r = &params.readouts[mi];
@@ -247,53 +272,58 @@ fn evaluate<T: Real>(
     }
 
     let backward_phase = crate::profile::phase("  recurrence backward");
-    let window_grads = want_grads.then(|| {
-        parallel::map(windows.len(), |i| {
-            let rows = offsets[i]..offsets[i + 1];
-            let mut from_readout: [Option<&[T]>; 4] = [None; 4];
-            for modality in Modality::ALL {
-                if let Some(g) = &grad_d[modality.index()] {
-                    let d = config.module(modality.module()).d;
-                    from_readout[modality.module().index()] =
-                        Some(&g[rows.start * d..rows.end * d]);
+    let grads = want_grads.then(|| {
+        let from_readout: Vec<[Option<&[T]>; 4]> = (0..windows.len())
+            .map(|i| {
+                let rows = offsets[i]..offsets[i + 1];
+                let mut per_module: [Option<&[T]>; 4] = [None; 4];
+                for modality in Modality::ALL {
+                    if let Some(g) = &grad_d[modality.index()] {
+                        let d = config.module(modality.module()).d;
+                        per_module[modality.module().index()] =
+                            Some(&g[rows.start * d..rows.end * d]);
+                    }
+                }
+                per_module
+            })
+            .collect();
+        pass.backward(&from_readout, all_grads)
+    });
+    drop(backward_phase);
+
+    let _phase = crate::profile::phase("  collect results");
+    let mut adaptive_grads = None;
+    if let Some(g) = grads {
+        if let (Some(gp), Some(wg)) = (grad_params.as_mut(), g.weights) {
+            for (m, wg) in wg.into_iter().enumerate() {
+                let mp = &mut gp.modules[m];
+                add(mp.w_dd.data_mut(), &wg.w_dd);
+                add(mp.w_dz.data_mut(), &wg.w_dz);
+                if let Some(w) = mp.w_dh.as_mut() {
+                    add(w.data_mut(), &wg.w_dh);
+                }
+                add(mp.w_prior_mu.data_mut(), &wg.w_prior_mu);
+                add(mp.w_prior_sigma.data_mut(), &wg.w_prior_sigma);
+                if let Some(b) = mp.b_prior_mu.as_mut() {
+                    add(b.data_mut(), &wg.b_prior_mu);
+                }
+                if let Some(b) = mp.b_prior_sigma.as_mut() {
+                    add(b.data_mut(), &wg.b_prior_sigma);
                 }
             }
-            recurrent::backward(prepared, &traces[i], from_readout, &req.ablation, all_grads)
-        })
-    });
-
-    drop(backward_phase);
-    let _phase = crate::profile::phase("  collect results");
+        }
+        adaptive_grads = Some(g.a_mu.into_iter().zip(g.a_sigma));
+    }
     let mut results = Vec::with_capacity(windows.len());
-    let mut window_grads = window_grads.map(Vec::into_iter);
-    for (i, (trace, outs)) in traces
+    for (i, (trace, outs)) in pass
+        .into_traces()
         .into_iter()
         .zip(transpose_outputs(outputs))
         .enumerate()
     {
         let rows = offsets[i]..offsets[i + 1];
-        let (grad_a_mu, grad_a_sigma) = match window_grads.as_mut().and_then(Iterator::next) {
-            Some(g) => {
-                if let (Some(gp), Some(wg)) = (grad_params.as_mut(), g.weights) {
-                    for (m, wg) in wg.into_iter().enumerate() {
-                        let mp = &mut gp.modules[m];
-                        add(mp.w_dd.data_mut(), &wg.w_dd);
-                        add(mp.w_dz.data_mut(), &wg.w_dz);
-                        if let Some(w) = mp.w_dh.as_mut() {
-                            add(w.data_mut(), &wg.w_dh);
-                        }
-                        add(mp.w_prior_mu.data_mut(), &wg.w_prior_mu);
-                        add(mp.w_prior_sigma.data_mut(), &wg.w_prior_sigma);
-                        if let Some(b) = mp.b_prior_mu.as_mut() {
-                            add(b.data_mut(), &wg.b_prior_mu);
-                        }
-                        if let Some(b) = mp.b_prior_sigma.as_mut() {
-                            add(b.data_mut(), &wg.b_prior_sigma);
-                        }
-                    }
-                }
-                (Some(g.a_mu), Some(g.a_sigma))
-            }
+        let (grad_a_mu, grad_a_sigma) = match adaptive_grads.as_mut().and_then(Iterator::next) {
+            Some((a_mu, a_sigma)) => (Some(a_mu), Some(a_sigma)),
             None => (None, None),
         };
         results.push(WindowResult {
@@ -324,20 +354,85 @@ fn add<T: Real>(acc: &mut [T], v: &[T]) {
     }
 }
 
-/// The adaptive variables of a free prior rollout from the zero state (mean path, eps = 0):
-/// a = the prior's pre-activations at every step. Per module `[steps, z]`.
+/// The CPU's recurrence: windows in parallel (`cpu::recurrent`), weight gradients summed
+/// in window order.
 #[derive(Debug)]
-pub(crate) struct PriorRollout<T> {
-    pub(crate) a_mu: [Vec<T>; 4],
-    pub(crate) a_sigma: [Vec<T>; 4],
+struct CpuPass<'a, T> {
+    prepared: &'a recurrent::Prepared<T>,
+    ablation: Ablation,
+    traces: Vec<Trace<T>>,
 }
 
-fn prior_rollout<T: Real>(
-    prepared: &recurrent::Prepared<T>,
-    config: &ModelConfig,
-    steps: usize,
-) -> PriorRollout<T> {
-    let zeros: [Vec<T>; 4] = ModuleId::ALL.map(|id| vec![T::ZERO; steps * config.module(id).z]);
+impl<'a, T: Real> CpuPass<'a, T> {
+    fn forward(
+        prepared: &'a recurrent::Prepared<T>,
+        windows: &[Window<'_, T>],
+        ablation: Ablation,
+    ) -> Self {
+        let traces = parallel::map(windows.len(), |i| {
+            recurrent::forward(prepared, &windows[i], &ablation)
+        });
+        Self {
+            prepared,
+            ablation,
+            traces,
+        }
+    }
+}
+
+impl<T: Real> RecurrencePass<T> for CpuPass<'_, T> {
+    fn traces(&self) -> &[Trace<T>] {
+        &self.traces
+    }
+
+    fn backward(&self, grad_d: &[[Option<&[T]>; 4]], weight_grads: bool) -> RecurrenceGrads<T> {
+        let per_window = parallel::map(self.traces.len(), |i| {
+            recurrent::backward(
+                self.prepared,
+                &self.traces[i],
+                grad_d[i],
+                &self.ablation,
+                weight_grads,
+            )
+        });
+        let mut sum: Option<[ModuleWeightGrads<T>; 4]> = None;
+        let (mut a_mu, mut a_sigma) = (Vec::new(), Vec::new());
+        for g in per_window {
+            a_mu.push(g.a_mu);
+            a_sigma.push(g.a_sigma);
+            let Some(w) = g.weights else { continue };
+            match sum.as_mut() {
+                None => sum = Some(w),
+                Some(sum) => {
+                    for (s, w) in sum.iter_mut().zip(&w) {
+                        add(&mut s.w_dd, &w.w_dd);
+                        add(&mut s.w_dz, &w.w_dz);
+                        add(&mut s.w_dh, &w.w_dh);
+                        add(&mut s.w_prior_mu, &w.w_prior_mu);
+                        add(&mut s.w_prior_sigma, &w.w_prior_sigma);
+                        add(&mut s.b_prior_mu, &w.b_prior_mu);
+                        add(&mut s.b_prior_sigma, &w.b_prior_sigma);
+                    }
+                }
+            }
+        }
+        RecurrenceGrads {
+            a_mu,
+            a_sigma,
+            weights: sum,
+        }
+    }
+
+    fn into_traces(self: Box<Self>) -> Vec<Trace<T>> {
+        self.traces
+    }
+}
+
+/// The adaptive variables of a free prior rollout from the zero state (mean path, eps = 0):
+/// a = the prior's pre-activations at every step. Per module `[steps, z]`.
+fn prior_rollout<T: Real>(model: &CpuModel<T>, steps: usize) -> ([Vec<T>; 4], [Vec<T>; 4]) {
+    let zeros: [Vec<T>; 4] =
+        ModuleId::ALL.map(|id| vec![T::ZERO; steps * model.config.module(id).z]);
     let window = Window {
         len: steps,
         h0: None,
@@ -345,11 +440,13 @@ fn prior_rollout<T: Real>(
         eps: std::array::from_fn(|m| zeros[m].as_slice()),
         targets: [Vec::new(), Vec::new()],
     };
-    let modules = recurrent::forward(prepared, &window, &Ablation::none()).modules;
-    PriorRollout {
-        a_mu: std::array::from_fn(|m| modules[m].pre_mu_p.clone()),
-        a_sigma: std::array::from_fn(|m| modules[m].log_sigma_p.clone()),
-    }
+    let pass = model.recurrence_forward(std::slice::from_ref(&window), &Ablation::none());
+    let trace = pass.into_traces().into_iter().next();
+    let modules = trace.map(|t| t.modules).unwrap_or_default();
+    (
+        std::array::from_fn(|m| modules[m].pre_mu_p.clone()),
+        std::array::from_fn(|m| modules[m].log_sigma_p.clone()),
+    )
 }
 
 /// The prior's pre-activations `(W_prior_mu d + b, W_prior_sigma d + b)` of every module

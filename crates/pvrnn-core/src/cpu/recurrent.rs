@@ -8,7 +8,7 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
-use crate::backend::{ModuleTrace, Posterior, Trace, Window};
+use crate::backend::{ModuleTrace, ModuleWeightGrads, Posterior, Trace, Window};
 use crate::config::{ModelConfig, ModuleId};
 use crate::data::Ablation;
 use crate::kernels::{gemv_padded, pad_rows, padded, simd, transpose_padded};
@@ -249,18 +249,6 @@ fn forward_impl<T: Real>(p: &Prepared<T>, w: &Window<'_, T>, ablation: &Ablation
         }
     }
     Trace { len, modules }
-}
-
-/// Gradients of one module's weights from one window.
-#[derive(Clone, Debug)]
-pub(crate) struct ModuleWeightGrads<T> {
-    pub(crate) w_dd: Vec<T>,
-    pub(crate) w_dz: Vec<T>,
-    pub(crate) w_dh: Vec<T>,
-    pub(crate) w_prior_mu: Vec<T>,
-    pub(crate) w_prior_sigma: Vec<T>,
-    pub(crate) b_prior_mu: Vec<T>,
-    pub(crate) b_prior_sigma: Vec<T>,
 }
 
 #[derive(Debug)]

@@ -131,7 +131,15 @@ impl TestReal for f32 {
     fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)> {
         #[cfg(not(target_arch = "wasm32"))]
         match pvrnn_wgpu::WgpuBackend::new() {
-            Ok(b) => return vec![("wgpu", Box::new(b))],
+            Ok(b) => {
+                return vec![
+                    ("wgpu", Box::new(b.clone())),
+                    (
+                        "wgpu, recurrence on the GPU",
+                        Box::new(b.with_recurrence_on_gpu(true)),
+                    ),
+                ];
+            }
             Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
                 eprintln!("wgpu backend skipped (PVRNN_SKIP_WGPU): {e}");
             }

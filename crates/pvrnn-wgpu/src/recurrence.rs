@@ -1,0 +1,531 @@
+//! The recurrence on the GPU: forward and back-propagation through time with one
+//! workgroup per window (`shaders/recurrence_forward.wgsl`, `recurrence_backward.wgsl`;
+//! a window's steps depend on each other, so dispatching per step would cost a submission
+//! per step), and the weight gradients with one thread per weight
+//! (`recurrence_weights.wgsl`). The forward record stays on the device for the backward
+//! pass; the states come back once (the read-outs on the CPU need them).
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use pvrnn_core::ModelConfig;
+use pvrnn_core::backend::{
+    ModuleTrace, ModuleWeightGrads, Posterior, Recurrence, RecurrenceGrads, RecurrencePass, Trace,
+    Window,
+};
+use pvrnn_core::config::ModuleId;
+use pvrnn_core::data::Ablation;
+use pvrnn_core::params::Params;
+
+use crate::gpu::{Gpu, RecurrenceKernels};
+use crate::output::{bind, dispatch, read_back};
+use crate::pool::PooledBuffer;
+
+/// Units per module the kernels' workgroup arrays hold (`MAX_UNITS` in the WGSL).
+const MAX_UNITS: usize = 128;
+/// Threads per workgroup of the weight-gradient kernel.
+const WEIGHTS_WORKGROUP: usize = 64;
+/// Where the window table starts, and its words per window (see
+/// `shaders/recurrence_common.wgsl`).
+const TABLE_WINDOWS: usize = 80;
+const WINDOW_WORDS: usize = 8;
+/// The forward record's z-long rows per module and step.
+const RECORD_ROWS: usize = 9;
+
+/// One module's shapes and offsets: into the weights, and within a step of each buffer.
+#[derive(Clone, Copy, Debug, Default)]
+struct ModuleLayout {
+    d: usize,
+    z: usize,
+    parent: Option<usize>,
+    parent_d: usize,
+    w_prior: usize,
+    b_prior: usize,
+    w_dd: usize,
+    w_dz: usize,
+    w_dh: usize,
+    bias: usize,
+    inv_tau: usize,
+    decay: usize,
+    /// Offsets within a step of the forward record, the inputs, the initial states, the
+    /// backward record and the read-out gradients.
+    record: usize,
+    input: usize,
+    init: usize,
+    back: usize,
+    grad_d: usize,
+}
+
+/// Per-step (per-window for `init`) sizes of the buffers.
+#[derive(Clone, Copy, Debug, Default)]
+struct Strides {
+    record: usize,
+    input: usize,
+    init: usize,
+    grad_d: usize,
+    back: usize,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BackwardParams {
+    kl_scale: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct WeightsParams {
+    windows: u32,
+    total: u32,
+    _pad: [u32; 2],
+}
+
+/// The recurrent weights of one loaded model, uploaded.
+#[derive(Debug)]
+pub struct GpuRecurrence {
+    gpu: Arc<Gpu>,
+    kernels: Arc<RecurrenceKernels>,
+    modules: [ModuleLayout; 4],
+    strides: Strides,
+    weights: PooledBuffer,
+    weight_floats: usize,
+    kl_scale: [f32; 4],
+}
+
+impl GpuRecurrence {
+    /// Uploads the modules' weights. A module wider than the kernels hold leaves every
+    /// call to the CPU.
+    pub fn upload(gpu: Arc<Gpu>, params: &Params<f32>, config: &ModelConfig) -> Self {
+        let mut modules = [ModuleLayout::default(); 4];
+        let mut strides = Strides::default();
+        let mut weights = Vec::new();
+        for id in ModuleId::ALL {
+            let m = id.index();
+            let p = &params.modules[m];
+            let (d, z) = (config.module(id).d, config.module(id).z);
+            let parent = id.parent().map(ModuleId::index);
+            let parent_d = id.parent().map_or(0, |pid| config.module(pid).d);
+            let mut layout = ModuleLayout {
+                d,
+                z,
+                parent,
+                parent_d,
+                record: strides.record,
+                input: strides.input,
+                init: strides.init,
+                back: strides.back,
+                grad_d: strides.grad_d,
+                ..Default::default()
+            };
+            // Each tensor's offset, then its values (a pair is one block: mean, log sigma).
+            let mut push = |offset: &mut usize, parts: &[&[f32]]| {
+                *offset = weights.len();
+                for part in parts {
+                    weights.extend_from_slice(part);
+                }
+            };
+            let zeros = vec![0f32; z];
+            let bias_or_zeros = |b: &Option<pvrnn_core::Tensor<f32>>| {
+                b.as_ref().map_or(zeros.clone(), |b| b.data().to_vec())
+            };
+            push(
+                &mut layout.w_prior,
+                &[p.w_prior_mu.data(), p.w_prior_sigma.data()],
+            );
+            push(
+                &mut layout.b_prior,
+                &[
+                    &bias_or_zeros(&p.b_prior_mu),
+                    &bias_or_zeros(&p.b_prior_sigma),
+                ],
+            );
+            push(&mut layout.w_dd, &[p.w_dd.data()]);
+            push(&mut layout.w_dz, &[p.w_dz.data()]);
+            push(
+                &mut layout.w_dh,
+                &[p.w_dh.as_ref().map_or(&[][..], |w| w.data())],
+            );
+            push(&mut layout.bias, &[p.bias.data()]);
+            // As the CPU backend computes them, so both use the same f32 values.
+            let inv_tau: Vec<f32> = p.tau.data().iter().map(|&t| 1.0 / t).collect();
+            let decay: Vec<f32> = p.tau.data().iter().map(|&t| 1.0 - 1.0 / t).collect();
+            push(&mut layout.inv_tau, &[&inv_tau]);
+            push(&mut layout.decay, &[&decay]);
+            strides.record += 2 * d + RECORD_ROWS * z;
+            strides.input += 3 * z;
+            strides.init += 2 * d;
+            strides.back += 4 * z + d;
+            strides.grad_d += d;
+            modules[m] = layout;
+        }
+        let kl_scale =
+            ModuleId::ALL.map(|id| (config.kl_weight / config.module(id).z as f64) as f32);
+        Self {
+            kernels: gpu.recurrence_kernels(),
+            weights: gpu.upload("recurrent weights", &weights),
+            weight_floats: weights.len(),
+            gpu,
+            modules,
+            strides,
+            kl_scale,
+        }
+    }
+
+    /// The table the kernels read (see `shaders/recurrence_common.wgsl`): modules, strides,
+    /// ablation, then `windows` as (steps, inputs, record, prior posterior, read-out
+    /// gradients, backward record) offsets.
+    fn table(&self, ablation: &Ablation, windows: &[[usize; 6]]) -> Vec<u32> {
+        let mut t = vec![0u32; TABLE_WINDOWS + WINDOW_WORDS * windows.len()];
+        t[0] = windows.len() as u32;
+        let s = &self.strides;
+        for (m, ml) in self.modules.iter().enumerate() {
+            t[1 + m] = ablation.0[m] as u32;
+            t[10 + m] = ml.grad_d as u32;
+            let words = [
+                ml.d,
+                ml.z,
+                ml.parent.unwrap_or(4),
+                ml.parent_d,
+                ml.w_prior,
+                ml.b_prior,
+                ml.w_dd,
+                ml.w_dz,
+                ml.w_dh,
+                ml.bias,
+                ml.inv_tau,
+                ml.decay,
+                ml.record,
+                ml.input,
+                ml.init,
+                ml.back,
+            ];
+            for (k, w) in words.into_iter().enumerate() {
+                t[16 + 16 * m + k] = w as u32;
+            }
+        }
+        for (k, stride) in [s.record, s.input, s.init, s.grad_d, s.back]
+            .into_iter()
+            .enumerate()
+        {
+            t[5 + k] = stride as u32;
+        }
+        for (w, words) in windows.iter().enumerate() {
+            for (k, &v) in words.iter().enumerate() {
+                t[TABLE_WINDOWS + WINDOW_WORDS * w + k] = v as u32;
+            }
+        }
+        t
+    }
+
+    /// Whether the kernels hold these shapes: module widths within the workgroup arrays,
+    /// windows within one dispatch, buffers within one binding.
+    fn fits(&self, windows: usize, steps: usize) -> bool {
+        let limits = self.gpu.limits();
+        let binding = limits.max_storage_buffer_binding_size as usize;
+        let s = self.strides;
+        let largest = (steps * s.record.max(s.back).max(s.input) + windows * s.init)
+            .max(TABLE_WINDOWS + WINDOW_WORDS * windows);
+        self.modules
+            .iter()
+            .all(|m| m.d <= MAX_UNITS && m.z <= MAX_UNITS)
+            && windows > 0
+            && windows <= limits.max_compute_workgroups_per_dimension as usize
+            && 4 * largest <= binding
+            && self.weight_floats.div_ceil(WEIGHTS_WORKGROUP)
+                <= limits.max_compute_workgroups_per_dimension as usize
+    }
+}
+
+impl Recurrence<f32> for GpuRecurrence {
+    fn forward<'a>(
+        &'a self,
+        windows: &[Window<'_, f32>],
+        ablation: &Ablation,
+    ) -> Option<Box<dyn RecurrencePass<f32> + 'a>> {
+        let steps: usize = windows.iter().map(|w| w.len).sum();
+        if !self.fits(windows.len(), steps) || windows.iter().any(|w| w.len == 0) {
+            return None;
+        }
+        let s = self.strides;
+        let mut inputs = Vec::with_capacity(windows.len() * s.init + steps * s.input);
+        let mut entries = Vec::with_capacity(windows.len());
+        let mut initial = Vec::with_capacity(windows.len());
+        let mut before = 0;
+        for w in windows {
+            let input_at = inputs.len();
+            // h0 and d0 = tanh(h0) per module, d0 computed here as the CPU backend does.
+            let mut init: [(Vec<f32>, Vec<f32>); 4] = Default::default();
+            for (m, ml) in self.modules.iter().enumerate() {
+                let h0 =
+                    w.h0.map_or_else(|| vec![0.0; ml.d], |h| h[m][..ml.d].to_vec());
+                let d0: Vec<f32> = h0.iter().map(|h| h.tanh()).collect();
+                inputs.extend_from_slice(&h0);
+                inputs.extend_from_slice(&d0);
+                init[m] = (h0, d0);
+            }
+            let prior = matches!(w.posterior, Posterior::Prior);
+            for t in 0..w.len {
+                for (m, ml) in self.modules.iter().enumerate() {
+                    let row = t * ml.z..(t + 1) * ml.z;
+                    match w.posterior {
+                        Posterior::Adaptive { a_mu, a_sigma } => {
+                            inputs.extend_from_slice(&a_mu[m][row.clone()]);
+                            inputs.extend_from_slice(&a_sigma[m][row.clone()]);
+                        }
+                        Posterior::Prior => inputs.resize(inputs.len() + 2 * ml.z, 0.0),
+                    }
+                    inputs.extend_from_slice(&w.eps[m][row]);
+                }
+            }
+            entries.push([
+                w.len,
+                input_at,
+                before * s.record,
+                prior as usize,
+                before * s.grad_d,
+                before * s.back,
+            ]);
+            initial.push(init);
+            before += w.len;
+        }
+
+        let gpu = &*self.gpu;
+        let table = gpu.upload_words("recurrence table", &self.table(ablation, &entries));
+        let input_buffer = gpu.upload("recurrence inputs", &inputs);
+        let record = gpu.scratch(
+            "recurrence record",
+            steps * s.record,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let group = bind(
+            gpu,
+            &self.kernels.forward,
+            &[&table, &self.weights, &input_buffer, &record],
+        );
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        dispatch(
+            &mut encoder,
+            &self.kernels.forward,
+            &group,
+            windows.len() as u32,
+            1,
+        );
+        let values = read_back(gpu, encoder, &[(&record, steps * s.record)])
+            .pop()
+            .unwrap_or_default();
+
+        let traces = windows
+            .iter()
+            .zip(&entries)
+            .zip(initial)
+            .map(|((w, entry), init)| {
+                let at = entry[2];
+                let mut init = init.into_iter();
+                let modules = std::array::from_fn(|m| {
+                    let (h0, d0) = init.next().unwrap_or_default();
+                    self.unpack_trace(&values[at..], w.len, m, h0, d0)
+                });
+                Trace {
+                    len: w.len,
+                    modules,
+                }
+            })
+            .collect();
+        Some(Box::new(GpuPass {
+            recurrence: self,
+            table,
+            inputs: input_buffer,
+            record,
+            traces,
+            entries,
+            steps,
+        }))
+    }
+}
+
+impl GpuRecurrence {
+    /// Module m's states over a window from its forward record.
+    fn unpack_trace(
+        &self,
+        record: &[f32],
+        len: usize,
+        m: usize,
+        h0: Vec<f32>,
+        d0: Vec<f32>,
+    ) -> ModuleTrace<f32> {
+        let ml = self.modules[m];
+        let (d, z) = (ml.d, ml.z);
+        let stride = self.strides.record;
+        let gather = |offset: usize, width: usize| {
+            let mut out = Vec::with_capacity(len * width);
+            for t in 0..len {
+                let at = t * stride + ml.record + offset;
+                out.extend_from_slice(&record[at..at + width]);
+            }
+            out
+        };
+        let row = |k: usize| gather(2 * d + k * z, z);
+        let kl_terms = row(8);
+        ModuleTrace {
+            h0,
+            d0,
+            h: gather(0, d),
+            d: gather(d, d),
+            pre_mu_p: row(0),
+            mu_p: row(1),
+            log_sigma_p: row(2),
+            inv_var_p: row(3),
+            mu_q: row(4),
+            log_sigma_q: row(5),
+            sigma_q: row(6),
+            z: row(7),
+            // As the CPU backend: the units' terms summed in f64, divided by z.
+            kl: kl_terms
+                .chunks_exact(z.max(1))
+                .map(|k| k.iter().map(|&v| v as f64).sum::<f64>() / z as f64)
+                .collect(),
+        }
+    }
+}
+
+/// A batch run forward on the GPU: the record and inputs stay on the device.
+#[derive(Debug)]
+struct GpuPass<'a> {
+    recurrence: &'a GpuRecurrence,
+    table: PooledBuffer,
+    inputs: PooledBuffer,
+    record: PooledBuffer,
+    traces: Vec<Trace<f32>>,
+    /// The windows' table entries (steps, offsets).
+    entries: Vec<[usize; 6]>,
+    steps: usize,
+}
+
+impl RecurrencePass<f32> for GpuPass<'_> {
+    fn traces(&self) -> &[Trace<f32>] {
+        &self.traces
+    }
+
+    fn backward(&self, grad_d: &[[Option<&[f32]>; 4]], weight_grads: bool) -> RecurrenceGrads<f32> {
+        let r = self.recurrence;
+        let gpu = &*r.gpu;
+        let s = r.strides;
+        let mut from_readout = vec![0f32; self.steps * s.grad_d];
+        for (entry, per_module) in self.entries.iter().zip(grad_d) {
+            for (m, g) in per_module.iter().enumerate() {
+                let Some(g) = g else { continue };
+                let d = r.modules[m].d;
+                for t in 0..entry[0] {
+                    let at = entry[4] + t * s.grad_d + r.modules[m].grad_d;
+                    from_readout[at..at + d].copy_from_slice(&g[t * d..(t + 1) * d]);
+                }
+            }
+        }
+        let grad_d = gpu.upload("read-out gradients", &from_readout);
+        let back = gpu.scratch(
+            "recurrence backward",
+            self.steps * s.back,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let params = gpu.uniform(&BackwardParams {
+            kl_scale: r.kl_scale,
+        });
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let group = bind(
+            gpu,
+            &r.kernels.backward,
+            &[
+                &self.table,
+                &r.weights,
+                &self.record,
+                &grad_d,
+                &back,
+                &params,
+            ],
+        );
+        dispatch(
+            &mut encoder,
+            &r.kernels.backward,
+            &group,
+            self.entries.len() as u32,
+            1,
+        );
+        let grads = gpu.scratch(
+            "recurrent weight gradients",
+            if weight_grads { r.weight_floats } else { 1 },
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let weights_params = gpu.uniform(&WeightsParams {
+            windows: self.entries.len() as u32,
+            total: r.weight_floats as u32,
+            _pad: [0; 2],
+        });
+        if weight_grads {
+            let group = bind(
+                gpu,
+                &r.kernels.weights,
+                &[
+                    &self.table,
+                    &self.inputs,
+                    &self.record,
+                    &back,
+                    &grads,
+                    &weights_params,
+                ],
+            );
+            dispatch(
+                &mut encoder,
+                &r.kernels.weights,
+                &group,
+                r.weight_floats.div_ceil(WEIGHTS_WORKGROUP) as u32,
+                1,
+            );
+        }
+        let mut sources = vec![(&*back, self.steps * s.back)];
+        if weight_grads {
+            sources.push((&*grads, r.weight_floats));
+        }
+        let mut results = read_back(gpu, encoder, &sources).into_iter();
+        let back = results.next().unwrap_or_default();
+        let (mut a_mu, mut a_sigma) = (Vec::new(), Vec::new());
+        for entry in &self.entries {
+            let (len, at) = (entry[0], entry[5]);
+            let gather = |m: usize, offset: usize| {
+                let z = r.modules[m].z;
+                let mut out = Vec::with_capacity(len * z);
+                for t in 0..len {
+                    let i = at + t * s.back + r.modules[m].back + offset * z;
+                    out.extend_from_slice(&back[i..i + z]);
+                }
+                out
+            };
+            a_mu.push(std::array::from_fn(|m| gather(m, 0)));
+            a_sigma.push(std::array::from_fn(|m| gather(m, 1)));
+        }
+        let weights = results.next().map(|g| {
+            std::array::from_fn(|m| {
+                let ml = r.modules[m];
+                let (d, z) = (ml.d, ml.z);
+                let take = |at: usize, n: usize| g[at..at + n].to_vec();
+                ModuleWeightGrads {
+                    w_prior_mu: take(ml.w_prior, z * d),
+                    w_prior_sigma: take(ml.w_prior + z * d, z * d),
+                    b_prior_mu: take(ml.b_prior, z),
+                    b_prior_sigma: take(ml.b_prior + z, z),
+                    w_dd: take(ml.w_dd, d * d),
+                    w_dz: take(ml.w_dz, d * z),
+                    w_dh: take(ml.w_dh, d * ml.parent_d),
+                }
+            })
+        });
+        RecurrenceGrads {
+            a_mu,
+            a_sigma,
+            weights,
+        }
+    }
+
+    fn into_traces(self: Box<Self>) -> Vec<Trace<f32>> {
+        self.traces
+    }
+}

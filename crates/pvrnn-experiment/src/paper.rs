@@ -205,6 +205,15 @@ fn robustness(r: &Value) -> Vec<Finding> {
         (Some(a), Some(b)) => a < b,
         _ => true,
     };
+    // What proprioception saves (off − on) at 64 (all) and at 16x16: the paper's
+    // interaction is that it saves more at the low resolution.
+    let saving = |v: usize| Some(cell(v, 1)? - cell(v, 0)?);
+    let (saving_64, saving_16) = (saving(0), saving(2));
+    let more_at_low = match (saving_64, saving_16) {
+        (Some(high), Some(low)) => low > high,
+        _ => true,
+    };
+    let fmt = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.3e}"));
     let simple = r["art"]["cell_contrasts"].as_array().and_then(|c| {
         c.iter().find(|x| {
             let (a, b) = (x["a"].as_str().unwrap_or(""), x["b"].as_str().unwrap_or(""));
@@ -234,14 +243,24 @@ fn robustness(r: &Value) -> Vec<Finding> {
         finding(
             "Proprioception lowers the error (Fig 5B)",
             "F(1, 20) = 46.09, p < 0.001",
-            f_text(&effects[1]),
+            format!(
+                "{}; mean error on / off: {} / {}",
+                f_text(&effects[1]),
+                fmt(on.map(|v| v / 3.0)),
+                fmt(off.map(|v| v / 3.0))
+            ),
             verdict(num(&effects[1]["p"]), true, helps),
         ),
         finding(
             "Resolution and proprioception interact: proprioception helps most at low resolution (Fig 5B)",
             "F(2, 20) = 13.57, p < 0.001",
-            f_text(&effects[2]),
-            verdict(num(&effects[2]["p"]), true, true),
+            format!(
+                "{}; error saved by proprioception (off − on) at 64 / 16: {} / {}",
+                f_text(&effects[2]),
+                fmt(saving_64),
+                fmt(saving_16)
+            ),
+            verdict(num(&effects[2]["p"]), true, more_at_low),
         ),
         finding(
             "With 16x16 vision only, proprioception still lowers the error (simple effect)",
@@ -338,9 +357,15 @@ fn interference(r: &Value) -> Vec<Finding> {
 }
 
 /// The findings as a Markdown section.
-pub fn markdown(findings: &[Finding], stamp: &str, networks: usize) -> String {
+/// `networks`: how many networks the results cover, of the design's `design_networks`.
+pub fn markdown(
+    findings: &[Finding],
+    stamp: &str,
+    networks: usize,
+    design_networks: usize,
+) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} networks). Agrees = same direction and same verdict at p < 0.05.\n\n| finding | paper | ours | agrees |\n|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} of the design's {design_networks} networks). Agrees = same direction and same verdict at p < 0.05.\n\n| finding | paper | ours | agrees |\n|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -388,6 +413,26 @@ mod tests {
         // Significant, but wiping's change is the smaller: the opposite of the paper.
         assert_eq!(f[1].agrees, Some(false));
         assert!(f[1].note.contains("opposite"));
+    }
+
+    #[test]
+    fn robustness_directions_come_from_the_cells() {
+        // cells[vision][proprio on, off] per network. Proprioception lowers the error on
+        // average, but saves more at 64 (0.3) than at 16 (0.1): the interaction runs the
+        // other way from the paper's.
+        let cells = |on: f64, off: f64| json!([{"0": on, "1": on}, {"0": off, "1": off}]);
+        let effect = |p: f64| json!({"f": 9.0, "df1": 2, "df2": 5, "p": p});
+        let r = json!({
+            "cells": [cells(1.0, 1.3), cells(1.5, 1.6), cells(2.0, 2.1)],
+            "art": {"effects": [effect(0.01), effect(0.01), effect(0.01)], "cell_contrasts": []},
+        });
+        let f = robustness(&r);
+        assert_eq!(f[0].agrees, Some(true), "{:?}", f[0]);
+        assert_eq!(f[1].agrees, Some(true), "{:?}", f[1]);
+        assert!(f[1].ours.contains("1.500e0 / 1.667e0"), "{}", f[1].ours);
+        assert_eq!(f[2].agrees, Some(false), "{:?}", f[2]);
+        assert!(f[2].note.contains("opposite direction"), "{}", f[2].note);
+        assert!(f[2].ours.contains("3.000e-1 / 1.000e-1"), "{}", f[2].ours);
     }
 
     #[test]

@@ -250,9 +250,16 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
     let findings = crate::paper::findings(plan.experiment, &body);
+    let networks_in_results = results
+        .infers
+        .iter()
+        .map(|(x, _)| x.network)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
     md.push_str(&crate::paper::markdown(
         &findings,
         &stamp,
+        networks_in_results,
         plan.design.networks,
     ));
     summary["results"] = body;

@@ -17,9 +17,11 @@ step "cargo clippy"
 cargo clippy --workspace --all-targets -- -D warnings
 
 # (also the check that the dataset crate and the simulator compile for WebAssembly)
-step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels)"
+step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels, WebGPU)"
 cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-dataset -p caresim \
     --target wasm32-unknown-unknown --all-targets -- -D warnings
+# The GPU crate's library and its browser test (its benchmark and native tests are native).
+cargo clippy -p pvrnn-wgpu --target wasm32-unknown-unknown --lib --tests -- -D warnings
 
 step "cargo doc with warnings denied"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
@@ -36,6 +38,10 @@ timeout 900 tests/slurm/run.sh target/debug/pvrnn
 
 step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown
+
+step "WebGPU in a browser worker (SwiftShader's adapter): online inference agrees with the CPU"
+WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webgpu-webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
+    cargo test -p pvrnn-wgpu --target wasm32-unknown-unknown --test webgpu
 
 step "the explorer's web entry and browser glue in headless Chromium"
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
@@ -77,6 +83,6 @@ for _ in $(seq 50); do
     sleep 0.2
 done
 mkdir -p target
-node tests/web/smoke.mjs "http://127.0.0.1:$port/index.html" target/web-smoke.png --live-seconds 240
+node tests/web/smoke.mjs "http://127.0.0.1:$port/index.html" target/web-smoke.png --live-seconds 240 --webgpu
 
 step "all tests passed"

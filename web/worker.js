@@ -3,4 +3,5 @@
 import init, { run_worker } from "./pvrnn-explorer.js";
 
 await init();
-run_worker();
+// Where runs compute (auto, cpu or webgpu): the page passes its own `?compute=`.
+run_worker(new URLSearchParams(self.location.search).get("compute") ?? "auto");

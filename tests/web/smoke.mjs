@@ -1,10 +1,12 @@
 // Opens the built site in headless Chromium, waits for the explorer to load its bundle,
 // takes a screenshot, and fails on a panic, a page error, or a blank canvas.
 //
-//   node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N]
+//   node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N] [--webgpu]
 //
 // With --live-seconds N it also opens a condition that is not precomputed (16x16 vision
 // plus proprioception with the executive module ablated) and waits up to N seconds for the live run's speed in the console.
+// With --webgpu it also opens the site in a browser with WebGPU and checks that the worker
+// takes it when asked (`?compute=webgpu`).
 import { createRequire } from 'node:module';
 import { inflateSync } from 'node:zlib';
 import { writeFileSync } from 'node:fs';
@@ -14,9 +16,11 @@ const require = createRequire(new URL('../../web/', import.meta.url));
 const { chromium } = require('playwright-core');
 
 const [url, out, ...rest] = process.argv.slice(2);
-const liveSeconds = rest[0] === '--live-seconds' ? Number(rest[1]) : 0;
+const liveAt = rest.indexOf('--live-seconds');
+const liveSeconds = liveAt >= 0 ? Number(rest[liveAt + 1]) : 0;
+const webgpu = rest.includes('--webgpu');
 if (!url || !out) {
-  console.error('usage: node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N]');
+  console.error('usage: node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N] [--webgpu]');
   process.exit(2);
 }
 
@@ -119,5 +123,39 @@ try {
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
 } finally {
   await browser.close();
+}
+
+// WebGPU in the worker: a browser with WebGPU (headless Chromium: SwiftShader's adapter,
+// with --enable-unsafe-webgpu) and `?compute=webgpu` must take it; `auto` (the default) says
+// what it chose. Agreement with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
+if (webgpu) {
+  const gpuBrowser = await chromium.launch({
+    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+    args: ['--no-sandbox', '--enable-unsafe-webgpu', '--disable-quic', '--no-first-run',
+           '--disable-background-networking', '--disable-component-update', '--disable-sync',
+           '--enable-unsafe-swiftshader'],
+  });
+  try {
+    for (const preference of ['webgpu', 'auto']) {
+      const page = await gpuBrowser.newPage({ viewport: { width: 1440, height: 920 } });
+      const logs = [];
+      page.on('console', (m) => logs.push(m.text()));
+      page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
+      const base = url.split('#')[0];
+      await page.goto(`${base}${base.includes('?') ? '&' : '?'}compute=${preference}`);
+      const until = Date.now() + 60_000;
+      let chosen;
+      while (!(chosen = logs.find((l) => l.includes('live runs compute on'))) && Date.now() < until) {
+        await page.waitForTimeout(200);
+      }
+      console.log(`?compute=${preference}: ${chosen ?? 'the worker never said where it computes'}`);
+      if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
+      else if (preference === 'webgpu' && !chosen.includes('WebGPU')) fail(`?compute=webgpu did not take WebGPU: ${chosen}`);
+      for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console (?compute=${preference}): ${l}`);
+      await page.close();
+    }
+  } finally {
+    await gpuBrowser.close();
+  }
 }
 process.exit(failed ? 1 : 0);

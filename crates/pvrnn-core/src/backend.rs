@@ -12,6 +12,7 @@
 use crate::Real;
 use crate::config::{Modality, ModelConfig};
 use crate::data::{Ablation, Observed};
+use crate::deferred::Deferred;
 use crate::params::Params;
 
 /// Where the adaptive variables of a window come from.
@@ -144,6 +145,16 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// of windows. The free energy is F = sum_steps [accuracy terms + W * complexity terms].
     fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T>;
 
+    /// [`Self::evaluate`] for a backend whose results arrive through an event loop
+    /// (WebGPU in the browser, see [`crate::deferred`]); the others finish it at once.
+    fn evaluate_async<'a>(
+        &'a self,
+        windows: &'a [Window<'a, T>],
+        request: &'a Request,
+    ) -> Deferred<'a, BatchResult<T>> {
+        crate::deferred::ready(self.evaluate(windows, request))
+    }
+
     /// The prior's pre-activations `(W_prior_mu d + b, W_prior_sigma d + b)` of every
     /// module for the states `d` (one per module): the initial a of a new inference step.
     fn prior_preactivations(&self, d: [&[T]; 4]) -> ([Vec<T>; 4], [Vec<T>; 4]);
@@ -177,7 +188,9 @@ pub struct OutputLoss<T> {
 /// every row), so a GPU that runs only this layer already takes most of the work; the CPU
 /// backend accepts one ([`crate::cpu::CpuBackend::load_with`]) and calls it in
 /// place of its own fused kernel, keeping the recurrence, the hidden layers and the KL terms.
-/// The layer's weights are the ones given at load time.
+/// The layer's weights are the ones given at load time. Results are [`Deferred`]: a native
+/// GPU waits for its read-back before it returns a ready future, WebGPU's arrive when the
+/// browser's event loop runs. The inputs are read before the call returns.
 pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
     /// The fused loss of the first `k` dimensions: forward, error, and (always) d F / d input,
     /// plus d F / d W and d F / d b when `weight_grads`. `input` is `[n, hidden]`;
@@ -185,8 +198,8 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
     /// `divisor`. `None` leaves the call to the CPU (for example shapes too small to pay
     /// for a transfer).
     /// `resident`: [`Request::resident_targets`] (the targets may be kept across calls).
-    fn loss(
-        &self,
+    fn loss<'a>(
+        &'a self,
         modality: Modality,
         input: &[T],
         n: usize,
@@ -195,11 +208,16 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
         targets: &[&[T]],
         resident: Option<u64>,
         weight_grads: bool,
-    ) -> Option<OutputLoss<T>>;
+    ) -> Option<Deferred<'a, OutputLoss<T>>>;
 
     /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
     /// the call to the CPU.
-    fn predict(&self, modality: Modality, input: &[T], n: usize) -> Option<Vec<T>>;
+    fn predict<'a>(
+        &'a self,
+        modality: Modality,
+        input: &[T],
+        n: usize,
+    ) -> Option<Deferred<'a, Vec<T>>>;
 }
 
 /// Gradients of one module's recurrent weights, summed over a batch's windows and steps

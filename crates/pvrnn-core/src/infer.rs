@@ -389,7 +389,7 @@ impl<T: Real> OnlineInference<T> {
         Ok(())
     }
 
-    fn window_pass(
+    async fn window_pass(
         &self,
         eps: &[Vec<T>; 4],
         ablation: Ablation,
@@ -421,7 +421,8 @@ impl<T: Real> OnlineInference<T> {
         };
         let mut result = self
             .loaded
-            .evaluate(std::slice::from_ref(&window), &request);
+            .evaluate_async(std::slice::from_ref(&window), &request)
+            .await;
         result.windows.pop().expect("one window")
     }
 
@@ -437,10 +438,16 @@ impl<T: Real> OnlineInference<T> {
 
     /// Runs up to `max` of the step's remaining updates; returns how many are left.
     pub fn iterate(&mut self, max: usize) -> usize {
-        crate::parallel::in_pool(|| self.iterate_here(max))
+        crate::parallel::in_pool(|| crate::deferred::now(self.iterate_here(max)))
     }
 
-    fn iterate_here(&mut self, max: usize) -> usize {
+    /// [`Self::iterate`] on a backend whose results arrive through the browser's event loop
+    /// (WebGPU; see [`crate::deferred`]). The same updates, in the same order.
+    pub async fn iterate_async(&mut self, max: usize) -> usize {
+        self.iterate_here(max).await
+    }
+
+    async fn iterate_here(&mut self, max: usize) -> usize {
         let t = self.steps_done as u64;
         let mut ran = 0;
         while ran < max {
@@ -453,7 +460,9 @@ impl<T: Real> OnlineInference<T> {
             }
             let eps = self.eps(Stream::InferIteration, &[t, done as u64], self.window_len());
             let ablation = self.settings.inference_ablation();
-            let result = self.window_pass(&eps, ablation, Grads::Adaptive, FullOutputs::None);
+            let result = self
+                .window_pass(&eps, ablation, Grads::Adaptive, FullOutputs::None)
+                .await;
             let (Some(g_mu), Some(g_sigma)) = (result.grad_a_mu, result.grad_a_sigma) else {
                 unreachable!("adaptive gradients requested")
             };
@@ -521,32 +530,50 @@ impl<T: Real> OnlineInference<T> {
             ));
         }
         crate::parallel::in_pool(|| {
-            self.iterate_here(usize::MAX);
-            self.finish_here()
+            crate::deferred::now(async {
+                self.iterate_here(usize::MAX).await;
+                self.finish_here().await
+            })
         })
     }
 
-    fn finish_here(&mut self) -> Result<StepOutput<T>> {
+    /// [`Self::finish_step`] on a backend whose results arrive through the browser's event
+    /// loop (see [`Self::iterate_async`]).
+    pub async fn finish_step_async(&mut self) -> Result<StepOutput<T>> {
+        if self.pending.is_none() {
+            return Err(Error::InvalidArgument(
+                "finish_step called without begin_step".into(),
+            ));
+        }
+        self.iterate_here(usize::MAX).await;
+        self.finish_here().await
+    }
+
+    async fn finish_here(&mut self) -> Result<StepOutput<T>> {
         let t = self.steps_done;
         let len = self.window_len();
         let config = self.model.config.clone();
         let eps = self.eps(Stream::InferFinal, &[t as u64], len);
         let ablation = self.settings.inference_ablation();
-        let result = self.window_pass(&eps, ablation, Grads::None, FullOutputs::LastStep);
+        let result = self
+            .window_pass(&eps, ablation, Grads::None, FullOutputs::LastStep)
+            .await;
         let trace = &result.trace;
-        let ablated_recon: Vec<[Vec<T>; 2]> = self
-            .readout_ablations
-            .iter()
-            .map(|a| {
-                self.window_pass(&eps, *a, Grads::None, FullOutputs::LastStep)
-                    .outputs
-            })
-            .collect();
+        let mut ablated_recon: Vec<[Vec<T>; 2]> = Vec::with_capacity(self.readout_ablations.len());
+        for a in &self.readout_ablations {
+            let pass = self
+                .window_pass(&eps, *a, Grads::None, FullOutputs::LastStep)
+                .await;
+            ablated_recon.push(pass.outputs);
+        }
         // A `readout` ablation: the same pass re-read with z = 0; what the step reports.
-        let readout = self
-            .settings
-            .readout_only_ablation()
-            .map(|a| self.window_pass(&eps, a, Grads::None, FullOutputs::LastStep));
+        let readout = match self.settings.readout_only_ablation() {
+            Some(a) => Some(
+                self.window_pass(&eps, a, Grads::None, FullOutputs::LastStep)
+                    .await,
+            ),
+            None => None,
+        };
         let reported = readout.as_ref().unwrap_or(&result);
 
         let mut accuracy = [0.0; 2];
@@ -581,13 +608,19 @@ impl<T: Real> OnlineInference<T> {
         self.last_d = last_state(trace, |m| &m.d);
         // ... and the prior prediction starts from the state the step reports.
         let (prior_next, prior_d) = match &readout {
-            Some(r) => self.prior_prediction(
-                t,
-                &last_state(&r.trace, |m| &m.h),
-                &last_state(&r.trace, |m| &m.d),
-                self.settings.ablation,
-            ),
-            None => self.prior_prediction(t, &self.last_h, &self.last_d, ablation),
+            Some(r) => {
+                self.prior_prediction(
+                    t,
+                    &last_state(&r.trace, |m| &m.h),
+                    &last_state(&r.trace, |m| &m.d),
+                    self.settings.ablation,
+                )
+                .await
+            }
+            None => {
+                self.prior_prediction(t, &self.last_h, &self.last_d, ablation)
+                    .await
+            }
         };
         for (states, d) in modules.iter_mut().zip(prior_d) {
             states.prior_d = d;
@@ -641,7 +674,7 @@ impl<T: Real> OnlineInference<T> {
 
     /// x^_{t+1} from the prior: one generation step from the state after step t with
     /// z = mu_p + sigma_p * eps; also the modules' d in that step.
-    fn prior_prediction(
+    async fn prior_prediction(
         &self,
         t: usize,
         last_h: &[Vec<T>; 4],
@@ -674,7 +707,8 @@ impl<T: Real> OnlineInference<T> {
         };
         let mut result = self
             .loaded
-            .evaluate(std::slice::from_ref(&window), &request);
+            .evaluate_async(std::slice::from_ref(&window), &request)
+            .await;
         let w = result.windows.pop().expect("one window");
         let [a, b, c, d] = w.trace.modules;
         (w.outputs, [a.d, b.d, c.d, d.d])

@@ -17,6 +17,7 @@ pub mod backend;
 pub mod config;
 pub mod cpu;
 pub mod data;
+pub mod deferred;
 pub mod error;
 pub mod free_energy;
 pub mod infer;

@@ -259,6 +259,12 @@ impl Engine {
     /// Computes the running job for about `budget` (at least one slice) and reports what
     /// happened.
     pub fn work(&mut self, budget: Duration) -> Vec<Event> {
+        pvrnn_core::deferred::now(self.work_async(budget))
+    }
+
+    /// [`Self::work`] where GPU results arrive through the browser's event loop (WebGPU in
+    /// the worker): the same slices, awaited.
+    pub async fn work_async(&mut self, budget: Duration) -> Vec<Event> {
         let mut events = std::mem::take(&mut self.failures);
         let start = Instant::now();
         let mut first = true;
@@ -267,7 +273,7 @@ impl Engine {
                 break;
             }
             let slice = Instant::now();
-            let result = advance(job);
+            let result = advance(job).await;
             job.busy += slice.elapsed();
             match result {
                 Ok(step) => {
@@ -295,7 +301,7 @@ impl Engine {
 }
 
 /// A few updates of the job, and the step if it finished one.
-fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
+async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
     let inf = &mut job.inference;
     if !inf.in_step() {
         let t = job.next;
@@ -305,10 +311,21 @@ fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
         )
         .map_err(|e| e.to_string())?;
     }
-    if inf.iterate(CHUNK) > 0 {
+    // Natively the synchronous calls, which run in the thread pool (a GPU's read-backs
+    // wait in place there); in the browser the awaited ones (WebGPU's arrive through the
+    // event loop; there is no pool).
+    #[cfg(not(target_arch = "wasm32"))]
+    let left = inf.iterate(CHUNK);
+    #[cfg(target_arch = "wasm32")]
+    let left = inf.iterate_async(CHUNK).await;
+    if left > 0 {
         return Ok(None);
     }
-    let out = inf.finish_step().map_err(|e| e.to_string())?;
+    #[cfg(not(target_arch = "wasm32"))]
+    let out = inf.finish_step();
+    #[cfg(target_arch = "wasm32")]
+    let out = inf.finish_step_async().await;
+    let out = out.map_err(|e| e.to_string())?;
     job.next += 1;
     Ok(Some(CompactStep::from_output(&out)))
 }

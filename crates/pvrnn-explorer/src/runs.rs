@@ -291,6 +291,15 @@ impl Executor {
         }
     }
 
+    /// Where a worker computes, once it said (`None`: the executor's own default label).
+    fn compute_label(&self) -> Option<String> {
+        match self {
+            #[cfg(target_arch = "wasm32")]
+            Self::Worker(w) => w.compute(),
+            _ => None,
+        }
+    }
+
     pub fn is_inline(&self) -> bool {
         matches!(self, Self::Inline(_))
     }
@@ -330,6 +339,12 @@ impl std::fmt::Debug for RunStore {
 
 impl RunStore {
     /// Notes since the last call, for the status line.
+    /// Where live runs compute when the executor knows better than the app (a worker that
+    /// chose WebGPU or the CPU).
+    pub fn compute_label(&self) -> Option<String> {
+        self.executor.compute_label()
+    }
+
     pub fn take_notes(&mut self) -> Vec<String> {
         std::mem::take(&mut self.notes)
     }

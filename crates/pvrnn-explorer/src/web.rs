@@ -128,6 +128,19 @@ pub fn location_hash() -> String {
         .unwrap_or_default()
 }
 
+/// Where live runs should compute, from the page's `?compute=` (`auto` when absent).
+pub fn compute_preference() -> String {
+    web_sys::window()
+        .and_then(|w| w.location().search().ok())
+        .and_then(|search| {
+            search
+                .trim_start_matches('?')
+                .split('&')
+                .find_map(|pair| pair.strip_prefix("compute=").map(str::to_string))
+        })
+        .unwrap_or_else(|| "auto".into())
+}
+
 pub fn set_hash(hash: &str) {
     if let Some(history) = web_sys::window().and_then(|w| w.history().ok()) {
         let _ = history.replace_state_with_url(

@@ -4,7 +4,7 @@
 //!
 //! page → worker: `model {generation, bytes}`, `observations {generation, name, steps,
 //! extero, proprio}`, `run {generation, key}`;
-//! worker → page: `ready`, `step {generation, key, data}`, `done {generation, key, steps,
+//! worker → page: `ready {compute}` (where runs compute: WebGPU or the CPU), `step {generation, key, data}`, `done {generation, key, steps,
 //! busy_ms, wall_ms}`, `failed {generation, key, message}`, and `fatal {generation, message}`
 //! when the worker cannot go on (a command it cannot read, a message it cannot send): the
 //! page then computes in itself, and says why.
@@ -94,8 +94,8 @@ pub enum Command {
 /// Worker → page.
 #[derive(Debug, PartialEq)]
 pub enum Reply {
-    /// The worker's module is loaded: commands can come.
-    Ready,
+    /// The worker's module is loaded and its compute chosen: commands can come.
+    Ready { compute: String },
     /// What the engine did, for the model of `generation`.
     Event { generation: u32, event: Event },
     /// The worker cannot go on (a command it cannot read, a result it cannot send).
@@ -185,7 +185,7 @@ impl Reply {
     pub fn encode(&self) -> (Object, Array) {
         let transfer = Array::new();
         let m = match self {
-            Self::Ready => message("ready", 0, &[]),
+            Self::Ready { compute } => message("ready", 0, &[("compute", compute.into())]),
             Self::Fatal {
                 generation,
                 message: text,
@@ -225,7 +225,11 @@ impl Reply {
         let generation = number_field(m, "generation")? as u32;
         let kind = string_field(m, "kind")?;
         match kind.as_str() {
-            "ready" => return Ok(Self::Ready),
+            "ready" => {
+                return Ok(Self::Ready {
+                    compute: string_field(m, "compute")?,
+                });
+            }
             "fatal" => {
                 return Ok(Self::Fatal {
                     generation,
@@ -261,7 +265,9 @@ impl Reply {
 }
 
 struct WorkerSide {
-    engine: Engine,
+    /// `None` while a tick awaits the GPU; commands wait in `queued` until it is back.
+    engine: Option<Engine>,
+    queued: Vec<JsValue>,
     generation: u32,
     scheduled: bool,
 }
@@ -286,12 +292,41 @@ impl Ticker {
     }
 }
 
-/// The worker's entry point (called by `web/worker.js` after the module loaded).
+/// Where the worker's runs compute, from the page's `?compute=` (`auto`, `cpu`, `webgpu`):
+/// the engine and the status bar's words for it. `auto` takes a WebGPU adapter unless it is
+/// a CPU implementation (SwiftShader, WARP: slower than the CPU backend); `webgpu` takes
+/// any; without an adapter, the CPU.
+async fn open_engine(preference: &str) -> (Engine, String) {
+    if preference == "cpu" {
+        return (Engine::default(), "CPU (worker)".into());
+    }
+    match pvrnn_wgpu::WgpuBackend::open().await {
+        Ok(gpu) if preference == "webgpu" || !gpu.gpu().is_cpu() => {
+            let name = format!("WebGPU, {} (worker)", gpu.adapter_name());
+            (Engine::on(Arc::new(gpu)), name)
+        }
+        Ok(gpu) => (
+            Engine::default(),
+            format!(
+                "CPU (worker; WebGPU's {} is a CPU implementation, ?compute=webgpu takes it)",
+                gpu.adapter_name()
+            ),
+        ),
+        Err(e) => {
+            crate::web::log(&format!("worker: computing on the CPU: {e}"));
+            (Engine::default(), "CPU (worker; no WebGPU adapter)".into())
+        }
+    }
+}
+
+/// The worker's entry point (called by `web/worker.js` after the module loaded) with the
+/// page's compute preference (see [`open_engine`]).
 #[wasm_bindgen]
-pub fn run_worker() -> Result<(), JsValue> {
+pub fn run_worker(compute: String) -> Result<(), JsValue> {
     let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().dyn_into()?;
     let side = Rc::new(RefCell::new(WorkerSide {
-        engine: Engine::default(),
+        engine: None,
+        queued: Vec::new(),
         generation: 0,
         scheduled: false,
     }));
@@ -302,45 +337,79 @@ pub fn run_worker() -> Result<(), JsValue> {
 
     let (tick_side, tick_scope, tick_ticker) = (side.clone(), scope.clone(), ticker.clone());
     let tick = Closure::<dyn FnMut()>::new(move || {
-        let mut s = tick_side.borrow_mut();
-        s.scheduled = false;
-        let events = s.engine.work(TICK);
-        let generation = s.generation;
-        for event in events {
-            let (m, transfer) = Reply::Event { generation, event }.encode();
-            if let Err(err) = tick_scope.post_message_with_transfer(&m, &transfer) {
-                // A lost result would leave the page waiting for ever.
-                report_fatal(
-                    &tick_scope,
-                    s.generation,
-                    &format!("cannot send a result: {err:?}"),
-                );
+        let mut engine = {
+            let mut s = tick_side.borrow_mut();
+            s.scheduled = false;
+            match s.engine.take() {
+                Some(engine) => engine,
+                None => return, // a tick in flight schedules the next when it ends
             }
-        }
-        if s.engine.running().is_some() {
-            s.scheduled = tick_ticker.schedule(&tick_scope, s.generation);
-        }
+        };
+        let (side, scope, ticker) = (tick_side.clone(), tick_scope.clone(), tick_ticker.clone());
+        wasm_bindgen_futures::spawn_local(async move {
+            let events = engine.work_async(TICK).await;
+            let mut s = side.borrow_mut();
+            s.engine = Some(engine);
+            let generation = s.generation;
+            for event in events {
+                let (m, transfer) = Reply::Event { generation, event }.encode();
+                if let Err(err) = scope.post_message_with_transfer(&m, &transfer) {
+                    // A lost result would leave the page waiting for ever.
+                    report_fatal(
+                        &scope,
+                        generation,
+                        &format!("cannot send a result: {err:?}"),
+                    );
+                }
+            }
+            apply_queued(&mut s, &scope);
+            let running = s.engine.as_ref().is_some_and(|e| e.running().is_some());
+            if running && !s.scheduled {
+                s.scheduled = ticker.schedule(&scope, s.generation);
+            }
+        });
     });
     channel
         .port1()
         .set_onmessage(Some(tick.as_ref().unchecked_ref()));
     tick.forget();
 
-    let scope_for_errors = scope.clone();
+    let scope_for_messages = scope.clone();
+    let message_side = side.clone();
     let on_message =
         Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
-            let m = e.data();
-            let mut s = side.borrow_mut();
-            if let Err(err) = handle_command(&mut s, &m) {
-                report_fatal(&scope_for_errors, s.generation, &err);
+            let mut s = message_side.borrow_mut();
+            s.queued.push(e.data());
+            if s.engine.is_none() {
+                return; // applied when the engine is back
             }
-            if s.engine.running().is_some() && !s.scheduled {
-                s.scheduled = ticker.schedule(&scope_for_errors, s.generation);
+            apply_queued(&mut s, &scope_for_messages);
+            let running = s.engine.as_ref().is_some_and(|e| e.running().is_some());
+            if running && !s.scheduled {
+                s.scheduled = ticker.schedule(&scope_for_messages, s.generation);
             }
         });
     scope.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
     on_message.forget();
-    scope.post_message(&Reply::Ready.encode().0)
+
+    wasm_bindgen_futures::spawn_local(async move {
+        let (engine, compute) = open_engine(&compute).await;
+        crate::web::log(&format!("worker: live runs compute on {compute}"));
+        side.borrow_mut().engine = Some(engine);
+        if let Err(err) = scope.post_message(&Reply::Ready { compute }.encode().0) {
+            crate::web::log(&format!("worker: cannot say it is ready: {err:?}"));
+        }
+    });
+    Ok(())
+}
+
+/// Applies the page's commands that arrived while the engine was busy, in order.
+fn apply_queued(s: &mut WorkerSide, scope: &web_sys::DedicatedWorkerGlobalScope) {
+    for m in std::mem::take(&mut s.queued) {
+        if let Err(err) = handle_command(s, &m) {
+            report_fatal(scope, s.generation, &err);
+        }
+    }
 }
 
 /// Tells the page the worker cannot go on (and the console, in case that fails too).
@@ -355,6 +424,9 @@ fn report_fatal(scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32, wh
 
 fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
     let command = Command::decode(m)?;
+    let Some(engine) = s.engine.as_mut() else {
+        return Err("a command reached the worker while its engine was busy".into());
+    };
     if !matches!(command, Command::Model { .. }) && command.generation() != s.generation {
         return Ok(()); // meant for a model already replaced
     }
@@ -362,7 +434,7 @@ fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
         Command::Model { generation, bytes } => {
             let model = io::model_from_bytes(bytes, "the model sent to the worker")
                 .map_err(|e| e.to_string())?;
-            s.engine.set_model(Arc::new(model));
+            engine.set_model(Arc::new(model));
             s.generation = generation;
         }
         Command::Observations {
@@ -378,9 +450,9 @@ fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
             };
             let obs = Observations::new(tensor(extero)?, tensor(proprio)?, None)
                 .map_err(|e| e.to_string())?;
-            s.engine.add_observations(name, Arc::new(obs));
+            engine.add_observations(name, Arc::new(obs));
         }
-        Command::Run { key, .. } => s.engine.run(key),
+        Command::Run { key, .. } => engine.run(key),
     }
     Ok(())
 }
@@ -394,6 +466,8 @@ struct PageSide {
     failure: Option<String>,
     generation: u32,
     layout: Option<StepLayout>,
+    /// Where the worker's runs compute, once it is ready.
+    compute: Option<String>,
 }
 
 /// The page's handle on the worker.
@@ -429,8 +503,10 @@ impl WorkerClient {
                 let mut s = msg_side.borrow_mut();
                 let reply = Reply::decode(&m, s.layout.as_ref());
                 match reply {
-                    Ok(Reply::Ready) => {
+                    Ok(Reply::Ready { compute }) => {
+                        crate::web::log(&format!("live runs compute on {compute}"));
                         s.ready = true;
+                        s.compute = Some(compute);
                         for (m, transfer) in std::mem::take(&mut s.pending) {
                             if let Err(e) = msg_worker.post_message_with_transfer(&m, &transfer) {
                                 s.failure = Some(format!("cannot message the worker: {e:?}"));
@@ -526,6 +602,12 @@ impl WorkerClient {
 
     pub fn take_events(&mut self) -> Vec<Event> {
         std::mem::take(&mut self.side.borrow_mut().events)
+    }
+
+    /// Where the worker's runs compute ("WebGPU, ... (worker)", "CPU (worker)"), once it
+    /// said.
+    pub fn compute(&self) -> Option<String> {
+        self.side.borrow().compute.clone()
     }
 
     /// Why the worker cannot be used, once it failed.

@@ -194,7 +194,9 @@ fn worker_messages_round_trip() {
         assert_eq!(back, reply);
     }
     for reply in [
-        Reply::Ready,
+        Reply::Ready {
+            compute: "WebGPU, SwiftShader (worker)".into(),
+        },
         Reply::Fatal {
             generation: 3,
             message: "cannot send a result".into(),
@@ -230,7 +232,10 @@ fn worker_messages_round_trip() {
     ] {
         assert_eq!(Command::decode(&command.encode().0).unwrap(), command);
     }
-    let err = Command::decode(&Reply::Ready.encode().0).unwrap_err();
+    let ready = Reply::Ready {
+        compute: "CPU (worker)".into(),
+    };
+    let err = Command::decode(&ready.encode().0).unwrap_err();
     assert!(err.contains("unknown command `ready`"), "{err}");
 }
 

@@ -64,7 +64,7 @@ fn main() {
         let targets: Vec<&[f32]> = target_data.chunks_exact(k).collect();
         let resident = resident.then_some(u64::MAX - 1);
         let call = || {
-            layer
+            let loss = layer
                 .loss(
                     Modality::Exteroceptive,
                     &input,
@@ -75,7 +75,8 @@ fn main() {
                     resident,
                     weight_grads,
                 )
-                .unwrap()
+                .unwrap();
+            pvrnn_core::deferred::now(loss)
         };
         // Warm-up: compiles the kernels and, for resident targets, uploads them.
         call();

@@ -1,6 +1,7 @@
 //! The device, its queue, and the compiled kernels (one set per hidden width).
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::pool::{BufferPool, PooledBuffer};
@@ -60,32 +61,41 @@ pub struct Gpu {
     /// once per run; an inference step's window, once per step); a new key replaces them.
     pub(crate) resident: Mutex<[Resident; 2]>,
     pool: Arc<BufferPool>,
+    read_backs: AtomicU64,
 }
 
 impl Gpu {
     /// Opens an adapter and a device with the adapter's own limits (larger buffers than
     /// WebGPU's defaults where the hardware allows them).
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn new() -> Result<Self, GpuError> {
+        pollster::block_on(Self::open())
+    }
+
+    /// [`Self::new`] without blocking: the only way in the browser, where the adapter and
+    /// the device arrive through the event loop.
+    pub async fn open() -> Result<Self, GpuError> {
         let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         // Vulkan, Metal, DX12 (and WebGPU) unless WGPU_BACKEND says otherwise: OpenGL has
         // no use for compute here, and probing it through EGL beside eframe's own GL
         // context panics inside wgpu-hal (BadAccess in make_current, seen under Xvfb).
         descriptor.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
         let instance = wgpu::Instance::new(descriptor);
-        let adapter = pollster::block_on(wgpu::util::initialize_adapter_from_env_or_default(
-            &instance, None,
-        ))
-        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+            .await
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let info = adapter.get_info();
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("pvrnn"),
-            required_limits: adapter.limits(),
-            ..Default::default()
-        }))
-        .map_err(|e| GpuError::NoDevice {
-            adapter: info.name.clone(),
-            reason: e.to_string(),
-        })?;
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("pvrnn"),
+                required_limits: adapter.limits(),
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuError::NoDevice {
+                adapter: info.name.clone(),
+                reason: e.to_string(),
+            })?;
         Ok(Self {
             device,
             queue,
@@ -94,21 +104,28 @@ impl Gpu {
             recurrence_kernels: OnceLock::new(),
             resident: Mutex::new([None, None]),
             pool: Arc::default(),
+            read_backs: AtomicU64::new(0),
         })
     }
 
     /// "name (driver, API)".
     pub fn describe(&self) -> String {
         let i = &self.info;
+        // Browsers may withhold the adapter's name.
+        let name = if i.name.trim().is_empty() {
+            "unnamed adapter"
+        } else {
+            i.name.as_str()
+        };
         let driver = [i.driver.as_str(), i.driver_info.as_str()]
             .into_iter()
             .filter(|s| !s.is_empty())
             .collect::<Vec<_>>()
             .join(" ");
         if driver.is_empty() {
-            format!("{} ({:?})", i.name, i.backend)
+            format!("{name} ({:?})", i.backend)
         } else {
-            format!("{} ({driver}, {:?})", i.name, i.backend)
+            format!("{name} ({driver}, {:?})", i.backend)
         }
     }
 
@@ -116,6 +133,16 @@ impl Gpu {
     /// but slower than the CPU backend, so not chosen unless asked for.
     pub fn is_cpu(&self) -> bool {
         self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// Results read back from the device so far: how a caller (a test, a status line) sees
+    /// that work really ran here.
+    pub fn read_backs(&self) -> u64 {
+        self.read_backs.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn count_read_back(&self) {
+        self.read_backs.fetch_add(1, Ordering::Relaxed);
     }
 
     pub(crate) fn limits(&self) -> wgpu::Limits {

@@ -1,4 +1,5 @@
-//! GPU compute for the scalable PV-RNN through wgpu (Vulkan, Metal, DX12; WebGPU later).
+//! GPU compute for the scalable PV-RNN through wgpu (Vulkan, Metal, DX12, and WebGPU in the
+//! browser).
 //!
 //! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32`. What runs on the GPU:
 //! the read-outs' output layer (`tanh(W h + b)` into every dimension, fused with its loss
@@ -9,7 +10,9 @@
 //! weight gradients (`shaders/recurrence_*.wgsl`, one workgroup per window), through
 //! [`pvrnn_core::backend::Recurrence`]. The hidden read-out layers, the KL sums and the
 //! optimiser stay on the CPU backend, which calls this crate through those two seams;
-//! they move over next (issue 12).
+//! they move over next (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
+//! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
+//! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device).
@@ -17,6 +20,7 @@
 mod gpu;
 mod output;
 mod pool;
+mod readback;
 mod recurrence;
 mod template;
 
@@ -43,12 +47,22 @@ impl WgpuBackend {
     /// Opens the first suitable adapter (high performance preferred; `WGPU_ADAPTER_NAME`
     /// and `WGPU_BACKEND` choose another). Fails with a message a user can act on when the
     /// machine has none.
+    #[cfg(not(target_arch = "wasm32"))]
     pub fn new() -> Result<Self, GpuError> {
-        Ok(Self {
-            gpu: Arc::new(Gpu::new()?),
+        Ok(Self::on(Arc::new(Gpu::new()?)))
+    }
+
+    /// [`Self::new`] without blocking (the browser's WebGPU; see [`Gpu::open`]).
+    pub async fn open() -> Result<Self, GpuError> {
+        Ok(Self::on(Arc::new(Gpu::open().await?)))
+    }
+
+    fn on(gpu: Arc<Gpu>) -> Self {
+        Self {
+            gpu,
             tiling: Tiling::default(),
             recurrence_on_gpu: false,
-        })
+        }
     }
 
     /// Runs the recurrence (forward, back-propagation through time and its weight

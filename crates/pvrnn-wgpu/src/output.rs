@@ -6,11 +6,13 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::Modality;
 use pvrnn_core::backend::{OutputLayer, OutputLoss};
+use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{Gpu, Kernels, ResidentKey};
 use crate::pool::PooledBuffer;
+use crate::readback::read_back;
 
 /// Threads per workgroup of every kernel; rows per workgroup of `loss_rows.wgsl`, columns
 /// per workgroup of `loss_columns.wgsl`.
@@ -245,53 +247,9 @@ pub(crate) fn dispatch(
     pass.dispatch_workgroups(x, y, 1);
 }
 
-/// Copies `sources` (each `floats` long) into one mappable buffer, submits, waits, and
-/// reads them.
-pub(crate) fn read_back(
-    gpu: &Gpu,
-    mut encoder: wgpu::CommandEncoder,
-    sources: &[(&wgpu::Buffer, usize)],
-) -> Vec<Vec<f32>> {
-    let total: usize = sources.iter().map(|&(_, n)| n).sum();
-    let staging = gpu.staging(total);
-    let mut offset = 0;
-    for &(buffer, n) in sources {
-        if n > 0 {
-            encoder.copy_buffer_to_buffer(buffer, 0, &staging, (offset * 4) as u64, (n * 4) as u64);
-        }
-        offset += n;
-    }
-    gpu.queue.submit([encoder.finish()]);
-    let slice = staging.slice(..(total.max(1) * 4) as u64);
-    slice.map_async(wgpu::MapMode::Read, |r| {
-        if let Err(e) = r {
-            panic!("reading results back from the GPU failed: {e}");
-        }
-    });
-    if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
-        panic!("waiting for the GPU failed: {e}");
-    }
-    let mut out = Vec::with_capacity(sources.len());
-    {
-        let view = match slice.get_mapped_range() {
-            Ok(v) => v,
-            Err(e) => panic!("reading results back from the GPU failed: {e}"),
-        };
-        let all: &[f32] = bytemuck::cast_slice(&view);
-        let mut offset = 0;
-        for &(_, n) in sources {
-            out.push(all[offset..offset + n].to_vec());
-            offset += n;
-        }
-    }
-    // Back to the pool unmapped.
-    staging.unmap();
-    out
-}
-
 impl OutputLayer<f32> for GpuOutputLayer {
-    fn loss(
-        &self,
+    fn loss<'a>(
+        &'a self,
         modality: Modality,
         input: &[f32],
         n: usize,
@@ -300,7 +258,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
         targets: &[&[f32]],
         resident: Option<u64>,
         weight_grads: bool,
-    ) -> Option<OutputLoss<f32>> {
+    ) -> Option<Deferred<'a, OutputLoss<f32>>> {
         let layer = self.layer(modality)?;
         if n == 0 || k == 0 {
             return None;
@@ -451,33 +409,45 @@ impl OutputLayer<f32> for GpuOutputLayer {
             sources.push((&gw, k * 4 * hv));
             sources.push((&gb, k));
         }
+        let pending = read_back(gpu, encoder, &sources);
         drop(encode_phase);
-        let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
-        let mut results = read_back(gpu, encoder, &sources).into_iter();
-        drop(in_flight);
-        drop(wait_phase);
-        let grad_in = unpad_rows(&results.next().unwrap_or_default(), hl);
-        let half_over_divisor = 0.5 / divisor as f64;
-        let row_loss = results
-            .next()
-            .unwrap_or_default()
-            .into_iter()
-            .map(|s| s as f64 * half_over_divisor)
-            .collect();
-        let grad_w = results.next().map(|g| unpad_rows(&g, hl));
-        let grad_b = results.next().filter(|_| layer.has_bias);
-        Some(OutputLoss {
-            row_loss,
-            grad_in,
-            grad_w,
-            grad_b,
-        })
+        let (has_bias, half_over_divisor) = (layer.has_bias, 0.5 / divisor as f64);
+        // The buffers the submission uses stay out of the pool until it has run.
+        let used = (
+            in_flight, x, part_in, part_loss, gw, gb, grad_in, row_loss, resident,
+        );
+        Some(Box::pin(async move {
+            let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
+            let mut results = pending.await.into_iter();
+            drop(used);
+            drop(wait_phase);
+            let grad_in = unpad_rows(&results.next().unwrap_or_default(), hl);
+            let row_loss = results
+                .next()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|s| s as f64 * half_over_divisor)
+                .collect();
+            let grad_w = results.next().map(|g| unpad_rows(&g, hl));
+            let grad_b = results.next().filter(|_| has_bias);
+            OutputLoss {
+                row_loss,
+                grad_in,
+                grad_w,
+                grad_b,
+            }
+        }))
     }
 
-    fn predict(&self, modality: Modality, input: &[f32], n: usize) -> Option<Vec<f32>> {
+    fn predict<'a>(
+        &'a self,
+        modality: Modality,
+        input: &[f32],
+        n: usize,
+    ) -> Option<Deferred<'a, Vec<f32>>> {
         let layer = self.layer(modality)?;
         if n == 0 {
-            return Some(Vec::new());
+            return Some(pvrnn_core::deferred::ready(Vec::new()));
         }
         let gpu = &*self.gpu;
         let (hl, dims) = (layer.hidden, layer.dims);
@@ -488,34 +458,36 @@ impl OutputLayer<f32> for GpuOutputLayer {
             .min(PREDICT_ROWS * gpu.limits().max_compute_workgroups_per_dimension as usize);
         let input = pad_rows(input, hl);
         let padded = input.len() / n;
-        let mut prediction = Vec::with_capacity(n * dims);
-        let mut start = 0;
-        while start < n {
-            let rows = chunk.min(n - start);
-            let x = gpu.upload("hidden", &input[start * padded..(start + rows) * padded]);
-            let out = gpu.scratch("prediction", rows * dims, wgpu::BufferUsages::COPY_SRC);
-            let params = gpu.uniform(&PredictParams {
-                rows: rows as u32,
-                dims: dims as u32,
-                _pad: [0; 2],
-            });
-            let group = bind(
-                gpu,
-                &layer.kernels.predict,
-                &[&params, &x, &layer.weight, &layer.bias, &out],
-            );
-            let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            dispatch(
-                &mut encoder,
-                &layer.kernels.predict,
-                &group,
-                dims.div_ceil(WORKGROUP) as u32,
-                rows.div_ceil(PREDICT_ROWS) as u32,
-            );
-            let part = read_back(gpu, encoder, &[(&out, rows * dims)]);
-            prediction.extend(part.into_iter().flatten());
-            start += rows;
-        }
-        Some(prediction)
+        Some(Box::pin(async move {
+            let mut prediction = Vec::with_capacity(n * dims);
+            let mut start = 0;
+            while start < n {
+                let rows = chunk.min(n - start);
+                let x = gpu.upload("hidden", &input[start * padded..(start + rows) * padded]);
+                let out = gpu.scratch("prediction", rows * dims, wgpu::BufferUsages::COPY_SRC);
+                let params = gpu.uniform(&PredictParams {
+                    rows: rows as u32,
+                    dims: dims as u32,
+                    _pad: [0; 2],
+                });
+                let group = bind(
+                    gpu,
+                    &layer.kernels.predict,
+                    &[&params, &x, &layer.weight, &layer.bias, &out],
+                );
+                let mut encoder = gpu.device.create_command_encoder(&Default::default());
+                dispatch(
+                    &mut encoder,
+                    &layer.kernels.predict,
+                    &group,
+                    dims.div_ceil(WORKGROUP) as u32,
+                    rows.div_ceil(PREDICT_ROWS) as u32,
+                );
+                let part = read_back(gpu, encoder, &[(&out, rows * dims)]).await;
+                prediction.extend(part.into_iter().flatten());
+                start += rows;
+            }
+            prediction
+        }))
     }
 }

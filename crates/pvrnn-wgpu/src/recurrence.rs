@@ -18,8 +18,10 @@ use pvrnn_core::data::Ablation;
 use pvrnn_core::params::Params;
 
 use crate::gpu::{Gpu, RecurrenceKernels};
-use crate::output::{bind, dispatch, read_back};
+use crate::output::{bind, dispatch};
 use crate::pool::PooledBuffer;
+use crate::readback::read_back;
+use pvrnn_core::deferred::now;
 
 /// Units per module the kernels' workgroup arrays hold (`MAX_UNITS` in the WGSL).
 const MAX_UNITS: usize = 128;
@@ -242,6 +244,11 @@ impl Recurrence<f32> for GpuRecurrence {
         windows: &[Window<'_, f32>],
         ablation: &Ablation,
     ) -> Option<Box<dyn RecurrencePass<f32> + 'a>> {
+        // WebGPU's read-backs arrive through the event loop, which this synchronous seam
+        // cannot wait for: in the browser the CPU runs the recurrence.
+        if cfg!(target_arch = "wasm32") {
+            return None;
+        }
         let steps: usize = windows.iter().map(|w| w.len).sum();
         if !self.fits(windows.len(), steps) || windows.iter().any(|w| w.len == 0) {
             return None;
@@ -310,7 +317,7 @@ impl Recurrence<f32> for GpuRecurrence {
             windows.len() as u32,
             1,
         );
-        let values = read_back(gpu, encoder, &[(&record, steps * s.record)])
+        let values = now(read_back(gpu, encoder, &[(&record, steps * s.record)]))
             .pop()
             .unwrap_or_default();
 
@@ -485,7 +492,7 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         if weight_grads {
             sources.push((&*grads, r.weight_floats));
         }
-        let mut results = read_back(gpu, encoder, &sources).into_iter();
+        let mut results = now(read_back(gpu, encoder, &sources)).into_iter();
         let back = results.next().unwrap_or_default();
         let (mut a_mu, mut a_sigma) = (Vec::new(), Vec::new());
         for entry in &self.entries {

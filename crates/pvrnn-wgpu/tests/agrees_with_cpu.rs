@@ -6,6 +6,11 @@
 //! Runs on whatever adapter wgpu finds: on a machine without a GPU, Mesa's lavapipe (a CPU
 //! Vulkan device). Set `PVRNN_SKIP_WGPU=1` to skip on a machine with no Vulkan driver.
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
+#![cfg(not(target_arch = "wasm32"))] // the browser's test is tests/webgpu.rs
+
+mod common;
+
+use common::{assert_close, config, observations};
 
 use std::sync::Arc;
 
@@ -13,7 +18,6 @@ use pvrnn_core::backend::Recurrence;
 use pvrnn_core::backend::{
     Backend, FullOutputs, Grads, Posterior, Request, Trace, Window, WindowResult,
 };
-use pvrnn_core::config::{ModuleConfig, VisionLayout};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
@@ -34,69 +38,6 @@ fn gpu() -> Option<WgpuBackend> {
         }
         Err(e) => panic!("{e} (set PVRNN_SKIP_WGPU=1 to skip the GPU tests)"),
     }
-}
-
-/// Small, but with the paper's 50-unit top hidden layer and enough vision columns and rows
-/// for several column tiles, row blocks and (with small tiling) splits and chunks.
-fn config() -> ModelConfig {
-    let mut c = ModelConfig::default();
-    let m = |d, z, fast, slow| ModuleConfig {
-        d,
-        z,
-        tau: [fast, slow],
-    };
-    c.executive = m(6, 3, 4.0, 8.0);
-    c.associative = m(6, 3, 2.0, 4.0);
-    c.exteroceptive = m(8, 4, 1.5, 2.0);
-    c.proprioceptive = m(6, 3, 1.0, 2.0);
-    c.exteroceptive_readout.hidden = vec![12, 50];
-    c.proprioceptive_readout.hidden = vec![10];
-    // The paper's output layers have no bias; the option is tested on one of them.
-    c.exteroceptive_readout.output_bias = true;
-    c.vision = VisionLayout {
-        cameras: 2,
-        channels: 3,
-        resolutions: vec![4, 8],
-    };
-    c.proprio_dims = 6;
-    c.kl_weight = 0.1;
-    c
-}
-
-fn observations(config: &ModelConfig, sequences: usize, steps: usize) -> Observations<f32> {
-    let wave = |dims: usize, phase: f64| {
-        let mut v = Vec::with_capacity(sequences * steps * dims);
-        for s in 0..sequences {
-            for t in 0..steps {
-                for d in 0..dims {
-                    let x = 0.3 * t as f64 + 0.7 * d as f64 + 1.1 * s as f64 + phase;
-                    v.push((0.8 * x.sin()) as f32);
-                }
-            }
-        }
-        v
-    };
-    let (vd, pd) = (config.vision.dims(), config.proprio_dims);
-    Observations::new(
-        Tensor::from_vec(&[sequences, steps, vd], wave(vd, 0.0)).unwrap(),
-        Tensor::from_vec(&[sequences, steps, pd], wave(pd, 0.5)).unwrap(),
-        None,
-    )
-    .unwrap()
-}
-
-/// max |a - b| <= tol * max |a| (plus a floor for tensors that are all but zero).
-fn assert_close(name: &str, cpu: &[f32], gpu: &[f32], tol: f64) {
-    assert_eq!(cpu.len(), gpu.len(), "{name}: length");
-    let scale = cpu.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
-    let diff = cpu
-        .iter()
-        .zip(gpu)
-        .fold(0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()));
-    assert!(
-        diff <= tol * scale + 1e-9,
-        "{name}: max difference {diff:e} against max magnitude {scale:e}"
-    );
 }
 
 fn free_energy_and_gradients_agree(gpu: WgpuBackend, sequences: usize, steps: usize) {

@@ -110,7 +110,15 @@ impl<T: Real> CpuModel<T> {
 
 impl<T: Real> LoadedModel<T> for CpuModel<T> {
     fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T> {
-        evaluate(self, windows, request)
+        crate::deferred::now(evaluate(self, windows, request))
+    }
+
+    fn evaluate_async<'a>(
+        &'a self,
+        windows: &'a [Window<'a, T>],
+        request: &'a Request,
+    ) -> crate::deferred::Deferred<'a, BatchResult<T>> {
+        Box::pin(evaluate(self, windows, request))
     }
 
     fn prior_preactivations(&self, d: [&[T]; 4]) -> ([Vec<T>; 4], [Vec<T>; 4]) {
@@ -125,14 +133,20 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
         let r = &self.params.readouts[modality.index()];
         let acts = readout::hidden_forward(r, d, n);
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
-        self.output_layer
+        match self
+            .output_layer
             .as_ref()
             .and_then(|o| o.predict(modality, top, n))
-            .unwrap_or_else(|| readout::output_predict(&r.out, None, top, n))
+        {
+            Some(prediction) => crate::deferred::now(prediction),
+            None => readout::output_predict(&r.out, None, top, n),
+        }
     }
 }
 
-fn evaluate<T: Real>(
+/// One code path for every output layer: awaits only where the layer computes elsewhere
+/// (see [`crate::deferred`]).
+async fn evaluate<T: Real>(
     model: &CpuModel<T>,
     windows: &[Window<'_, T>],
     req: &Request,
@@ -196,24 +210,24 @@ fn evaluate<T: Real>(
                 .accuracy_normalisation
                 .divisor(k, config.modality_dims(modality));
             let output_phase = crate::profile::phase("  read-out output layer");
-            let loss = model
-                .output_layer
-                .as_ref()
-                .and_then(|o| {
-                    o.loss(
-                        modality,
-                        top,
-                        n,
-                        k,
-                        divisor,
-                        &targets,
-                        req.resident_targets,
-                        all_grads,
-                    )
-                })
-                .unwrap_or_else(|| {
+            let offloaded = model.output_layer.as_ref().and_then(|o| {
+                o.loss(
+                    modality,
+                    top,
+                    n,
+                    k,
+                    divisor,
+                    &targets,
+                    req.resident_targets,
+                    all_grads,
+                )
+            });
+            let loss = match offloaded {
+                Some(loss) => loss.await,
+                None => {
                     readout::output_loss(&r.out, out_t, top, n, k, divisor, &targets, all_grads)
-                });
+                }
+            };
             drop(output_phase);
             accuracy[mi] = loss.row_loss;
             if want_grads {
@@ -255,13 +269,16 @@ fn evaluate<T: Real>(
             }
             let n_rows = rows.len() / hl.max(1);
             let small = cfg!(target_arch = "wasm32") && n_rows <= readout::SMALL_ROWS;
-            let pred = model
+            let offloaded = model
                 .output_layer
                 .as_ref()
-                .and_then(|o| o.predict(modality, &rows, n_rows))
-                .unwrap_or_else(|| {
+                .and_then(|o| o.predict(modality, &rows, n_rows));
+            let pred = match offloaded {
+                Some(prediction) => prediction.await,
+                None => {
                     readout::output_predict(&r.out, small.then(|| model.out_t(mi)), &rows, n_rows)
-                });
+                }
+            };
             let dims = config.modality_dims(modality);
             let mut start = 0;
             for (i, count) in per_window.into_iter().enumerate() {

@@ -169,7 +169,8 @@ impl ExplorerApp {
     pub fn new_web(bundle_url: &str, ctx: &egui::Context) -> Self {
         let mut app = Self::new(None, ViewState::default());
         // Live inference in a worker beside the page; in the page itself if that fails.
-        match crate::worker::WorkerClient::spawn("./worker.js", ctx.clone()) {
+        let worker = format!("./worker.js?compute={}", crate::web::compute_preference());
+        match crate::worker::WorkerClient::spawn(&worker, ctx.clone()) {
             Ok(worker) => {
                 app.store = RunStore::with_executor(crate::runs::Executor::Worker(worker))
             }
@@ -362,6 +363,14 @@ impl ExplorerApp {
         let notes = self.store.take_notes();
         if !notes.is_empty() {
             self.status = Status::Info(notes.join("; "));
+        }
+        #[cfg(target_arch = "wasm32")]
+        {
+            self.compute_label = match self.store.compute_label() {
+                Some(label) => format!("compute: {label}"),
+                None if self.store.computes_inline() => "compute: CPU (in the page)".into(),
+                None => "compute: starting the worker".into(),
+            };
         }
         worked
     }

@@ -32,6 +32,8 @@ impl ExplorerApp {
             ui.weak(what.as_str()).on_hover_text(timing.as_str());
         }
         ui.weak(self.compute_label.as_str())
-            .on_hover_text("where live runs compute (desktop: --backend auto|cpu|wgpu)");
+            .on_hover_text(
+                "where live runs compute (desktop: --backend auto|cpu|wgpu; web: ?compute=auto|cpu|webgpu before the #)",
+            );
     }
 }

@@ -1,0 +1,107 @@
+//! Reading results back from the device: one mappable copy per call, as a future.
+//!
+//! Natively the device is polled until the copy lands, so the future is ready at its first
+//! poll and synchronous callers finish it with [`pvrnn_core::deferred::now`]. WebGPU maps
+//! the copy when the browser's event loop runs: the future wakes its task then.
+
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll, Waker};
+
+use crate::gpu::Gpu;
+use crate::pool::PooledBuffer;
+
+/// Copies `sources` (each `floats` long) into one mappable buffer and submits; awaiting it
+/// gives them back in order.
+pub(crate) fn read_back(
+    gpu: &Gpu,
+    mut encoder: wgpu::CommandEncoder,
+    sources: &[(&wgpu::Buffer, usize)],
+) -> ReadBack {
+    let sizes: Vec<usize> = sources.iter().map(|&(_, n)| n).collect();
+    let total: usize = sizes.iter().sum();
+    let staging = gpu.staging(total);
+    let mut offset = 0;
+    for &(buffer, n) in sources {
+        if n > 0 {
+            encoder.copy_buffer_to_buffer(buffer, 0, &staging, (offset * 4) as u64, (n * 4) as u64);
+        }
+        offset += n;
+    }
+    gpu.queue.submit([encoder.finish()]);
+    gpu.count_read_back();
+    let state = Arc::new(Mutex::new(MapState::default()));
+    let mapped = state.clone();
+    staging
+        .slice(..(total.max(1) * 4) as u64)
+        .map_async(wgpu::MapMode::Read, move |result| {
+            let mut state = mapped.lock().unwrap_or_else(|e| e.into_inner());
+            state.result = Some(result);
+            if let Some(waker) = state.waker.take() {
+                waker.wake();
+            }
+        });
+    #[cfg(not(target_arch = "wasm32"))]
+    if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
+        panic!("waiting for the GPU failed: {e}");
+    }
+    ReadBack {
+        staging: Some(staging),
+        total,
+        sizes,
+        state,
+    }
+}
+
+#[derive(Default)]
+struct MapState {
+    result: Option<Result<(), wgpu::BufferAsyncError>>,
+    waker: Option<Waker>,
+}
+
+/// A submitted copy waiting to be mapped (see [`read_back`]).
+pub(crate) struct ReadBack {
+    staging: Option<PooledBuffer>,
+    total: usize,
+    sizes: Vec<usize>,
+    state: Arc<Mutex<MapState>>,
+}
+
+impl Future for ReadBack {
+    type Output = Vec<Vec<f32>>;
+
+    fn poll(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Self::Output> {
+        let result = {
+            let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            match state.result.take() {
+                Some(result) => result,
+                None => {
+                    state.waker = Some(cx.waker().clone());
+                    return Poll::Pending;
+                }
+            }
+        };
+        if let Err(e) = result {
+            panic!("reading results back from the GPU failed: {e}");
+        }
+        let staging = self.staging.take().expect("a read-back is awaited once");
+        let mut out = Vec::with_capacity(self.sizes.len());
+        {
+            let slice = staging.slice(..(self.total.max(1) * 4) as u64);
+            let view = match slice.get_mapped_range() {
+                Ok(v) => v,
+                Err(e) => panic!("reading results back from the GPU failed: {e}"),
+            };
+            let all: &[f32] = bytemuck::cast_slice(&view);
+            let mut offset = 0;
+            for &n in &self.sizes {
+                out.push(all[offset..offset + n].to_vec());
+                offset += n;
+            }
+        }
+        // Back to the pool unmapped.
+        staging.unmap();
+        Poll::Ready(out)
+    }
+}

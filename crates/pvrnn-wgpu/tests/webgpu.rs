@@ -1,0 +1,60 @@
+//! WebGPU in the browser: online inference awaited in a dedicated worker (as the explorer's
+//! worker runs it) computes what the CPU backend computes, and really ran on the adapter.
+//!
+//! `scripts/test.sh` runs it in headless Chromium with `--enable-unsafe-webgpu`
+//! (`tests/web/webgpu-webdriver.json`), whose adapter is SwiftShader's: correct and very
+//! slow, so the model and the run are tiny.
+#![cfg(target_arch = "wasm32")]
+#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
+
+mod common;
+
+use std::sync::Arc;
+
+use common::{assert_close, config, observations};
+use pvrnn_core::cpu::CpuBackend;
+use pvrnn_core::infer::{InferenceSettings, OnlineInference};
+use pvrnn_core::{Modality, Model, Observed};
+use pvrnn_wgpu::WgpuBackend;
+use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
+
+wasm_bindgen_test_configure!(run_in_dedicated_worker);
+
+#[wasm_bindgen_test]
+async fn online_inference_on_webgpu_matches_the_cpu() {
+    let gpu = WgpuBackend::open().await.unwrap_or_else(|e| {
+        panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
+    });
+    let config = config();
+    let steps = 4;
+    let data = observations(&config, 1, steps);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, steps, 3).unwrap());
+    let mut settings = InferenceSettings::from_config(&config, 2);
+    settings.window = 3;
+    settings.iterations = 3;
+    settings.observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let mut on_cpu = OnlineInference::new(model.clone(), settings.clone()).unwrap();
+    let mut on_gpu = OnlineInference::with_backend(model, settings, &gpu).unwrap();
+    for t in 0..steps {
+        let x = data.step(Modality::Exteroceptive, 0, t);
+        let p = data.step(Modality::Proprioceptive, 0, t);
+        let want = on_cpu.step(x, p).unwrap();
+        on_gpu.begin_step(x, p).unwrap();
+        on_gpu.iterate_async(usize::MAX).await;
+        let got = on_gpu.finish_step_async().await.unwrap();
+        let (a, b) = (want.window_free_energy.total, got.window_free_energy.total);
+        assert!((a - b).abs() <= 1e-4 * a.abs(), "step {t}: F {a} vs {b}");
+        for mi in 0..2 {
+            assert_close("reconstruction", &want.recon[mi], &got.recon[mi], 1e-3);
+        }
+    }
+    // Every update's loss and every step's reconstruction came from the adapter.
+    assert!(
+        gpu.gpu().read_backs() >= (steps * 3) as u64,
+        "only {} read-backs: the GPU path was not taken",
+        gpu.gpu().read_backs()
+    );
+}

@@ -149,22 +149,14 @@ impl Gpu {
         self.device.limits()
     }
 
-    /// A storage buffer holding `data` (written at the next submission), from the pool.
-    pub(crate) fn upload(&self, label: &str, data: &[f32]) -> PooledBuffer {
-        let buffer = self.scratch(label, data.len(), wgpu::BufferUsages::empty());
+    /// A storage buffer holding `data` (written at the next submission), from the pool:
+    /// f32 values, or 32-bit words (tables of shapes and offsets).
+    pub(crate) fn upload<P: bytemuck::Pod>(&self, label: &str, data: &[P]) -> PooledBuffer {
+        let words = std::mem::size_of_val(data).div_ceil(4);
+        let buffer = self.scratch(label, words, wgpu::BufferUsages::empty());
         if !data.is_empty() {
             self.queue
                 .write_buffer(&buffer, 0, bytemuck::cast_slice(data));
-        }
-        buffer
-    }
-
-    /// A storage buffer holding 32-bit words (tables of shapes and offsets).
-    pub(crate) fn upload_words(&self, label: &str, words: &[u32]) -> PooledBuffer {
-        let buffer = self.scratch(label, words.len(), wgpu::BufferUsages::empty());
-        if !words.is_empty() {
-            self.queue
-                .write_buffer(&buffer, 0, bytemuck::cast_slice(words));
         }
         buffer
     }

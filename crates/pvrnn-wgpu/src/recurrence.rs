@@ -297,7 +297,7 @@ impl Recurrence<f32> for GpuRecurrence {
         }
 
         let gpu = &*self.gpu;
-        let table = gpu.upload_words("recurrence table", &self.table(ablation, &entries));
+        let table = gpu.upload("recurrence table", &self.table(ablation, &entries));
         let input_buffer = gpu.upload("recurrence inputs", &inputs);
         let record = gpu.scratch(
             "recurrence record",

@@ -545,8 +545,18 @@ fn bench_profile_names_the_phases_of_an_iteration() {
     assert!(ms("optimiser (RAdam)") > 0.0, "{phases:?}");
     // Without --profile there is no profile.
     let plain = bench(&[]);
-    let v: serde_json::Value = serde_json::from_str(plain.trim()).unwrap();
-    assert!(v.get("profile").is_none(), "{v}");
+    let plain: serde_json::Value = serde_json::from_str(plain.trim()).unwrap();
+    assert!(plain.get("profile").is_none(), "{plain}");
+    // The free energy of the warm-up and the timed iteration, from seeded data and noise:
+    // two runs (or two backends) can be compared number by number.
+    let free_energy = |v: &serde_json::Value| -> Vec<f64> {
+        let terms = v["train_free_energy"].as_array().expect("free energies");
+        terms.iter().map(|f| f.as_f64().unwrap()).collect()
+    };
+    let first = free_energy(&v);
+    assert_eq!(first.len(), 2, "warm-up and one timed iteration: {v}");
+    assert!(first.iter().all(|f| f.is_finite() && *f > 0.0), "{v}");
+    assert_eq!(first, free_energy(&plain), "the same seeded run twice");
 }
 
 #[test]

@@ -235,7 +235,8 @@ impl Gpu {
         self.recurrence_kernels
             .get_or_init(|| {
                 let common = include_str!("shaders/recurrence_common.wgsl");
-                let source = |text: &str| format!("{common}\n{text}");
+                let source =
+                    |text: &str| crate::template::expand(&format!("{common}\n{text}"), &[]);
                 Arc::new(RecurrenceKernels {
                     forward: self.pipeline(
                         "recurrence forward",

@@ -29,7 +29,11 @@ pub(crate) fn read_back(
         }
         offset += n;
     }
+    // The profile's innermost phases (every read-back counts in them, the recurrence's
+    // too): where a round trip's latency goes.
+    let submit_phase = pvrnn_core::profile::phase("      GPU: submit");
     gpu.queue.submit([encoder.finish()]);
+    drop(submit_phase);
     gpu.count_read_back();
     let state = Arc::new(Mutex::new(MapState::default()));
     let mapped = state.clone();
@@ -43,8 +47,11 @@ pub(crate) fn read_back(
             }
         });
     #[cfg(not(target_arch = "wasm32"))]
-    if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
-        panic!("waiting for the GPU failed: {e}");
+    {
+        let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
+        if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
+            panic!("waiting for the GPU failed: {e}");
+        }
     }
     ReadBack {
         staging: Some(staging),

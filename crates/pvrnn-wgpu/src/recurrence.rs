@@ -90,6 +90,9 @@ pub struct GpuRecurrence {
     modules: [ModuleLayout; 4],
     strides: Strides,
     weights: PooledBuffer,
+    /// The same values with every matrix transposed (same offsets), for the forward
+    /// kernel: its threads own output rows, so this layout makes their loads coalesced.
+    weights_t: PooledBuffer,
     weight_floats: usize,
     kl_scale: [f32; 4],
 }
@@ -162,9 +165,25 @@ impl GpuRecurrence {
         }
         let kl_scale =
             ModuleId::ALL.map(|id| (config.kl_weight / config.module(id).z as f64) as f32);
+        let mut weights_t = weights.clone();
+        for ml in &modules {
+            for (at, rows, cols) in [
+                (ml.w_prior, 2 * ml.z, ml.d),
+                (ml.w_dd, ml.d, ml.d),
+                (ml.w_dz, ml.d, ml.z),
+                (ml.w_dh, ml.d, ml.parent_d),
+            ] {
+                for r in 0..rows {
+                    for c in 0..cols {
+                        weights_t[at + c * rows + r] = weights[at + r * cols + c];
+                    }
+                }
+            }
+        }
         Self {
             kernels: gpu.recurrence_kernels(),
             weights: gpu.upload("recurrent weights", &weights),
+            weights_t: gpu.upload("recurrent weights, transposed", &weights_t),
             weight_floats: weights.len(),
             gpu,
             modules,
@@ -307,7 +326,7 @@ impl Recurrence<f32> for GpuRecurrence {
         let group = bind(
             gpu,
             &self.kernels.forward,
-            &[&table, &self.weights, &input_buffer, &record],
+            &[&table, &self.weights_t, &input_buffer, &record],
         );
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         dispatch(

@@ -58,6 +58,9 @@ struct Report {
     /// Mean seconds per full-batch training iteration.
     train_iter_s: Option<f64>,
     train_iter_min_s: Option<f64>,
+    /// Total free energy of the warm-up and each timed iteration: the same seeded data and
+    /// noise on every backend, so two backends' runs can be compared number by number.
+    train_free_energy: Vec<f64>,
     /// Online inference steps per second at a full window (H = 30, 50 iterations).
     infer_p16_steps_per_s: Option<f64>,
     infer_full_steps_per_s: Option<f64>,
@@ -185,14 +188,14 @@ pub fn run(a: Args) -> Result<()> {
     let inference_backend = a.backend.open()?.0;
     let mut trainer = trainer.with_backend(backend);
 
-    let mut times = Vec::new();
+    let (mut times, mut free_energies) = (Vec::new(), Vec::new());
     if a.only != Some(Part::Infer) {
         say("training: 1 warm-up iteration...");
-        trainer.step(&data)?;
+        free_energies.push(trainer.step(&data)?.total);
         pvrnn_core::profile::enable(a.profile);
         for i in 0..a.train_iterations {
             let start = Instant::now();
-            trainer.step(&data)?;
+            free_energies.push(trainer.step(&data)?.total);
             times.push(start.elapsed().as_secs_f64());
             say(&format!("  iteration {}: {:.3} s", i + 1, times[i]));
         }
@@ -244,6 +247,7 @@ pub fn run(a: Args) -> Result<()> {
         steps: t,
         train_iter_s: mean,
         train_iter_min_s: min,
+        train_free_energy: free_energies,
         infer_p16_steps_per_s: p16,
         infer_full_steps_per_s: full,
         train_peak_rss_mb: train_peak,
@@ -257,6 +261,12 @@ pub fn run(a: Args) -> Result<()> {
         println!("threads                          {}", report.threads);
         if let (Some(mean), Some(min)) = (mean, min) {
             println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
+            let terms: Vec<String> = report
+                .train_free_energy
+                .iter()
+                .map(|f| format!("{f:.9}"))
+                .collect();
+            println!("free energy per iteration        {}", terms.join(" "));
         }
         if let (Some(p16), Some(full)) = (p16, full) {
             println!(

@@ -2,6 +2,8 @@
 // reverse order of the forward kernel (steps backwards, modules bottom-up, so a child's
 // gradient reaches its parent's d_t first), with the sums of `cpu::recurrent::backward`.
 // Writes dF/da per step and, for the weight-gradient kernel, dF/du and dF/d prior.
+// Its threads own columns of the weight matrices, so their loads are coalesced as stored;
+// four are issued before their four multiply-adds (the sums keep the CPU's order).
 
 @group(0) @binding(0) var<storage, read> table: array<u32>;
 @group(0) @binding(1) var<storage, read> weights: array<f32>;
@@ -63,7 +65,16 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             for (var o = lid; o < md.d + md.z + md.parent_d; o += WG) {
                 if (o < md.d) {
                     var acc = gd_prev[dp + o];
-                    for (var i = 0u; i < md.d; i++) {
+                    var i = 0u;
+                    for (; i + 4u <= md.d; i += 4u) {
+                        //#unroll K 4
+                        let w{K} = weights[md.w_dd + (i + {K}u) * md.d + o];
+                        //#end
+                        //#unroll K 4
+                        acc = fma(gu[i + {K}u], w{K}, acc);
+                        //#end
+                    }
+                    for (; i < md.d; i++) {
                         acc = fma(gu[i], weights[md.w_dd + i * md.d + o], acc);
                     }
                     gd_prev[dp + o] = acc;
@@ -71,7 +82,16 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                     let j = o - md.d;
                     var acc = 0.0;
                     if (table[1u + m] == 0u) {
-                        for (var i = 0u; i < md.d; i++) {
+                        var i = 0u;
+                        for (; i + 4u <= md.d; i += 4u) {
+                            //#unroll K 4
+                            let w{K} = weights[md.w_dz + (i + {K}u) * md.z + j];
+                            //#end
+                            //#unroll K 4
+                            acc = fma(gu[i + {K}u], w{K}, acc);
+                            //#end
+                        }
+                        for (; i < md.d; i++) {
                             acc = fma(gu[i], weights[md.w_dz + i * md.z + j], acc);
                         }
                     }
@@ -80,7 +100,16 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                     let k = o - md.d - md.z;
                     let pp = md.parent * MAX_UNITS;
                     var acc = gd_cur[pp + k];
-                    for (var i = 0u; i < md.d; i++) {
+                    var i = 0u;
+                    for (; i + 4u <= md.d; i += 4u) {
+                        //#unroll K 4
+                        let w{K} = weights[md.w_dh + (i + {K}u) * md.parent_d + k];
+                        //#end
+                        //#unroll K 4
+                        acc = fma(gu[i + {K}u], w{K}, acc);
+                        //#end
+                    }
+                    for (; i < md.d; i++) {
                         acc = fma(gu[i], weights[md.w_dh + i * md.parent_d + k], acc);
                     }
                     gd_cur[pp + k] = acc;
@@ -112,7 +141,16 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             // Phase 4: W_prior^T gprior into dF/dd_{t-1}.
             for (var o = lid; o < md.d; o += WG) {
                 var acc = gd_prev[dp + o];
-                for (var j = 0u; j < 2u * md.z; j++) {
+                var j = 0u;
+                for (; j + 4u <= 2u * md.z; j += 4u) {
+                    //#unroll K 4
+                    let w{K} = weights[md.w_prior + (j + {K}u) * md.d + o];
+                    //#end
+                    //#unroll K 4
+                    acc = fma(gprior[j + {K}u], w{K}, acc);
+                    //#end
+                }
+                for (; j < 2u * md.z; j++) {
                     acc = fma(gprior[j], weights[md.w_prior + j * md.d + o], acc);
                 }
                 gd_prev[dp + o] = acc;

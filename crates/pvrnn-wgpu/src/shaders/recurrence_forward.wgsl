@@ -3,9 +3,14 @@
 // workgroup memory; each module's step is three phases between barriers (prior and the
 // recurrent part of u; posterior, z and KL; the rest of u and the state update). Modules
 // run top-down within a step, as `cpu::recurrent::forward`, with the same order of sums.
+//
+// The loops are latency-bound (a few dozen dependent multiply-adds per thread and phase),
+// so the weights come transposed (`weights_t`: each matrix column-major, at the offsets
+// the table gives) to make a warp's loads one coalesced read, and four loads are issued
+// before their four multiply-adds, which keep the CPU's order.
 
 @group(0) @binding(0) var<storage, read> table: array<u32>;
-@group(0) @binding(1) var<storage, read> weights: array<f32>;
+@group(0) @binding(1) var<storage, read> weights_t: array<f32>;
 @group(0) @binding(2) var<storage, read> inputs: array<f32>;
 @group(0) @binding(3) var<storage, read_write> record: array<f32>;
 
@@ -44,21 +49,38 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let dp = m * MAX_UNITS;
             // Phase A: the prior from d_{t-1} (2z outputs) and bias + W_dd d_{t-1} (d outputs).
             for (var o = lid; o < 2u * md.z + md.d; o += WG) {
+                // Output o's weights: column o of a (d x rows) matrix at `at`.
+                var acc: f32;
+                var at: u32;
+                var rows: u32;
+                var col: u32;
                 if (o < 2u * md.z) {
-                    var acc = weights[md.b_prior + o];
-                    let row = md.w_prior + o * md.d;
-                    for (var i = 0u; i < md.d; i++) {
-                        acc = fma(weights[row + i], d_prev[dp + i], acc);
-                    }
+                    acc = weights_t[md.b_prior + o];
+                    at = md.w_prior;
+                    rows = 2u * md.z;
+                    col = o;
+                } else {
+                    col = o - 2u * md.z;
+                    acc = weights_t[md.bias + col];
+                    at = md.w_dd;
+                    rows = md.d;
+                }
+                var i = 0u;
+                for (; i + 4u <= md.d; i += 4u) {
+                    //#unroll K 4
+                    let w{K} = weights_t[at + (i + {K}u) * rows + col];
+                    //#end
+                    //#unroll K 4
+                    acc = fma(w{K}, d_prev[dp + i + {K}u], acc);
+                    //#end
+                }
+                for (; i < md.d; i++) {
+                    acc = fma(weights_t[at + i * rows + col], d_prev[dp + i], acc);
+                }
+                if (o < 2u * md.z) {
                     prior[o] = acc;
                 } else {
-                    let r = o - 2u * md.z;
-                    var acc = weights[md.bias + r];
-                    let row = md.w_dd + r * md.d;
-                    for (var i = 0u; i < md.d; i++) {
-                        acc = fma(weights[row + i], d_prev[dp + i], acc);
-                    }
-                    u[r] = acc;
+                    u[col] = acc;
                 }
             }
             workgroupBarrier();
@@ -101,18 +123,34 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             // Phase C: u += W_dz z + W_dh d_parent,t; the leaky update.
             for (var r = lid; r < md.d; r += WG) {
                 var acc = u[r];
-                let row_z = md.w_dz + r * md.z;
-                for (var j = 0u; j < md.z; j++) {
-                    acc = fma(weights[row_z + j], zs[j], acc);
+                var j = 0u;
+                for (; j + 4u <= md.z; j += 4u) {
+                    //#unroll K 4
+                    let w{K} = weights_t[md.w_dz + (j + {K}u) * md.d + r];
+                    //#end
+                    //#unroll K 4
+                    acc = fma(w{K}, zs[j + {K}u], acc);
+                    //#end
+                }
+                for (; j < md.z; j++) {
+                    acc = fma(weights_t[md.w_dz + j * md.d + r], zs[j], acc);
                 }
                 if (md.parent < 4u) {
-                    let row_h = md.w_dh + r * md.parent_d;
                     let pp = md.parent * MAX_UNITS;
-                    for (var k = 0u; k < md.parent_d; k++) {
-                        acc = fma(weights[row_h + k], d_prev[pp + k], acc);
+                    var k = 0u;
+                    for (; k + 4u <= md.parent_d; k += 4u) {
+                        //#unroll K 4
+                        let w{K} = weights_t[md.w_dh + (k + {K}u) * md.d + r];
+                        //#end
+                        //#unroll K 4
+                        acc = fma(w{K}, d_prev[pp + k + {K}u], acc);
+                        //#end
+                    }
+                    for (; k < md.parent_d; k++) {
+                        acc = fma(weights_t[md.w_dh + k * md.d + r], d_prev[pp + k], acc);
                     }
                 }
-                let h = fma(weights[md.decay + r], h_prev[dp + r], weights[md.inv_tau + r] * acc);
+                let h = fma(weights_t[md.decay + r], h_prev[dp + r], weights_t[md.inv_tau + r] * acc);
                 let d = tanh_sat(h);
                 h_prev[dp + r] = h;
                 d_prev[dp + r] = d;

@@ -1,6 +1,11 @@
 //! The output layer on the GPU at the paper's shapes: learning's full batch (5,400 rows x
 //! 32,256 vision columns, loss, input and weight gradients, targets resident) and online
-//! inference's window (30 rows, everything observed or 16x16 only, input gradient only).
+//! inference's window (30 rows, everything observed or 16x16 only, input gradient only,
+//! targets resident as online inference keeps them for a step's 50 updates).
+//!
+//! Then inference's everything-observed case again under caps on the column splits
+//! (`Tiling::max_splits`), the knob that trades the row pass's parallelism against the
+//! length of the reduce pass's sums.
 //!
 //! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
 //! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
@@ -39,30 +44,61 @@ fn main() {
     println!("adapter: {}", backend.adapter_name());
     let config = ModelConfig::default();
     let params = Params::<f32>::init(&config, 0);
-    let layer = GpuOutputLayer::upload(backend.gpu().clone(), Tiling::default(), &params);
     let hidden = *config.exteroceptive_readout.hidden.last().unwrap();
     let dims = config.vision.dims();
     let p16 = 2 * 3 * 16 * 16;
 
-    // (what, rows, observed columns, weight gradients, resident targets, repetitions)
-    let cases = [
-        ("learning, full batch", 5400, dims, true, true, 5),
-        ("inference, everything observed", 30, dims, false, false, 50),
-        ("inference, 16x16 observed", 30, p16, false, false, 50),
+    // (what, rows, observed columns, weight gradients, repetitions, tiling); the targets
+    // are resident in every case, as learning and online inference keep them.
+    let default = Tiling::default();
+    let mut cases = vec![
+        (
+            "learning, full batch".to_string(),
+            5400,
+            dims,
+            true,
+            5,
+            default,
+        ),
+        (
+            "inference, everything observed".into(),
+            30,
+            dims,
+            false,
+            50,
+            default,
+        ),
+        (
+            "inference, 16x16 observed".into(),
+            30,
+            p16,
+            false,
+            50,
+            default,
+        ),
     ];
+    for max_splits in [1024, 256, 128, 64, 32, 16] {
+        let tiling = Tiling {
+            max_splits,
+            ..default
+        };
+        let what = format!("inference, everything, <= {max_splits} splits");
+        cases.push((what, 30, dims, false, 50, tiling));
+    }
     // `cargo bench ... -- WORD` runs the cases whose name contains WORD.
     let filter: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| !a.starts_with("--"))
         .collect();
-    for (what, n, k, weight_grads, resident, reps) in cases {
+    for (what, n, k, weight_grads, reps, tiling) in cases {
         if !filter.iter().all(|f| what.contains(f.as_str())) {
             continue;
         }
+        let layer = GpuOutputLayer::upload(backend.gpu().clone(), tiling, &params);
         let input = values(n * hidden, 1);
         let target_data = values(n * k, 2);
         let targets: Vec<&[f32]> = target_data.chunks_exact(k).collect();
-        let resident = resident.then_some(u64::MAX - 1);
+        let resident = Some(u64::MAX - 1);
         let call = || {
             let loss = layer
                 .loss(
@@ -88,7 +124,7 @@ fn main() {
         let products = if weight_grads { 3.0 } else { 2.0 };
         let flops = products * 2.0 * (n * k * hidden) as f64;
         println!(
-            "{what:32} {n:5} x {k:5}: {:8.3} ms per call, {:8.1} GFLOP/s",
+            "{what:44} {n:5} x {k:5}: {:8.3} ms per call, {:8.1} GFLOP/s",
             s * 1e3,
             flops / s / 1e9
         );

@@ -32,6 +32,13 @@ pub struct Tiling {
     /// alone give 85 workgroups of 64 at the paper's 5,400), few enough that the split-K
     /// partials stay small.
     pub target_workgroups: usize,
+    /// At most this many column splits: the reduce pass adds a row's partials one after
+    /// another, so with few rows (online inference's 30, which would otherwise get one
+    /// split per 32-column tile: 1,008) it becomes the slow part, and with too few the row
+    /// pass runs out of parallelism. 256 was the fastest cap for inference's window on an
+    /// H200 and leaves learning's paper-scale chunks (112 splits) as they were
+    /// (docs/gpu.md has the measurements).
+    pub max_splits: usize,
     /// Largest buffer a chunk binds (the device's binding limit applies too).
     pub max_chunk_bytes: usize,
 }
@@ -40,6 +47,7 @@ impl Default for Tiling {
     fn default() -> Self {
         Self {
             target_workgroups: 1024,
+            max_splits: 256,
             // Below WebGPU's default 128 MiB per binding.
             max_chunk_bytes: 64 << 20,
         }
@@ -278,6 +286,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
             .div_ceil(row_blocks)
             .min(limit / (16 * hv * chunk))
             .min(max_groups)
+            .min(self.tiling.max_splits)
             .clamp(1, tiles);
         let cols_per_split = tiles.div_ceil(splits) * TILE_COLUMNS;
         let splits = k.div_ceil(cols_per_split);

@@ -104,8 +104,20 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
     // 4-row chunks of 63 rows (the last short); 15 column tiles in 4 splits of 4 (the last
     // short), so the input gradient is reduced from partials.
     free_energy_and_gradients_agree(
+        gpu.clone().with_tiling(Tiling {
+            target_workgroups: 4,
+            max_splits: 64,
+            max_chunk_bytes: 8 << 10,
+        }),
+        3,
+        21,
+    );
+    // The same with the splits capped below what the workgroup target asks for: 3 splits
+    // of 5 tiles.
+    free_energy_and_gradients_agree(
         gpu.with_tiling(Tiling {
             target_workgroups: 4,
+            max_splits: 3,
             max_chunk_bytes: 8 << 10,
         }),
         3,

@@ -22,16 +22,36 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     if (i >= p.rows * HV) {
         return;
     }
+    // Four loads in flight before their four adds (the same order of sums).
+    let stride = p.rows * HV;
     var a = vec4<f32>(0.0);
-    for (var s = 0u; s < p.splits; s++) {
-        a += part_in[s * p.rows * HV + i];
+    var s = 0u;
+    for (; s + 4u <= p.splits; s += 4u) {
+        //#unroll K 4
+        let v{K} = part_in[(s + {K}u) * stride + i];
+        //#end
+        //#unroll K 4
+        a += v{K};
+        //#end
+    }
+    for (; s < p.splits; s++) {
+        a += part_in[s * stride + i];
     }
     grad_in[p.row_offset * HV + i] = a;
     if (i % HV == 0u) {
         let r = i / HV;
         var l = 0.0;
-        for (var s = 0u; s < p.splits; s++) {
-            l += part_loss[s * p.rows + r];
+        var t = 0u;
+        for (; t + 4u <= p.splits; t += 4u) {
+            //#unroll K 4
+            let l{K} = part_loss[(t + {K}u) * p.rows + r];
+            //#end
+            //#unroll K 4
+            l += l{K};
+            //#end
+        }
+        for (; t < p.splits; t++) {
+            l += part_loss[t * p.rows + r];
         }
         row_loss[p.row_offset + r] = l;
     }

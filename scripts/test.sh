@@ -47,12 +47,19 @@ step "the explorer's web entry and browser glue in headless Chromium"
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
     cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
 
-step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture"
+step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture; with each renderer"
 mkdir -p target
-rm -f target/desktop-smoke.png
-timeout 300 xvfb-run -a -s "-screen 0 1440x920x24" target/debug/pvrnn-explorer \
-    --view 'seq=repositioning_590mm_test0&vision=1&ablate=1000' --screenshot target/desktop-smoke.png
-python3 - <<'PY'
+# auto takes glow here (the only Vulkan device, lavapipe, is a CPU); --renderer wgpu draws
+# through wgpu on lavapipe.
+for renderer in auto wgpu; do
+    rm -f target/desktop-smoke.png
+    timeout 300 xvfb-run -a -s "-screen 0 1440x920x24" target/debug/pvrnn-explorer \
+        --view 'seq=repositioning_590mm_test0&vision=1&ablate=1000' --renderer "$renderer" \
+        --screenshot target/desktop-smoke.png 2>&1 | tee target/desktop-smoke.log
+    want=$([ "$renderer" = auto ] && echo "drawing: glow" || echo "drawing: wgpu")
+    grep -q "saved target/desktop-smoke.png ($want" target/desktop-smoke.log ||
+        { echo "--renderer $renderer: the picture was not drawn by $want" >&2; exit 1; }
+    python3 - <<'PY'
 import struct
 png = open("target/desktop-smoke.png", "rb").read()
 assert png[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
@@ -61,6 +68,7 @@ assert (width, height) == (1440, 920), (width, height)
 assert len(png) > 100_000, f"{len(png)} bytes: a blank window?"
 print(f"desktop window: {width}x{height}, {len(png)} bytes")
 PY
+done
 
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release

@@ -6,7 +6,8 @@
 // With --live-seconds N it also opens a condition that is not precomputed (16x16 vision
 // plus proprioception with the executive module ablated) and waits up to N seconds for the live run's speed in the console.
 // With --webgpu it also opens the site in a browser with WebGPU and checks that the worker
-// takes it when asked (`?compute=webgpu`).
+// takes it when asked (`?compute=webgpu`), and that eframe's wgpu renderer draws the page
+// when asked (`?render=wgpu`).
 import { createRequire } from 'node:module';
 import { inflateSync } from 'node:zlib';
 import { writeFileSync } from 'node:fs';
@@ -106,6 +107,10 @@ try {
   const std = Math.sqrt(sum2 / n - (sum / n) ** 2);
   console.log(`screenshot ${out}: ${png.width}x${png.height}, ${colours.size}${colours.size >= 5000 ? '+' : ''} colours, brightness std ${std.toFixed(1)}`);
   if (colours.size < 50 || std < 5) fail('the canvas is blank');
+  // By default the page draws with WebGL (glow).
+  const drawing = logs.find((l) => l.includes('page: drawing:'));
+  console.log(`renderer: ${drawing ?? 'the page never said what draws it'}`);
+  if (!drawing?.includes('glow')) fail(`by default the page should draw with glow: ${drawing}`);
 
   if (liveSeconds > 0) {
     await page.evaluate(() => { location.hash = 'vision=1&proprio=1&ablate=1000&maps=0&t=0'; });
@@ -121,6 +126,24 @@ try {
     if (inPage) fail(`the inference worker did not work: ${inPage}`);
   }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
+
+  // `?render=wgpu` in a browser without WebGPU (this one) falls back to WebGL.
+  const fallback = await browser.newPage({ viewport: { width: 1440, height: 920 } });
+  const fallbackLogs = [];
+  fallback.on('console', (m) => fallbackLogs.push(m.text()));
+  fallback.on('pageerror', (e) => fallbackLogs.push(`pageerror: ${e.message}`));
+  const base = url.split('#')[0];
+  await fallback.goto(`${base}${base.includes('?') ? '&' : '?'}render=wgpu`);
+  const fallbackUntil = Date.now() + 60_000;
+  while (!fallbackLogs.some((l) => l.includes('bundle ready')) && Date.now() < fallbackUntil) {
+    if (fallbackLogs.some((l) => /panicked|pageerror/.test(l))) break;
+    await fallback.waitForTimeout(100);
+  }
+  const fellBack = fallbackLogs.find((l) => l.includes('page: drawing:'));
+  console.log(`?render=wgpu without WebGPU: ${fellBack ?? 'the page never said what draws it'}`);
+  if (!fellBack?.includes('glow')) fail(`?render=wgpu without WebGPU should fall back to glow: ${fellBack}`);
+  if (!fallbackLogs.some((l) => l.includes('bundle ready'))) fail('?render=wgpu without WebGPU: the bundle never finished loading');
+  for (const l of fallbackLogs) if (/panicked|pageerror/.test(l)) fail(`console (?render=wgpu without WebGPU): ${l}`);
 } finally {
   await browser.close();
 }
@@ -152,6 +175,35 @@ if (webgpu) {
       if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
       else if (preference === 'webgpu' && !chosen.includes('WebGPU')) fail(`?compute=webgpu did not take WebGPU: ${chosen}`);
       for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console (?compute=${preference}): ${l}`);
+      await page.close();
+    }
+    // eframe's wgpu renderer on WebGPU (`?render=wgpu`): the page must draw with it and load
+    // the bundle without an error. Headless Chromium leaves a WebGPU canvas out of its
+    // screenshots (and `drawImage` reads it as transparent), so the wgpu renderer's pixels
+    // are checked natively instead (scripts/test.sh: the desktop app with --renderer wgpu).
+    {
+      const page = await gpuBrowser.newPage({ viewport: { width: 1440, height: 920 } });
+      const logs = [];
+      page.on('console', (m) => logs.push(m.text()));
+      page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
+      const base = url.split('#')[0];
+      const started = Date.now();
+      await page.goto(`${base}${base.includes('?') ? '&' : '?'}render=wgpu`);
+      const until = Date.now() + 60_000;
+      while (!logs.some((l) => l.includes('bundle ready')) && Date.now() < until) {
+        if (logs.some((l) => /panicked|pageerror/.test(l))) break;
+        await page.waitForTimeout(100);
+      }
+      const ready = logs.find((l) => l.includes('bundle ready'));
+      const drawing = logs.find((l) => l.includes('page: drawing:'));
+      console.log(`?render=wgpu: ${drawing ?? 'the page never said what draws it'}; ${ready ?? 'the bundle never finished loading'} (${Date.now() - started} ms after navigation, wall clock)`);
+      if (!ready) fail('?render=wgpu: the bundle never finished loading');
+      if (!drawing?.includes('wgpu')) fail(`?render=wgpu should draw with wgpu: ${drawing}`);
+      // A few seconds of frames (the view's plots and images) for wgpu to report errors in.
+      await page.waitForTimeout(2500);
+      for (const l of logs) {
+        if (/panicked|pageerror|validation error|uncaptured|wgpu error/i.test(l)) fail(`console (?render=wgpu): ${l}`);
+      }
       await page.close();
     }
   } finally {

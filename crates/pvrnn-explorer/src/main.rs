@@ -35,6 +35,34 @@ struct Args {
     /// lavapipe included). The status bar says which.
     #[arg(long, value_enum, default_value_t = Compute::Auto)]
     backend: Compute,
+    /// What draws the window: `auto` (wgpu on a GPU, glow's OpenGL where the only Vulkan
+    /// device is a CPU implementation or there is none; glow if wgpu fails to open the
+    /// window), `wgpu` or `glow`. The status bar says which.
+    #[arg(long, value_enum, default_value_t = Drawing::Auto)]
+    renderer: Drawing,
+}
+
+#[cfg(not(target_arch = "wasm32"))]
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum Drawing {
+    Auto,
+    Wgpu,
+    Glow,
+}
+
+/// The renderer `--renderer` asks for. `auto` looks at the adapter wgpu would take: a CPU
+/// implementation (lavapipe) draws no faster than Mesa's OpenGL and glow is the path every
+/// machine has, so wgpu only where there is a GPU.
+#[cfg(not(target_arch = "wasm32"))]
+fn choose_renderer(choice: Drawing) -> eframe::Renderer {
+    match choice {
+        Drawing::Wgpu => eframe::Renderer::Wgpu,
+        Drawing::Glow => eframe::Renderer::Glow,
+        Drawing::Auto => match pvrnn_wgpu::probe_now() {
+            Ok((_, false)) => eframe::Renderer::Wgpu,
+            _ => eframe::Renderer::Glow,
+        },
+    }
 }
 
 #[cfg(not(target_arch = "wasm32"))]
@@ -126,21 +154,31 @@ fn main() {
         }
         return;
     }
-    let options = eframe::NativeOptions {
-        viewport: eframe::egui::ViewportBuilder::default()
-            .with_inner_size([1440.0, 920.0])
-            .with_title("PV-RNN explorer")
-            .with_drag_and_drop(true),
-        ..Default::default()
-    };
-    let result = eframe::run_native(
-        "PV-RNN explorer",
-        options,
-        Box::new({
-            let (screenshot, hash, compute) =
-                (args.screenshot.clone(), args.view.clone(), args.backend);
-            move |cc| {
+    let renderer = choose_renderer(args.renderer);
+    // The bundle goes to the first window; a second try (glow after wgpu failed) reads it
+    // again.
+    let bundle = std::cell::RefCell::new(bundle);
+    let open_window = |renderer: eframe::Renderer| {
+        let options = eframe::NativeOptions {
+            viewport: eframe::egui::ViewportBuilder::default()
+                .with_inner_size([1440.0, 920.0])
+                .with_title("PV-RNN explorer")
+                .with_drag_and_drop(true),
+            renderer,
+            ..Default::default()
+        };
+        let bundle = bundle
+            .borrow_mut()
+            .take()
+            .or_else(|| Bundle::open_dir(&dir).ok());
+        let (screenshot, hash, compute) =
+            (args.screenshot.clone(), args.view.clone(), args.backend);
+        eframe::run_native(
+            "PV-RNN explorer",
+            options,
+            Box::new(move |cc| {
                 let mut app = ExplorerApp::new(bundle, ViewState::default());
+                app.set_renderer_label(pvrnn_explorer::app::renderer_label(cc));
                 // Through the app, so what it ignores or corrects shows in its status line.
                 if let Some(hash) = &hash {
                     app.apply_hash(hash);
@@ -150,9 +188,17 @@ fn main() {
                     app.screenshot_and_close(path);
                 }
                 Ok(Box::new(app))
-            }
-        }),
-    );
+            }),
+        )
+    };
+    let mut result = open_window(renderer);
+    if let Err(e) = &result
+        && args.renderer == Drawing::Auto
+        && renderer == eframe::Renderer::Wgpu
+    {
+        eprintln!("wgpu could not open the window ({e}); drawing with glow instead");
+        result = open_window(eframe::Renderer::Glow);
+    }
     if let Err(e) = result {
         eprintln!("cannot open a window: {e}");
         std::process::exit(1);

@@ -98,28 +98,81 @@ fn watch_for_panic(handle: WebHandle) {
 }
 
 /// The web entry: starts `make`'s app on `canvas` (following URL hash changes, and showing a
-/// panic over the page should one happen) and returns its handle once the first frame is
-/// set up. `main` passes the page's canvas and the default bundle; the browser tests pass
-/// their own.
+/// panic over the page should one happen), drawn with WebGL2 (glow), or with WebGPU
+/// (eframe's wgpu renderer) when the page's `?render=wgpu` asks for it and the browser has
+/// it (WebGL otherwise). WebGL is the default: every browser has it, and a 2D interface
+/// gains nothing visible from WebGPU (docs/gpu.md, "The explorer's renderer"). Returns the
+/// app's handle once the first frame is set up. `main` passes the page's canvas and the
+/// default bundle; the browser tests pass their own.
 pub async fn start(
     canvas: web_sys::HtmlCanvasElement,
     make: impl FnOnce(&eframe::egui::Context) -> crate::ExplorerApp + 'static,
 ) -> Result<WebHandle, String> {
+    let renderer = match page_parameter("render").as_deref() {
+        Some("wgpu" | "webgpu") => eframe::Renderer::Wgpu,
+        _ => eframe::Renderer::Glow,
+    };
+    let make = Rc::new(RefCell::new(Some(make)));
+    let runner = match start_on(&canvas, renderer, make.clone()).await {
+        Err(e) if renderer == eframe::Renderer::Wgpu => {
+            // A canvas keeps the first kind of context it gave out, so glow draws on a
+            // fresh copy of it.
+            log(&format!(
+                "WebGPU could not draw ({e}); drawing with WebGL instead"
+            ));
+            let fresh = canvas
+                .clone_node()
+                .ok()
+                .and_then(|node| node.dyn_into::<web_sys::HtmlCanvasElement>().ok())
+                .ok_or("the canvas could not be copied")?;
+            canvas
+                .replace_with_with_node_1(&fresh)
+                .map_err(|e| format!("the canvas could not be replaced: {e:?}"))?;
+            start_on(&fresh, eframe::Renderer::Glow, make).await?
+        }
+        other => other?,
+    };
+    let handle = WebHandle { runner };
+    watch_for_panic(handle.clone());
+    Ok(handle)
+}
+
+/// One try at starting the app on `canvas` with `renderer`; `make` is taken by the try
+/// that gets as far as creating the app.
+async fn start_on<F>(
+    canvas: &web_sys::HtmlCanvasElement,
+    renderer: eframe::Renderer,
+    make: Rc<RefCell<Option<F>>>,
+) -> Result<eframe::WebRunner, String>
+where
+    F: FnOnce(&eframe::egui::Context) -> crate::ExplorerApp + 'static,
+{
     let runner = eframe::WebRunner::new();
+    let options = eframe::WebOptions {
+        renderer,
+        ..Default::default()
+    };
     runner
         .start(
-            canvas,
-            eframe::WebOptions::default(),
+            canvas.clone(),
+            options,
             Box::new(move |cc| {
+                let make = make
+                    .borrow_mut()
+                    .take()
+                    .ok_or("the explorer was already started")?;
                 repaint_on_hash_change(cc.egui_ctx.clone());
-                Ok(Box::new(make(&cc.egui_ctx)))
+                let mut app = make(&cc.egui_ctx);
+                let label = crate::app::renderer_label(cc);
+                // The browser tests read which renderer drew the page from the console.
+                log(&format!("page: {label}"));
+                app.set_renderer_label(label);
+                Ok(Box::new(app))
             }),
         )
         .await
         .map_err(|e| format!("the explorer failed to start: {e:?}"))?;
-    let handle = WebHandle { runner };
-    watch_for_panic(handle.clone());
-    Ok(handle)
+    Ok(runner)
 }
 
 pub fn location_hash() -> String {
@@ -130,15 +183,17 @@ pub fn location_hash() -> String {
 
 /// Where live runs should compute, from the page's `?compute=` (`auto` when absent).
 pub fn compute_preference() -> String {
-    web_sys::window()
-        .and_then(|w| w.location().search().ok())
-        .and_then(|search| {
-            search
-                .trim_start_matches('?')
-                .split('&')
-                .find_map(|pair| pair.strip_prefix("compute=").map(str::to_string))
-        })
-        .unwrap_or_else(|| "auto".into())
+    page_parameter("compute").unwrap_or_else(|| "auto".into())
+}
+
+/// The value of `name` in the page's query (`?name=value&...`, before the `#`).
+fn page_parameter(name: &str) -> Option<String> {
+    let search = web_sys::window()?.location().search().ok()?;
+    let prefix = format!("{name}=");
+    search
+        .trim_start_matches('?')
+        .split('&')
+        .find_map(|pair| pair.strip_prefix(prefix.as_str()).map(str::to_string))
 }
 
 pub fn set_hash(hash: &str) {
@@ -368,6 +423,11 @@ impl WebState {
             return Some(std::mem::take(&mut q.1));
         }
         None
+    }
+
+    /// Whether a bundle is on its way.
+    pub fn downloading(&self) -> bool {
+        self.download.is_some()
     }
 
     /// Progress into `status`; the bundle (or the error) once the download ends.

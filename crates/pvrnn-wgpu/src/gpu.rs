@@ -75,15 +75,7 @@ impl Gpu {
     /// [`Self::new`] without blocking: the only way in the browser, where the adapter and
     /// the device arrive through the event loop.
     pub async fn open() -> Result<Self, GpuError> {
-        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        // Vulkan, Metal, DX12 (and WebGPU) unless WGPU_BACKEND says otherwise: OpenGL has
-        // no use for compute here, and probing it through EGL beside eframe's own GL
-        // context panics inside wgpu-hal (BadAccess in make_current, seen under Xvfb).
-        descriptor.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
-        let instance = wgpu::Instance::new(descriptor);
-        let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-            .await
-            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let adapter = adapter().await?;
         let info = adapter.get_info();
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
@@ -110,29 +102,13 @@ impl Gpu {
 
     /// "name (driver, API)".
     pub fn describe(&self) -> String {
-        let i = &self.info;
-        // Browsers may withhold the adapter's name.
-        let name = if i.name.trim().is_empty() {
-            "unnamed adapter"
-        } else {
-            i.name.as_str()
-        };
-        let driver = [i.driver.as_str(), i.driver_info.as_str()]
-            .into_iter()
-            .filter(|s| !s.is_empty())
-            .collect::<Vec<_>>()
-            .join(" ");
-        if driver.is_empty() {
-            format!("{name} ({:?})", i.backend)
-        } else {
-            format!("{name} ({driver}, {:?})", i.backend)
-        }
+        describe(&self.info)
     }
 
     /// Whether the adapter is a CPU implementation (lavapipe, SwiftShader, WARP): correct,
     /// but slower than the CPU backend, so not chosen unless asked for.
     pub fn is_cpu(&self) -> bool {
-        self.info.device_type == wgpu::DeviceType::Cpu
+        is_cpu(&self.info)
     }
 
     /// Results read back from the device so far: how a caller (a test, a status line) sees
@@ -271,5 +247,55 @@ impl Gpu {
                 compilation_options: Default::default(),
                 cache: None,
             })
+    }
+}
+
+/// The adapter [`Gpu::open`] takes: Vulkan, Metal, DX12 (and WebGPU) unless `WGPU_BACKEND`
+/// says otherwise (OpenGL has no use for compute here, and probing it through EGL beside
+/// eframe's own GL context panics inside wgpu-hal: BadAccess in make_current, seen under
+/// Xvfb); `WGPU_ADAPTER_NAME` picks one by name.
+async fn adapter() -> Result<wgpu::Adapter, GpuError> {
+    let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    descriptor.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
+    let instance = wgpu::Instance::new(descriptor);
+    wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+        .await
+        .map_err(|e| GpuError::NoAdapter(e.to_string()))
+}
+
+/// What [`Gpu::open`] would open, without opening a device: a cheap look at the machine
+/// (the explorer picks its renderer with it) as `(its description, whether it is a CPU
+/// implementation)`.
+pub async fn probe() -> Result<(String, bool), GpuError> {
+    let info = adapter().await?.get_info();
+    Ok((describe(&info), is_cpu(&info)))
+}
+
+/// [`probe`], blocking.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn probe_now() -> Result<(String, bool), GpuError> {
+    pollster::block_on(probe())
+}
+
+fn is_cpu(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
+}
+
+fn describe(i: &wgpu::AdapterInfo) -> String {
+    // Browsers may withhold the adapter's name.
+    let name = if i.name.trim().is_empty() {
+        "unnamed adapter"
+    } else {
+        i.name.as_str()
+    };
+    let driver = [i.driver.as_str(), i.driver_info.as_str()]
+        .into_iter()
+        .filter(|s| !s.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ");
+    if driver.is_empty() {
+        format!("{name} ({:?})", i.backend)
+    } else {
+        format!("{name} ({driver}, {:?})", i.backend)
     }
 }

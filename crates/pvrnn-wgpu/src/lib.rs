@@ -31,7 +31,9 @@ use pvrnn_core::backend::{Backend, LoadedModel, Recurrence};
 use pvrnn_core::cpu::{CpuBackend, Offload};
 use pvrnn_core::params::Params;
 
-pub use gpu::{Gpu, GpuError};
+#[cfg(not(target_arch = "wasm32"))]
+pub use gpu::probe_now;
+pub use gpu::{Gpu, GpuError, probe};
 pub use output::{GpuOutputLayer, Tiling};
 pub use recurrence::GpuRecurrence;
 

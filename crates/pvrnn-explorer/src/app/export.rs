@@ -182,7 +182,8 @@ impl ExplorerApp {
                 let saved = png_bytes(&image)
                     .and_then(|png| std::fs::write(&path, png).map_err(|e| e.to_string()));
                 match saved {
-                    Ok(()) => eprintln!("saved {}", path.display()),
+                    // The renderer too: the smoke tests check which one drew the picture.
+                    Ok(()) => eprintln!("saved {} ({})", path.display(), self.renderer_label),
                     Err(e) => eprintln!("cannot save {}: {e}", path.display()),
                 }
                 ctx.send_viewport_cmd(egui::ViewportCommand::Close);

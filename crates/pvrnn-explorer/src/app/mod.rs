@@ -86,6 +86,8 @@ pub struct ExplorerApp {
     show_about: bool,
     /// Where live runs compute, for the status bar ("compute: CPU", "compute: wgpu on ...").
     compute_label: String,
+    /// What draws the window, for the status bar ("drawing: wgpu, ...", "drawing: glow").
+    renderer_label: String,
     /// `--screenshot`: where to save a picture of the window once every run the view
     /// needs is computed, then close (a desktop smoke test); whether it was asked for.
     #[cfg(not(target_arch = "wasm32"))]
@@ -95,6 +97,26 @@ pub struct ExplorerApp {
     /// Asks the user for files (or a folder): the system's dialog unless replaced.
     #[cfg(not(target_arch = "wasm32"))]
     file_dialog: FileDialog,
+}
+
+/// What eframe draws the window with, in the status bar's words: wgpu and its adapter
+/// (Vulkan, Metal, DX12; WebGPU in the browser) or glow (OpenGL; WebGL2 in the browser).
+pub fn renderer_label(cc: &eframe::CreationContext<'_>) -> String {
+    if let Some(state) = &cc.wgpu_render_state {
+        let info = state.adapter.get_info();
+        // Browsers may withhold the adapter's name.
+        let name = if info.name.trim().is_empty() {
+            "unnamed adapter".to_string()
+        } else {
+            info.name
+        };
+        return format!("drawing: wgpu, {name} ({:?})", info.backend);
+    }
+    if cfg!(target_arch = "wasm32") {
+        "drawing: glow (WebGL)".into()
+    } else {
+        "drawing: glow (OpenGL)".into()
+    }
 }
 
 /// A file dialog: `true` asks for one folder, `false` for files; `None` when the user
@@ -151,6 +173,7 @@ impl ExplorerApp {
             last_run_note: None,
             show_about: false,
             compute_label: "compute: CPU".into(),
+            renderer_label: String::new(),
             #[cfg(not(target_arch = "wasm32"))]
             screenshot: None,
             #[cfg(target_arch = "wasm32")]
@@ -274,6 +297,16 @@ impl ExplorerApp {
     /// Where live runs compute, as the status bar says it.
     pub fn compute_label(&self) -> &str {
         &self.compute_label
+    }
+
+    /// Records which renderer draws the window (see [`renderer_label`]).
+    pub fn set_renderer_label(&mut self, label: String) {
+        self.renderer_label = label;
+    }
+
+    /// What draws the window, as the status bar says it (empty until a window exists).
+    pub fn renderer_label(&self) -> &str {
+        &self.renderer_label
     }
 
     pub fn status(&self) -> &Status {
@@ -430,6 +463,13 @@ impl ExplorerApp {
                 Ok(bundle) => self.set_bundle(bundle),
                 Err(e) => self.status = Status::Error(e),
             }
+        }
+        // The download's callbacks do not wake egui, so poll it: otherwise one frame the
+        // renderer skips (wgpu on WebGPU may, when its surface is not ready) would leave
+        // the page waiting for input before it shows the bundle.
+        #[cfg(target_arch = "wasm32")]
+        if self.web.downloading() {
+            ctx.request_repaint_after(Duration::from_millis(100));
         }
         self.take_dropped(ctx);
         self.take_picture(ctx);

@@ -35,5 +35,10 @@ impl ExplorerApp {
             .on_hover_text(
                 "where live runs compute (desktop: --backend auto|cpu|wgpu; web: ?compute=auto|cpu|webgpu before the #)",
             );
+        if !self.renderer_label.is_empty() {
+            ui.weak(self.renderer_label.as_str()).on_hover_text(
+                "what draws the window (desktop: --renderer auto|wgpu|glow; web: ?render=glow|wgpu before the #)",
+            );
+        }
     }
 }

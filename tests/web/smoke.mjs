@@ -77,19 +77,34 @@ const browser = await chromium.launch({
 });
 let failed = false;
 const fail = (msg) => { console.error(`FAIL: ${msg}`); failed = true; };
-try {
-  const page = await browser.newPage({ viewport: { width: 1440, height: 920 } });
+
+// A new page of `b` that records its console, at the site's URL with `query` added before
+// the `#` (none: the URL as given).
+async function openPage(b, query) {
+  const page = await b.newPage({ viewport: { width: 1440, height: 920 } });
   const logs = [];
   page.on('console', (m) => logs.push(m.text()));
   page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
+  const base = url.split('#')[0];
   const started = Date.now();
-  await page.goto(url);
-  const deadline = Date.now() + 60_000;
-  while (!logs.some((l) => l.includes('bundle ready')) && Date.now() < deadline) {
+  await page.goto(query ? `${base}${base.includes('?') ? '&' : '?'}${query}` : url);
+  return { page, logs, started };
+}
+
+// The first console line containing `needle` within `ms` (undefined if none, or at once
+// after a panic or page error).
+async function waitForLog(page, logs, needle, ms = 60_000) {
+  const until = Date.now() + ms;
+  let line;
+  while (!(line = logs.find((l) => l.includes(needle))) && Date.now() < until) {
     if (logs.some((l) => /panicked|pageerror/.test(l))) break;
     await page.waitForTimeout(100);
   }
-  const ready = logs.find((l) => l.includes('bundle ready'));
+  return line;
+}
+try {
+  const { page, logs, started } = await openPage(browser);
+  const ready = await waitForLog(page, logs, 'bundle ready');
   if (ready) console.log(`ready: ${ready} (${Date.now() - started} ms after navigation, wall clock)`);
   else fail('the bundle never finished loading');
   await page.waitForTimeout(2500);
@@ -128,17 +143,8 @@ try {
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
 
   // `?render=wgpu` in a browser without WebGPU (this one) falls back to WebGL.
-  const fallback = await browser.newPage({ viewport: { width: 1440, height: 920 } });
-  const fallbackLogs = [];
-  fallback.on('console', (m) => fallbackLogs.push(m.text()));
-  fallback.on('pageerror', (e) => fallbackLogs.push(`pageerror: ${e.message}`));
-  const base = url.split('#')[0];
-  await fallback.goto(`${base}${base.includes('?') ? '&' : '?'}render=wgpu`);
-  const fallbackUntil = Date.now() + 60_000;
-  while (!fallbackLogs.some((l) => l.includes('bundle ready')) && Date.now() < fallbackUntil) {
-    if (fallbackLogs.some((l) => /panicked|pageerror/.test(l))) break;
-    await fallback.waitForTimeout(100);
-  }
+  const { page: fallback, logs: fallbackLogs } = await openPage(browser, 'render=wgpu');
+  await waitForLog(fallback, fallbackLogs, 'bundle ready');
   const fellBack = fallbackLogs.find((l) => l.includes('page: drawing:'));
   console.log(`?render=wgpu without WebGPU: ${fellBack ?? 'the page never said what draws it'}`);
   if (!fellBack?.includes('glow')) fail(`?render=wgpu without WebGPU should fall back to glow: ${fellBack}`);
@@ -160,17 +166,8 @@ if (webgpu) {
   });
   try {
     for (const preference of ['webgpu', 'auto']) {
-      const page = await gpuBrowser.newPage({ viewport: { width: 1440, height: 920 } });
-      const logs = [];
-      page.on('console', (m) => logs.push(m.text()));
-      page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
-      const base = url.split('#')[0];
-      await page.goto(`${base}${base.includes('?') ? '&' : '?'}compute=${preference}`);
-      const until = Date.now() + 60_000;
-      let chosen;
-      while (!(chosen = logs.find((l) => l.includes('live runs compute on'))) && Date.now() < until) {
-        await page.waitForTimeout(200);
-      }
+      const { page, logs } = await openPage(gpuBrowser, `compute=${preference}`);
+      const chosen = await waitForLog(page, logs, 'live runs compute on');
       console.log(`?compute=${preference}: ${chosen ?? 'the worker never said where it computes'}`);
       if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
       else if (preference === 'webgpu' && !chosen.includes('WebGPU')) fail(`?compute=webgpu did not take WebGPU: ${chosen}`);
@@ -182,19 +179,8 @@ if (webgpu) {
     // screenshots (and `drawImage` reads it as transparent), so the wgpu renderer's pixels
     // are checked natively instead (scripts/test.sh: the desktop app with --renderer wgpu).
     {
-      const page = await gpuBrowser.newPage({ viewport: { width: 1440, height: 920 } });
-      const logs = [];
-      page.on('console', (m) => logs.push(m.text()));
-      page.on('pageerror', (e) => logs.push(`pageerror: ${e.message}`));
-      const base = url.split('#')[0];
-      const started = Date.now();
-      await page.goto(`${base}${base.includes('?') ? '&' : '?'}render=wgpu`);
-      const until = Date.now() + 60_000;
-      while (!logs.some((l) => l.includes('bundle ready')) && Date.now() < until) {
-        if (logs.some((l) => /panicked|pageerror/.test(l))) break;
-        await page.waitForTimeout(100);
-      }
-      const ready = logs.find((l) => l.includes('bundle ready'));
+      const { page, logs, started } = await openPage(gpuBrowser, 'render=wgpu');
+      const ready = await waitForLog(page, logs, 'bundle ready');
       const drawing = logs.find((l) => l.includes('page: drawing:'));
       console.log(`?render=wgpu: ${drawing ?? 'the page never said what draws it'}; ${ready ?? 'the bundle never finished loading'} (${Date.now() - started} ms after navigation, wall clock)`);
       if (!ready) fail('?render=wgpu: the bundle never finished loading');

@@ -78,8 +78,8 @@ const browser = await chromium.launch({
 let failed = false;
 const fail = (msg) => { console.error(`FAIL: ${msg}`); failed = true; };
 
-// A new page of `b` that records its console, at the site's URL with `query` added before
-// the `#` (none: the URL as given).
+// A new page of `b` that records its console, at the site's URL with `query` added and
+// its `#` dropped (no query: the URL as given).
 async function openPage(b, query) {
   const page = await b.newPage({ viewport: { width: 1440, height: 920 } });
   const logs = [];
@@ -141,6 +141,7 @@ try {
     if (inPage) fail(`the inference worker did not work: ${inPage}`);
   }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
+  await page.close();
 
   // `?render=wgpu` in a browser without WebGPU (this one) falls back to WebGL.
   const { page: fallback, logs: fallbackLogs } = await openPage(browser, 'render=wgpu');

@@ -158,6 +158,9 @@ fn main() {
     // The bundle goes to the first window; a second try (glow after wgpu failed) reads it
     // again.
     let bundle = std::cell::RefCell::new(bundle);
+    // Whether a window got as far as creating the app: only a renderer that failed before
+    // that is retried (an error after the user closed a working window is not).
+    let created = std::rc::Rc::new(std::cell::Cell::new(false));
     let open_window = |renderer: eframe::Renderer| {
         let options = eframe::NativeOptions {
             viewport: eframe::egui::ViewportBuilder::default()
@@ -173,10 +176,12 @@ fn main() {
             .or_else(|| Bundle::open_dir(&dir).ok());
         let (screenshot, hash, compute) =
             (args.screenshot.clone(), args.view.clone(), args.backend);
+        let created = created.clone();
         eframe::run_native(
             "PV-RNN explorer",
             options,
             Box::new(move |cc| {
+                created.set(true);
                 let mut app = ExplorerApp::new(bundle, ViewState::default());
                 app.set_renderer_label(pvrnn_explorer::app::renderer_label(cc));
                 // Through the app, so what it ignores or corrects shows in its status line.
@@ -195,6 +200,7 @@ fn main() {
     if let Err(e) = &result
         && args.renderer == Drawing::Auto
         && renderer == eframe::Renderer::Wgpu
+        && !created.get()
     {
         eprintln!("wgpu could not open the window ({e}); drawing with glow instead");
         result = open_window(eframe::Renderer::Glow);

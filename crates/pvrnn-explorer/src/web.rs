@@ -113,7 +113,10 @@ pub async fn start(
         _ => eframe::Renderer::Glow,
     };
     let make = Rc::new(RefCell::new(Some(make)));
-    let runner = match start_on(&canvas, renderer, make.clone()).await {
+    // One runner for both tries: starting it again unsubscribes the failed try's listeners,
+    // and its panic hook is installed once.
+    let runner = eframe::WebRunner::new();
+    match start_on(&runner, &canvas, renderer, make.clone()).await {
         Err(e) if renderer == eframe::Renderer::Wgpu => {
             // A canvas keeps the first kind of context it gave out, so glow draws on a
             // fresh copy of it.
@@ -128,26 +131,26 @@ pub async fn start(
             canvas
                 .replace_with_with_node_1(&fresh)
                 .map_err(|e| format!("the canvas could not be replaced: {e:?}"))?;
-            start_on(&fresh, eframe::Renderer::Glow, make).await?
+            start_on(&runner, &fresh, eframe::Renderer::Glow, make).await?;
         }
         other => other?,
-    };
+    }
     let handle = WebHandle { runner };
     watch_for_panic(handle.clone());
     Ok(handle)
 }
 
 /// One try at starting the app on `canvas` with `renderer`; `make` is taken by the try
-/// that gets as far as creating the app.
+/// that gets as far as creating the app (eframe opens the renderer first).
 async fn start_on<F>(
+    runner: &eframe::WebRunner,
     canvas: &web_sys::HtmlCanvasElement,
     renderer: eframe::Renderer,
     make: Rc<RefCell<Option<F>>>,
-) -> Result<eframe::WebRunner, String>
+) -> Result<(), String>
 where
     F: FnOnce(&eframe::egui::Context) -> crate::ExplorerApp + 'static,
 {
-    let runner = eframe::WebRunner::new();
     let options = eframe::WebOptions {
         renderer,
         ..Default::default()
@@ -171,8 +174,7 @@ where
             }),
         )
         .await
-        .map_err(|e| format!("the explorer failed to start: {e:?}"))?;
-    Ok(runner)
+        .map_err(|e| format!("the explorer failed to start: {e:?}"))
 }
 
 pub fn location_hash() -> String {

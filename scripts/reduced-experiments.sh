@@ -12,11 +12,16 @@
 # The data is caresim seed 0 with robot-free renders (data/caresim-robotfree, made here if
 # missing: its learning sequences are byte for byte those of `pvrnn simulate`). Each step
 # ends with the experiment's report rebuilt from what is done. THREADS (default 2) sets the
-# worker threads, PVRNN the executable (default target/release/pvrnn).
+# worker threads, JOBS (default 1) the jobs run at once, BACKEND (cpu or wgpu; default cpu)
+# what computes, PVRNN the executable (default target/release/pvrnn). On a GPU machine:
+#
+#   BACKEND=wgpu JOBS=4 THREADS=16 scripts/reduced-experiments.sh interference 1
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 threads=${THREADS:-2}
+jobs=${JOBS:-1}
+backend=${BACKEND:-cpu}
 data=data/caresim-robotfree
 networks=training/reduced-networks
 if [ -z "${PVRNN:-}" ]; then
@@ -31,7 +36,7 @@ pvrnn=${PVRNN:-target/release/pvrnn}
 # its inference runs, then the report.
 run() {
     local experiment=$1 network=$2 out=docs/results/$1
-    local args=(--scale reduced --out "$out" --network "$network")
+    local args=(--scale reduced --out "$out" --network "$network" --jobs "$jobs" --backend "$backend")
     [ -f "$out/plan.json" ] || args+=(--dataset "$data" --networks "$networks")
     echo "== $experiment, network $network ($(date -u +%H:%M:%S))" >&2
     local start

@@ -228,7 +228,10 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
                 .map_or("–".into(), |c| format!("{:+.2}%", c * 100.0)),
             match &t.reused {
                 Some(p) => format!("reused `{p}`"),
-                None => format!("{:.0} s", t.seconds),
+                None => match &t.backend {
+                    Some(b) => format!("{:.0} s ({b})", t.seconds),
+                    None => format!("{:.0} s", t.seconds),
+                },
             }
         );
     }
@@ -337,6 +340,7 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
     for prefix in ["sigma_p", "sigma_p_change", "map_mean"] {
         header.extend(modules.iter().map(|m| format!("{prefix}_{m}")));
     }
+    header.push("backend".into());
     let mut out = header.join(",") + "\n";
     for r in runs {
         let diverged = r.diverged.as_ref().map(|d| d.step.to_string());
@@ -358,6 +362,7 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
         if diverged.is_some() {
             let scores = error_keys.len() + 3 * modules.len();
             row.extend(std::iter::repeat_n(String::new(), scores));
+            row.push(csv_field(r.backend.as_deref().unwrap_or("")));
             out += &(row.join(",") + "\n");
             continue;
         }
@@ -369,6 +374,7 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
         row.extend(r.sigma_p.iter().map(|v| csv_number(Some(*v))));
         row.extend(r.sigma_p_change.iter().map(|v| csv_number(Some(*v))));
         row.extend((0..4).map(|m| csv_number(r.map_means.map(|v| v[m]))));
+        row.push(csv_field(r.backend.as_deref().unwrap_or("")));
         out += &(row.join(",") + "\n");
     }
     out
@@ -377,7 +383,7 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
 /// One row per training.
 fn trainings_csv(scale: &str, trains: &[TrainResult]) -> String {
     let mut out = String::from(
-        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused\n",
+        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend\n",
     );
     for t in trains {
         let row = [
@@ -391,6 +397,7 @@ fn trainings_csv(scale: &str, trains: &[TrainResult]) -> String {
             csv_number(Some(t.seconds)),
             csv_number(t.last_tenth_change),
             csv_field(t.reused.as_deref().unwrap_or("")),
+            csv_field(t.backend.as_deref().unwrap_or("")),
         ];
         out += &(row.join(",") + "\n");
     }
@@ -997,6 +1004,7 @@ mod tests {
                 map_means: None,
                 occlusion: None,
                 diverged: None,
+                backend: None,
             },
             None,
         )

@@ -83,6 +83,10 @@ pub struct TrainResult {
     /// tenth of the iterations: how flat the learning curve ended.
     pub last_tenth_change: Option<f64>,
     pub reused: Option<String>,
+    /// What computed it: the backend and threads (`cpu, 2 threads`, `wgpu on NVIDIA H200
+    /// (Vulkan), 2 threads`); absent in results written before it was recorded (all cpu).
+    #[serde(default)]
+    pub backend: Option<String>,
 }
 
 /// The result of an inference job (metadata `result` of its safetensors file; contribution
@@ -120,6 +124,9 @@ pub struct InferResult {
     /// the report leaves the run out.
     #[serde(default)]
     pub diverged: Option<Diverged>,
+    /// What computed it (as [`TrainResult::backend`]).
+    #[serde(default)]
+    pub backend: Option<String>,
 }
 
 /// Where and how an inference run diverged beyond repair.
@@ -207,9 +214,12 @@ impl Selection {
 }
 
 /// Runs the selected jobs not done yet, `parallel` at a time, in dependency order.
+///
+/// `backend_name` says what computes (`cpu, 2 threads`); every result records it.
 pub fn run(
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
     parallel: usize,
     selection: Selection,
     stop: &AtomicBool,
@@ -242,7 +252,7 @@ pub fn run(
             "job {id} needs jobs {missing:?} done first"
         );
         if !plan.is_done(dir, id) {
-            run_job(&plan, dir, backend, id, &cache, stop, events)?;
+            run_job(&plan, dir, backend, backend_name, id, &cache, stop, events)?;
         }
         return Ok(());
     }
@@ -284,7 +294,7 @@ pub fn run(
                         std::thread::sleep(std::time::Duration::from_millis(50));
                         continue;
                     };
-                    match run_job(&plan, dir, backend, id, &cache, stop, events) {
+                    match run_job(&plan, dir, backend, backend_name, id, &cache, stop, events) {
                         Ok(()) => {
                             if let Ok(mut s) = state.lock() {
                                 s.0[id] = true;
@@ -318,10 +328,12 @@ pub fn run(
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_job(
     plan: &Plan,
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
     id: usize,
     cache: &Cache,
     stop: &AtomicBool,
@@ -334,8 +346,8 @@ fn run_job(
     });
     let start = Instant::now();
     match &job.kind {
-        JobKind::Train { .. } => train(plan, dir, backend, id, cache, stop, events)?,
-        JobKind::Infer { .. } => infer(plan, dir, backend, id, cache, events)?,
+        JobKind::Train { .. } => train(plan, dir, backend, backend_name, id, cache, stop, events)?,
+        JobKind::Infer { .. } => infer(plan, dir, backend, backend_name, id, cache, events)?,
     }
     events(Event::Finished {
         id,
@@ -360,10 +372,12 @@ pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
     (before != 0.0).then(|| (last - before) / before.abs())
 }
 
+#[allow(clippy::too_many_arguments)]
 fn train(
     plan: &Plan,
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
     id: usize,
     cache: &Cache,
     stop: &AtomicBool,
@@ -422,6 +436,7 @@ fn train(
                 seconds: 0.0,
                 last_tenth_change: last_tenth_change(&totals),
                 reused: Some(source.display().to_string()),
+                backend: None,
             },
         );
     }
@@ -485,6 +500,7 @@ fn train(
             seconds,
             last_tenth_change: last_tenth_change(&totals),
             reused: None,
+            backend: Some(backend_name.to_string()),
         },
     )
 }
@@ -531,6 +547,7 @@ fn infer(
     plan: &Plan,
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
     id: usize,
     cache: &Cache,
     events: &(dyn Fn(Event<'_>) + Sync),
@@ -698,6 +715,7 @@ fn infer(
         }),
         occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
         diverged,
+        backend: Some(backend_name.to_string()),
     };
     let maps = maps.then_some(maps_mean.as_slice());
     write_infer_result(plan, dir, id, &result, maps, shared.as_ref())

@@ -42,8 +42,8 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
             stop.store(true, Ordering::SeqCst);
         }
     };
-    let e =
-        pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::All, &stop, &events).unwrap_err();
+    let e = pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::All, &stop, &events)
+        .unwrap_err();
     assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
     let checkpoint = plan.checkpoint_path(&out, 0);
     let file = pvrnn_core::io::TensorFile::open(&checkpoint).unwrap();
@@ -52,10 +52,11 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
 
     // Running network 0 resumes its training and does its inference runs, nothing else.
     let go = AtomicBool::new(false);
-    let e = pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::Network(2), &go, &|_| {})
+    let e = pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Network(2), &go, &|_| {})
         .unwrap_err();
     assert!(e.to_string().contains("networks 0..1"), "{e:#}");
-    pvrnn_experiment::run::run(&out, &cpu(), 2, Selection::Network(0), &go, &|_| {}).unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 2, Selection::Network(0), &go, &|_| {})
+        .unwrap();
     let of_network_0 = Selection::Network(0).jobs(&plan);
     assert_eq!(of_network_0.len(), 1 + 2 * 6 * 2);
     for (i, job) in plan.jobs.iter().enumerate() {
@@ -68,9 +69,14 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
     }
 
     // Running again does everything else, two jobs at a time.
-    pvrnn_experiment::run::run(&out, &cpu(), 2, Selection::All, &go, &|_| {}).unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 2, Selection::All, &go, &|_| {}).unwrap();
     assert!((0..plan.jobs.len()).all(|i| plan.is_done(&out, i)));
     let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
+    assert_eq!(
+        trained.backend.as_deref(),
+        Some("cpu"),
+        "what trained it is recorded"
+    );
     assert_eq!(trained.iterations, 20);
     let log = std::fs::read_to_string(checkpoint.with_extension("log.csv")).unwrap();
     let iterations: Vec<u64> = log
@@ -146,7 +152,7 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
     }
 
     // One job for a cluster task: a done job is skipped; cluster scripts cover the rest.
-    pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::Job(5), &go, &|_| {
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(5), &go, &|_| {
         panic!("job 5 is done")
     })
     .unwrap();
@@ -186,6 +192,7 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
         pvrnn_experiment::run::run(
             &out,
             &cpu(),
+            "cpu",
             1,
             Selection::All,
             &AtomicBool::new(false),
@@ -323,7 +330,7 @@ fn shared_networks_compute_each_run_once() {
                 inferred.fetch_add(1, Ordering::SeqCst);
             }
         };
-        pvrnn_experiment::run::run(&out, &cpu(), 1, Selection::All, &go, &events).unwrap();
+        pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::All, &go, &events).unwrap();
         let runs = plan
             .jobs
             .iter()

@@ -46,8 +46,69 @@ pub(crate) struct ResidentKey {
     pub(crate) chunk_rows: usize,
 }
 
-/// One modality's resident targets: a buffer per chunk of rows.
-pub(crate) type Resident = Option<(ResidentKey, Arc<Vec<wgpu::Buffer>>)>;
+/// Targets kept on the device, for every run that used them lately: several trainings or
+/// inference runs may share one GPU (`pvrnn experiment --jobs N --backend wgpu`), and one
+/// slot per modality would re-upload each run's targets whenever another ran in between.
+#[derive(Debug, Default)]
+pub(crate) struct ResidentTargets {
+    entries: Vec<ResidentEntry>,
+    /// Look-ups so far: the clock that says which entries are stale.
+    clock: u64,
+    uploads: u64,
+}
+
+#[derive(Debug)]
+struct ResidentEntry {
+    modality: usize,
+    key: ResidentKey,
+    chunks: Arc<Vec<wgpu::Buffer>>,
+    last_used: u64,
+}
+
+impl ResidentTargets {
+    /// An entry not used in this many look-ups is freed: a run that ended, an inference
+    /// step's window after the next step. Every live run looks its targets up once per
+    /// modality per iteration or update, so this keeps up to about 30 runs at once.
+    const STALE_AFTER: u64 = 64;
+    /// At most this many entries stay, the least recently used going first.
+    const MAX_ENTRIES: usize = 32;
+
+    /// The targets under `key`, made by `upload` if they are not on the device.
+    pub(crate) fn get_or_upload(
+        &mut self,
+        modality: usize,
+        key: ResidentKey,
+        upload: impl FnOnce() -> Vec<wgpu::Buffer>,
+    ) -> Arc<Vec<wgpu::Buffer>> {
+        self.clock += 1;
+        let now = self.clock;
+        self.entries
+            .retain(|e| now - e.last_used <= Self::STALE_AFTER);
+        if let Some(e) = self
+            .entries
+            .iter_mut()
+            .find(|e| e.modality == modality && e.key == key)
+        {
+            e.last_used = now;
+            return e.chunks.clone();
+        }
+        while self.entries.len() >= Self::MAX_ENTRIES {
+            let oldest = (0..self.entries.len())
+                .min_by_key(|&i| self.entries[i].last_used)
+                .unwrap_or(0);
+            self.entries.swap_remove(oldest);
+        }
+        self.uploads += 1;
+        let chunks = Arc::new(upload());
+        self.entries.push(ResidentEntry {
+            modality,
+            key,
+            chunks: chunks.clone(),
+            last_used: now,
+        });
+        chunks
+    }
+}
 
 /// An open GPU: device, queue and kernels, shared by every model loaded on it.
 #[derive(Debug)]
@@ -57,9 +118,9 @@ pub struct Gpu {
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
-    /// Per modality, the targets of the latest resident key (learning's data, uploaded
-    /// once per run; an inference step's window, once per step); a new key replaces them.
-    pub(crate) resident: Mutex<[Resident; 2]>,
+    /// Targets kept on the device (learning's data, uploaded once per run; an inference
+    /// step's window, once per step).
+    pub(crate) resident: Mutex<ResidentTargets>,
     pool: Arc<BufferPool>,
     read_backs: AtomicU64,
 }
@@ -94,7 +155,7 @@ impl Gpu {
             info,
             kernels: Mutex::new(HashMap::new()),
             recurrence_kernels: OnceLock::new(),
-            resident: Mutex::new([None, None]),
+            resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
         })
@@ -115,6 +176,12 @@ impl Gpu {
     /// that work really ran here.
     pub fn read_backs(&self) -> u64 {
         self.read_backs.load(Ordering::Relaxed)
+    }
+
+    /// Resident target sets uploaded so far (each modality's count separately): how a test
+    /// sees that runs sharing the GPU keep their data there.
+    pub fn resident_uploads(&self) -> u64 {
+        self.resident.lock().map_or(0, |r| r.uploads)
     }
 
     pub(crate) fn count_read_back(&self) {

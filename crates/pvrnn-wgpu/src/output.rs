@@ -149,7 +149,7 @@ impl GpuOutputLayer {
     }
 
     /// The targets of `key` on the device, uploaded on first use (one buffer per chunk of
-    /// rows) and kept until another run's replace them.
+    /// rows) and kept while their run goes on (`ResidentTargets`).
     fn resident_targets(
         &self,
         modality: Modality,
@@ -157,30 +157,21 @@ impl GpuOutputLayer {
         targets: &[&[f32]],
     ) -> Arc<Vec<wgpu::Buffer>> {
         let mut resident = self.gpu.resident.lock().unwrap_or_else(|e| e.into_inner());
-        let slot = &mut resident[modality.index()];
-        if let Some((k, chunks)) = slot.as_ref()
-            && *k == key
-        {
-            return chunks.clone();
-        }
-        // Free the old run's targets before allocating the new ones.
-        *slot = None;
-        let chunks: Vec<wgpu::Buffer> = targets
-            .chunks(key.chunk_rows)
-            .map(|rows| {
-                // Long-lived (not pooled): they stay until another key replaces them.
-                self.gpu
-                    .device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("resident targets"),
-                        contents: bytemuck::cast_slice(&packed(rows, key.columns)),
-                        usage: wgpu::BufferUsages::STORAGE,
-                    })
-            })
-            .collect();
-        let chunks = Arc::new(chunks);
-        *slot = Some((key, chunks.clone()));
-        chunks
+        resident.get_or_upload(modality.index(), key, || {
+            targets
+                .chunks(key.chunk_rows)
+                .map(|rows| {
+                    // Long-lived (not pooled): they stay while their run uses them.
+                    self.gpu
+                        .device
+                        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                            label: Some("resident targets"),
+                            contents: bytemuck::cast_slice(&packed(rows, key.columns)),
+                            usage: wgpu::BufferUsages::STORAGE,
+                        })
+                })
+                .collect()
+        })
     }
 
     fn chunk_limit(&self) -> usize {

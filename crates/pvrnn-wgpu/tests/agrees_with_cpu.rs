@@ -126,7 +126,8 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
 }
 
 /// Learning's targets stay on the GPU between iterations (keyed by the observations' id):
-/// the same data again reuses them, other data replaces them, and both agree with the CPU.
+/// the same data again reuses them, other data is uploaded beside them (runs sharing one
+/// GPU keep theirs), data unused for a while is freed, and everything agrees with the CPU.
 #[test]
 fn resident_targets_follow_the_data() {
     let Some(gpu) = gpu() else { return };
@@ -151,7 +152,7 @@ fn resident_targets_follow_the_data() {
         .unwrap()
     };
     assert_ne!(first.id(), second.id());
-    for data in [&first, &first, &second, &first] {
+    let agree = |data: &Observations<f32>| {
         let (cpu, _) = free_energy(&CpuBackend, &model, data, draw, false).unwrap();
         let (on_gpu, _) = free_energy(&gpu, &model, data, draw, false).unwrap();
         assert!(
@@ -160,7 +161,27 @@ fn resident_targets_follow_the_data() {
             cpu.total,
             on_gpu.total
         );
+    };
+    let uploads = || gpu.gpu().resident_uploads();
+    agree(&first);
+    // One upload per modality whose output layer runs on the GPU.
+    let per_data = uploads();
+    assert!(per_data > 0);
+    for data in [&first, &second, &first, &second] {
+        agree(data);
     }
+    assert_eq!(
+        uploads(),
+        2 * per_data,
+        "alternating data re-uploaded its targets"
+    );
+    // The first data's targets go once unused for long enough; using it again uploads them.
+    for _ in 0..40 {
+        agree(&second);
+    }
+    assert_eq!(uploads(), 2 * per_data);
+    agree(&first);
+    assert_eq!(uploads(), 3 * per_data, "stale targets were not freed");
 }
 
 #[test]

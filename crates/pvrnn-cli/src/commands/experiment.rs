@@ -140,6 +140,8 @@ pub fn run(a: Args) -> Result<()> {
         if a.backend.backend != crate::util::BackendKind::Cpu {
             eprintln!("backend: {backend_name}");
         }
+        // Recorded in every result: times and f32 rounding depend on it.
+        let computed_by = format!("{backend_name}, {} threads", rayon::current_num_threads());
         let stop = Arc::new(AtomicBool::new(false));
         {
             let flag = stop.clone();
@@ -207,8 +209,15 @@ pub fn run(a: Args) -> Result<()> {
                 }
             }
         };
-        let result =
-            pvrnn_experiment::run::run(&a.out, &backend, a.jobs, selection, &stop, &events);
+        let result = pvrnn_experiment::run::run(
+            &a.out,
+            &backend,
+            &computed_by,
+            a.jobs,
+            selection,
+            &stop,
+            &events,
+        );
         bar.finish_and_clear();
         if let Err(e) = result {
             if e.downcast_ref::<Interrupted>().is_some() {

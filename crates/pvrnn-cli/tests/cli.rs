@@ -491,6 +491,103 @@ fn train_and_infer_run_on_the_wgpu_backend() {
     );
 }
 
+/// An experiment on the wgpu backend, two jobs at once sharing one device (lavapipe where
+/// there is no GPU): every training and inference run gives the CPU backend's numbers to
+/// f32 summation order, and every result says what computed it.
+#[test]
+fn an_experiment_runs_on_the_wgpu_backend_with_jobs_sharing_the_device() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let x = Scratch::new();
+    pvrnn_dataset::synthetic::caresim_like(&[590, 650, 710], 3, 1, 24)
+        .unwrap()
+        .write(&x.path("ds"))
+        .unwrap();
+    let run = |backend: &str| {
+        let out = x.s(backend);
+        let err = logged(
+            &[
+                "--threads",
+                "2",
+                "experiment",
+                "interference",
+                "--scale",
+                "smoke",
+                "--dataset",
+                &x.s("ds"),
+                "--out",
+                &out,
+                "--network",
+                "0",
+                "--jobs",
+                "2",
+                "--backend",
+                backend,
+            ],
+            "60",
+        );
+        let trainings = std::fs::read_to_string(x.path(&format!("{backend}/report/trainings.csv")))
+            .unwrap_or_else(|e| panic!("{e}: {err}"));
+        let mut table = csv::Reader::from_reader(trainings.as_bytes());
+        let header = table.headers().unwrap().clone();
+        let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+        let (job, free_energy, by) = (
+            column("job"),
+            column("final_free_energy"),
+            column("backend"),
+        );
+        let mut rows: Vec<(String, f64, String)> = table
+            .records()
+            .map(|r| {
+                let r = r.unwrap();
+                (
+                    r[job].to_string(),
+                    r[free_energy].parse().unwrap(),
+                    r[by].to_string(),
+                )
+            })
+            .collect();
+        rows.sort_by(|a, b| a.0.cmp(&b.0));
+        let trials =
+            std::fs::read_to_string(x.path(&format!("{backend}/report/trials.csv"))).unwrap();
+        let mut table = csv::Reader::from_reader(trials.as_bytes());
+        let header = table.headers().unwrap().clone();
+        let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+        let (job, error) = (column("job"), column("error_proprio"));
+        let mut errors: Vec<(String, f64)> = table
+            .records()
+            .map(|r| {
+                let r = r.unwrap();
+                (r[job].to_string(), r[error].parse().unwrap())
+            })
+            .collect();
+        errors.sort_by(|a, b| a.0.cmp(&b.0));
+        (rows, errors)
+    };
+    let (cpu, cpu_errors) = run("cpu");
+    let (gpu, gpu_errors) = run("wgpu");
+    assert_eq!(cpu.len(), 4, "network 0's 4 conditions");
+    assert_eq!(gpu_errors.len(), cpu_errors.len());
+    for ((name, f_cpu, by_cpu), (_, f_gpu, by_gpu)) in cpu.iter().zip(&gpu) {
+        assert!(
+            by_cpu.starts_with("cpu, ") && by_gpu.starts_with("wgpu on "),
+            "{by_cpu} / {by_gpu}"
+        );
+        // 20 iterations of RAdam from the same start: f32 summation order only.
+        assert!(
+            (f_cpu - f_gpu).abs() <= 1e-4 * f_cpu.abs(),
+            "{name}: cpu F {f_cpu}, wgpu F {f_gpu}"
+        );
+    }
+    for ((name, e_cpu), (_, e_gpu)) in cpu_errors.iter().zip(&gpu_errors) {
+        assert!(
+            (e_cpu - e_gpu).abs() <= 1e-3 * e_cpu.abs(),
+            "{name}: cpu error {e_cpu}, wgpu error {e_gpu}"
+        );
+    }
+}
+
 /// `pvrnn bench --profile` says where a training iteration's time goes: phases that
 /// nest inside `evaluate`, each a non-negative number of milliseconds.
 #[test]
@@ -1274,23 +1371,28 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
         !diverged.is_empty() && diverged.iter().all(|d| d["network"] == 1),
         "{summary}"
     );
-    // The tidy table keeps every run; a diverged one says where and has no scores.
-    let trials = std::fs::read_to_string(x.path("unc/report/trials.csv")).unwrap();
-    let header: Vec<&str> = trials.lines().next().unwrap().split(',').collect();
-    // Counted from the end: the condition column is quoted and holds a comma.
-    let from_end = header.len()
-        - header
-            .iter()
-            .position(|h| *h == "diverged_at_step")
-            .unwrap();
-    let flagged = trials
-        .lines()
-        .skip(1)
-        .filter(|l| {
-            let fields: Vec<&str> = l.split(',').collect();
-            !fields[fields.len() - from_end].is_empty()
-        })
-        .count();
+    // The tidy table keeps every run; a diverged one says where and has no scores, and
+    // every row says what computed it.
+    let mut trials = csv::Reader::from_path(x.path("unc/report/trials.csv")).unwrap();
+    let header = trials.headers().unwrap().clone();
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (at_step, error, backend) = (
+        column("diverged_at_step"),
+        column("error_proprio"),
+        column("backend"),
+    );
+    let rows: Vec<csv::StringRecord> = trials.records().map(Result::unwrap).collect();
+    let flagged = rows.iter().filter(|r| !r[at_step].is_empty()).count();
+    assert!(
+        rows.iter()
+            .all(|r| r[at_step].is_empty() != r[error].is_empty()),
+        "a diverged run has no scores, every other run has"
+    );
+    assert!(
+        rows.iter().all(|r| r[backend].starts_with("cpu, ")),
+        "backend column"
+    );
+    let trials = format!("{} rows", rows.len());
     assert_eq!(flagged, diverged.len(), "{trials}");
     // A second experiment sharing the networks folder trains nothing.
     let shared = x.s("shared");

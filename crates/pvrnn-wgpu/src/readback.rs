@@ -1,7 +1,8 @@
 //! Reading results back from the device: one mappable copy per call, as a future.
 //!
-//! Natively the device is polled until the copy lands, so the future is ready at its first
-//! poll and synchronous callers finish it with [`pvrnn_core::deferred::now`]. WebGPU maps
+//! Natively the device is polled until the copy is mapped (also when another thread's poll
+//! maps it), so the future is ready at its first poll and synchronous callers finish it
+//! with [`pvrnn_core::deferred::now`]. WebGPU maps
 //! the copy when the browser's event loop runs: the future wakes its task then.
 
 use std::future::Future;
@@ -49,8 +50,16 @@ pub(crate) fn read_back(
     #[cfg(not(target_arch = "wasm32"))]
     {
         let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
-        if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
-            panic!("waiting for the GPU failed: {e}");
+        loop {
+            if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
+                panic!("waiting for the GPU failed: {e}");
+            }
+            if state.lock().map_or(true, |s| s.result.is_some()) {
+                break;
+            }
+            // Runs sharing the device (`--jobs N`): another thread's poll took this copy's
+            // mapping and is about to call back; ours returned first, with nothing left.
+            std::thread::yield_now();
         }
     }
     ReadBack {

@@ -184,6 +184,39 @@ fn resident_targets_follow_the_data() {
     assert_eq!(uploads(), 3 * per_data, "stale targets were not freed");
 }
 
+/// Runs sharing one device from several threads (`pvrnn experiment --jobs N --backend
+/// wgpu`): each gets its own results. (One thread's poll of the device can map another's
+/// read-back; the other must still wait for it, not find it missing.)
+#[test]
+fn threads_sharing_the_device_each_get_their_own_results() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 3 }, 0);
+    let runs: Vec<(Model<f32>, Observations<f32>)> = (0..4)
+        .map(|k| {
+            let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 2, 8, 10 + k).unwrap();
+            (model, observations(&config, 2, 8))
+        })
+        .collect();
+    std::thread::scope(|scope| {
+        for (model, data) in &runs {
+            let gpu = &gpu;
+            scope.spawn(move || {
+                let (cpu, _) = free_energy(&CpuBackend, model, data, draw, true).unwrap();
+                for _ in 0..200 {
+                    let (on_gpu, _) = free_energy(gpu, model, data, draw, true).unwrap();
+                    assert!(
+                        (cpu.total - on_gpu.total).abs() <= 1e-5 * cpu.total.abs(),
+                        "cpu {} gpu {}",
+                        cpu.total,
+                        on_gpu.total
+                    );
+                }
+            });
+        }
+    });
+}
+
 #[test]
 fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
     let Some(gpu) = gpu() else { return };

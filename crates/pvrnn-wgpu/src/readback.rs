@@ -33,7 +33,9 @@ pub(crate) fn read_back(
     // The profile's innermost phases (every read-back counts in them, the recurrence's
     // too): where a round trip's latency goes.
     let submit_phase = pvrnn_core::profile::phase("      GPU: submit");
-    gpu.queue.submit([encoder.finish()]);
+    let submitted = gpu.queue.submit([encoder.finish()]);
+    #[cfg(target_arch = "wasm32")]
+    let _ = submitted; // the browser maps it through its event loop
     drop(submit_phase);
     gpu.count_read_back();
     let state = Arc::new(Mutex::new(MapState::default()));
@@ -50,8 +52,14 @@ pub(crate) fn read_back(
     #[cfg(not(target_arch = "wasm32"))]
     {
         let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
+        // This submission only (and those before it), not whatever another thread sharing
+        // the device submitted since (the explorer's renderer draws on it).
+        let ours = wgpu::PollType::Wait {
+            submission_index: Some(submitted),
+            timeout: None,
+        };
         loop {
-            if let Err(e) = gpu.device.poll(wgpu::PollType::wait_indefinitely()) {
+            if let Err(e) = gpu.device.poll(ours.clone()) {
                 panic!("waiting for the GPU failed: {e}");
             }
             if state.lock().map_or(true, |s| s.result.is_some()) {

@@ -182,8 +182,14 @@ impl ExplorerApp {
                 let saved = png_bytes(&image)
                     .and_then(|png| std::fs::write(&path, png).map_err(|e| e.to_string()));
                 match saved {
-                    // The renderer too: the smoke tests check which one drew the picture.
-                    Ok(()) => eprintln!("saved {} ({})", path.display(), self.renderer_label),
+                    // The renderer and the compute backend too: the smoke tests check which
+                    // drew the picture and which computed its live run.
+                    Ok(()) => eprintln!(
+                        "saved {} ({}; {})",
+                        path.display(),
+                        self.renderer_label,
+                        self.compute_label
+                    ),
                     Err(e) => eprintln!("cannot save {}: {e}", path.display()),
                 }
                 ctx.send_viewport_cmd(egui::ViewportCommand::Close);

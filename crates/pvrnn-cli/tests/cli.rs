@@ -574,6 +574,8 @@ fn an_experiment_runs_on_the_wgpu_backend_with_jobs_sharing_the_device() {
     let (cpu, cpu_errors) = run("cpu");
     let (gpu, gpu_errors) = run("wgpu");
     assert_eq!(cpu.len(), 4, "network 0's 4 conditions");
+    assert_eq!(gpu.len(), cpu.len());
+    assert!(!cpu_errors.is_empty());
     assert_eq!(gpu_errors.len(), cpu_errors.len());
     for ((name, f_cpu, by_cpu), (_, f_gpu, by_gpu)) in cpu.iter().zip(&gpu) {
         assert!(

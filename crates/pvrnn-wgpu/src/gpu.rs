@@ -62,16 +62,23 @@ struct ResidentEntry {
     modality: usize,
     key: ResidentKey,
     chunks: Arc<Vec<wgpu::Buffer>>,
+    /// The look-up clock and the time at its last use.
     last_used: u64,
+    last_used_at: web_time::Instant,
 }
 
 impl ResidentTargets {
-    /// An entry not used in this many look-ups is freed: a run that ended, an inference
-    /// step's window after the next step. Every live run looks its targets up once per
-    /// modality per iteration or update, so this keeps up to about 30 runs at once.
-    const STALE_AFTER: u64 = 64;
-    /// At most this many entries stay, the least recently used going first.
-    const MAX_ENTRIES: usize = 32;
+    /// An entry is freed once unused both for this many look-ups (of any run) and for
+    /// [`Self::STALE_AFTER`]: a run that ended, an inference step's window a second after
+    /// its step. Both, because look-ups alone would let a fast run (an online inference
+    /// looks up about 2 x 50 times per step) evict a slow one's data between its
+    /// iterations, and time alone would drop a lone slow run's data (a learning
+    /// iteration on a CPU adapter takes seconds) when nothing else needs the room.
+    const STALE_AFTER_LOOKUPS: u64 = 64;
+    const STALE_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
+    /// At most this many entries (a run has one per modality on the GPU) stay, the least
+    /// recently used going first.
+    const MAX_ENTRIES: usize = 64;
 
     /// The targets under `key`, made by `upload` if they are not on the device.
     pub(crate) fn get_or_upload(
@@ -81,15 +88,18 @@ impl ResidentTargets {
         upload: impl FnOnce() -> Vec<wgpu::Buffer>,
     ) -> Arc<Vec<wgpu::Buffer>> {
         self.clock += 1;
-        let now = self.clock;
-        self.entries
-            .retain(|e| now - e.last_used <= Self::STALE_AFTER);
+        let (now, now_at) = (self.clock, web_time::Instant::now());
+        self.entries.retain(|e| {
+            now - e.last_used <= Self::STALE_AFTER_LOOKUPS
+                || now_at.duration_since(e.last_used_at) <= Self::STALE_AFTER
+        });
         if let Some(e) = self
             .entries
             .iter_mut()
             .find(|e| e.modality == modality && e.key == key)
         {
             e.last_used = now;
+            e.last_used_at = now_at;
             return e.chunks.clone();
         }
         while self.entries.len() >= Self::MAX_ENTRIES {
@@ -105,6 +115,7 @@ impl ResidentTargets {
             key,
             chunks: chunks.clone(),
             last_used: now,
+            last_used_at: now_at,
         });
         chunks
     }

@@ -175,8 +175,11 @@ fn resident_targets_follow_the_data() {
         2 * per_data,
         "alternating data re-uploaded its targets"
     );
-    // The first data's targets go once unused for long enough; using it again uploads them.
-    for _ in 0..40 {
+    // The first data's targets go once unused for long enough (a second, and 64 look-ups
+    // of any data: more than 64 calls, whichever output layers run here); using it again
+    // uploads them.
+    std::thread::sleep(std::time::Duration::from_millis(1100));
+    for _ in 0..70 {
         agree(&second);
     }
     assert_eq!(uploads(), 2 * per_data);

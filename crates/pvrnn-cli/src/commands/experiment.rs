@@ -141,7 +141,15 @@ pub fn run(a: Args) -> Result<()> {
             eprintln!("backend: {backend_name}");
         }
         // Recorded in every result: times and f32 rounding depend on it.
-        let computed_by = format!("{backend_name}, {} threads", rayon::current_num_threads());
+        let computed_by = format!(
+            "{backend_name}, {} threads{}",
+            rayon::current_num_threads(),
+            if a.jobs > 1 {
+                format!(" shared by {} jobs at once", a.jobs)
+            } else {
+                String::new()
+            }
+        );
         let stop = Arc::new(AtomicBool::new(false));
         {
             let flag = stop.clone();

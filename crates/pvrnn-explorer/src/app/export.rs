@@ -182,8 +182,8 @@ impl ExplorerApp {
                 let saved = png_bytes(&image)
                     .and_then(|png| std::fs::write(&path, png).map_err(|e| e.to_string()));
                 match saved {
-                    // The renderer and the compute backend too: the smoke tests check which
-                    // drew the picture and which computed its live run.
+                    // The renderer (the smoke tests check which drew the picture) and what
+                    // computed its live run.
                     Ok(()) => eprintln!(
                         "saved {} ({}; {})",
                         path.display(),

@@ -346,6 +346,12 @@ pub struct BackendArgs {
     /// real GPU against the CPU's recurrence (docs/gpu.md), hence off by default.
     #[arg(long)]
     pub gpu_recurrence: bool,
+    /// With `--backend wgpu`: upload the weights and read their gradients back every
+    /// learning iteration, updating them on the CPU, instead of keeping the output layers'
+    /// weights and optimiser state on the GPU for the whole run (the default). For
+    /// comparing the two on one machine; results agree to f32 rounding.
+    #[arg(long)]
+    pub weights_on_host: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -355,6 +361,22 @@ pub enum BackendKind {
 }
 
 impl BackendArgs {
+    /// `--backend`'s value and options as written on a command line ("wgpu
+    /// --gpu-recurrence"), for the commands a Slurm script runs.
+    pub fn flags(&self) -> String {
+        let mut flags = match self.backend {
+            BackendKind::Cpu => "cpu".to_string(),
+            BackendKind::Wgpu => "wgpu".to_string(),
+        };
+        if self.gpu_recurrence {
+            flags.push_str(" --gpu-recurrence");
+        }
+        if self.weights_on_host {
+            flags.push_str(" --weights-on-host");
+        }
+        flags
+    }
+
     /// Opens the backend and says in words what it runs on ("cpu" or the GPU adapter).
     pub fn open(&self) -> Result<(Box<dyn pvrnn_core::backend::Backend<f32>>, String)> {
         Ok(match self.backend {
@@ -362,15 +384,22 @@ impl BackendArgs {
                 if self.gpu_recurrence {
                     bail!("--gpu-recurrence needs --backend wgpu");
                 }
+                if self.weights_on_host {
+                    bail!("--weights-on-host needs --backend wgpu");
+                }
                 (Box::new(pvrnn_core::cpu::CpuBackend), "cpu".to_string())
             }
             BackendKind::Wgpu => {
                 let gpu = pvrnn_wgpu::WgpuBackend::new()
                     .context("--backend wgpu")?
-                    .with_recurrence_on_gpu(self.gpu_recurrence);
+                    .with_recurrence_on_gpu(self.gpu_recurrence)
+                    .with_resident_learning(!self.weights_on_host);
                 let mut name = format!("wgpu on {}", gpu.adapter_name());
                 if self.gpu_recurrence {
                     name.push_str(", recurrence on the GPU");
+                }
+                if self.weights_on_host {
+                    name.push_str(", weights on the host");
                 }
                 (Box::new(gpu), name)
             }

@@ -13,7 +13,8 @@ use crate::Real;
 use crate::config::{Modality, ModelConfig};
 use crate::data::{Ablation, Observed};
 use crate::deferred::Deferred;
-use crate::params::Params;
+use crate::optim::{RAdam, RAdamStep};
+use crate::params::{Model, Params};
 
 /// Where the adaptive variables of a window come from.
 #[derive(Clone, Copy, Debug)]
@@ -128,6 +129,14 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
     /// Prepares a set of weights for evaluation. Weights are fixed for the loaded model's
     /// lifetime: learning loads once per iteration, inference once per run.
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>>;
+
+    /// A learning run's weights kept on the backend's device between iterations (see
+    /// [`Learner`]), starting from `model` and `optimizer`; `None` (the default, and the
+    /// CPU's answer) loads the weights every iteration and updates them on the host.
+    fn learner(&self, model: &Model<T>, optimizer: &RAdam<T>) -> Option<Box<dyn Learner<T>>> {
+        let _ = (model, optimizer);
+        None
+    }
 }
 
 /// A shared backend is a backend (one GPU serving several trainings and inference runs).
@@ -135,6 +144,34 @@ impl<T: Real> Backend<T> for std::sync::Arc<dyn Backend<T>> {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>> {
         (**self).load(params, config)
     }
+
+    fn learner(&self, model: &Model<T>, optimizer: &RAdam<T>) -> Option<Box<dyn Learner<T>>> {
+        (**self).learner(model, optimizer)
+    }
+}
+
+/// Learning with some trainable tensors and their optimiser moments resident on a device:
+/// uploaded once, their gradients computed and their RAdam update applied there, so that an
+/// iteration moves neither those weights up nor their gradients back (at the paper's scale
+/// the vision output layer: 1.6 M of the model's 1.7 M weights). [`crate::train::Trainer`]
+/// drives it: it evaluates through the learner (a [`Backend`] whose loaded models use the
+/// device's copies of the resident tensors and leave their gradients there), calls
+/// [`Self::update`] with the step's scalars, updates the other tensors on the host, and
+/// downloads the resident ones before anything reads the model or the optimiser.
+pub trait Learner<T: Real>: Backend<T> {
+    /// The resident tensors, as indices into [`crate::train::trainable_names`]' order. The
+    /// host's copies of them (values and moments) are stale until [`Self::download`], and a
+    /// loaded model's gradient for them is not computed on the host (it reads zero).
+    fn resident(&self) -> &[usize];
+
+    /// Queues one RAdam step of the resident tensors on the device, with the gradients of
+    /// the last evaluation with weight gradients (zero for a tensor it did not reach, as on
+    /// the host). Models loaded afterwards see the new values.
+    fn update(&self, step: &RAdamStep);
+
+    /// Copies resident tensor `index` (one of [`Self::resident`]) and its two moments from
+    /// the device into the host's slices.
+    fn download(&self, index: usize, value: &mut [T], m: &mut [T], v: &mut [T]);
 }
 
 /// Weights ready for evaluation on one backend. Everything the model computes goes through

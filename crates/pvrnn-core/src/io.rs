@@ -463,14 +463,16 @@ struct TrainingState {
 /// Saves a learning run: the model (loadable as a model) plus optimiser moments.
 pub fn save_checkpoint<T: Real>(
     path: &Path,
-    trainer: &Trainer<T>,
+    trainer: &mut Trainer<T>,
     last: Option<FreeEnergy>,
 ) -> Result<()> {
-    let mut tensors = model_tensors(&trainer.model, false);
-    for ((name, m), v) in trainable_names(&trainer.model)
+    let (iteration, noise) = (trainer.iteration, trainer.noise);
+    let (model, optimizer) = trainer.state();
+    let mut tensors = model_tensors(model, false);
+    for ((name, m), v) in trainable_names(model)
         .into_iter()
-        .zip(&trainer.optimizer.m)
-        .zip(&trainer.optimizer.v)
+        .zip(&optimizer.m)
+        .zip(&optimizer.v)
     {
         let f = |x: &Vec<T>| {
             OutTensor::F32(
@@ -481,11 +483,11 @@ pub fn save_checkpoint<T: Real>(
         tensors.insert(format!("{OPTIMIZER_PREFIX}m.{name}"), f(m));
         tensors.insert(format!("{OPTIMIZER_PREFIX}v.{name}"), f(v));
     }
-    let mut meta = model_metadata(&trainer.model.config, CHECKPOINT_FORMAT);
+    let mut meta = model_metadata(&model.config, CHECKPOINT_FORMAT);
     let state = TrainingState {
-        iteration: trainer.iteration,
-        optimizer_step: trainer.optimizer.step,
-        noise: trainer.noise,
+        iteration,
+        optimizer_step: optimizer.step,
+        noise,
         last_free_energy: last,
     };
     meta.insert(

@@ -36,6 +36,16 @@ impl<T: Real> RAdam<T> {
     pub fn update(&mut self, params: &mut [&mut [T]], grads: &[&[T]]) {
         assert_eq!(params.len(), self.m.len());
         assert_eq!(grads.len(), self.m.len());
+        let step = self.begin_step();
+        for (i, (p, g)) in params.iter_mut().zip(grads).enumerate() {
+            self.apply(&step, i, p, g);
+        }
+    }
+
+    /// Counts one more update and returns its scalars: [`Self::update`] in two parts, so that
+    /// a learner may apply the same step to tensors it keeps elsewhere (on a GPU) and the
+    /// host applies it to the rest with [`Self::apply`].
+    pub fn begin_step(&mut self) -> RAdamStep {
         self.step += 1;
         let c = &self.config;
         let t = self.step as f64;
@@ -49,42 +59,55 @@ impl<T: Real> RAdam<T> {
             ((rho_t - 4.0) * (rho_t - 2.0) * rho_inf / ((rho_inf - 4.0) * (rho_inf - 2.0) * rho_t))
                 .sqrt()
         });
-        let (b1, b2) = (T::from_f64(c.beta1), T::from_f64(c.beta2));
-        let (one_b1, one_b2) = (T::from_f64(1.0 - c.beta1), T::from_f64(1.0 - c.beta2));
-        let wd = T::from_f64(c.weight_decay);
-        let eps = T::from_f64(c.eps);
-        let sqrt_bias2 = T::from_f64(bias2.sqrt());
-        let step_plain = T::from_f64(c.lr / bias1);
-        let step_rect = rect.map(|r| T::from_f64(c.lr / bias1 * r));
-        let step = Step {
-            b1,
-            b2,
-            one_b1,
-            one_b2,
-            wd,
-            eps,
-            sqrt_bias2,
-            plain: step_plain,
-            rectified: step_rect,
-        };
-        let _phase = crate::profile::phase("optimiser (RAdam)");
-        for (i, p) in params.iter_mut().enumerate() {
-            let (m, v) = (&mut self.m[i], &mut self.v[i]);
-            let n = p.len();
-            crate::parallel::for_each_chunk4(
-                p,
-                &mut m[..n],
-                &mut v[..n],
-                &grads[i][..n],
-                |p, m, v, g| {
-                    crate::kernels::simd(
-                        #[inline(always)]
-                        || update_tensor(&step, p, m, v, g),
-                    )
-                },
-            );
+        RAdamStep {
+            beta1: c.beta1,
+            beta2: c.beta2,
+            weight_decay: c.weight_decay,
+            eps: c.eps,
+            sqrt_bias2: bias2.sqrt(),
+            plain: c.lr / bias1,
+            rectified: rect.map(|r| c.lr / bias1 * r),
         }
     }
+
+    /// Applies `step` (from [`Self::begin_step`]) to tensor `i`.
+    pub fn apply(&mut self, step: &RAdamStep, i: usize, p: &mut [T], g: &[T]) {
+        let s = Step {
+            b1: T::from_f64(step.beta1),
+            b2: T::from_f64(step.beta2),
+            one_b1: T::from_f64(1.0 - step.beta1),
+            one_b2: T::from_f64(1.0 - step.beta2),
+            wd: T::from_f64(step.weight_decay),
+            eps: T::from_f64(step.eps),
+            sqrt_bias2: T::from_f64(step.sqrt_bias2),
+            plain: T::from_f64(step.plain),
+            rectified: step.rectified.map(T::from_f64),
+        };
+        let _phase = crate::profile::phase("optimiser (RAdam)");
+        let (m, v) = (&mut self.m[i], &mut self.v[i]);
+        let n = p.len();
+        crate::parallel::for_each_chunk4(p, &mut m[..n], &mut v[..n], &g[..n], |p, m, v, g| {
+            crate::kernels::simd(
+                #[inline(always)]
+                || update_tensor(&s, p, m, v, g),
+            )
+        });
+    }
+}
+
+/// The scalars of one RAdam update, the same for every tensor (see [`RAdam::begin_step`]):
+/// with `g' = g + weight_decay * p`, `m = beta1 m + (1 - beta1) g'`, `v = beta2 v + (1 -
+/// beta2) g'^2`, then `p -= rectified * m * sqrt_bias2 / (sqrt(v) + eps)` when rectified,
+/// else `p -= plain * m`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RAdamStep {
+    pub beta1: f64,
+    pub beta2: f64,
+    pub weight_decay: f64,
+    pub eps: f64,
+    pub sqrt_bias2: f64,
+    pub plain: f64,
+    pub rectified: Option<f64>,
 }
 
 /// The scalars of one RAdam step.

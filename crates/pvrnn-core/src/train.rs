@@ -2,7 +2,8 @@
 //! adaptive variables.
 
 use crate::Real;
-use crate::backend::Backend;
+use crate::backend::{Backend, Learner};
+use crate::config::ModelConfig;
 use crate::cpu::CpuBackend;
 use crate::data::Observations;
 use crate::error::{Error, Result};
@@ -12,14 +13,22 @@ use crate::optim::RAdam;
 use crate::params::{Model, Role};
 
 /// A learning run: the model, its optimiser state and how far it got.
+///
+/// On a backend that keeps weights on its device between iterations ([`Learner`]) the
+/// host's copies of those go stale as it learns; the accessors ([`Self::model`],
+/// [`Self::state`], ...) bring them back first, so what they return is always current.
 #[derive(Debug)]
 pub struct Trainer<T: Real> {
-    pub model: Model<T>,
-    pub optimizer: RAdam<T>,
+    model: Model<T>,
+    optimizer: RAdam<T>,
     /// Completed iterations.
     pub iteration: u64,
     pub noise: NoiseMode,
     backend: Box<dyn Backend<T>>,
+    /// The backend's learner, made at the first step; `None` on the CPU.
+    learner: Option<Box<dyn Learner<T>>>,
+    /// Whether the learner updated its resident tensors since the host last copied them.
+    host_stale: bool,
 }
 
 /// Names of the tensors the optimiser updates, in its order.
@@ -60,6 +69,8 @@ impl<T: Real> Trainer<T> {
             iteration: 0,
             noise,
             backend: Box::new(CpuBackend),
+            learner: None,
+            host_stale: false,
         }
     }
 
@@ -90,11 +101,15 @@ impl<T: Real> Trainer<T> {
             iteration,
             noise,
             backend: Box::new(CpuBackend),
+            learner: None,
+            host_stale: false,
         })
     }
 
     /// Replaces the arithmetic backend.
     pub fn with_backend(mut self, backend: Box<dyn Backend<T>>) -> Self {
+        self.sync();
+        self.learner = None;
         self.backend = backend;
         self
     }
@@ -104,14 +119,80 @@ impl<T: Real> Trainer<T> {
         self.backend.as_ref()
     }
 
+    /// The model's configuration (never changed by learning, so never stale).
+    pub fn config(&self) -> &ModelConfig {
+        &self.model.config
+    }
+
+    /// The model as learned so far.
+    pub fn model(&mut self) -> &Model<T> {
+        self.sync();
+        &self.model
+    }
+
+    /// The model and the optimiser as learned so far (what a checkpoint holds).
+    pub fn state(&mut self) -> (&Model<T>, &RAdam<T>) {
+        self.sync();
+        (&self.model, &self.optimizer)
+    }
+
+    /// The model and the optimiser to change (a new learning rate, say): the learner's
+    /// device copies are dropped, so the next step starts from what the caller leaves.
+    pub fn state_mut(&mut self) -> (&mut Model<T>, &mut RAdam<T>) {
+        self.sync();
+        self.learner = None;
+        (&mut self.model, &mut self.optimizer)
+    }
+
+    /// The model, the run ended.
+    pub fn into_model(mut self) -> Model<T> {
+        self.sync();
+        self.model
+    }
+
+    /// Whether the backend keeps weights on its device between iterations, and which
+    /// (names, in [`trainable_names`]' order); empty before the first step or on the CPU.
+    pub fn resident_tensors(&self) -> Vec<String> {
+        let names = trainable_names(&self.model);
+        self.learner
+            .as_ref()
+            .map(|l| l.resident().iter().map(|&i| names[i].clone()).collect())
+            .unwrap_or_default()
+    }
+
+    /// Copies the learner's resident tensors and moments into the host's model and
+    /// optimiser, if it updated them since the last copy.
+    fn sync(&mut self) {
+        let Some(learner) = self.learner.as_ref().filter(|_| self.host_stale) else {
+            return;
+        };
+        let mut values: Vec<&mut [T]> = trainable_slices(&mut self.model);
+        for &i in learner.resident() {
+            learner.download(
+                i,
+                values[i],
+                &mut self.optimizer.m[i],
+                &mut self.optimizer.v[i],
+            );
+        }
+        self.host_stale = false;
+    }
+
     /// One full-batch iteration; returns the free energy at which the gradient was taken.
     pub fn step(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
         crate::parallel::in_pool(|| self.step_here(data))
     }
 
     fn step_here(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
+        if self.learner.is_none() {
+            self.learner = self.backend.learner(&self.model, &self.optimizer);
+        }
         let draw = NoiseDraw::training(self.noise, self.iteration);
-        let (report, grads) = free_energy(self.backend.as_ref(), &self.model, data, draw, true)?;
+        let evaluator: &dyn Backend<T> = match &self.learner {
+            Some(learner) => learner.as_ref(),
+            None => self.backend.as_ref(),
+        };
+        let (report, grads) = free_energy(evaluator, &self.model, data, draw, true)?;
         let grads = grads.expect("gradients requested");
         if !report.total.is_finite() {
             return Err(Error::Numerical(format!(
@@ -127,17 +208,37 @@ impl<T: Real> Trainer<T> {
             .map(|(_, t, _)| t.data())
             .collect();
         grad_slices.extend(grads.adaptive.named().into_iter().map(|(_, t)| t.data()));
-        let mut param_slices: Vec<&mut [T]> = Vec::new();
-        for (_, t, role) in self.model.params.named_mut() {
-            if role == Role::Trainable {
-                param_slices.push(t.data_mut());
+        let step = self.optimizer.begin_step();
+        let resident = self.learner.as_ref().map_or(&[][..], |l| l.resident());
+        if let Some(learner) = &self.learner {
+            let _phase = crate::profile::phase("optimiser on the device (queued)");
+            learner.update(&step);
+            self.host_stale = true;
+        }
+        for (i, (p, g)) in trainable_slices(&mut self.model)
+            .into_iter()
+            .zip(grad_slices)
+            .enumerate()
+        {
+            if !resident.contains(&i) {
+                self.optimizer.apply(&step, i, p, g);
             }
         }
-        for (_, t) in self.model.adaptive.named_mut() {
-            param_slices.push(t.data_mut());
-        }
-        self.optimizer.update(&mut param_slices, &grad_slices);
         self.iteration += 1;
         Ok(report)
     }
+}
+
+/// The trainable tensors' values, in [`trainable_names`]' order.
+fn trainable_slices<T: Real>(model: &mut Model<T>) -> Vec<&mut [T]> {
+    let mut slices: Vec<&mut [T]> = Vec::new();
+    for (_, t, role) in model.params.named_mut() {
+        if role == Role::Trainable {
+            slices.push(t.data_mut());
+        }
+    }
+    for (_, t) in model.adaptive.named_mut() {
+        slices.push(t.data_mut());
+    }
+    slices
 }

@@ -87,7 +87,7 @@ fn learning_and_inference_on(name: &str, backend: Box<dyn Backend<f32>>) {
     let inference = inference.as_ref();
     assert!(last < 0.2 * first, "free energy {first} -> {last}");
 
-    let model = Arc::new(trainer.model);
+    let model = Arc::new(trainer.into_model());
     let mut settings = InferenceSettings::from_config(&model.config, 3);
     settings.window = 8;
     settings.iterations = 20;
@@ -219,7 +219,7 @@ fn same_seed_same_result_and_zero_noise_ignores_seed() {
         let model = Model::<f32>::init(config.clone(), 2, 10, 4).unwrap();
         let mut t = Trainer::new(model, noise);
         let reports: Vec<f64> = (0..3).map(|_| t.step(&data).unwrap().total).collect();
-        (reports, t.model)
+        (reports, t.into_model())
     };
     let (a, ma) = run(NoiseMode::Sampled { seed: 1 });
     let (b, mb) = run(NoiseMode::Sampled { seed: 1 });
@@ -245,7 +245,7 @@ fn same_seed_same_result_and_zero_noise_ignores_seed() {
 #[test]
 fn ablating_a_module_changes_the_prediction() {
     let (trainer, data, _, _) = trained(60);
-    let model = Arc::new(trainer.model);
+    let model = Arc::new(trainer.into_model());
     let run = |ablation, mode| {
         let mut s = InferenceSettings::from_config(&model.config, 3);
         s.window = 6;
@@ -274,7 +274,7 @@ fn ablating_a_module_changes_the_prediction() {
 #[test]
 fn readout_ablation_rereads_the_standard_inference() {
     let (trainer, data, _, _) = trained(60);
-    let model = Arc::new(trainer.model);
+    let model = Arc::new(trainer.into_model());
     let settings = |ablation, mode| {
         let mut s = InferenceSettings::from_config(&model.config, 5);
         s.window = 4;

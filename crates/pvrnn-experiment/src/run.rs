@@ -459,8 +459,8 @@ fn train(
         Trainer::new(model, NoiseMode::Sampled { seed: *seed })
     };
     let mut trainer = trainer.with_backend(Box::new(backend.clone()));
-    let data = dataset.observations(&chosen_refs, &trainer.model.config)?;
-    pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
+    let data = dataset.observations(&chosen_refs, trainer.config())?;
+    pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
     while trainer.iteration < *iterations {
         let it = trainer.iteration;
@@ -478,7 +478,7 @@ fn train(
             || stopping
         {
             log_file.flush()?;
-            io::save_checkpoint(&checkpoint, &trainer, Some(report))?;
+            io::save_checkpoint(&checkpoint, &mut trainer, Some(report))?;
         }
         if stopping {
             return Err(Interrupted.into());

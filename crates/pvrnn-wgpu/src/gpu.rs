@@ -129,6 +129,7 @@ pub struct Gpu {
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
+    radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     /// Targets kept on the device (learning's data, uploaded once per run; an inference
     /// step's window, once per step).
     pub(crate) resident: Mutex<ResidentTargets>,
@@ -166,6 +167,7 @@ impl Gpu {
             info,
             kernels: Mutex::new(HashMap::new()),
             recurrence_kernels: OnceLock::new(),
+            radam_kernel: OnceLock::new(),
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
@@ -305,6 +307,15 @@ impl Gpu {
                         source(include_str!("shaders/recurrence_weights.wgsl")),
                     ),
                 })
+            })
+            .clone()
+    }
+
+    /// The RAdam update of a resident tensor (`shaders/radam.wgsl`), compiled on first use.
+    pub(crate) fn radam_kernel(&self) -> Arc<wgpu::ComputePipeline> {
+        self.radam_kernel
+            .get_or_init(|| {
+                Arc::new(self.pipeline("radam", include_str!("shaders/radam.wgsl").into()))
             })
             .clone()
     }

@@ -18,6 +18,7 @@
 //! free energy and every gradient against it on a CPU Vulkan device).
 
 mod gpu;
+mod learner;
 mod output;
 mod pool;
 mod readback;
@@ -27,13 +28,15 @@ mod template;
 use std::sync::Arc;
 
 use pvrnn_core::ModelConfig;
-use pvrnn_core::backend::{Backend, LoadedModel, Recurrence};
+use pvrnn_core::backend::{Backend, Learner, LoadedModel, Recurrence};
 use pvrnn_core::cpu::{CpuBackend, Offload};
-use pvrnn_core::params::Params;
+use pvrnn_core::optim::RAdam;
+use pvrnn_core::params::{Model, Params};
 
 #[cfg(not(target_arch = "wasm32"))]
 pub use gpu::probe_now;
 pub use gpu::{Gpu, GpuError, probe};
+pub use learner::GpuLearner;
 pub use output::{GpuOutputLayer, Tiling};
 pub use recurrence::GpuRecurrence;
 
@@ -43,6 +46,7 @@ pub struct WgpuBackend {
     gpu: Arc<Gpu>,
     tiling: Tiling,
     recurrence_on_gpu: bool,
+    resident_learning: bool,
 }
 
 impl WgpuBackend {
@@ -64,6 +68,7 @@ impl WgpuBackend {
             gpu,
             tiling: Tiling::default(),
             recurrence_on_gpu: false,
+            resident_learning: true,
         }
     }
 
@@ -79,6 +84,42 @@ impl WgpuBackend {
     /// Whether the recurrence runs on the GPU (see [`Self::with_recurrence_on_gpu`]).
     pub fn recurrence_on_gpu(&self) -> bool {
         self.recurrence_on_gpu
+    }
+
+    /// Whether learning keeps the output layers' weights and RAdam moments on the GPU
+    /// between iterations ([`GpuLearner`]; on by default natively). Off, every iteration
+    /// uploads the weights and reads their gradients back, and RAdam runs on the CPU: the
+    /// way to compare the two on one machine.
+    pub fn with_resident_learning(mut self, on: bool) -> Self {
+        self.resident_learning = on;
+        self
+    }
+
+    /// Whether learning keeps weights on the GPU (see [`Self::with_resident_learning`]).
+    pub fn resident_learning(&self) -> bool {
+        self.resident_learning && !cfg!(target_arch = "wasm32")
+    }
+
+    /// Loads `params` with the output layers in `resident` taken from a learner's buffers.
+    fn load_with_layers(
+        &self,
+        params: &Params<f32>,
+        config: &ModelConfig,
+        resident: &[Option<Arc<learner::ResidentLayer>>; 2],
+    ) -> Box<dyn LoadedModel<f32>> {
+        let layer = GpuOutputLayer::with_resident(self.gpu.clone(), self.tiling, params, resident);
+        let recurrence = self.recurrence_on_gpu.then(|| {
+            Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
+                as Box<dyn Recurrence<f32>>
+        });
+        CpuBackend::load_with(
+            params,
+            config,
+            Offload {
+                output_layer: Some(Box::new(layer)),
+                recurrence,
+            },
+        )
     }
 
     /// The same GPU with another cut of the work (tests use small tiles and chunks).
@@ -99,18 +140,15 @@ impl WgpuBackend {
 
 impl Backend<f32> for WgpuBackend {
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
-        let layer = GpuOutputLayer::upload(self.gpu.clone(), self.tiling, params);
-        let recurrence = self.recurrence_on_gpu.then(|| {
-            Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
-                as Box<dyn Recurrence<f32>>
-        });
-        CpuBackend::load_with(
-            params,
-            config,
-            Offload {
-                output_layer: Some(Box::new(layer)),
-                recurrence,
-            },
-        )
+        self.load_with_layers(params, config, &[None, None])
+    }
+
+    /// Natively, a [`GpuLearner`] (unless [`Self::with_resident_learning`] turned it off).
+    /// Not in the browser: bringing its weights back blocks on a read-back there.
+    fn learner(&self, model: &Model<f32>, optimizer: &RAdam<f32>) -> Option<Box<dyn Learner<f32>>> {
+        if !self.resident_learning() {
+            return None;
+        }
+        GpuLearner::new(self, model, optimizer).map(|l| Box::new(l) as Box<dyn Learner<f32>>)
     }
 }

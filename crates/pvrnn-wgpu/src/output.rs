@@ -11,6 +11,7 @@ use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
 
 use crate::gpu::{Gpu, Kernels, ResidentKey};
+use crate::learner::ResidentLayer;
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 
@@ -108,8 +109,43 @@ struct Layer {
     hidden: usize,
     dims: usize,
     has_bias: bool,
-    weight: PooledBuffer,
-    bias: PooledBuffer,
+    weights: Weights,
+}
+
+/// Where a layer's weights come from.
+#[derive(Debug)]
+enum Weights {
+    /// Uploaded for this loaded model.
+    Uploaded {
+        weight: PooledBuffer,
+        bias: PooledBuffer,
+    },
+    /// A learner's, kept on the device across iterations; weight gradients go to its
+    /// buffers instead of coming back.
+    Resident(Arc<ResidentLayer>),
+}
+
+impl Layer {
+    fn weight(&self) -> &wgpu::Buffer {
+        match &self.weights {
+            Weights::Uploaded { weight, .. } => weight,
+            Weights::Resident(r) => &r.weight,
+        }
+    }
+
+    fn bias(&self) -> &wgpu::Buffer {
+        match &self.weights {
+            Weights::Uploaded { bias, .. } => bias,
+            Weights::Resident(r) => &r.bias,
+        }
+    }
+
+    fn resident(&self) -> Option<&ResidentLayer> {
+        match &self.weights {
+            Weights::Uploaded { .. } => None,
+            Weights::Resident(r) => Some(r),
+        }
+    }
 }
 
 /// The output layers of both read-outs, uploaded to a GPU.
@@ -124,21 +160,40 @@ impl GpuOutputLayer {
     /// Uploads both output layers' weights. A layer wider than the kernels hold stays on
     /// the CPU (every call for it returns `None`).
     pub fn upload(gpu: Arc<Gpu>, tiling: Tiling, params: &Params<f32>) -> Self {
+        Self::with_resident(gpu, tiling, params, &[None, None])
+    }
+
+    /// [`Self::upload`], except that the layers in `resident` are a learner's, already on
+    /// the device (their weights in `params` are not read).
+    pub(crate) fn with_resident(
+        gpu: Arc<Gpu>,
+        tiling: Tiling,
+        params: &Params<f32>,
+        resident: &[Option<Arc<ResidentLayer>>; 2],
+    ) -> Self {
         let layers = std::array::from_fn(|mi| {
             let out = &params.readouts[mi].out;
             let (dims, hidden) = (out.weight.shape()[0], out.weight.shape()[1]);
-            if hidden == 0 || hidden > MAX_HIDDEN || dims == 0 {
+            if !fits(dims, hidden) {
                 return None;
             }
-            let zeros = vec![0f32; dims];
-            let bias = out.bias.as_ref().map_or(zeros.as_slice(), |b| b.data());
+            let weights = match &resident[mi] {
+                Some(r) => Weights::Resident(r.clone()),
+                None => {
+                    let zeros = vec![0f32; dims];
+                    let bias = out.bias.as_ref().map_or(zeros.as_slice(), |b| b.data());
+                    Weights::Uploaded {
+                        weight: gpu.upload("output weight", &pad_rows(out.weight.data(), hidden)),
+                        bias: gpu.upload("output bias", bias),
+                    }
+                }
+            };
             Some(Layer {
                 kernels: gpu.kernels(vec4s(hidden)),
                 hidden,
                 dims,
                 has_bias: out.bias.is_some(),
-                weight: gpu.upload("output weight", &pad_rows(out.weight.data(), hidden)),
-                bias: gpu.upload("output bias", bias),
+                weights,
             })
         });
         Self {
@@ -184,6 +239,11 @@ impl GpuOutputLayer {
     }
 }
 
+/// Whether the kernels hold an output layer of this shape.
+pub(crate) fn fits(dims: usize, hidden: usize) -> bool {
+    hidden > 0 && hidden <= MAX_HIDDEN && dims > 0
+}
+
 /// The first `k` values of each row, contiguous.
 fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(rows.len() * k);
@@ -194,7 +254,7 @@ fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
 }
 
 /// Rows of `width` values zero-padded to whole vec4s (the kernels' layout).
-fn pad_rows(data: &[f32], width: usize) -> Vec<f32> {
+pub(crate) fn pad_rows(data: &[f32], width: usize) -> Vec<f32> {
     let padded = 4 * vec4s(width);
     let mut out = vec![0f32; data.len() / width.max(1) * padded];
     for (src, dst) in data.chunks_exact(width).zip(out.chunks_exact_mut(padded)) {
@@ -204,7 +264,7 @@ fn pad_rows(data: &[f32], width: usize) -> Vec<f32> {
 }
 
 /// The inverse of [`pad_rows`].
-fn unpad_rows(data: &[f32], width: usize) -> Vec<f32> {
+pub(crate) fn unpad_rows(data: &[f32], width: usize) -> Vec<f32> {
     let padded = 4 * vec4s(width);
     let mut out = Vec::with_capacity(data.len() / padded * width);
     for row in data.chunks_exact(padded) {
@@ -301,16 +361,26 @@ impl OutputLayer<f32> for GpuOutputLayer {
             wgpu::BufferUsages::empty(),
         );
         let part_loss = gpu.scratch("partial loss", splits * chunk, wgpu::BufferUsages::empty());
-        let gw = gpu.scratch(
+        // A learner's layer keeps its weight gradients for its update; others read them back.
+        let learner = layer.resident().filter(|_| weight_grads);
+        let read_grads = weight_grads && learner.is_none();
+        let gw_scratch = gpu.scratch(
             "d W",
-            if weight_grads { k * 4 * hv } else { 1 },
+            if read_grads { k * 4 * hv } else { 1 },
             wgpu::BufferUsages::COPY_SRC,
         );
-        let gb = gpu.scratch(
+        let gb_scratch = gpu.scratch(
             "d b",
-            if weight_grads { k } else { 1 },
+            if read_grads { k } else { 1 },
             wgpu::BufferUsages::COPY_SRC,
         );
+        let (gw, gb): (&wgpu::Buffer, &wgpu::Buffer) = match learner {
+            Some(r) => {
+                r.gradient_rows(k);
+                (&r.grad_w, &r.grad_b)
+            }
+            None => (&gw_scratch, &gb_scratch),
+        };
         let grad_in = gpu.scratch("d input", n * 4 * hv, wgpu::BufferUsages::COPY_SRC);
         let row_loss = gpu.scratch("row loss", n, wgpu::BufferUsages::COPY_SRC);
 
@@ -343,8 +413,8 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 &[
                     &rows_params,
                     &x,
-                    &layer.weight,
-                    &layer.bias,
+                    layer.weight(),
+                    layer.bias(),
                     y,
                     &part_in,
                     &part_loss,
@@ -387,7 +457,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 let columns_group = bind(
                     gpu,
                     &layer.kernels.loss_columns,
-                    &[&columns_params, &x, &layer.weight, &layer.bias, y, &gw, &gb],
+                    &[&columns_params, &x, layer.weight(), layer.bias(), y, gw, gb],
                 );
                 dispatch(
                     &mut encoder,
@@ -405,16 +475,16 @@ impl OutputLayer<f32> for GpuOutputLayer {
         }
 
         let mut sources: Vec<(&wgpu::Buffer, usize)> = vec![(&grad_in, n * 4 * hv), (&row_loss, n)];
-        if weight_grads {
-            sources.push((&gw, k * 4 * hv));
-            sources.push((&gb, k));
+        if read_grads {
+            sources.push((gw, k * 4 * hv));
+            sources.push((gb, k));
         }
         let pending = read_back(gpu, encoder, &sources);
         drop(encode_phase);
         let (has_bias, half_over_divisor) = (layer.has_bias, 0.5 / divisor as f64);
         // The buffers the submission uses stay out of the pool until it has run.
         let used = (
-            in_flight, x, part_in, part_loss, gw, gb, grad_in, row_loss, resident,
+            in_flight, x, part_in, part_loss, gw_scratch, gb_scratch, grad_in, row_loss, resident,
         );
         Some(Box::pin(async move {
             let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
@@ -473,7 +543,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 let group = bind(
                     gpu,
                     &layer.kernels.predict,
-                    &[&params, &x, &layer.weight, &layer.bias, &out],
+                    &[&params, &x, layer.weight(), layer.bias(), &out],
                 );
                 let mut encoder = gpu.device.create_command_encoder(&Default::default());
                 dispatch(

@@ -21,6 +21,7 @@ use pvrnn_core::backend::{
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
+use pvrnn_core::train::Trainer;
 use pvrnn_core::{
     Ablation, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
 };
@@ -123,6 +124,93 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
         3,
         21,
     );
+}
+
+/// Learning with the output layers resident on the GPU (weights, biases and RAdam moments
+/// updated there, `radam.wgsl`) follows the CPU's learning iteration by iteration, through
+/// both RAdam phases (momentum only, then rectified); bringing the weights back in the
+/// middle of a run changes nothing, and a checkpoint written from the GPU's state resumes
+/// on the CPU where the GPU would have gone.
+#[test]
+fn learning_with_resident_weights_follows_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    // Small chunks: the column pass accumulates the weight gradient over several.
+    let gpu = gpu.with_tiling(Tiling {
+        target_workgroups: 4,
+        max_splits: 64,
+        max_chunk_bytes: 8 << 10,
+    });
+    assert!(gpu.resident_learning());
+    let mut config = config();
+    config.train.optimizer.weight_decay = 1e-3;
+    let data = observations(&config, 3, 21);
+    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
+    let noise = NoiseMode::Sampled { seed: 3 };
+    let mut cpu = Trainer::new(model.clone(), noise);
+    let mut on_gpu = Trainer::new(model.clone(), noise).with_backend(Box::new(gpu.clone()));
+    let mut synced = Trainer::new(model, noise).with_backend(Box::new(gpu));
+    let iterations = 10;
+    for i in 0..iterations {
+        let a = cpu.step(&data).unwrap().total;
+        let b = on_gpu.step(&data).unwrap().total;
+        let c = synced.step(&data).unwrap().total;
+        assert!(
+            (a - b).abs() <= 1e-5 * a.abs(),
+            "iteration {i}: cpu F {a}, gpu F {b}"
+        );
+        // The read-back does not disturb the device's state.
+        assert_eq!(b, c, "iteration {i}: F after bringing the weights back");
+        if i == 0 {
+            let resident = on_gpu.resident_tensors();
+            assert_eq!(
+                resident,
+                [
+                    "exteroceptive.out.weight",
+                    "exteroceptive.out.bias",
+                    "proprioceptive.out.weight",
+                ],
+                "the output layers are resident"
+            );
+        }
+        if i % 3 == 1 {
+            synced.model();
+        }
+    }
+    assert!(cpu.state().1.step > 6, "the rectified phase was reached");
+    let (cpu_model, cpu_opt) = cpu.state();
+    let (cpu_model, cpu_opt) = (cpu_model.clone(), cpu_opt.clone());
+    let names = pvrnn_core::train::trainable_names(&cpu_model);
+    {
+        let (gpu_model, gpu_opt) = on_gpu.state();
+        assert_eq!(gpu_opt.step, cpu_opt.step);
+        for ((name, a, _), (_, b, _)) in cpu_model
+            .params
+            .named()
+            .into_iter()
+            .zip(gpu_model.params.named())
+        {
+            assert_close(&name, a.data(), b.data(), 1e-4);
+        }
+        for (i, name) in names.iter().enumerate() {
+            assert_close(&format!("m of {name}"), &cpu_opt.m[i], &gpu_opt.m[i], 1e-3);
+            assert_close(&format!("v of {name}"), &cpu_opt.v[i], &gpu_opt.v[i], 1e-3);
+        }
+    }
+    // A checkpoint of the GPU run resumes on the CPU where the GPU run goes on.
+    let dir = std::env::temp_dir().join(format!("pvrnn-learner-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("checkpoint.safetensors");
+    pvrnn_core::io::save_checkpoint(&path, &mut on_gpu, None).unwrap();
+    let mut resumed = pvrnn_core::io::load_checkpoint(&path).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    for i in 0..3 {
+        let a = resumed.step(&data).unwrap().total;
+        let b = on_gpu.step(&data).unwrap().total;
+        assert!(
+            (a - b).abs() <= 1e-5 * a.abs(),
+            "resumed iteration {i}: cpu F {a}, gpu F {b}"
+        );
+    }
 }
 
 /// Learning's targets stay on the GPU between iterations (keyed by the observations' id):

@@ -205,7 +205,7 @@ pub fn run(a: Args) -> Result<()> {
         profile.push(take_profile("train", a.train_iterations));
     }
     let train_peak = peak_rss_mb();
-    let model = Arc::new(trainer.model);
+    let model = Arc::new(trainer.into_model());
 
     let (mut p16, mut full) = (None, None);
     if a.only != Some(Part::Train) {

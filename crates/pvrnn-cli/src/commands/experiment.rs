@@ -119,11 +119,7 @@ pub fn run(a: Args) -> Result<()> {
                 train_time: a.slurm_train_time,
                 infer_time: a.slurm_infer_time,
                 cpus: a.slurm_cpus,
-                backend: match (a.backend.backend, a.backend.gpu_recurrence) {
-                    (crate::util::BackendKind::Cpu, _) => "cpu".into(),
-                    (crate::util::BackendKind::Wgpu, false) => "wgpu".into(),
-                    (crate::util::BackendKind::Wgpu, true) => "wgpu --gpu-recurrence".into(),
-                },
+                backend: a.backend.flags(),
                 extra: a.slurm_option,
             },
         )?;

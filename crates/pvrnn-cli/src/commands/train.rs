@@ -112,7 +112,7 @@ impl Validation {
         let dataset = pvrnn_dataset::Dataset::open(dir)
             .with_context(|| format!("--validate {}", dir.display()))?;
         // Now rather than at the first validation, hours into the run.
-        let config = &trainer.model.config;
+        let config = trainer.config();
         pvrnn_dataset::inputs::check_layout(&dataset.manifest, &config.vision)
             .and_then(|()| pvrnn_dataset::inputs::check_proprio(&dataset.manifest, config))
             .with_context(|| format!("--validate {}: the model does not fit it", dir.display()))?;
@@ -140,13 +140,13 @@ impl Validation {
     /// Scores the trainer's model; keeps its checkpoint when it is the best so far.
     fn run(
         &mut self,
-        trainer: &Trainer<f32>,
+        trainer: &mut Trainer<f32>,
         last: Option<FreeEnergy>,
         bar: &util::Progress,
     ) -> Result<()> {
         bar.set_message("validating".into());
         let row = validation::validate(
-            Arc::new(trainer.model.clone()),
+            Arc::new(trainer.model().clone()),
             trainer.backend(),
             &self.dataset,
             trainer.iteration,
@@ -203,23 +203,22 @@ pub fn run(a: Args) -> Result<()> {
         &a.inputs,
         a.split.as_deref(),
         Split::Learn,
-        &mut trainer.model,
+        trainer.state_mut().0,
     )?
     .observations;
     if let Some(lr) = a.lr {
         anyhow::ensure!(lr > 0.0 && lr.is_finite(), "--lr must be positive");
-        trainer.model.config.train.optimizer.lr = lr;
-        trainer.optimizer.config.lr = lr;
+        let (model, optimizer) = trainer.state_mut();
+        model.config.train.optimizer.lr = lr;
+        optimizer.config.lr = lr;
     }
-    pvrnn_core::free_energy::check_model_fits_data(&trainer.model, &data)?;
+    pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     anyhow::ensure!(
         a.checkpoint_every >= 1,
         "--checkpoint-every must be at least 1"
     );
     anyhow::ensure!(a.keep_every != Some(0), "--keep-every must be at least 1");
-    let total = a
-        .iterations
-        .unwrap_or(trainer.model.config.train.iterations);
+    let total = a.iterations.unwrap_or(trainer.config().train.iterations);
     let log = log_path(&a.out);
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
     let mut validation = a
@@ -249,7 +248,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(v) = validation.as_mut()
         && v.missed(trainer.iteration)
     {
-        v.run(&trainer, None, &bar)?;
+        v.run(&mut trainer, None, &bar)?;
     }
     while trainer.iteration < total {
         let it = trainer.iteration;
@@ -263,18 +262,18 @@ pub fn run(a: Args) -> Result<()> {
         if trainer.iteration % a.checkpoint_every == 0 || trainer.iteration == total || stop || keep
         {
             log_file.flush()?;
-            io::save_checkpoint(&a.out, &trainer, last)?;
+            io::save_checkpoint(&a.out, &mut trainer, last)?;
         }
         if keep {
             let kept = kept_path(&a.out, trainer.iteration);
-            io::save_checkpoint(&kept, &trainer, last)?;
+            io::save_checkpoint(&kept, &mut trainer, last)?;
             bar.println(format!("kept {}", kept.display()));
         }
         if let Some(v) = validation.as_mut()
             && !stop
             && trainer.iteration.is_multiple_of(v.every)
         {
-            v.run(&trainer, last, &bar)?;
+            v.run(&mut trainer, last, &bar)?;
             bar.set_message(format!("F {:.4}", report.total));
         }
         if stop {

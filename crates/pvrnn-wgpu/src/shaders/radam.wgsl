@@ -1,0 +1,49 @@
+// One RAdam update of a tensor resident on the device (pvrnn-core's `RAdam::apply`, in the
+// same order of operations): g' = g + wd p; m = b1 m + (1 - b1) g'; v = b2 v + (1 - b2) g'^2;
+// p -= lr m sqrt(bias2) / (sqrt(v) + eps) when rectified, else p -= lr m. Elements from
+// `live` on have no gradient this step (rows of the output layer that were not observed):
+// g = 0 there, as on the host. One thread per element.
+
+struct Params {
+    count: u32,       // elements of the tensor
+    live: u32,        // elements with a gradient (the first rows)
+    groups_x: u32,    // workgroups per row of the dispatch grid
+    rectified: u32,   // 1: the rectified update, 0: momentum only
+    b1: f32,
+    b2: f32,
+    one_b1: f32,
+    one_b2: f32,
+    wd: f32,
+    eps: f32,
+    sqrt_bias2: f32,
+    lr: f32,          // lr / bias1, times the rectification term when rectified
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read_write> value: array<f32>;
+@group(0) @binding(2) var<storage, read_write> m: array<f32>;
+@group(0) @binding(3) var<storage, read_write> v: array<f32>;
+@group(0) @binding(4) var<storage, read> grad: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
+    let i = (wg.y * p.groups_x + wg.x) * 64u + t;
+    if (i >= p.count) {
+        return;
+    }
+    var g = 0.0;
+    if (i < p.live) {
+        g = grad[i];
+    }
+    let x = value[i];
+    let gd = fma(p.wd, x, g);
+    let mi = fma(p.b1, m[i], p.one_b1 * gd);
+    let vi = fma(p.b2, v[i], p.one_b2 * gd * gd);
+    m[i] = mi;
+    v[i] = vi;
+    if (p.rectified != 0u) {
+        value[i] = x - p.lr * mi * p.sqrt_bias2 / (sqrt(vi) + p.eps);
+    } else {
+        value[i] = x - p.lr * mi;
+    }
+}

@@ -1344,11 +1344,11 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
     // instead of the experiment failing.
     let net1 = x.path("unc/networks/smoke-train-net1.safetensors");
     let mut broken = io::load_checkpoint(&net1).unwrap();
-    broken.model.params.modules[3]
+    broken.state_mut().0.params.modules[3]
         .w_prior_sigma
         .data_mut()
         .fill(1000.0);
-    io::save_checkpoint(&net1, &broken, None).unwrap();
+    io::save_checkpoint(&net1, &mut broken, None).unwrap();
     for entry in std::fs::read_dir(x.path("unc/results")).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "safetensors") {

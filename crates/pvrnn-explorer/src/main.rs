@@ -65,6 +65,27 @@ fn choose_renderer(choice: Drawing) -> eframe::Renderer {
     }
 }
 
+/// Opens the window with `renderer` (what `choice` became). Under `--renderer auto`, if
+/// wgpu fails before the app was created (`created` says whether it was: an error after
+/// the user closed a working window is not retried), tries once more with glow. An
+/// explicit `--renderer wgpu` is not overridden.
+#[cfg(not(target_arch = "wasm32"))]
+fn open_with_fallback<E: std::fmt::Display>(
+    choice: Drawing,
+    renderer: eframe::Renderer,
+    mut open: impl FnMut(eframe::Renderer) -> Result<(), E>,
+    created: impl Fn() -> bool,
+) -> Result<(), E> {
+    let result = open(renderer);
+    match &result {
+        Err(e) if choice == Drawing::Auto && renderer == eframe::Renderer::Wgpu && !created() => {
+            eprintln!("wgpu could not open the window ({e}); drawing with glow instead");
+            open(eframe::Renderer::Glow)
+        }
+        _ => result,
+    }
+}
+
 #[cfg(not(target_arch = "wasm32"))]
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 enum Compute {
@@ -196,15 +217,7 @@ fn main() {
             }),
         )
     };
-    let mut result = open_window(renderer);
-    if let Err(e) = &result
-        && args.renderer == Drawing::Auto
-        && renderer == eframe::Renderer::Wgpu
-        && !created.get()
-    {
-        eprintln!("wgpu could not open the window ({e}); drawing with glow instead");
-        result = open_window(eframe::Renderer::Glow);
-    }
+    let result = open_with_fallback(args.renderer, renderer, open_window, || created.get());
     if let Err(e) = result {
         eprintln!("cannot open a window: {e}");
         std::process::exit(1);
@@ -252,4 +265,69 @@ fn main() {
         }
     };
     wasm_bindgen_futures::spawn_local(start);
+}
+
+#[cfg(all(test, not(target_arch = "wasm32")))]
+mod tests {
+    use super::{Drawing, open_with_fallback};
+    use eframe::Renderer;
+
+    /// Opens with a fake window that fails for the renderers in `failing`, and says which
+    /// renderers were tried and how it ended.
+    fn attempt(
+        choice: Drawing,
+        first: Renderer,
+        failing: &[Renderer],
+        created: bool,
+    ) -> (Vec<Renderer>, Result<(), String>) {
+        let mut tried = Vec::new();
+        let result = open_with_fallback(
+            choice,
+            first,
+            |r| {
+                tried.push(r);
+                if failing.contains(&r) {
+                    Err(format!("{r:?} failed"))
+                } else {
+                    Ok(())
+                }
+            },
+            || created,
+        );
+        (tried, result)
+    }
+
+    #[test]
+    fn auto_falls_back_to_glow_when_wgpu_cannot_open_the_window() {
+        let (tried, result) = attempt(Drawing::Auto, Renderer::Wgpu, &[Renderer::Wgpu], false);
+        assert_eq!(tried, [Renderer::Wgpu, Renderer::Glow]);
+        assert!(result.is_ok());
+        // Both failing: the second error is the one reported.
+        let (tried, result) = attempt(
+            Drawing::Auto,
+            Renderer::Wgpu,
+            &[Renderer::Wgpu, Renderer::Glow],
+            false,
+        );
+        assert_eq!(tried, [Renderer::Wgpu, Renderer::Glow]);
+        assert_eq!(result, Err("Glow failed".to_string()));
+    }
+
+    #[test]
+    fn no_second_window_when_it_was_asked_for_or_had_opened() {
+        // An explicit --renderer wgpu is not overridden.
+        let (tried, result) = attempt(Drawing::Wgpu, Renderer::Wgpu, &[Renderer::Wgpu], false);
+        assert_eq!(tried, [Renderer::Wgpu]);
+        assert!(result.is_err());
+        // The window had opened (the error came after): no second window.
+        let (tried, _) = attempt(Drawing::Auto, Renderer::Wgpu, &[Renderer::Wgpu], true);
+        assert_eq!(tried, [Renderer::Wgpu]);
+        // Auto chose glow and it failed: nothing else to try.
+        let (tried, _) = attempt(Drawing::Auto, Renderer::Glow, &[Renderer::Glow], false);
+        assert_eq!(tried, [Renderer::Glow]);
+        // Success on the first try: one window.
+        let (tried, result) = attempt(Drawing::Auto, Renderer::Wgpu, &[], false);
+        assert_eq!(tried, [Renderer::Wgpu]);
+        assert!(result.is_ok());
+    }
 }

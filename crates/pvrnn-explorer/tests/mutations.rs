@@ -240,8 +240,8 @@ fn model_checkpoint_and_inputs_files() {
 
     let dir = temp("checkpoint");
     let path = dir.join("run.safetensors");
-    let trainer = Trainer::new(common::model(), NoiseMode::Sampled { seed: 3 });
-    io::save_checkpoint(&path, &trainer, None).unwrap();
+    let mut trainer = Trainer::new(common::model(), NoiseMode::Sampled { seed: 3 });
+    io::save_checkpoint(&path, &mut trainer, None).unwrap();
     let checkpoint = std::fs::read(&path).unwrap();
     let tally = run_target("checkpoint", vec![checkpoint], 2, move |bytes, _| {
         std::fs::write(&path, bytes).unwrap();

@@ -8,9 +8,11 @@
 //! [`pvrnn_core::backend::OutputLayer`]; and, when asked for
 //! ([`WgpuBackend::with_recurrence_on_gpu`]), the recurrence forward and backward with its
 //! weight gradients (`shaders/recurrence_*.wgsl`, one workgroup per window), through
-//! [`pvrnn_core::backend::Recurrence`]. The hidden read-out layers, the KL sums and the
-//! optimiser stay on the CPU backend, which calls this crate through those two seams;
-//! they move over next (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
+//! [`pvrnn_core::backend::Recurrence`]. In learning, [`GpuLearner`] (pvrnn-core's
+//! [`Learner`] seam) keeps the output layers' weights, biases and RAdam moments on the GPU
+//! for the whole run and updates them there (`shaders/radam.wgsl`). The hidden read-out
+//! layers, the KL sums and the rest of the optimiser stay on the CPU backend, which calls
+//! this crate through those seams; they move over next (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
 //! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
 //! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
 //!

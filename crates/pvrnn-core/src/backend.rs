@@ -220,6 +220,15 @@ pub struct OutputLoss<T> {
     pub grad_b: Option<Vec<T>>,
 }
 
+/// A whole read-out's results for `n` rows (see [`OutputLayer::readout_loss`]).
+#[derive(Clone, Debug)]
+pub struct ReadoutLoss<T> {
+    /// Per row, as [`OutputLoss::row_loss`].
+    pub row_loss: Vec<f64>,
+    /// d F / d the module states `d` that feed the read-out, `[n, d]`.
+    pub grad_d: Vec<T>,
+}
+
 /// A read-out's output layer, `x^ = tanh(W h + b)`, computed on other hardware. It carries
 /// about 97% of the model's arithmetic (the vision layer's 50 x 32,256 weights against
 /// every row), so a GPU that runs only this layer already takes most of the work; the CPU
@@ -246,6 +255,28 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
         resident: Option<u64>,
         weight_grads: bool,
     ) -> Option<Deferred<'a, OutputLoss<T>>>;
+
+    /// The whole read-out from the module states `d` (`[n, d]`): its hidden layers forward,
+    /// the output layer's loss as in [`Self::loss`], and back through the hidden layers to
+    /// d F / d d, in one call. For a layer whose hidden weights live with it (a
+    /// [`Learner`]'s, which also keeps every weight gradient of the read-out on its
+    /// device); `None`, the default, has the CPU run the hidden layers and call
+    /// [`Self::loss`].
+    #[allow(clippy::too_many_arguments)]
+    fn readout_loss<'a>(
+        &'a self,
+        modality: Modality,
+        d: &[T],
+        n: usize,
+        k: usize,
+        divisor: usize,
+        targets: &[&[T]],
+        resident: Option<u64>,
+        weight_grads: bool,
+    ) -> Option<Deferred<'a, ReadoutLoss<T>>> {
+        let _ = (modality, d, n, k, divisor, targets, resident, weight_grads);
+        None
+    }
 
     /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
     /// the call to the CPU.

@@ -37,6 +37,16 @@ pub(crate) struct RecurrenceKernels {
     pub(crate) weights: wgpu::ComputePipeline,
 }
 
+/// The hidden read-out layers' kernels (shapes are parameters, so one set serves every
+/// layer).
+#[derive(Debug)]
+pub(crate) struct DenseKernels {
+    pub(crate) forward: wgpu::ComputePipeline,
+    pub(crate) backward: wgpu::ComputePipeline,
+    pub(crate) weights: wgpu::ComputePipeline,
+    pub(crate) weights_reduce: wgpu::ComputePipeline,
+}
+
 /// Learning targets kept on the device: which observations, and how they were cut.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct ResidentKey {
@@ -130,6 +140,7 @@ pub struct Gpu {
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
+    dense_kernels: OnceLock<Arc<DenseKernels>>,
     /// Targets kept on the device (learning's data, uploaded once per run; an inference
     /// step's window, once per step).
     pub(crate) resident: Mutex<ResidentTargets>,
@@ -168,6 +179,7 @@ impl Gpu {
             kernels: Mutex::new(HashMap::new()),
             recurrence_kernels: OnceLock::new(),
             radam_kernel: OnceLock::new(),
+            dense_kernels: OnceLock::new(),
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
@@ -316,6 +328,32 @@ impl Gpu {
         self.radam_kernel
             .get_or_init(|| {
                 Arc::new(self.pipeline("radam", include_str!("shaders/radam.wgsl").into()))
+            })
+            .clone()
+    }
+
+    /// The hidden read-out layers' kernels, compiled on first use.
+    pub(crate) fn dense_kernels(&self) -> Arc<DenseKernels> {
+        self.dense_kernels
+            .get_or_init(|| {
+                Arc::new(DenseKernels {
+                    forward: self.pipeline(
+                        "dense forward",
+                        include_str!("shaders/dense_forward.wgsl").into(),
+                    ),
+                    backward: self.pipeline(
+                        "dense backward",
+                        include_str!("shaders/dense_backward.wgsl").into(),
+                    ),
+                    weights: self.pipeline(
+                        "dense weights",
+                        include_str!("shaders/dense_weights.wgsl").into(),
+                    ),
+                    weights_reduce: self.pipeline(
+                        "dense weights reduce",
+                        include_str!("shaders/dense_weights_reduce.wgsl").into(),
+                    ),
+                })
             })
             .clone()
     }

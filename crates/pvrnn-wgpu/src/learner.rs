@@ -24,8 +24,9 @@ use crate::readback::read_back;
 /// Threads per workgroup of `radam.wgsl`.
 const WORKGROUP: usize = 64;
 
-/// One output layer kept on the device for a learning run, in the kernels' layout (rows of
-/// the weight zero-padded to whole vec4s; the padding stays zero through every update).
+/// One read-out (its hidden layers and its output layer) kept on the device for a learning
+/// run, in the kernels' layout (rows of the output weight zero-padded to whole vec4s; the
+/// padding stays zero through every update).
 #[derive(Debug)]
 pub(crate) struct ResidentLayer {
     pub(crate) weight: wgpu::Buffer,
@@ -33,22 +34,147 @@ pub(crate) struct ResidentLayer {
     pub(crate) bias: wgpu::Buffer,
     pub(crate) grad_w: wgpu::Buffer,
     pub(crate) grad_b: wgpu::Buffer,
-    moments_w: [wgpu::Buffer; 2],
-    moments_b: Option<[wgpu::Buffer; 2]>,
-    hidden: usize,
-    dims: usize,
-    /// The tensors' indices in the trainer's order (`pvrnn_core::train::trainable_names`).
-    weight_index: usize,
-    bias_index: Option<usize>,
+    /// The hidden layers, bottom (module side) first.
+    pub(crate) hidden: Vec<ResidentDense>,
+    /// Width of the module's states `d`, the read-out's input.
+    pub(crate) input_width: usize,
+    /// The output layer's fan-in (the top hidden width).
+    hidden_width: usize,
+    /// Every trainable tensor of the read-out, with its moments and gradient.
+    tensors: Vec<ResidentTensor>,
     /// Rows of `grad_w` written by the last evaluation with weight gradients (the observed
-    /// dimensions); the update treats the others as zero, and then resets it.
+    /// dimensions; 0: none); the update treats the others as zero, and then resets it.
     rows_with_gradient: AtomicUsize,
 }
 
+/// A hidden read-out layer on the device, `y = tanh(W x + b)`.
+#[derive(Debug)]
+pub(crate) struct ResidentDense {
+    pub(crate) weight: wgpu::Buffer,
+    /// `[fan_out]`; zeros for a layer without a bias.
+    pub(crate) bias: wgpu::Buffer,
+    pub(crate) grad_w: wgpu::Buffer,
+    pub(crate) grad_b: wgpu::Buffer,
+    pub(crate) fan_in: usize,
+    pub(crate) fan_out: usize,
+    pub(crate) has_bias: bool,
+}
+
+/// One trainable tensor's buffers (shared with [`ResidentLayer`]'s handles).
+#[derive(Debug)]
+struct ResidentTensor {
+    /// Its index in the trainer's order (`pvrnn_core::train::trainable_names`).
+    index: usize,
+    value: wgpu::Buffer,
+    moments: [wgpu::Buffer; 2],
+    grad: wgpu::Buffer,
+    /// Floats in the device's layout.
+    len: usize,
+    part: Part,
+}
+
+/// Which gradient rows an evaluation writes: the output layer's observed rows only, a
+/// hidden layer's whole tensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Part {
+    OutputWeight,
+    OutputBias,
+    Hidden,
+}
+
 impl ResidentLayer {
-    /// Records that `grad_w` and `grad_b` now hold the gradient of the first `k` rows.
+    /// Records that the gradients now hold the first `k` rows of the output layer's (and
+    /// all of the hidden layers').
     pub(crate) fn gradient_rows(&self, k: usize) {
         self.rows_with_gradient.store(k, Ordering::SeqCst);
+    }
+
+    /// Uploads one read-out of `model` with its moments from `optimizer`; `None` if the
+    /// kernels do not hold it or one of its tensors is not trainable.
+    fn upload(
+        gpu: &Gpu,
+        model: &Model<f32>,
+        optimizer: &RAdam<f32>,
+        mi: usize,
+        index_of: &dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usize>,
+    ) -> Option<Self> {
+        let readout = &model.params.readouts[mi];
+        let out = &readout.out;
+        let (dims, hidden_width) = (out.weight.shape()[0], out.weight.shape()[1]);
+        if !fits(dims, hidden_width) {
+            return None;
+        }
+        let mut tensors = Vec::new();
+        // The value's buffer, and the tensor with its moments and gradient (in `layout`).
+        let mut add = |tensor: &pvrnn_core::Tensor<f32>,
+                       part: Part,
+                       layout: &dyn Fn(&[f32]) -> Vec<f32>|
+         -> Option<(wgpu::Buffer, wgpu::Buffer)> {
+            let index = index_of(tensor)?;
+            let value = layout(tensor.data());
+            let len = value.len();
+            let buffer = |label: &str, values: &[f32]| resident_buffer(gpu, label, values);
+            let t = ResidentTensor {
+                index,
+                value: buffer("resident tensor", &value),
+                moments: [
+                    buffer("resident m", &layout(&optimizer.m[index])),
+                    buffer("resident v", &layout(&optimizer.v[index])),
+                ],
+                grad: buffer("resident gradient", &vec![0f32; len]),
+                len,
+                part,
+            };
+            let handles = (t.value.clone(), t.grad.clone());
+            tensors.push(t);
+            Some(handles)
+        };
+        let plain = |v: &[f32]| v.to_vec();
+        let mut hidden = Vec::new();
+        for layer in &readout.hidden {
+            let (fan_out, fan_in) = (layer.weight.shape()[0], layer.weight.shape()[1]);
+            let (weight, grad_w) = add(&layer.weight, Part::Hidden, &plain)?;
+            let (bias, grad_b) = match &layer.bias {
+                Some(b) => add(b, Part::Hidden, &plain)?,
+                None => (
+                    resident_buffer(gpu, "no bias", &vec![0f32; fan_out]),
+                    resident_buffer(gpu, "no bias gradient", &vec![0f32; fan_out]),
+                ),
+            };
+            hidden.push(ResidentDense {
+                weight,
+                bias,
+                grad_w,
+                grad_b,
+                fan_in,
+                fan_out,
+                has_bias: layer.bias.is_some(),
+            });
+        }
+        let padded = |v: &[f32]| pad_rows(v, hidden_width);
+        let (weight, grad_w) = add(&out.weight, Part::OutputWeight, &padded)?;
+        let (bias, grad_b) = match &out.bias {
+            Some(b) => add(b, Part::OutputBias, &plain)?,
+            None => (
+                resident_buffer(gpu, "no bias", &vec![0f32; dims]),
+                resident_buffer(gpu, "no bias gradient", &vec![0f32; dims]),
+            ),
+        };
+        let input_width = readout
+            .hidden
+            .first()
+            .map_or(hidden_width, |l| l.weight.shape()[1]);
+        Some(Self {
+            weight,
+            bias,
+            grad_w,
+            grad_b,
+            hidden,
+            input_width,
+            hidden_width,
+            tensors,
+            rows_with_gradient: AtomicUsize::new(0),
+        })
     }
 }
 
@@ -78,7 +204,7 @@ pub struct GpuLearner {
 }
 
 impl GpuLearner {
-    /// Uploads the output layers of `model` that the kernels hold, with their moments from
+    /// Uploads the read-outs of `model` that the kernels hold, with their moments from
     /// `optimizer`; `None` if there is none to keep.
     pub(crate) fn new(
         backend: &WgpuBackend,
@@ -86,46 +212,13 @@ impl GpuLearner {
         optimizer: &RAdam<f32>,
     ) -> Option<Self> {
         let index_of = trainable_indices(&model.params);
-        let gpu = backend.gpu();
         let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
-            let out = &model.params.readouts[mi].out;
-            let (dims, hidden) = (out.weight.shape()[0], out.weight.shape()[1]);
-            let weight_index = index_of(&out.weight)?;
-            if !fits(dims, hidden) {
-                return None;
-            }
-            let bias_index = out.bias.as_ref().and_then(&index_of);
-            let padded = |values: &[f32]| pad_rows(values, hidden);
-            let buffer = |label: &str, values: &[f32]| resident_buffer(gpu, label, values);
-            let zeros = vec![0f32; dims];
-            // A fixed bias is read, never updated; a missing one is zero.
-            let bias = out.bias.as_ref().map_or(zeros.as_slice(), |b| b.data());
-            Some(Arc::new(ResidentLayer {
-                weight: buffer("resident output weight", &padded(out.weight.data())),
-                bias: buffer("resident output bias", bias),
-                grad_w: buffer("resident d W", &vec![0f32; dims * 4 * vec4s(hidden)]),
-                grad_b: buffer("resident d b", &zeros),
-                moments_w: [
-                    buffer("resident m of W", &padded(&optimizer.m[weight_index])),
-                    buffer("resident v of W", &padded(&optimizer.v[weight_index])),
-                ],
-                moments_b: bias_index.map(|i| {
-                    [
-                        buffer("resident m of b", &optimizer.m[i]),
-                        buffer("resident v of b", &optimizer.v[i]),
-                    ]
-                }),
-                hidden,
-                dims,
-                weight_index,
-                bias_index,
-                rows_with_gradient: AtomicUsize::new(0),
-            }))
+            ResidentLayer::upload(backend.gpu(), model, optimizer, mi, &index_of).map(Arc::new)
         });
         let resident: Vec<usize> = layers
             .iter()
             .flatten()
-            .flat_map(|l| std::iter::once(l.weight_index).chain(l.bias_index))
+            .flat_map(|l| l.tensors.iter().map(|t| t.index))
             .collect();
         (!resident.is_empty()).then(|| Self {
             backend: backend.clone(),
@@ -229,26 +322,21 @@ impl Learner<f32> for GpuLearner {
         let mut keep = Vec::new();
         for layer in self.layers.iter().flatten() {
             let k = layer.rows_with_gradient.swap(0, Ordering::SeqCst);
-            let width = 4 * vec4s(layer.hidden);
-            self.encode_update(
-                &mut encoder,
-                step,
-                layer.dims * width,
-                k * width,
-                &layer.weight,
-                &layer.moments_w,
-                &layer.grad_w,
-                &mut keep,
-            );
-            if let Some(moments) = &layer.moments_b {
+            for t in &layer.tensors {
+                let live = match t.part {
+                    Part::OutputWeight => k * 4 * vec4s(layer.hidden_width),
+                    Part::OutputBias => k,
+                    Part::Hidden if k > 0 => t.len,
+                    Part::Hidden => 0,
+                };
                 self.encode_update(
                     &mut encoder,
                     step,
-                    layer.dims,
-                    k,
-                    &layer.bias,
-                    moments,
-                    &layer.grad_b,
+                    t.len,
+                    live,
+                    &t.value,
+                    &t.moments,
+                    &t.grad,
                     &mut keep,
                 );
             }
@@ -259,37 +347,22 @@ impl Learner<f32> for GpuLearner {
     }
 
     fn download(&self, index: usize, value: &mut [f32], m: &mut [f32], v: &mut [f32]) {
-        let Some((layer, is_weight)) = self.layers.iter().flatten().find_map(|l| {
-            if l.weight_index == index {
-                Some((l, true))
-            } else if l.bias_index == Some(index) {
-                Some((l, false))
-            } else {
-                None
-            }
-        }) else {
+        let Some((layer, t)) = self
+            .layers
+            .iter()
+            .flatten()
+            .find_map(|l| l.tensors.iter().find(|t| t.index == index).map(|t| (l, t)))
+        else {
             panic!("tensor {index} is not resident on this learner");
         };
         let gpu = self.gpu();
-        let (buffers, floats) = if is_weight {
-            let [mw, vw] = &layer.moments_w;
-            (
-                [&layer.weight, mw, vw],
-                layer.dims * 4 * vec4s(layer.hidden),
-            )
-        } else {
-            let [mb, vb] = layer
-                .moments_b
-                .as_ref()
-                .expect("a resident bias has moments");
-            ([&layer.bias, mb, vb], layer.dims)
-        };
         let encoder = gpu.device.create_command_encoder(&Default::default());
-        let sources: Vec<(&wgpu::Buffer, usize)> = buffers.iter().map(|&b| (b, floats)).collect();
+        let [mb, vb] = &t.moments;
+        let sources = [(&t.value, t.len), (mb, t.len), (vb, t.len)];
         let results = pvrnn_core::deferred::now(read_back(gpu, encoder, &sources));
         for (dst, src) in [value, m, v].into_iter().zip(results) {
-            let src = if is_weight {
-                unpad_rows(&src, layer.hidden)
+            let src = if t.part == Part::OutputWeight {
+                unpad_rows(&src, layer.hidden_width)
             } else {
                 src
             };

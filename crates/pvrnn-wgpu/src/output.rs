@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::Modality;
-use pvrnn_core::backend::{OutputLayer, OutputLoss};
+use pvrnn_core::backend::{OutputLayer, OutputLoss, ReadoutLoss};
 use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
@@ -42,6 +42,10 @@ pub struct Tiling {
     pub max_splits: usize,
     /// Largest buffer a chunk binds (the device's binding limit applies too).
     pub max_chunk_bytes: usize,
+    /// Rows per partial sum of a hidden read-out layer's weight gradient
+    /// (`dense_weights.wgsl`, a learner's read-outs): 5,400 rows in ranges of 256 give a
+    /// 50 x 41 layer 45,000 threads.
+    pub weight_rows_per_split: usize,
 }
 
 impl Default for Tiling {
@@ -51,6 +55,7 @@ impl Default for Tiling {
             max_splits: 256,
             // Below WebGPU's default 128 MiB per binding.
             max_chunk_bytes: 64 << 20,
+            weight_rows_per_split: 256,
         }
     }
 }
@@ -92,6 +97,53 @@ struct ReduceParams {
     splits: u32,
     row_offset: u32,
     _pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DenseParams {
+    rows: u32,
+    fan_in: u32,
+    fan_out: u32,
+    x_stride: u32,
+    y_stride: u32,
+    has_bias: u32,
+    groups_x: u32,
+    _pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DenseWeightsParams {
+    rows: u32,
+    fan_in: u32,
+    fan_out: u32,
+    x_stride: u32,
+    y_stride: u32,
+    rows_per_split: u32,
+    groups_x: u32,
+    splits: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DenseReduceParams {
+    fan_in: u32,
+    fan_out: u32,
+    splits: u32,
+    has_bias: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DenseBackParams {
+    rows: u32,
+    fan_in: u32,
+    fan_out: u32,
+    y_stride: u32,
+    gx_stride: u32,
+    groups_x: u32,
+    _pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -306,24 +358,39 @@ pub(crate) fn dispatch(
     pass.dispatch_workgroups(x, y, 1);
 }
 
-impl OutputLayer<f32> for GpuOutputLayer {
-    fn loss<'a>(
-        &'a self,
+/// The output layer's loss encoded on the device (see [`GpuOutputLayer::encode_loss`]): the
+/// buffers that hold its results, and those the submission uses until it has run.
+struct EncodedLoss {
+    /// d F / d input, `[n, 4 hv]` (padded rows), and the row losses, `[n]` (sums of squared
+    /// errors times 1 / divisor).
+    grad_in: PooledBuffer,
+    row_loss: PooledBuffer,
+    /// d W `[k, 4 hv]` and d b `[k]`, when they are to be read back.
+    grads: Option<(PooledBuffer, PooledBuffer)>,
+    in_flight: Vec<PooledBuffer>,
+    resident_targets: Option<Arc<Vec<wgpu::Buffer>>>,
+}
+
+impl GpuOutputLayer {
+    /// Encodes the fused loss of `layer` for `n` rows of top hidden activations in `x`
+    /// (`[n, 4 hv]`, padded rows), with the weight gradients when `weight_grads` (into a
+    /// learner's buffers if the layer is resident, else into buffers to read back).
+    #[allow(clippy::too_many_arguments)]
+    fn encode_loss(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        layer: &Layer,
         modality: Modality,
-        input: &[f32],
+        x: &wgpu::Buffer,
         n: usize,
         k: usize,
         divisor: usize,
         targets: &[&[f32]],
         resident: Option<u64>,
         weight_grads: bool,
-    ) -> Option<Deferred<'a, OutputLoss<f32>>> {
-        let layer = self.layer(modality)?;
-        if n == 0 || k == 0 {
-            return None;
-        }
+    ) -> EncodedLoss {
         let gpu = &*self.gpu;
-        let (hl, hv) = (layer.hidden, vec4s(layer.hidden));
+        let hv = vec4s(layer.hidden);
         let limit = self.chunk_limit();
         let max_groups = gpu.limits().max_compute_workgroups_per_dimension as usize;
         // Rows per chunk: the chunk's targets fit one binding.
@@ -343,8 +410,6 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let splits = k.div_ceil(cols_per_split);
         let scale = (1.0 / divisor as f64) as f32;
 
-        let encode_phase = pvrnn_core::profile::phase("    GPU: upload and encode");
-        let x = gpu.upload("hidden", &pad_rows(input, hl));
         let resident = resident.map(|observations| {
             let key = ResidentKey {
                 observations,
@@ -363,23 +428,20 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let part_loss = gpu.scratch("partial loss", splits * chunk, wgpu::BufferUsages::empty());
         // A learner's layer keeps its weight gradients for its update; others read them back.
         let learner = layer.resident().filter(|_| weight_grads);
-        let read_grads = weight_grads && learner.is_none();
-        let gw_scratch = gpu.scratch(
-            "d W",
-            if read_grads { k * 4 * hv } else { 1 },
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        let gb_scratch = gpu.scratch(
-            "d b",
-            if read_grads { k } else { 1 },
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        let (gw, gb): (&wgpu::Buffer, &wgpu::Buffer) = match learner {
-            Some(r) => {
+        let grads = (weight_grads && learner.is_none()).then(|| {
+            (
+                gpu.scratch("d W", k * 4 * hv, wgpu::BufferUsages::COPY_SRC),
+                gpu.scratch("d b", k, wgpu::BufferUsages::COPY_SRC),
+            )
+        });
+        let (gw, gb): (&wgpu::Buffer, &wgpu::Buffer) = match (learner, &grads) {
+            (Some(r), _) => {
                 r.gradient_rows(k);
                 (&r.grad_w, &r.grad_b)
             }
-            None => (&gw_scratch, &gb_scratch),
+            (None, Some((gw, gb))) => (gw, gb),
+            // No weight gradients: the column pass does not run.
+            (None, None) => (&part_in, &part_loss),
         };
         let grad_in = gpu.scratch("d input", n * 4 * hv, wgpu::BufferUsages::COPY_SRC);
         let row_loss = gpu.scratch("row loss", n, wgpu::BufferUsages::COPY_SRC);
@@ -387,7 +449,6 @@ impl OutputLayer<f32> for GpuOutputLayer {
         // Every chunk in one submission; streamed targets and parameters get buffers per
         // chunk, written before the submission runs and kept from the pool until it has.
         let mut in_flight: Vec<PooledBuffer> = Vec::new();
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
         let mut start = 0;
         while start < n {
             let rows = chunk.min(n - start);
@@ -412,7 +473,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 &layer.kernels.loss_rows,
                 &[
                     &rows_params,
-                    &x,
+                    x,
                     layer.weight(),
                     layer.bias(),
                     y,
@@ -421,7 +482,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 ],
             );
             dispatch(
-                &mut encoder,
+                encoder,
                 &layer.kernels.loss_rows,
                 &rows_group,
                 rows.div_ceil(WORKGROUP) as u32,
@@ -439,7 +500,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 &[&reduce_params, &part_in, &part_loss, &grad_in, &row_loss],
             );
             dispatch(
-                &mut encoder,
+                encoder,
                 &layer.kernels.reduce,
                 &reduce_group,
                 (rows * hv).div_ceil(WORKGROUP) as u32,
@@ -457,10 +518,10 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 let columns_group = bind(
                     gpu,
                     &layer.kernels.loss_columns,
-                    &[&columns_params, &x, layer.weight(), layer.bias(), y, gw, gb],
+                    &[&columns_params, x, layer.weight(), layer.bias(), y, gw, gb],
                 );
                 dispatch(
-                    &mut encoder,
+                    encoder,
                     &layer.kernels.loss_columns,
                     &columns_group,
                     k.div_ceil(WORKGROUP) as u32,
@@ -473,9 +534,203 @@ impl OutputLayer<f32> for GpuOutputLayer {
             in_flight.push(reduce_params);
             start += rows;
         }
+        in_flight.push(part_in);
+        in_flight.push(part_loss);
+        EncodedLoss {
+            grad_in,
+            row_loss,
+            grads,
+            in_flight,
+            resident_targets: resident,
+        }
+    }
 
-        let mut sources: Vec<(&wgpu::Buffer, usize)> = vec![(&grad_in, n * 4 * hv), (&row_loss, n)];
-        if read_grads {
+    /// Encodes the hidden layers of a learner's read-out, forward from the module states in
+    /// `d` (`[n, input width]`): every layer's activations, the top one in padded rows for
+    /// the output layer's kernels. Returns them bottom first.
+    fn encode_hidden_forward(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        readout: &ResidentLayer,
+        d: &wgpu::Buffer,
+        n: usize,
+        in_flight: &mut Vec<PooledBuffer>,
+    ) -> Vec<(PooledBuffer, usize)> {
+        let gpu = &*self.gpu;
+        let kernels = gpu.dense_kernels();
+        let mut acts: Vec<(PooledBuffer, usize)> = Vec::with_capacity(readout.hidden.len());
+        for (l, layer) in readout.hidden.iter().enumerate() {
+            let top = l + 1 == readout.hidden.len();
+            let y_stride = if top {
+                4 * vec4s(layer.fan_out)
+            } else {
+                layer.fan_out
+            };
+            let (x, x_stride) = match acts.last() {
+                Some((a, stride)) => (&**a, *stride),
+                None => (d, readout.input_width),
+            };
+            let y = gpu.scratch(
+                "hidden activations",
+                n * y_stride,
+                wgpu::BufferUsages::empty(),
+            );
+            let (groups_x, groups_y) = grid(gpu, n * y_stride);
+            let params = gpu.uniform(&DenseParams {
+                rows: n as u32,
+                fan_in: layer.fan_in as u32,
+                fan_out: layer.fan_out as u32,
+                x_stride: x_stride as u32,
+                y_stride: y_stride as u32,
+                has_bias: layer.has_bias as u32,
+                groups_x,
+                _pad: 0,
+            });
+            let group = bind(
+                gpu,
+                &kernels.forward,
+                &[&params, x, &layer.weight, &layer.bias, &y],
+            );
+            dispatch(encoder, &kernels.forward, &group, groups_x, groups_y);
+            in_flight.push(params);
+            acts.push((y, y_stride));
+        }
+        acts
+    }
+
+    /// Encodes the way back through a learner's hidden layers from `grad_top` (d F / d the
+    /// top activations, padded rows): the weight gradients into the learner's buffers (when
+    /// `weight_grads`) and d F / d d, `[n, input width]`, which it returns.
+    #[allow(clippy::too_many_arguments)]
+    fn encode_hidden_backward(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        readout: &ResidentLayer,
+        d: &wgpu::Buffer,
+        acts: &[(PooledBuffer, usize)],
+        grad_top: PooledBuffer,
+        n: usize,
+        weight_grads: bool,
+        in_flight: &mut Vec<PooledBuffer>,
+    ) -> PooledBuffer {
+        let gpu = &*self.gpu;
+        let kernels = gpu.dense_kernels();
+        let mut grad = grad_top;
+        for (l, layer) in readout.hidden.iter().enumerate().rev() {
+            let (y, y_stride) = (&acts[l].0, acts[l].1);
+            let (x, x_stride): (&wgpu::Buffer, usize) = match l {
+                0 => (d, readout.input_width),
+                _ => (&acts[l - 1].0, acts[l - 1].1),
+            };
+            if weight_grads {
+                // Split-K over rows, then the ranges added in order.
+                let values = layer.fan_out * (layer.fan_in + 1);
+                let rows_per_split = self.tiling.weight_rows_per_split.max(1);
+                let splits = n.div_ceil(rows_per_split);
+                let partial =
+                    gpu.scratch("d W partials", splits * values, wgpu::BufferUsages::empty());
+                let (groups_x, groups_y) = grid(gpu, splits * values);
+                let params = gpu.uniform(&DenseWeightsParams {
+                    rows: n as u32,
+                    fan_in: layer.fan_in as u32,
+                    fan_out: layer.fan_out as u32,
+                    x_stride: x_stride as u32,
+                    y_stride: y_stride as u32,
+                    rows_per_split: rows_per_split as u32,
+                    groups_x,
+                    splits: splits as u32,
+                });
+                let group = bind(gpu, &kernels.weights, &[&params, x, y, &grad, &partial]);
+                dispatch(encoder, &kernels.weights, &group, groups_x, groups_y);
+                let reduce_params = gpu.uniform(&DenseReduceParams {
+                    fan_in: layer.fan_in as u32,
+                    fan_out: layer.fan_out as u32,
+                    splits: splits as u32,
+                    has_bias: layer.has_bias as u32,
+                });
+                let group = bind(
+                    gpu,
+                    &kernels.weights_reduce,
+                    &[&reduce_params, &partial, &layer.grad_w, &layer.grad_b],
+                );
+                dispatch(
+                    encoder,
+                    &kernels.weights_reduce,
+                    &group,
+                    values.div_ceil(WORKGROUP) as u32,
+                    1,
+                );
+                in_flight.extend([params, reduce_params, partial]);
+            }
+            let grad_x = gpu.scratch("d hidden input", n * x_stride, wgpu::BufferUsages::COPY_SRC);
+            let (groups_x, groups_y) = grid(gpu, n * x_stride);
+            let params = gpu.uniform(&DenseBackParams {
+                rows: n as u32,
+                fan_in: layer.fan_in as u32,
+                fan_out: layer.fan_out as u32,
+                y_stride: y_stride as u32,
+                gx_stride: x_stride as u32,
+                groups_x,
+                _pad: [0; 2],
+            });
+            let group = bind(
+                gpu,
+                &kernels.backward,
+                &[&params, &grad, y, &layer.weight, &grad_x],
+            );
+            dispatch(encoder, &kernels.backward, &group, groups_x, groups_y);
+            in_flight.push(params);
+            in_flight.push(std::mem::replace(&mut grad, grad_x));
+        }
+        grad
+    }
+}
+
+/// A 2-D grid of 64-thread workgroups covering `threads` (a kernel's flat index is
+/// `(wg.y * groups_x + wg.x) * 64 + t`).
+fn grid(gpu: &Gpu, threads: usize) -> (u32, u32) {
+    let groups = threads.div_ceil(WORKGROUP).max(1);
+    let max = gpu.limits().max_compute_workgroups_per_dimension as usize;
+    let x = groups.min(max);
+    (x as u32, groups.div_ceil(x) as u32)
+}
+
+impl OutputLayer<f32> for GpuOutputLayer {
+    fn loss<'a>(
+        &'a self,
+        modality: Modality,
+        input: &[f32],
+        n: usize,
+        k: usize,
+        divisor: usize,
+        targets: &[&[f32]],
+        resident: Option<u64>,
+        weight_grads: bool,
+    ) -> Option<Deferred<'a, OutputLoss<f32>>> {
+        let layer = self.layer(modality)?;
+        if n == 0 || k == 0 {
+            return None;
+        }
+        let gpu = &*self.gpu;
+        let (hl, hv) = (layer.hidden, vec4s(layer.hidden));
+        let encode_phase = pvrnn_core::profile::phase("    GPU: upload and encode");
+        let x = gpu.upload("hidden", &pad_rows(input, hl));
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let encoded = self.encode_loss(
+            &mut encoder,
+            layer,
+            modality,
+            &x,
+            n,
+            k,
+            divisor,
+            targets,
+            resident,
+            weight_grads,
+        );
+        let mut sources: Vec<(&wgpu::Buffer, usize)> =
+            vec![(&encoded.grad_in, n * 4 * hv), (&encoded.row_loss, n)];
+        if let Some((gw, gb)) = &encoded.grads {
             sources.push((gw, k * 4 * hv));
             sources.push((gb, k));
         }
@@ -483,9 +738,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
         drop(encode_phase);
         let (has_bias, half_over_divisor) = (layer.has_bias, 0.5 / divisor as f64);
         // The buffers the submission uses stay out of the pool until it has run.
-        let used = (
-            in_flight, x, part_in, part_loss, gw_scratch, gb_scratch, grad_in, row_loss, resident,
-        );
+        let used = (x, encoded);
         Some(Box::pin(async move {
             let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
             let mut results = pending.await.into_iter();
@@ -506,6 +759,99 @@ impl OutputLayer<f32> for GpuOutputLayer {
                 grad_w,
                 grad_b,
             }
+        }))
+    }
+
+    /// Only for a learner's read-outs (their hidden layers' weights are on the device):
+    /// the hidden layers, the output layer's loss and the way back to the module states in
+    /// one submission, reading back d F / d d and the row losses.
+    fn readout_loss<'a>(
+        &'a self,
+        modality: Modality,
+        d: &[f32],
+        n: usize,
+        k: usize,
+        divisor: usize,
+        targets: &[&[f32]],
+        resident: Option<u64>,
+        weight_grads: bool,
+    ) -> Option<Deferred<'a, ReadoutLoss<f32>>> {
+        let layer = self.layer(modality)?;
+        let readout = layer.resident()?;
+        if k == 0 || readout.hidden.is_empty() {
+            return None;
+        }
+        let width = readout.input_width;
+        if n == 0 {
+            return Some(pvrnn_core::deferred::ready(ReadoutLoss {
+                row_loss: Vec::new(),
+                grad_d: Vec::new(),
+            }));
+        }
+        let gpu = &*self.gpu;
+        // Until the results are in (the CPU's read-out phases do not run).
+        let readout_phase = pvrnn_core::profile::phase("  read-out, hidden and output layers");
+        let encode_phase = pvrnn_core::profile::phase("    GPU: upload and encode");
+        let input = gpu.upload("module states", d);
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let mut in_flight = Vec::new();
+        let acts = self.encode_hidden_forward(&mut encoder, readout, &input, n, &mut in_flight);
+        let top = &acts.last().expect("hidden layers").0;
+        let encoded = self.encode_loss(
+            &mut encoder,
+            layer,
+            modality,
+            top,
+            n,
+            k,
+            divisor,
+            targets,
+            resident,
+            weight_grads,
+        );
+        let EncodedLoss {
+            grad_in,
+            row_loss,
+            grads: _,
+            in_flight: loss_in_flight,
+            resident_targets,
+        } = encoded;
+        let grad_d = self.encode_hidden_backward(
+            &mut encoder,
+            readout,
+            &input,
+            &acts,
+            grad_in,
+            n,
+            weight_grads,
+            &mut in_flight,
+        );
+        let pending = read_back(gpu, encoder, &[(&grad_d, n * width), (&row_loss, n)]);
+        drop(encode_phase);
+        let half_over_divisor = 0.5 / divisor as f64;
+        let used = (
+            input,
+            acts,
+            in_flight,
+            loss_in_flight,
+            resident_targets,
+            grad_d,
+            row_loss,
+        );
+        Some(Box::pin(async move {
+            let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
+            let mut results = pending.await.into_iter();
+            drop(used);
+            drop(wait_phase);
+            let grad_d = results.next().unwrap_or_default();
+            let row_loss = results
+                .next()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|s| s as f64 * half_over_divisor)
+                .collect();
+            drop(readout_phase);
+            ReadoutLoss { row_loss, grad_d }
         }))
     }
 

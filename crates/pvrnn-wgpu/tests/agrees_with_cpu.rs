@@ -109,6 +109,7 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
             target_workgroups: 4,
             max_splits: 64,
             max_chunk_bytes: 8 << 10,
+            ..Tiling::default()
         }),
         3,
         21,
@@ -120,6 +121,7 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
             target_workgroups: 4,
             max_splits: 3,
             max_chunk_bytes: 8 << 10,
+            ..Tiling::default()
         }),
         3,
         21,
@@ -134,14 +136,26 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
 #[test]
 fn learning_with_resident_weights_follows_the_cpu() {
     let Some(gpu) = gpu() else { return };
-    // Small chunks: the column pass accumulates the weight gradient over several.
+    learning_with_resident_weights(gpu.clone(), config());
+    // Hidden layers without a bias, one hidden layer for vision, no output bias.
+    let mut other = config();
+    other.proprioceptive_readout.hidden_bias = false;
+    other.exteroceptive_readout.hidden = vec![50];
+    other.exteroceptive_readout.output_bias = false;
+    learning_with_resident_weights(gpu, other);
+}
+
+fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {
+    // Small chunks and row ranges: the column pass accumulates the output layer's weight
+    // gradient over several chunks, the hidden layers' over several ranges of rows.
     let gpu = gpu.with_tiling(Tiling {
         target_workgroups: 4,
         max_splits: 64,
         max_chunk_bytes: 8 << 10,
+        weight_rows_per_split: 16,
     });
     assert!(gpu.resident_learning());
-    let mut config = config();
+    let mut config = config;
     config.train.optimizer.weight_decay = 1e-3;
     let data = observations(&config, 3, 21);
     let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
@@ -161,15 +175,16 @@ fn learning_with_resident_weights_follows_the_cpu() {
         // The read-back does not disturb the device's state.
         assert_eq!(b, c, "iteration {i}: F after bringing the weights back");
         if i == 0 {
+            // Both read-outs, hidden layers included, stay on the device.
             let resident = on_gpu.resident_tensors();
-            assert_eq!(
-                resident,
-                [
-                    "exteroceptive.out.weight",
-                    "exteroceptive.out.bias",
-                    "proprioceptive.out.weight",
-                ],
-                "the output layers are resident"
+            let readouts: Vec<String> = pvrnn_core::train::trainable_names(cpu.model())
+                .into_iter()
+                .filter(|n| n.contains(".out.") || n.contains(".fnn."))
+                .collect();
+            assert_eq!(resident.len(), readouts.len(), "{resident:?}");
+            assert!(
+                readouts.iter().all(|n| resident.contains(n)),
+                "{resident:?}"
             );
         }
         if i % 3 == 1 {

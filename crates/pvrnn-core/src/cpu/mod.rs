@@ -185,6 +185,49 @@ async fn evaluate<T: Real>(
             input.extend_from_slice(&tr.modules[module.index()].d);
         }
         let r = &params.readouts[mi];
+        let targets: Vec<&[T]> = if k > 0 {
+            windows
+                .iter()
+                .flat_map(|w| w.targets[mi].iter().copied())
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if k > 0 {
+            assert_eq!(
+                targets.len(),
+                n,
+                "one {} target row per step",
+                modality.name()
+            );
+        }
+        let divisor = config
+            .accuracy_normalisation
+            .divisor(k, config.modality_dims(modality));
+        // The whole read-out elsewhere, where its hidden layers live there too (a learner's).
+        let whole = (k > 0 && req.full_outputs == FullOutputs::None)
+            .then(|| model.output_layer.as_ref())
+            .flatten()
+            .and_then(|o| {
+                o.readout_loss(
+                    modality,
+                    &input,
+                    n,
+                    k,
+                    divisor,
+                    &targets,
+                    req.resident_targets,
+                    all_grads,
+                )
+            });
+        if let Some(loss) = whole {
+            let loss = loss.await;
+            accuracy[mi] = loss.row_loss;
+            if want_grads {
+                grad_d[mi] = Some(loss.grad_d);
+            }
+            continue;
+        }
         let hidden_phase = crate::profile::phase("  read-out hidden layers");
         let acts = readout::hidden_forward(r, &input, n);
         drop(hidden_phase);
@@ -192,23 +235,10 @@ async fn evaluate<T: Real>(
         let hl = top.len() / n.max(1);
 
         if k > 0 {
-            let targets: Vec<&[T]> = windows
-                .iter()
-                .flat_map(|w| w.targets[mi].iter().copied())
-                .collect();
-            assert_eq!(
-                targets.len(),
-                n,
-                "one {} target row per step",
-                modality.name()
-            );
             // In wasm faer's product runs at half the speed of the small-row kernels; natively
             // faer is as fast at 16x16 and much faster at full vision.
             let small = cfg!(target_arch = "wasm32") && n <= readout::SMALL_ROWS && !all_grads;
             let out_t = small.then(|| model.out_t(mi));
-            let divisor = config
-                .accuracy_normalisation
-                .divisor(k, config.modality_dims(modality));
             let output_phase = crate::profile::phase("  read-out output layer");
             let offloaded = model.output_layer.as_ref().and_then(|o| {
                 o.loss(

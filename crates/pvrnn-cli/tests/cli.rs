@@ -468,6 +468,13 @@ fn train_and_infer_run_on_the_wgpu_backend() {
         (cpu - gpu).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu F {gpu}"
     );
+    // The weights uploaded every iteration instead of kept on the GPU: the same learning.
+    let (on_host, err) = train(&["--backend", "wgpu", "--weights-on-host"]);
+    assert!(err.contains("weights on the host"), "{err}");
+    assert!(
+        (cpu - on_host).abs() <= 1e-4 * cpu.abs(),
+        "after 10 iterations: cpu F {cpu}, wgpu with the weights on the host F {on_host}"
+    );
     // The recurrence on the GPU too: the same learning, and the run says so.
     let (all_gpu, err) = train(&["--backend", "wgpu", "--gpu-recurrence"]);
     assert!(err.contains("recurrence on the GPU"), "{err}");
@@ -755,6 +762,15 @@ fn bad_inputs_give_clear_errors() {
         "--gpu-recurrence",
     ]);
     assert!(e.contains("--gpu-recurrence needs --backend wgpu"), "{e}");
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--weights-on-host",
+    ]);
+    assert!(e.contains("--weights-on-host needs --backend wgpu"), "{e}");
 
     write_inputs(&x.path("nan.safetensors"), &small_config(), 2, 12, true);
     let e = fails(&[

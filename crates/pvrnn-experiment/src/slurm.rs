@@ -19,7 +19,7 @@ pub struct SlurmOptions {
     pub train_time: String,
     pub infer_time: String,
     pub cpus: usize,
-    /// `--backend` of the tasks and its options: "cpu", "wgpu" or "wgpu --gpu-recurrence"
+    /// `--backend` of the tasks and its options: "cpu", "wgpu", "wgpu --gpu-recurrence", ...
     /// (then ask for a GPU with an extra line, for example `--gres=gpu:1`).
     pub backend: String,
     /// Extra `#SBATCH` lines (partition, account).

@@ -1,10 +1,13 @@
-//! Learning with the output layers resident on the GPU (pvrnn-core's [`Learner`]): their
-//! weights, biases and RAdam moments are uploaded once per run; every iteration the row and
-//! column passes leave the weight gradients in the learner's buffers and `radam.wgsl`
-//! updates the weights where they are. At the paper's scale that is 1.6 M of the model's
-//! 1.7 M weights, so an iteration no longer uploads 6.5 MB of weights nor reads 6.5 MB of
-//! gradients back, and the host's RAdam covers only the rest. The recurrence, the hidden
-//! read-out layers and the KL terms stay where [`WgpuBackend`] puts them.
+//! Learning with the read-outs resident on the GPU (pvrnn-core's [`Learner`]): their
+//! weights, biases and RAdam moments, hidden layers included, are uploaded once per run.
+//! Every iteration a read-out takes the module states, runs its hidden layers and output
+//! layer forward and back (`GpuOutputLayer::readout_loss`), leaves every weight gradient
+//! in the learner's buffers and returns dF/dd; `radam.wgsl` then updates the weights where
+//! they are. At the paper's scale that is 1.6 M of the model's 1.7 M weights, so an
+//! iteration no longer uploads 6.5 MB of weights nor reads 6.5 MB of gradients back, and
+//! the host's RAdam covers only the rest. The recurrence and the KL terms stay where
+//! [`WgpuBackend`] puts them. A learner's loaded models serve learning's evaluation only:
+//! the host's copies of the resident weights are stale until downloaded.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};

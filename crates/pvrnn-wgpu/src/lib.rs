@@ -9,10 +9,11 @@
 //! ([`WgpuBackend::with_recurrence_on_gpu`]), the recurrence forward and backward with its
 //! weight gradients (`shaders/recurrence_*.wgsl`, one workgroup per window), through
 //! [`pvrnn_core::backend::Recurrence`]. In learning, [`GpuLearner`] (pvrnn-core's
-//! [`Learner`] seam) keeps the output layers' weights, biases and RAdam moments on the GPU
-//! for the whole run and updates them there (`shaders/radam.wgsl`). The hidden read-out
-//! layers, the KL sums and the rest of the optimiser stay on the CPU backend, which calls
-//! this crate through those seams; they move over next (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
+//! [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments on the GPU for
+//! the whole run, runs their hidden layers there too (`shaders/dense_*.wgsl`) and updates
+//! them there (`shaders/radam.wgsl`). The KL sums and the rest of the optimiser stay on
+//! the CPU backend, which calls this crate through those seams; they move over next
+//! (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
 //! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
 //! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
 //!

@@ -206,7 +206,7 @@ async fn evaluate<T: Real>(
             .divisor(k, config.modality_dims(modality));
         // The whole read-out elsewhere, where its hidden layers live there too (a learner's).
         let whole = (k > 0 && req.full_outputs == FullOutputs::None)
-            .then(|| model.output_layer.as_ref())
+            .then_some(model.output_layer.as_ref())
             .flatten()
             .and_then(|o| {
                 o.readout_loss(

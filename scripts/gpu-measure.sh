@@ -1,0 +1,91 @@
+#!/usr/bin/env bash
+# Times the wgpu backend on a machine with a GPU, every variant alternated in one call so
+# that the figures compare (docs/gpu.md reports them only when they come from one call).
+#
+#   scripts/gpu-measure.sh [--quick] PVRNN_BINARY OUT_DIR
+#
+# Writes OUT_DIR/<variant>-round<R>.jsonl (one `pvrnn bench --json --profile` object per
+# line) and OUT_DIR/summary.txt (mean seconds per training iteration and inference steps
+# per second per variant), and prints the summary. Variants, each with all the host's
+# threads and with 2:
+#   cpu          the CPU backend
+#   wgpu         the wgpu backend as it ships (read-outs and their optimiser resident)
+#   host-weights `--weights-on-host`: weights uploaded and updated on the host every
+#                iteration (the path before the resident learner)
+# `--quick` runs one round of 3 training iterations (a smoke check of the set-up); the
+# default is two rounds of 10 training iterations and 20 inference steps each (not yet
+# run on a GPU: time it with --quick first). BENCH_ARGS adds options to every bench
+# (`BENCH_ARGS="--sequences 2 --steps 40 --only train"` checks the script on a CPU
+# Vulkan device in a few minutes).
+#
+# On a bare host whose image has the NVIDIA driver but no Vulkan loader: put the Debian
+# packages of the loader in .gl/ (`apt-get download libvulkan1`, plus what it needs) and
+# this script unpacks them first; VK_DRIVER_FILES is pointed at NVIDIA's ICD when it is
+# where the lent machines keep it.
+set -euo pipefail
+
+quick=0
+if [ "${1:-}" = "--quick" ]; then
+    quick=1
+    shift
+fi
+bin=${1:?usage: scripts/gpu-measure.sh [--quick] PVRNN_BINARY OUT_DIR}
+out=${2:?usage: scripts/gpu-measure.sh [--quick] PVRNN_BINARY OUT_DIR}
+mkdir -p "$out"
+
+if compgen -G ".gl/*.deb" >/dev/null; then
+    for f in .gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+fi
+nvidia_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nvidia_icd" ]; then
+    export VK_DRIVER_FILES=$nvidia_icd
+fi
+
+if [ "$quick" = 1 ]; then
+    rounds=1 iterations=3 steps=5
+else
+    rounds=2 iterations=10 steps=20
+fi
+all=$(nproc)
+thread_counts=$all
+if [ "$all" != 2 ]; then thread_counts="$all 2"; fi
+
+bench() {
+    local variant=$1 threads=$2 round=$3
+    shift 3
+    local file="$out/$variant-$threads-threads-round$round.jsonl"
+    # shellcheck disable=SC2086 # BENCH_ARGS is a list of options
+    if ! "$bin" --threads "$threads" bench --json --profile \
+        --train-iterations "$iterations" --infer-steps "$steps" ${BENCH_ARGS:-} "$@" \
+        >>"$file" 2>>"$out/log.txt"; then
+        echo "FAILED: $variant, $threads threads, round $round (see $out/log.txt)" | tee -a "$out/log.txt"
+    fi
+}
+
+"$bin" --version | tee "$out/version.txt"
+for round in $(seq "$rounds"); do
+    for threads in $thread_counts; do
+        bench wgpu "$threads" "$round" --backend wgpu
+        bench host-weights "$threads" "$round" --backend wgpu --weights-on-host
+        bench cpu "$threads" "$round" --backend cpu
+    done
+done
+
+python3 - "$out" <<'EOF' | tee "$out/summary.txt"
+import json, pathlib, statistics, sys
+rows = {}
+for f in sorted(pathlib.Path(sys.argv[1]).glob("*.jsonl")):
+    variant = f.stem.rsplit("-round", 1)[0]
+    for line in f.read_text().splitlines():
+        if line.strip():
+            rows.setdefault(variant, []).append(json.loads(line))
+def mean(xs):
+    xs = [x for x in xs if x is not None]
+    return f"{statistics.mean(xs):.4f}" if xs else "-"
+print(f"{'variant':36} {'train s/iter':>12} {'p16 steps/s':>12} {'full steps/s':>12}  backend")
+for variant, rs in sorted(rows.items()):
+    print(f"{variant:36} {mean([r.get('train_iter_s') for r in rs]):>12} "
+          f"{mean([r.get('infer_p16_steps_per_s') for r in rs]):>12} "
+          f"{mean([r.get('infer_full_steps_per_s') for r in rs]):>12}  {rs[0].get('backend')}")
+EOF

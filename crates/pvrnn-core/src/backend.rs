@@ -278,6 +278,20 @@ pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
         None
     }
 
+    /// The read-out's top hidden activations (`[n, hidden]`) for the module states `d`
+    /// (`[n, d]`), computed where its hidden weights live: a layer that holds them (a
+    /// [`Learner`]'s; the host's copies are stale) must answer, so that full read-outs and
+    /// [`LoadedModel::readout`] never mix them. `None`, the default: the CPU's hidden layers.
+    fn hidden_top<'a>(
+        &'a self,
+        modality: Modality,
+        d: &[T],
+        n: usize,
+    ) -> Option<Deferred<'a, Vec<T>>> {
+        let _ = (modality, d, n);
+        None
+    }
+
     /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
     /// the call to the CPU.
     fn predict<'a>(

@@ -10,7 +10,7 @@
 //! the host's copies of the resident weights are stale until downloaded.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::ModelConfig;
@@ -48,6 +48,9 @@ pub(crate) struct ResidentLayer {
     /// Rows of `grad_w` written by the last evaluation with weight gradients (the observed
     /// dimensions; 0: none); the update treats the others as zero, and then resets it.
     rows_with_gradient: AtomicUsize,
+    /// Whether the hidden layers' gradients were written since the last update (only a
+    /// whole read-out on the device writes them); if not, the update treats them as zero.
+    hidden_gradients: AtomicBool,
 }
 
 /// A hidden read-out layer on the device, `y = tanh(W x + b)`.
@@ -90,6 +93,11 @@ impl ResidentLayer {
     /// all of the hidden layers').
     pub(crate) fn gradient_rows(&self, k: usize) {
         self.rows_with_gradient.store(k, Ordering::SeqCst);
+    }
+
+    /// Records that the hidden layers' gradients are this evaluation's.
+    pub(crate) fn hidden_gradients_written(&self) {
+        self.hidden_gradients.store(true, Ordering::SeqCst);
     }
 
     /// Uploads one read-out of `model` with its moments from `optimizer`; `None` if the
@@ -177,6 +185,7 @@ impl ResidentLayer {
             hidden_width,
             tensors,
             rows_with_gradient: AtomicUsize::new(0),
+            hidden_gradients: AtomicBool::new(false),
         })
     }
 }
@@ -325,11 +334,12 @@ impl Learner<f32> for GpuLearner {
         let mut keep = Vec::new();
         for layer in self.layers.iter().flatten() {
             let k = layer.rows_with_gradient.swap(0, Ordering::SeqCst);
+            let hidden = layer.hidden_gradients.swap(false, Ordering::SeqCst);
             for t in &layer.tensors {
                 let live = match t.part {
                     Part::OutputWeight => k * 4 * vec4s(layer.hidden_width),
                     Part::OutputBias => k,
-                    Part::Hidden if k > 0 => t.len,
+                    Part::Hidden if hidden => t.len,
                     Part::Hidden => 0,
                 };
                 self.encode_update(
@@ -344,7 +354,9 @@ impl Learner<f32> for GpuLearner {
                 );
             }
         }
-        // Queued, not waited for: the next iteration's submissions run after it.
+        // Queued, not waited for: the next iteration's submissions run after it. The
+        // uniforms may go back to the pool at once: a later user writes them through the
+        // queue, which orders that write after this submission.
         gpu.queue.submit([encoder.finish()]);
         drop(keep);
     }

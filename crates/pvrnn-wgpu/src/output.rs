@@ -132,6 +132,8 @@ struct DenseReduceParams {
     fan_out: u32,
     splits: u32,
     has_bias: u32,
+    groups_x: u32,
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -570,10 +572,11 @@ impl GpuOutputLayer {
                 Some((a, stride)) => (&**a, *stride),
                 None => (d, readout.input_width),
             };
+            // COPY_SRC: `hidden_top` reads the top layer back.
             let y = gpu.scratch(
                 "hidden activations",
                 n * y_stride,
-                wgpu::BufferUsages::empty(),
+                wgpu::BufferUsages::COPY_SRC,
             );
             let (groups_x, groups_y) = grid(gpu, n * y_stride);
             let params = gpu.uniform(&DenseParams {
@@ -642,24 +645,21 @@ impl GpuOutputLayer {
                 });
                 let group = bind(gpu, &kernels.weights, &[&params, x, y, &grad, &partial]);
                 dispatch(encoder, &kernels.weights, &group, groups_x, groups_y);
+                let (reduce_x, reduce_y) = grid(gpu, values);
                 let reduce_params = gpu.uniform(&DenseReduceParams {
                     fan_in: layer.fan_in as u32,
                     fan_out: layer.fan_out as u32,
                     splits: splits as u32,
                     has_bias: layer.has_bias as u32,
+                    groups_x: reduce_x,
+                    _pad: [0; 3],
                 });
                 let group = bind(
                     gpu,
                     &kernels.weights_reduce,
                     &[&reduce_params, &partial, &layer.grad_w, &layer.grad_b],
                 );
-                dispatch(
-                    encoder,
-                    &kernels.weights_reduce,
-                    &group,
-                    values.div_ceil(WORKGROUP) as u32,
-                    1,
-                );
+                dispatch(encoder, &kernels.weights_reduce, &group, reduce_x, reduce_y);
                 in_flight.extend([params, reduce_params, partial]);
             }
             let grad_x = gpu.scratch("d hidden input", n * x_stride, wgpu::BufferUsages::COPY_SRC);
@@ -684,6 +684,15 @@ impl GpuOutputLayer {
         }
         grad
     }
+}
+
+/// The row losses, 1/2 (1 / divisor) sum (x - x^)^2 as [`OutputLoss::row_loss`], from the
+/// kernels' per-row sums of squared errors.
+fn row_losses(sums: Vec<f32>, divisor: usize) -> Vec<f64> {
+    let half_over_divisor = 0.5 / divisor as f64;
+    sums.into_iter()
+        .map(|s| s as f64 * half_over_divisor)
+        .collect()
 }
 
 /// A 2-D grid of 64-thread workgroups covering `threads` (a kernel's flat index is
@@ -736,7 +745,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
         }
         let pending = read_back(gpu, encoder, &sources);
         drop(encode_phase);
-        let (has_bias, half_over_divisor) = (layer.has_bias, 0.5 / divisor as f64);
+        let has_bias = layer.has_bias;
         // The buffers the submission uses stay out of the pool until it has run.
         let used = (x, encoded);
         Some(Box::pin(async move {
@@ -745,12 +754,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
             drop(used);
             drop(wait_phase);
             let grad_in = unpad_rows(&results.next().unwrap_or_default(), hl);
-            let row_loss = results
-                .next()
-                .unwrap_or_default()
-                .into_iter()
-                .map(|s| s as f64 * half_over_divisor)
-                .collect();
+            let row_loss = row_losses(results.next().unwrap_or_default(), divisor);
             let grad_w = results.next().map(|g| unpad_rows(&g, hl));
             let grad_b = results.next().filter(|_| has_bias);
             OutputLoss {
@@ -826,9 +830,11 @@ impl OutputLayer<f32> for GpuOutputLayer {
             weight_grads,
             &mut in_flight,
         );
+        if weight_grads {
+            readout.hidden_gradients_written();
+        }
         let pending = read_back(gpu, encoder, &[(&grad_d, n * width), (&row_loss, n)]);
         drop(encode_phase);
-        let half_over_divisor = 0.5 / divisor as f64;
         let used = (
             input,
             acts,
@@ -844,14 +850,41 @@ impl OutputLayer<f32> for GpuOutputLayer {
             drop(used);
             drop(wait_phase);
             let grad_d = results.next().unwrap_or_default();
-            let row_loss = results
-                .next()
-                .unwrap_or_default()
-                .into_iter()
-                .map(|s| s as f64 * half_over_divisor)
-                .collect();
+            let row_loss = row_losses(results.next().unwrap_or_default(), divisor);
             drop(readout_phase);
             ReadoutLoss { row_loss, grad_d }
+        }))
+    }
+
+    /// For a learner's read-outs, whose hidden weights live on the device (see
+    /// [`Self::readout_loss`]): their hidden layers forward, the top activations read back.
+    fn hidden_top<'a>(
+        &'a self,
+        modality: Modality,
+        d: &[f32],
+        n: usize,
+    ) -> Option<Deferred<'a, Vec<f32>>> {
+        let layer = self.layer(modality)?;
+        let readout = layer.resident()?;
+        if readout.hidden.is_empty() {
+            return None;
+        }
+        if n == 0 {
+            return Some(pvrnn_core::deferred::ready(Vec::new()));
+        }
+        let gpu = &*self.gpu;
+        let input = gpu.upload("module states", d);
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let mut in_flight = Vec::new();
+        let acts = self.encode_hidden_forward(&mut encoder, readout, &input, n, &mut in_flight);
+        let (top, stride) = acts.last().expect("hidden layers");
+        let pending = read_back(gpu, encoder, &[(top, n * stride)]);
+        let hl = layer.hidden;
+        let used = (input, acts, in_flight);
+        Some(Box::pin(async move {
+            let top = pending.await.into_iter().next().unwrap_or_default();
+            drop(used);
+            unpad_rows(&top, hl)
         }))
     }
 

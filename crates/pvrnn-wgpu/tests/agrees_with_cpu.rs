@@ -137,12 +137,120 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
 fn learning_with_resident_weights_follows_the_cpu() {
     let Some(gpu) = gpu() else { return };
     learning_with_resident_weights(gpu.clone(), config());
-    // Hidden layers without a bias, one hidden layer for vision, no output bias.
+    // One hidden layer without a bias for vision, no output bias; proprioception with no
+    // hidden layer (its output layer reads the module states directly).
+    learning_with_resident_weights(gpu, other_readouts());
+}
+
+fn other_readouts() -> ModelConfig {
     let mut other = config();
-    other.proprioceptive_readout.hidden_bias = false;
     other.exteroceptive_readout.hidden = vec![50];
+    other.exteroceptive_readout.hidden_bias = false;
     other.exteroceptive_readout.output_bias = false;
-    learning_with_resident_weights(gpu, other);
+    other.proprioceptive_readout.hidden = vec![];
+    other
+}
+
+/// A learner's loaded model computes with the device's weights everywhere, also where the
+/// host would run the read-outs' hidden layers (full read-outs, `LoadedModel::readout`):
+/// after an update on the device, its results match a CPU model loaded from the weights
+/// brought back, and not one loaded from the host's stale copy.
+#[test]
+fn a_learners_model_reads_out_with_the_device_weights() {
+    let Some(gpu) = gpu() else { return };
+    for config in [config(), other_readouts()] {
+        let data = observations(&config, 2, 12);
+        let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 2, 12, 3).unwrap();
+        let mut optimizer = Trainer::new(model.clone(), NoiseMode::Zero)
+            .state()
+            .1
+            .clone();
+        let learner = gpu
+            .learner(&model, &optimizer)
+            .expect("a learner on the GPU");
+        let draw = NoiseDraw::training(NoiseMode::Zero, 0);
+        free_energy(learner.as_ref(), &model, &data, draw, true).unwrap();
+        // A large step, so that stale weights would show.
+        optimizer.config.lr = 0.05;
+        learner.update(&optimizer.begin_step());
+        let mut current = model.params.clone();
+        {
+            let mut values: Vec<&mut Tensor<f32>> = current
+                .named_mut()
+                .into_iter()
+                .filter(|(_, _, role)| *role == pvrnn_core::params::Role::Trainable)
+                .map(|(_, t, _)| t)
+                .collect();
+            for &i in learner.resident() {
+                let value = values[i].data_mut();
+                let (mut m, mut v) = (vec![0f32; value.len()], vec![0f32; value.len()]);
+                learner.download(i, value, &mut m, &mut v);
+            }
+        }
+        let on_device = learner.load(&model.params, &config);
+        let fresh = CpuBackend.load(&current, &config);
+        let stale = CpuBackend.load(&model.params, &config);
+        let n = 5;
+        for modality in Modality::ALL {
+            let d_width = config.module(modality.module()).d;
+            let d: Vec<f32> = (0..n * d_width)
+                .map(|i| ((i * 7 % 11) as f32 / 11.0) - 0.5)
+                .collect();
+            let got = on_device.readout(modality, &d, n);
+            assert_close(
+                &format!("{} read-out", modality.name()),
+                &fresh.readout(modality, &d, n),
+                &got,
+                1e-4,
+            );
+            let off = stale
+                .readout(modality, &d, n)
+                .iter()
+                .zip(&got)
+                .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                off > 1e-3,
+                "{}: the update changed nothing",
+                modality.name()
+            );
+        }
+        // Learning's evaluation with every read-out of every step.
+        let eps: Vec<Vec<f32>> = pvrnn_core::ModuleId::ALL
+            .iter()
+            .map(|id| vec![0.1; 12 * config.module(*id).z])
+            .collect();
+        let windows: Vec<Window<'_, f32>> = (0..2)
+            .map(|s| Window {
+                len: 12,
+                h0: None,
+                posterior: Posterior::Prior,
+                eps: std::array::from_fn(|m| eps[m].as_slice()),
+                targets: Modality::ALL
+                    .map(|modality| (0..12).map(|t| data.step(modality, s, t)).collect()),
+            })
+            .collect();
+        let request = Request {
+            observed: Observed::all(&config),
+            ablation: Ablation::default(),
+            grads: Grads::All,
+            full_outputs: FullOutputs::AllSteps,
+            resident_targets: None,
+        };
+        let a = fresh.evaluate(&windows, &request);
+        let b = on_device.evaluate(&windows, &request);
+        for (wa, wb) in a.windows.iter().zip(&b.windows) {
+            for mi in 0..2 {
+                assert_close("full read-outs", &wa.outputs[mi], &wb.outputs[mi], 1e-4);
+                let (la, lb) = (&wa.accuracy[mi], &wb.accuracy[mi]);
+                for (x, y) in la.iter().zip(lb) {
+                    assert!(
+                        (x - y).abs() <= 1e-5 * x.abs().max(1e-6),
+                        "accuracy {x} vs {y}"
+                    );
+                }
+            }
+        }
+    }
 }
 
 fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {

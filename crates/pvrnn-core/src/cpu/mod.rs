@@ -131,7 +131,14 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
         let r = &self.params.readouts[modality.index()];
-        let acts = readout::hidden_forward(r, d, n);
+        let acts = match self
+            .output_layer
+            .as_ref()
+            .and_then(|o| o.hidden_top(modality, d, n))
+        {
+            Some(top) => vec![crate::deferred::now(top)],
+            None => readout::hidden_forward(r, d, n),
+        };
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
         match self
             .output_layer
@@ -205,36 +212,47 @@ async fn evaluate<T: Real>(
             .accuracy_normalisation
             .divisor(k, config.modality_dims(modality));
         // The whole read-out elsewhere, where its hidden layers live there too (a learner's).
-        let whole = (k > 0 && req.full_outputs == FullOutputs::None)
-            .then_some(model.output_layer.as_ref())
-            .flatten()
-            .and_then(|o| {
-                o.readout_loss(
-                    modality,
-                    &input,
-                    n,
-                    k,
-                    divisor,
-                    &targets,
-                    req.resident_targets,
-                    all_grads,
-                )
-            });
+        let offload = model.output_layer.as_ref();
+        let whole = (k > 0).then_some(offload).flatten().and_then(|o| {
+            o.readout_loss(
+                modality,
+                &input,
+                n,
+                k,
+                divisor,
+                &targets,
+                req.resident_targets,
+                all_grads,
+            )
+        });
+        let whole_done = whole.is_some();
         if let Some(loss) = whole {
             let loss = loss.await;
             accuracy[mi] = loss.row_loss;
             if want_grads {
                 grad_d[mi] = Some(loss.grad_d);
             }
-            continue;
+            if req.full_outputs == FullOutputs::None {
+                continue;
+            }
         }
-        let hidden_phase = crate::profile::phase("  read-out hidden layers");
-        let acts = readout::hidden_forward(r, &input, n);
-        drop(hidden_phase);
+        // The top activations for the host's loss or the full read-outs: where the hidden
+        // weights live (a learner's device, whose read-out then handled the loss), else here.
+        let device_top = whole_done
+            .then_some(offload)
+            .flatten()
+            .and_then(|o| o.hidden_top(modality, &input, n));
+        let acts = match device_top {
+            Some(top) => vec![top.await],
+            None => {
+                let _phase = crate::profile::phase("  read-out hidden layers");
+                readout::hidden_forward(r, &input, n)
+            }
+        };
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(&input);
         let hl = top.len() / n.max(1);
 
-        if k > 0 {
+        if k > 0 && !whole_done {
             // In wasm faer's product runs at half the speed of the small-row kernels; natively
             // faer is as fast at 16x16 and much faster at full vision.
             let small = cfg!(target_arch = "wasm32") && n <= readout::SMALL_ROWS && !all_grads;

@@ -6,6 +6,10 @@ struct Params {
     fan_out: u32,
     splits: u32,
     has_bias: u32,
+    groups_x: u32,   // workgroups per row of the dispatch grid
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -14,9 +18,9 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> g_b: array<f32>; // [fan_out]
 
 @compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let per_split = p.fan_out * (p.fan_in + 1u);
-    let e = id.x;
+    let e = (wg.y * p.groups_x + wg.x) * 64u + t;
     if (e >= per_split) {
         return;
     }

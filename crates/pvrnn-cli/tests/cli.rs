@@ -12,6 +12,8 @@ use pvrnn_core::io::{self, TensorFile};
 fn pvrnn(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_pvrnn"))
         .args(args)
+        // `--backend wgpu` sends every call to the GPU, however small (these shapes are).
+        .env("PVRNN_WGPU_MIN_WORK", "0")
         .output()
         .expect("runs pvrnn")
 }

@@ -67,9 +67,18 @@ impl WgpuBackend {
     }
 
     fn on(gpu: Arc<Gpu>) -> Self {
+        let mut tiling = Tiling::default();
+        // The threshold below which calls stay on the CPU, for measuring and for tests
+        // that want every call on the GPU (`PVRNN_WGPU_MIN_WORK=0`).
+        if let Some(min_work) = std::env::var("PVRNN_WGPU_MIN_WORK")
+            .ok()
+            .and_then(|v| v.trim().parse().ok())
+        {
+            tiling.min_work = min_work;
+        }
         Self {
             gpu,
-            tiling: Tiling::default(),
+            tiling,
             recurrence_on_gpu: false,
             resident_learning: true,
         }

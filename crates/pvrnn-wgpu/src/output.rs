@@ -46,6 +46,15 @@ pub struct Tiling {
     /// (`dense_weights.wgsl`, a learner's read-outs): 5,400 rows in ranges of 256 give a
     /// 50 x 41 layer 45,000 threads.
     pub weight_rows_per_split: usize,
+    /// Calls whose forward product has fewer multiply-adds than this (rows x columns x
+    /// hidden width) stay on the CPU, where they take less than the GPU's round trip (a
+    /// fixed 0.2-0.3 ms per call on an H200). Online inference makes such calls 50 times a
+    /// step: proprioception (30 x 28 x 40 = 34 k) and 16x16 vision (30 x 1,536 x 50 = 2.3 M),
+    /// where 2 CPU threads measured 53.6 steps/s against 25.5 on the GPU (docs/gpu.md).
+    /// Everything observed (48 M) and learning (87 M and more) stay on the GPU. A learner's
+    /// resident layers always run on the GPU (their weights live there). Tests set 0 to
+    /// run their small shapes on the GPU.
+    pub min_work: usize,
 }
 
 impl Default for Tiling {
@@ -56,6 +65,7 @@ impl Default for Tiling {
             // Below WebGPU's default 128 MiB per binding.
             max_chunk_bytes: 64 << 20,
             weight_rows_per_split: 256,
+            min_work: 4 << 20,
         }
     }
 }
@@ -290,6 +300,12 @@ impl GpuOutputLayer {
 
     fn layer(&self, modality: Modality) -> Option<&Layer> {
         self.layers[modality.index()].as_ref()
+    }
+
+    /// Whether a call of `outputs` output values (rows x columns) is too little work to pay
+    /// for a round trip ([`Tiling::min_work`]); never for a learner's resident layer.
+    fn too_small(&self, layer: &Layer, outputs: usize) -> bool {
+        layer.resident().is_none() && outputs * layer.hidden < self.tiling.min_work
     }
 }
 
@@ -717,7 +733,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
         weight_grads: bool,
     ) -> Option<Deferred<'a, OutputLoss<f32>>> {
         let layer = self.layer(modality)?;
-        if n == 0 || k == 0 {
+        if n == 0 || k == 0 || self.too_small(layer, n * k) {
             return None;
         }
         let gpu = &*self.gpu;
@@ -897,6 +913,9 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let layer = self.layer(modality)?;
         if n == 0 {
             return Some(pvrnn_core::deferred::ready(Vec::new()));
+        }
+        if self.too_small(layer, n * layer.dims) {
+            return None;
         }
         let gpu = &*self.gpu;
         let (hl, dims) = (layer.hidden, layer.dims);

@@ -73,6 +73,16 @@ impl std::ops::Deref for PooledBuffer {
     }
 }
 
+impl PooledBuffer {
+    /// Frees the buffer instead of returning it to the pool (a read-back's copy dropped
+    /// while mapped, or while its mapping is pending, must not be handed out again).
+    pub(crate) fn discard(mut self) {
+        if let Some(buffer) = self.buffer.take() {
+            buffer.destroy();
+        }
+    }
+}
+
 impl Drop for PooledBuffer {
     fn drop(&mut self) {
         if let Some(buffer) = self.buffer.take() {

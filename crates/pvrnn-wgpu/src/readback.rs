@@ -92,6 +92,16 @@ pub(crate) struct ReadBack {
     state: Arc<Mutex<MapState>>,
 }
 
+/// A read-back dropped before it was awaited (a caller that gave up on the results) must
+/// not put its copy back into the pool mapped, or with its mapping pending.
+impl Drop for ReadBack {
+    fn drop(&mut self) {
+        if let Some(staging) = self.staging.take() {
+            staging.discard();
+        }
+    }
+}
+
 impl Future for ReadBack {
     type Output = Vec<Vec<f32>>;
 

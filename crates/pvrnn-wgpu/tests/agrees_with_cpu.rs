@@ -27,11 +27,19 @@ use pvrnn_core::{
 };
 use pvrnn_wgpu::{GpuRecurrence, Tiling, WgpuBackend};
 
+/// Tiling that sends every call to the GPU, however small (the tests' shapes are).
+fn every_call() -> Tiling {
+    Tiling {
+        min_work: 0,
+        ..Tiling::default()
+    }
+}
+
 fn gpu() -> Option<WgpuBackend> {
     match WgpuBackend::new() {
         Ok(b) => {
             eprintln!("adapter: {}", b.adapter_name());
-            Some(b)
+            Some(b.with_tiling(every_call()))
         }
         Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
             eprintln!("skipped (PVRNN_SKIP_WGPU): {e}");
@@ -109,7 +117,7 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
             target_workgroups: 4,
             max_splits: 64,
             max_chunk_bytes: 8 << 10,
-            ..Tiling::default()
+            ..every_call()
         }),
         3,
         21,
@@ -121,7 +129,7 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
             target_workgroups: 4,
             max_splits: 3,
             max_chunk_bytes: 8 << 10,
-            ..Tiling::default()
+            ..every_call()
         }),
         3,
         21,
@@ -149,6 +157,55 @@ fn other_readouts() -> ModelConfig {
     other.exteroceptive_readout.output_bias = false;
     other.proprioceptive_readout.hidden = vec![];
     other
+}
+
+/// Calls with less work than `Tiling::min_work` stay on the CPU (a round trip would cost
+/// more); larger ones, or all with the threshold at 0, go to the GPU.
+#[test]
+fn small_calls_stay_on_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap();
+    let (n, hidden) = (30, 10);
+    let k = config.proprio_dims;
+    let input = vec![0.1f32; n * hidden];
+    let row = vec![0.2f32; k];
+    let targets: Vec<&[f32]> = (0..n).map(|_| row.as_slice()).collect();
+    let layer = |min_work| {
+        pvrnn_wgpu::GpuOutputLayer::upload(
+            gpu.gpu().clone(),
+            Tiling {
+                min_work,
+                ..Tiling::default()
+            },
+            &model.params,
+        )
+    };
+    use pvrnn_core::backend::OutputLayer;
+    let work = n * k * hidden;
+    for (min_work, on_gpu) in [(work + 1, false), (work, true), (0, true)] {
+        let layer = layer(min_work);
+        let loss = layer.loss(
+            Modality::Proprioceptive,
+            &input,
+            n,
+            k,
+            k,
+            &targets,
+            None,
+            false,
+        );
+        assert_eq!(loss.is_some(), on_gpu, "loss with min_work {min_work}");
+        let dims = config.proprio_dims;
+        let predict = layer.predict(Modality::Proprioceptive, &input, n);
+        assert_eq!(
+            predict.is_some(),
+            n * dims * hidden >= min_work,
+            "predict with min_work {min_work}"
+        );
+    }
+    // The default keeps a step of online inference's proprioception on the CPU.
+    assert!(Tiling::default().min_work > n * k * hidden);
 }
 
 /// A learner's loaded model computes with the device's weights everywhere, also where the
@@ -256,11 +313,14 @@ fn a_learners_model_reads_out_with_the_device_weights() {
 fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {
     // Small chunks and row ranges: the column pass accumulates the output layer's weight
     // gradient over several chunks, the hidden layers' over several ranges of rows.
+    // No call is worth a round trip (`min_work`): the resident read-outs must run on the
+    // GPU all the same, or the host would compute with its stale copies.
     let gpu = gpu.with_tiling(Tiling {
         target_workgroups: 4,
         max_splits: 64,
         max_chunk_bytes: 8 << 10,
         weight_rows_per_split: 16,
+        min_work: usize::MAX,
     });
     assert!(gpu.resident_learning());
     let mut config = config;

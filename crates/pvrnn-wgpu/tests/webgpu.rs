@@ -25,6 +25,11 @@ async fn online_inference_on_webgpu_matches_the_cpu() {
     let gpu = WgpuBackend::open().await.unwrap_or_else(|e| {
         panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
     });
+    // Every call on the GPU, however small (these shapes are).
+    let gpu = gpu.with_tiling(pvrnn_wgpu::Tiling {
+        min_work: 0,
+        ..pvrnn_wgpu::Tiling::default()
+    });
     let config = config();
     let steps = 4;
     let data = observations(&config, 1, steps);

@@ -132,6 +132,11 @@ impl TestReal for f32 {
         #[cfg(not(target_arch = "wasm32"))]
         match pvrnn_wgpu::WgpuBackend::new() {
             Ok(b) => {
+                // Every call on the GPU, however small (the suite's shapes are).
+                let b = b.with_tiling(pvrnn_wgpu::Tiling {
+                    min_work: 0,
+                    ..pvrnn_wgpu::Tiling::default()
+                });
                 return vec![
                     ("wgpu", Box::new(b.clone())),
                     (

@@ -21,11 +21,8 @@ use wgpu::util::DeviceExt;
 
 use crate::WgpuBackend;
 use crate::gpu::Gpu;
-use crate::output::{bind, dispatch, fits, pad_rows, unpad_rows, vec4s};
+use crate::output::{bind, dispatch, fits, grid, pad_rows, unpad_rows, vec4s};
 use crate::readback::read_back;
-
-/// Threads per workgroup of `radam.wgsl`.
-const WORKGROUP: usize = 64;
 
 /// One read-out (its hidden layers and its output layer) kept on the device for a learning
 /// run, in the kernels' layout (rows of the output weight zero-padded to whole vec4s; the
@@ -207,7 +204,7 @@ struct RAdamParams {
     lr: f32,
 }
 
-/// A learning run on [`WgpuBackend`] with its output layers resident (see the module docs).
+/// A learning run on [`WgpuBackend`] with its read-outs resident (see the module docs).
 #[derive(Debug)]
 pub struct GpuLearner {
     backend: WgpuBackend,
@@ -257,13 +254,11 @@ impl GpuLearner {
         keep: &mut Vec<crate::pool::PooledBuffer>,
     ) {
         let gpu = self.gpu();
-        let groups = count.div_ceil(WORKGROUP);
-        let max = gpu.limits().max_compute_workgroups_per_dimension as usize;
-        let groups_x = groups.clamp(1, max);
+        let (groups_x, groups_y) = grid(gpu, count);
         let params = gpu.uniform(&RAdamParams {
             count: count as u32,
             live: live as u32,
-            groups_x: groups_x as u32,
+            groups_x,
             rectified: step.rectified.is_some() as u32,
             b1: step.beta1 as f32,
             b2: step.beta2 as f32,
@@ -280,13 +275,7 @@ impl GpuLearner {
             &kernel,
             &[&params, value, &moments[0], &moments[1], grad],
         );
-        dispatch(
-            encoder,
-            &kernel,
-            &group,
-            groups_x as u32,
-            groups.div_ceil(groups_x) as u32,
-        );
+        dispatch(encoder, &kernel, &group, groups_x, groups_y);
         keep.push(params);
     }
 }

@@ -713,7 +713,7 @@ fn row_losses(sums: Vec<f32>, divisor: usize) -> Vec<f64> {
 
 /// A 2-D grid of 64-thread workgroups covering `threads` (a kernel's flat index is
 /// `(wg.y * groups_x + wg.x) * 64 + t`).
-fn grid(gpu: &Gpu, threads: usize) -> (u32, u32) {
+pub(crate) fn grid(gpu: &Gpu, threads: usize) -> (u32, u32) {
     let groups = threads.div_ceil(WORKGROUP).max(1);
     let max = gpu.limits().max_compute_workgroups_per_dimension as usize;
     let x = groups.min(max);

@@ -70,11 +70,15 @@ impl WgpuBackend {
         let mut tiling = Tiling::default();
         // The threshold below which calls stay on the CPU, for measuring and for tests
         // that want every call on the GPU (`PVRNN_WGPU_MIN_WORK=0`).
-        if let Some(min_work) = std::env::var("PVRNN_WGPU_MIN_WORK")
-            .ok()
-            .and_then(|v| v.trim().parse().ok())
-        {
-            tiling.min_work = min_work;
+        if let Ok(value) = std::env::var("PVRNN_WGPU_MIN_WORK") {
+            match value.trim().parse() {
+                Ok(min_work) => tiling.min_work = min_work,
+                Err(_) => eprintln!(
+                    "PVRNN_WGPU_MIN_WORK={value} is not a whole number of multiply-adds; \
+                     using the default, {}",
+                    tiling.min_work
+                ),
+            }
         }
         Self {
             gpu,

@@ -293,17 +293,28 @@ fn a_learners_model_reads_out_with_the_device_weights() {
             full_outputs: FullOutputs::AllSteps,
             resident_targets: None,
         };
-        let a = fresh.evaluate(&windows, &request);
-        let b = on_device.evaluate(&windows, &request);
-        for (wa, wb) in a.windows.iter().zip(&b.windows) {
-            for mi in 0..2 {
-                assert_close("full read-outs", &wa.outputs[mi], &wb.outputs[mi], 1e-4);
-                let (la, lb) = (&wa.accuracy[mi], &wb.accuracy[mi]);
-                for (x, y) in la.iter().zip(lb) {
-                    assert!(
-                        (x - y).abs() <= 1e-5 * x.abs().max(1e-6),
-                        "accuracy {x} vs {y}"
-                    );
+        // And with a modality unobserved (vision): its full read-outs too.
+        let vision_unobserved = Request {
+            observed: Observed {
+                vision_levels: 0,
+                proprio: true,
+            },
+            grads: Grads::Adaptive,
+            ..request
+        };
+        for request in [request, vision_unobserved] {
+            let a = fresh.evaluate(&windows, &request);
+            let b = on_device.evaluate(&windows, &request);
+            for (wa, wb) in a.windows.iter().zip(&b.windows) {
+                for mi in 0..2 {
+                    assert_close("full read-outs", &wa.outputs[mi], &wb.outputs[mi], 1e-4);
+                    let (la, lb) = (&wa.accuracy[mi], &wb.accuracy[mi]);
+                    for (x, y) in la.iter().zip(lb) {
+                        assert!(
+                            (x - y).abs() <= 1e-5 * x.abs().max(1e-6),
+                            "accuracy {x} vs {y}"
+                        );
+                    }
                 }
             }
         }

@@ -237,8 +237,9 @@ async fn evaluate<T: Real>(
             }
         }
         // The top activations for the host's loss or the full read-outs: where the hidden
-        // weights live (a learner's device, whose read-out then handled the loss), else here.
-        let device_top = whole_done
+        // weights live (a learner's device, whose read-out then handled the loss, or which
+        // is not observed), else here.
+        let device_top = (whole_done || k == 0)
             .then_some(offload)
             .flatten()
             .and_then(|o| o.hidden_top(modality, &input, n));

@@ -12,6 +12,9 @@
 #   wgpu         the wgpu backend as it ships (read-outs and their optimiser resident)
 #   host-weights `--weights-on-host`: weights uploaded and updated on the host every
 #                iteration (the path before the resident learner)
+#   every-call   the wgpu backend with PVRNN_WGPU_MIN_WORK=0: online inference's small
+#                calls on the GPU too (the path before the threshold); inference only, and
+#                not with --quick
 # `--quick` runs one round of 3 training iterations (a smoke check of the set-up); the
 # default is two rounds of 10 training iterations and 20 inference steps each (not yet
 # run on a GPU: time it with --quick first). BENCH_ARGS adds options to every bench
@@ -68,6 +71,9 @@ for round in $(seq "$rounds"); do
     for threads in $thread_counts; do
         bench wgpu "$threads" "$round" --backend wgpu
         bench host-weights "$threads" "$round" --backend wgpu --weights-on-host
+        if [ "$quick" = 0 ]; then
+            PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
+        fi
         bench cpu "$threads" "$round" --backend cpu
     done
 done

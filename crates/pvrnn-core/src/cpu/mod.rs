@@ -93,6 +93,29 @@ impl<T: Real> CpuModel<T> {
             .unwrap_or_else(|| Box::new(CpuPass::forward(&self.prepared, windows, *ablation)))
     }
 
+    /// The read-out's hidden activations for the module states `d` (`[n, d]`), bottom
+    /// first: from the offloaded layer where its hidden weights live there (a learner's,
+    /// when `ask_device`: then only the top layer's), else computed here.
+    async fn hidden_activations(
+        &self,
+        modality: Modality,
+        d: &[T],
+        n: usize,
+        ask_device: bool,
+    ) -> Vec<Vec<T>> {
+        let on_device = ask_device
+            .then_some(self.output_layer.as_ref())
+            .flatten()
+            .and_then(|o| o.hidden_top(modality, d, n));
+        match on_device {
+            Some(top) => vec![top.await],
+            None => {
+                let _phase = crate::profile::phase("  read-out hidden layers");
+                readout::hidden_forward(&self.params.readouts[modality.index()], d, n)
+            }
+        }
+    }
+
     fn out_t(&self, mi: usize) -> &[T] {
         self.out_t[mi].get_or_init(|| {
             let w = &self.params.readouts[mi].out.weight;
@@ -131,14 +154,7 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
         let r = &self.params.readouts[modality.index()];
-        let acts = match self
-            .output_layer
-            .as_ref()
-            .and_then(|o| o.hidden_top(modality, d, n))
-        {
-            Some(top) => vec![crate::deferred::now(top)],
-            None => readout::hidden_forward(r, d, n),
-        };
+        let acts = crate::deferred::now(self.hidden_activations(modality, d, n, true));
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(d);
         match self
             .output_layer
@@ -239,17 +255,9 @@ async fn evaluate<T: Real>(
         // The top activations for the host's loss or the full read-outs: where the hidden
         // weights live (a learner's device, whose read-out then handled the loss, or which
         // is not observed), else here.
-        let device_top = (whole_done || k == 0)
-            .then_some(offload)
-            .flatten()
-            .and_then(|o| o.hidden_top(modality, &input, n));
-        let acts = match device_top {
-            Some(top) => vec![top.await],
-            None => {
-                let _phase = crate::profile::phase("  read-out hidden layers");
-                readout::hidden_forward(r, &input, n)
-            }
-        };
+        let acts = model
+            .hidden_activations(modality, &input, n, whole_done || k == 0)
+            .await;
         let top: &[T] = acts.last().map(Vec::as_slice).unwrap_or(&input);
         let hl = top.len() / n.max(1);
 

@@ -11,8 +11,10 @@
 
 use crate::Real;
 use crate::config::{Modality, ModelConfig};
-use crate::data::{Ablation, Observed};
+use crate::data::{Ablation, Observations, Observed};
 use crate::deferred::Deferred;
+use crate::error::Result;
+use crate::free_energy::FreeEnergy;
 use crate::optim::{RAdam, RAdamStep};
 use crate::params::{Model, Params};
 
@@ -172,6 +174,23 @@ pub trait Learner<T: Real>: Backend<T> {
     /// Copies resident tensor `index` (one of [`Self::resident`]) and its two moments from
     /// the device into the host's slices.
     fn download(&self, index: usize, value: &mut [T], m: &mut [T], v: &mut [T]);
+
+    /// A whole learning evaluation on the device, for a learner that keeps every trainable
+    /// tensor there, the adaptive variables and the recurrence included: the free energy
+    /// of the device's model on `data` (all of it observed, no ablation, as
+    /// [`crate::free_energy::free_energy`]), with every gradient left on the device for
+    /// [`Self::update`], so that only the free-energy terms come back. `eps` per sequence
+    /// and module, `[len, z]` ([`crate::free_energy::window_eps`]). `None` (the default):
+    /// the trainer evaluates through [`Backend::load`] and updates the tensors that are not
+    /// resident on the host. A learner that keeps every trainable tensor must answer.
+    fn free_energy(
+        &self,
+        data: &Observations<T>,
+        eps: &[[Vec<T>; 4]],
+    ) -> Option<Result<FreeEnergy>> {
+        let _ = (data, eps);
+        None
+    }
 }
 
 /// Weights ready for evaluation on one backend. Everything the model computes goes through

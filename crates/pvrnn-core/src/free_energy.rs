@@ -126,11 +126,7 @@ pub fn free_energy<T: Real>(
     check_model_fits_data(model, data)?;
     let config = &model.config;
     let sequences = data.sequences();
-    let noise_phase = crate::profile::phase("noise");
-    let eps: Vec<[Vec<T>; 4]> = crate::parallel::map(sequences, |s| {
-        sequence_eps(config, data.lengths()[s], noise, s as u64)
-    });
-    drop(noise_phase);
+    let eps = window_eps(config, data.lengths(), noise);
     let observed = Observed::all(config);
     let windows: Vec<Window<'_, T>> = (0..sequences)
         .map(|s| {
@@ -207,6 +203,20 @@ pub fn free_energy<T: Real>(
         None
     };
     Ok((report, gradients))
+}
+
+/// eps of every training sequence of the given lengths, per sequence and module `[len, z]`:
+/// what [`free_energy`] draws, for a backend that evaluates learning on its own
+/// ([`crate::backend::Learner::free_energy`]).
+pub fn window_eps<T: Real>(
+    config: &ModelConfig,
+    lengths: &[usize],
+    noise: NoiseDraw,
+) -> Vec<[Vec<T>; 4]> {
+    let _phase = crate::profile::phase("noise");
+    crate::parallel::map(lengths.len(), |s| {
+        sequence_eps(config, lengths[s], noise, s as u64)
+    })
 }
 
 /// eps of one training sequence, per module `[len, z]`.

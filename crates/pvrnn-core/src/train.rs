@@ -7,7 +7,7 @@ use crate::config::ModelConfig;
 use crate::cpu::CpuBackend;
 use crate::data::Observations;
 use crate::error::{Error, Result};
-use crate::free_energy::{FreeEnergy, NoiseDraw, free_energy};
+use crate::free_energy::{FreeEnergy, NoiseDraw, check_model_fits_data, free_energy, window_eps};
 use crate::noise::NoiseMode;
 use crate::optim::RAdam;
 use crate::params::{Model, Role};
@@ -188,28 +188,51 @@ impl<T: Real> Trainer<T> {
             self.learner = self.backend.learner(&self.model, &self.optimizer);
         }
         let draw = NoiseDraw::training(self.noise, self.iteration);
-        let evaluator: &dyn Backend<T> = match &self.learner {
-            Some(learner) => learner.as_ref(),
-            None => self.backend.as_ref(),
+        // The whole evaluation on the device, where the learner keeps everything there.
+        let on_device = match &self.learner {
+            Some(learner) => {
+                check_model_fits_data(&self.model, data)?;
+                let eps = window_eps(&self.model.config, data.lengths(), draw);
+                learner.free_energy(data, &eps).transpose()?
+            }
+            None => None,
         };
-        let (report, grads) = free_energy(evaluator, &self.model, data, draw, true)?;
-        let grads = grads.expect("gradients requested");
+        let (report, grads) = match on_device {
+            Some(report) => (report, None),
+            None => {
+                let evaluator: &dyn Backend<T> = match &self.learner {
+                    Some(learner) => learner.as_ref(),
+                    None => self.backend.as_ref(),
+                };
+                let (report, grads) = free_energy(evaluator, &self.model, data, draw, true)?;
+                (report, Some(grads.expect("gradients requested")))
+            }
+        };
         if !report.total.is_finite() {
             return Err(Error::Numerical(format!(
                 "the free energy became {} at iteration {}: learning diverged (try a smaller train.optimizer.lr)",
                 report.total, self.iteration
             )));
         }
-        let mut grad_slices: Vec<&[T]> = grads
-            .params
-            .named()
-            .into_iter()
-            .filter(|(_, _, role)| *role == Role::Trainable)
-            .map(|(_, t, _)| t.data())
-            .collect();
-        grad_slices.extend(grads.adaptive.named().into_iter().map(|(_, t)| t.data()));
-        let step = self.optimizer.begin_step();
+        let mut grad_slices: Vec<&[T]> = Vec::new();
+        if let Some(grads) = &grads {
+            grad_slices.extend(
+                grads
+                    .params
+                    .named()
+                    .into_iter()
+                    .filter(|(_, _, role)| *role == Role::Trainable)
+                    .map(|(_, t, _)| t.data()),
+            );
+            grad_slices.extend(grads.adaptive.named().into_iter().map(|(_, t)| t.data()));
+        }
         let resident = self.learner.as_ref().map_or(&[][..], |l| l.resident());
+        if grads.is_none() && resident.len() != self.optimizer.m.len() {
+            return Err(Error::Mismatch(
+                "the learner evaluated on its device but does not keep every trainable tensor there".into(),
+            ));
+        }
+        let step = self.optimizer.begin_step();
         if let Some(learner) = &self.learner {
             let _phase = crate::profile::phase("optimiser on the device (queued)");
             learner.update(&step);

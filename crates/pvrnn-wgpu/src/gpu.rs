@@ -140,6 +140,7 @@ pub struct Gpu {
     kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
+    copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
     /// Targets kept on the device (learning's data, uploaded once per run; an inference
     /// step's window, once per step).
@@ -179,6 +180,7 @@ impl Gpu {
             kernels: Mutex::new(HashMap::new()),
             recurrence_kernels: OnceLock::new(),
             radam_kernel: OnceLock::new(),
+            copy_kernel: OnceLock::new(),
             dense_kernels: OnceLock::new(),
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
@@ -328,6 +330,18 @@ impl Gpu {
         self.radam_kernel
             .get_or_init(|| {
                 Arc::new(self.pipeline("radam", include_str!("shaders/radam.wgsl").into()))
+            })
+            .clone()
+    }
+
+    /// The strided copy between layouts (`shaders/strided_copy.wgsl`), compiled on first use.
+    pub(crate) fn copy_kernel(&self) -> Arc<wgpu::ComputePipeline> {
+        self.copy_kernel
+            .get_or_init(|| {
+                Arc::new(self.pipeline(
+                    "strided copy",
+                    include_str!("shaders/strided_copy.wgsl").into(),
+                ))
             })
             .clone()
     }

@@ -21,6 +21,7 @@ use wgpu::util::DeviceExt;
 
 use crate::WgpuBackend;
 use crate::gpu::Gpu;
+use crate::iteration::DeviceIteration;
 use crate::output::{bind, dispatch, fits, grid, pad_rows, unpad_rows, vec4s};
 use crate::readback::read_back;
 
@@ -39,7 +40,7 @@ pub(crate) struct ResidentLayer {
     /// Width of the module's states `d`, the read-out's input.
     pub(crate) input_width: usize,
     /// The output layer's fan-in (the top hidden width).
-    hidden_width: usize,
+    pub(crate) hidden_width: usize,
     /// Every trainable tensor of the read-out, with its moments and gradient.
     tensors: Vec<ResidentTensor>,
     /// Rows of `grad_w` written by the last evaluation with weight gradients (the observed
@@ -63,26 +64,31 @@ pub(crate) struct ResidentDense {
     pub(crate) has_bias: bool,
 }
 
-/// One trainable tensor's buffers (shared with [`ResidentLayer`]'s handles).
+/// One trainable tensor's buffers (shared with [`ResidentLayer`]'s handles, or with the
+/// packed recurrent weights of [`DeviceIteration`]).
 #[derive(Debug)]
-struct ResidentTensor {
+pub(crate) struct ResidentTensor {
     /// Its index in the trainer's order (`pvrnn_core::train::trainable_names`).
-    index: usize,
-    value: wgpu::Buffer,
-    moments: [wgpu::Buffer; 2],
-    grad: wgpu::Buffer,
+    pub(crate) index: usize,
+    pub(crate) value: wgpu::Buffer,
+    pub(crate) moments: [wgpu::Buffer; 2],
+    pub(crate) grad: wgpu::Buffer,
     /// Floats in the device's layout.
-    len: usize,
-    part: Part,
+    pub(crate) len: usize,
+    /// Where it starts in its buffers (value, moments and gradient share the layout).
+    pub(crate) offset: usize,
+    pub(crate) part: Part,
 }
 
 /// Which gradient rows an evaluation writes: the output layer's observed rows only, a
-/// hidden layer's whole tensor.
+/// hidden layer's whole tensor when a whole read-out ran on the device, the recurrence's
+/// and the adaptive variables' every time (only the device evaluates them).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Part {
+pub(crate) enum Part {
     OutputWeight,
     OutputBias,
     Hidden,
+    Whole,
 }
 
 impl ResidentLayer {
@@ -131,6 +137,7 @@ impl ResidentLayer {
                 ],
                 grad: buffer("resident gradient", &vec![0f32; len]),
                 len,
+                offset: 0,
                 part,
             };
             let handles = (t.value.clone(), t.grad.clone());
@@ -202,13 +209,21 @@ struct RAdamParams {
     eps: f32,
     sqrt_bias2: f32,
     lr: f32,
+    offset: u32,
+    _pad: [u32; 3],
 }
 
-/// A learning run on [`WgpuBackend`] with its read-outs resident (see the module docs).
+/// A learning run on [`WgpuBackend`] with its read-outs resident (see the module docs), and
+/// with the recurrence on the GPU ([`WgpuBackend::with_recurrence_on_gpu`]) everything
+/// else too ([`DeviceIteration`]).
 #[derive(Debug)]
 pub struct GpuLearner {
     backend: WgpuBackend,
     layers: [Option<Arc<ResidentLayer>>; 2],
+    /// The recurrence and the adaptive variables, when the whole iteration runs here.
+    iteration: Option<DeviceIteration>,
+    /// Their tensors (ranges of the packed recurrent weights, the adaptive variables).
+    more: Vec<ResidentTensor>,
     resident: Vec<usize>,
 }
 
@@ -224,14 +239,32 @@ impl GpuLearner {
         let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
             ResidentLayer::upload(backend.gpu(), model, optimizer, mi, &index_of).map(Arc::new)
         });
+        let mut more = Vec::new();
+        let iteration = backend
+            .recurrence_on_gpu()
+            .then(|| {
+                DeviceIteration::new(
+                    backend.gpu(),
+                    backend.tiling(),
+                    model,
+                    optimizer,
+                    &layers,
+                    &index_of,
+                    &mut more,
+                )
+            })
+            .flatten();
         let resident: Vec<usize> = layers
             .iter()
             .flatten()
             .flat_map(|l| l.tensors.iter().map(|t| t.index))
+            .chain(more.iter().map(|t| t.index))
             .collect();
         (!resident.is_empty()).then(|| Self {
             backend: backend.clone(),
             layers,
+            iteration,
+            more,
             resident,
         })
     }
@@ -240,20 +273,18 @@ impl GpuLearner {
         self.backend.gpu()
     }
 
-    /// Encodes one RAdam step of `count` elements, the first `live` of which have a gradient.
-    #[allow(clippy::too_many_arguments)]
+    /// Encodes one RAdam step of `t`: its first `live` elements with their gradient, the
+    /// rest without.
     fn encode_update(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         step: &RAdamStep,
-        count: usize,
+        t: &ResidentTensor,
         live: usize,
-        value: &wgpu::Buffer,
-        moments: &[wgpu::Buffer; 2],
-        grad: &wgpu::Buffer,
         keep: &mut Vec<crate::pool::PooledBuffer>,
     ) {
         let gpu = self.gpu();
+        let count = t.len;
         let (groups_x, groups_y) = grid(gpu, count);
         let params = gpu.uniform(&RAdamParams {
             count: count as u32,
@@ -268,12 +299,14 @@ impl GpuLearner {
             eps: step.eps as f32,
             sqrt_bias2: step.sqrt_bias2 as f32,
             lr: step.rectified.unwrap_or(step.plain) as f32,
+            offset: t.offset as u32,
+            _pad: [0; 3],
         });
         let kernel = gpu.radam_kernel();
         let group = bind(
             gpu,
             &kernel,
-            &[&params, value, &moments[0], &moments[1], grad],
+            &[&params, &t.value, &t.moments[0], &t.moments[1], &t.grad],
         );
         dispatch(encoder, &kernel, &group, groups_x, groups_y);
         keep.push(params);
@@ -281,7 +314,7 @@ impl GpuLearner {
 }
 
 /// A long-lived storage buffer (not pooled: it lives as long as its learner).
-fn resident_buffer(gpu: &Gpu, label: &str, values: &[f32]) -> wgpu::Buffer {
+pub(crate) fn resident_buffer(gpu: &Gpu, label: &str, values: &[f32]) -> wgpu::Buffer {
     let values: &[f32] = if values.is_empty() { &[0.0] } else { values };
     gpu.device
         .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -330,18 +363,16 @@ impl Learner<f32> for GpuLearner {
                     Part::OutputBias => k,
                     Part::Hidden if hidden => t.len,
                     Part::Hidden => 0,
+                    Part::Whole => t.len,
                 };
-                self.encode_update(
-                    &mut encoder,
-                    step,
-                    t.len,
-                    live,
-                    &t.value,
-                    &t.moments,
-                    &t.grad,
-                    &mut keep,
-                );
+                self.encode_update(&mut encoder, step, t, live, &mut keep);
             }
+        }
+        for t in &self.more {
+            self.encode_update(&mut encoder, step, t, t.len, &mut keep);
+        }
+        if let Some(iteration) = &self.iteration {
+            iteration.encode_transposes(gpu, &mut encoder, &mut keep);
         }
         // Queued, not waited for: the next iteration's submissions run after it. The
         // uniforms may go back to the pool at once: a later user writes them through the
@@ -351,26 +382,48 @@ impl Learner<f32> for GpuLearner {
     }
 
     fn download(&self, index: usize, value: &mut [f32], m: &mut [f32], v: &mut [f32]) {
-        let Some((layer, t)) = self
+        let found = self
             .layers
             .iter()
             .flatten()
-            .find_map(|l| l.tensors.iter().find(|t| t.index == index).map(|t| (l, t)))
-        else {
+            .find_map(|l| {
+                l.tensors
+                    .iter()
+                    .find(|t| t.index == index)
+                    .map(|t| (Some(l.hidden_width), t))
+            })
+            .or_else(|| {
+                self.more
+                    .iter()
+                    .find(|t| t.index == index)
+                    .map(|t| (None, t))
+            });
+        let Some((layer_width, t)) = found else {
             panic!("tensor {index} is not resident on this learner");
         };
         let gpu = self.gpu();
         let encoder = gpu.device.create_command_encoder(&Default::default());
         let [mb, vb] = &t.moments;
-        let sources = [(&t.value, t.len), (mb, t.len), (vb, t.len)];
+        let end = t.offset + t.len;
+        let sources = [(&t.value, end), (mb, end), (vb, end)];
         let results = pvrnn_core::deferred::now(read_back(gpu, encoder, &sources));
         for (dst, src) in [value, m, v].into_iter().zip(results) {
-            let src = if t.part == Part::OutputWeight {
-                unpad_rows(&src, layer.hidden_width)
-            } else {
-                src
-            };
-            dst.copy_from_slice(&src);
+            let src = &src[t.offset..];
+            match layer_width {
+                Some(width) if t.part == Part::OutputWeight => {
+                    dst.copy_from_slice(&unpad_rows(src, width));
+                }
+                _ => dst.copy_from_slice(src),
+            }
         }
+    }
+
+    fn free_energy(
+        &self,
+        data: &pvrnn_core::Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Option<pvrnn_core::Result<pvrnn_core::FreeEnergy>> {
+        let iteration = self.iteration.as_ref()?;
+        Some(iteration.free_energy(self.gpu(), data, eps))
     }
 }

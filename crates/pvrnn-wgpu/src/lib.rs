@@ -20,7 +20,9 @@
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device).
 
+mod copy;
 mod gpu;
+mod iteration;
 mod learner;
 mod output;
 mod pool;
@@ -136,6 +138,11 @@ impl WgpuBackend {
                 recurrence,
             },
         )
+    }
+
+    /// How the work is cut (tiles, chunks, the small-call threshold).
+    pub(crate) fn tiling(&self) -> Tiling {
+        self.tiling
     }
 
     /// The same GPU with another cut of the work (tests use small tiles and chunks).

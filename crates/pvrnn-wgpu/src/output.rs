@@ -389,6 +389,18 @@ struct EncodedLoss {
     resident_targets: Option<Arc<Vec<wgpu::Buffer>>>,
 }
 
+/// A learner's whole read-out encoded on the device (see [`GpuOutputLayer::encode_readout`]).
+pub(crate) struct EncodedReadout {
+    /// d F / d the module states, `[n, grad_stride]` (the first `d` values of each row).
+    pub(crate) grad_d: PooledBuffer,
+    pub(crate) grad_stride: usize,
+    /// The row losses' sums of squared errors (times 1 / divisor), `[n]`.
+    pub(crate) row_loss: PooledBuffer,
+    /// What the submission uses, kept from the pool until it has run.
+    _keep: Vec<PooledBuffer>,
+    _targets: Option<Arc<Vec<wgpu::Buffer>>>,
+}
+
 impl GpuOutputLayer {
     /// Encodes the fused loss of `layer` for `n` rows of top hidden activations in `x`
     /// (`[n, 4 hv]`, padded rows), with the weight gradients when `weight_grads` (into a
@@ -563,6 +575,77 @@ impl GpuOutputLayer {
         }
     }
 
+    /// Encodes a learner's whole read-out of `modality` from the module states in `input`:
+    /// `[n, input width]` for a read-out with hidden layers, else `[n, 4 hv]` (the output
+    /// layer's padded rows, padding zero). The hidden layers forward, the output layer's
+    /// loss, and back to d F / d d, every weight gradient into the learner's buffers (when
+    /// `weight_grads`). `None` unless the read-out is a learner's.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_readout(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        modality: Modality,
+        input: &wgpu::Buffer,
+        n: usize,
+        k: usize,
+        divisor: usize,
+        targets: &[&[f32]],
+        resident: Option<u64>,
+        weight_grads: bool,
+    ) -> Option<EncodedReadout> {
+        let layer = self.layer(modality)?;
+        let readout = layer.resident()?;
+        let mut keep = Vec::new();
+        let acts = self.encode_hidden_forward(encoder, readout, input, n, &mut keep);
+        let top: &wgpu::Buffer = acts.last().map_or(input, |(a, _)| a);
+        let encoded = self.encode_loss(
+            encoder,
+            layer,
+            modality,
+            top,
+            n,
+            k,
+            divisor,
+            targets,
+            resident,
+            weight_grads,
+        );
+        let EncodedLoss {
+            grad_in,
+            row_loss,
+            grads: _,
+            in_flight,
+            resident_targets,
+        } = encoded;
+        keep.extend(in_flight);
+        let (grad_d, grad_stride) = if readout.hidden.is_empty() {
+            (grad_in, 4 * vec4s(layer.hidden))
+        } else {
+            let grad_d = self.encode_hidden_backward(
+                encoder,
+                readout,
+                input,
+                &acts,
+                grad_in,
+                n,
+                weight_grads,
+                &mut keep,
+            );
+            if weight_grads {
+                readout.hidden_gradients_written();
+            }
+            (grad_d, readout.input_width)
+        };
+        keep.extend(acts.into_iter().map(|(a, _)| a));
+        Some(EncodedReadout {
+            grad_d,
+            grad_stride,
+            row_loss,
+            _keep: keep,
+            _targets: resident_targets,
+        })
+    }
+
     /// Encodes the hidden layers of a learner's read-out, forward from the module states in
     /// `d` (`[n, input width]`): every layer's activations, the top one in padded rows for
     /// the output layer's kernels. Returns them bottom first.
@@ -704,7 +787,7 @@ impl GpuOutputLayer {
 
 /// The row losses, 1/2 (1 / divisor) sum (x - x^)^2 as [`OutputLoss::row_loss`], from the
 /// kernels' per-row sums of squared errors.
-fn row_losses(sums: Vec<f32>, divisor: usize) -> Vec<f64> {
+pub(crate) fn row_losses(sums: Vec<f32>, divisor: usize) -> Vec<f64> {
     let half_over_divisor = 0.5 / divisor as f64;
     sums.into_iter()
         .map(|s| s as f64 * half_over_divisor)
@@ -814,52 +897,24 @@ impl OutputLayer<f32> for GpuOutputLayer {
         let encode_phase = pvrnn_core::profile::phase("    GPU: upload and encode");
         let input = gpu.upload("module states", d);
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let mut in_flight = Vec::new();
-        let acts = self.encode_hidden_forward(&mut encoder, readout, &input, n, &mut in_flight);
-        let top = &acts.last().expect("hidden layers").0;
-        let encoded = self.encode_loss(
+        let encoded = self.encode_readout(
             &mut encoder,
-            layer,
             modality,
-            top,
+            &input,
             n,
             k,
             divisor,
             targets,
             resident,
             weight_grads,
+        )?;
+        let pending = read_back(
+            gpu,
+            encoder,
+            &[(&encoded.grad_d, n * width), (&encoded.row_loss, n)],
         );
-        let EncodedLoss {
-            grad_in,
-            row_loss,
-            grads: _,
-            in_flight: loss_in_flight,
-            resident_targets,
-        } = encoded;
-        let grad_d = self.encode_hidden_backward(
-            &mut encoder,
-            readout,
-            &input,
-            &acts,
-            grad_in,
-            n,
-            weight_grads,
-            &mut in_flight,
-        );
-        if weight_grads {
-            readout.hidden_gradients_written();
-        }
-        let pending = read_back(gpu, encoder, &[(&grad_d, n * width), (&row_loss, n)]);
         drop(encode_phase);
-        let used = (
-            input,
-            acts,
-            in_flight,
-            loss_in_flight,
-            resident_targets,
-            grad_d,
-            row_loss,
-        );
+        let used = (input, encoded);
         Some(Box::pin(async move {
             let wait_phase = pvrnn_core::profile::phase("    GPU: run and read back");
             let mut results = pending.await.into_iter();

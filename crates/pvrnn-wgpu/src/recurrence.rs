@@ -15,7 +15,7 @@ use pvrnn_core::backend::{
 };
 use pvrnn_core::config::ModuleId;
 use pvrnn_core::data::Ablation;
-use pvrnn_core::params::Params;
+use pvrnn_core::params::{ModuleParams, Params};
 
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{bind, dispatch};
@@ -36,36 +36,36 @@ const RECORD_ROWS: usize = 9;
 
 /// One module's shapes and offsets: into the weights, and within a step of each buffer.
 #[derive(Clone, Copy, Debug, Default)]
-struct ModuleLayout {
-    d: usize,
-    z: usize,
-    parent: Option<usize>,
-    parent_d: usize,
-    w_prior: usize,
-    b_prior: usize,
-    w_dd: usize,
-    w_dz: usize,
-    w_dh: usize,
-    bias: usize,
-    inv_tau: usize,
-    decay: usize,
+pub(crate) struct ModuleLayout {
+    pub(crate) d: usize,
+    pub(crate) z: usize,
+    pub(crate) parent: Option<usize>,
+    pub(crate) parent_d: usize,
+    pub(crate) w_prior: usize,
+    pub(crate) b_prior: usize,
+    pub(crate) w_dd: usize,
+    pub(crate) w_dz: usize,
+    pub(crate) w_dh: usize,
+    pub(crate) bias: usize,
+    pub(crate) inv_tau: usize,
+    pub(crate) decay: usize,
     /// Offsets within a step of the forward record, the inputs, the initial states, the
     /// backward record and the read-out gradients.
-    record: usize,
-    input: usize,
-    init: usize,
-    back: usize,
-    grad_d: usize,
+    pub(crate) record: usize,
+    pub(crate) input: usize,
+    pub(crate) init: usize,
+    pub(crate) back: usize,
+    pub(crate) grad_d: usize,
 }
 
 /// Per-step (per-window for `init`) sizes of the buffers.
 #[derive(Clone, Copy, Debug, Default)]
-struct Strides {
-    record: usize,
-    input: usize,
-    init: usize,
-    grad_d: usize,
-    back: usize,
+pub(crate) struct Strides {
+    pub(crate) record: usize,
+    pub(crate) input: usize,
+    pub(crate) init: usize,
+    pub(crate) grad_d: usize,
+    pub(crate) back: usize,
 }
 
 #[repr(C)]
@@ -82,25 +82,19 @@ struct WeightsParams {
     _pad: [u32; 2],
 }
 
-/// The recurrent weights of one loaded model, uploaded.
-#[derive(Debug)]
-pub struct GpuRecurrence {
-    gpu: Arc<Gpu>,
-    kernels: Arc<RecurrenceKernels>,
+/// Where everything lives in the recurrence kernels' buffers: the modules' shapes and
+/// offsets, the per-step strides, and the packed weights' size.
+#[derive(Clone, Debug)]
+pub(crate) struct RecurrenceLayout {
     modules: [ModuleLayout; 4],
     strides: Strides,
-    weights: PooledBuffer,
-    /// The same values with every matrix transposed (same offsets), for the forward
-    /// kernel: its threads own output rows, so this layout makes their loads coalesced.
-    weights_t: PooledBuffer,
     weight_floats: usize,
     kl_scale: [f32; 4],
 }
 
-impl GpuRecurrence {
-    /// Uploads the modules' weights. A module wider than the kernels hold leaves every
-    /// call to the CPU.
-    pub fn upload(gpu: Arc<Gpu>, params: &Params<f32>, config: &ModelConfig) -> Self {
+impl RecurrenceLayout {
+    /// The layout of `config`'s modules and `params`' weights packed in it.
+    pub(crate) fn new(params: &Params<f32>, config: &ModelConfig) -> (Self, Vec<f32>) {
         let mut modules = [ModuleLayout::default(); 4];
         let mut strides = Strides::default();
         let mut weights = Vec::new();
@@ -165,33 +159,97 @@ impl GpuRecurrence {
         }
         let kl_scale =
             ModuleId::ALL.map(|id| (config.kl_weight / config.module(id).z as f64) as f32);
-        let mut weights_t = weights.clone();
-        for ml in &modules {
-            for (at, rows, cols) in [
-                (ml.w_prior, 2 * ml.z, ml.d),
-                (ml.w_dd, ml.d, ml.d),
-                (ml.w_dz, ml.d, ml.z),
-                (ml.w_dh, ml.d, ml.parent_d),
-            ] {
-                for r in 0..rows {
-                    for c in 0..cols {
-                        weights_t[at + c * rows + r] = weights[at + r * cols + c];
-                    }
+        let layout = Self {
+            modules,
+            strides,
+            weight_floats: weights.len(),
+            kl_scale,
+        };
+        (layout, weights)
+    }
+
+    /// The weight matrices as (offset, rows, columns): the forward kernel reads them
+    /// transposed (its threads own output rows, so that layout makes their loads coalesced).
+    pub(crate) fn matrices(&self) -> Vec<(usize, usize, usize)> {
+        self.modules
+            .iter()
+            .flat_map(|ml| {
+                [
+                    (ml.w_prior, 2 * ml.z, ml.d),
+                    (ml.w_dd, ml.d, ml.d),
+                    (ml.w_dz, ml.d, ml.z),
+                    (ml.w_dh, ml.d, ml.parent_d),
+                ]
+            })
+            .filter(|&(_, rows, cols)| rows * cols > 0)
+            .collect()
+    }
+
+    /// `weights` with every matrix transposed in place (same offsets).
+    pub(crate) fn transposed(&self, weights: &[f32]) -> Vec<f32> {
+        let mut weights_t = weights.to_vec();
+        for (at, rows, cols) in self.matrices() {
+            for r in 0..rows {
+                for c in 0..cols {
+                    weights_t[at + c * rows + r] = weights[at + r * cols + c];
                 }
             }
         }
+        weights_t
+    }
+
+    /// Module `m`'s trainable tensors (of `p`, its parameters) with their offsets in the
+    /// packed weights (the bias and the time constants are fixed; a missing prior bias's
+    /// slots stay zero).
+    pub(crate) fn trainable<'p>(
+        &self,
+        m: usize,
+        p: &'p ModuleParams<f32>,
+    ) -> Vec<(&'p pvrnn_core::Tensor<f32>, usize)> {
+        let ml = self.modules[m];
+        let half = ml.z * ml.d;
+        let mut out = vec![
+            (&p.w_dd, ml.w_dd),
+            (&p.w_dz, ml.w_dz),
+            (&p.w_prior_mu, ml.w_prior),
+            (&p.w_prior_sigma, ml.w_prior + half),
+        ];
+        out.extend(p.w_dh.as_ref().map(|w| (w, ml.w_dh)));
+        out.extend(p.b_prior_mu.as_ref().map(|b| (b, ml.b_prior)));
+        out.extend(p.b_prior_sigma.as_ref().map(|b| (b, ml.b_prior + ml.z)));
+        out
+    }
+}
+
+/// The recurrent weights of one loaded model, uploaded.
+#[derive(Debug)]
+pub struct GpuRecurrence {
+    gpu: Arc<Gpu>,
+    kernels: Arc<RecurrenceKernels>,
+    layout: RecurrenceLayout,
+    weights: PooledBuffer,
+    /// The same values with every matrix transposed (same offsets), for the forward
+    /// kernel: its threads own output rows, so this layout makes their loads coalesced.
+    weights_t: PooledBuffer,
+}
+
+impl GpuRecurrence {
+    /// Uploads the modules' weights. A module wider than the kernels hold leaves every
+    /// call to the CPU.
+    pub fn upload(gpu: Arc<Gpu>, params: &Params<f32>, config: &ModelConfig) -> Self {
+        let (layout, weights) = RecurrenceLayout::new(params, config);
+        let weights_t = layout.transposed(&weights);
         Self {
             kernels: gpu.recurrence_kernels(),
             weights: gpu.upload("recurrent weights", &weights),
             weights_t: gpu.upload("recurrent weights, transposed", &weights_t),
-            weight_floats: weights.len(),
             gpu,
-            modules,
-            strides,
-            kl_scale,
+            layout,
         }
     }
+}
 
+impl RecurrenceLayout {
     /// The table the kernels read (see `shaders/recurrence_common.wgsl`): modules, strides,
     /// ablation, then `windows` as (steps, inputs, record, prior posterior, read-out
     /// gradients, backward record) offsets.
@@ -240,8 +298,8 @@ impl GpuRecurrence {
 
     /// Whether the kernels hold these shapes: module widths within the workgroup arrays,
     /// windows within one dispatch, buffers within one binding.
-    fn fits(&self, windows: usize, steps: usize) -> bool {
-        let limits = self.gpu.limits();
+    pub(crate) fn fits(&self, gpu: &Gpu, windows: usize, steps: usize) -> bool {
+        let limits = gpu.limits();
         let binding = limits.max_storage_buffer_binding_size as usize;
         let s = self.strides;
         let largest = (steps * s.record.max(s.back).max(s.input) + windows * s.init)
@@ -257,6 +315,129 @@ impl GpuRecurrence {
     }
 }
 
+impl RecurrenceLayout {
+    pub(crate) fn modules(&self) -> &[ModuleLayout; 4] {
+        &self.modules
+    }
+
+    pub(crate) fn strides(&self) -> Strides {
+        self.strides
+    }
+
+    /// The table entries of windows of these lengths, in order (see [`Self::table`]): each
+    /// window's inputs (its initial states, then its steps) follow the last one's, its
+    /// records and gradients continue the last one's steps.
+    pub(crate) fn entries(&self, windows: impl Iterator<Item = (usize, bool)>) -> Vec<[usize; 6]> {
+        let s = self.strides;
+        let (mut before, mut input_at) = (0, 0);
+        windows
+            .map(|(len, prior)| {
+                let entry = [
+                    len,
+                    input_at,
+                    before * s.record,
+                    prior as usize,
+                    before * s.grad_d,
+                    before * s.back,
+                ];
+                before += len;
+                input_at += s.init + len * s.input;
+                entry
+            })
+            .collect()
+    }
+
+    /// The windows' table, uploaded.
+    pub(crate) fn upload_table(
+        &self,
+        gpu: &Gpu,
+        ablation: &Ablation,
+        entries: &[[usize; 6]],
+    ) -> PooledBuffer {
+        gpu.upload("recurrence table", &self.table(ablation, entries))
+    }
+
+    /// Encodes the forward pass of the table's windows: `record` gets every step's states.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_forward(
+        &self,
+        gpu: &Gpu,
+        kernels: &RecurrenceKernels,
+        encoder: &mut wgpu::CommandEncoder,
+        table: &wgpu::Buffer,
+        weights_t: &wgpu::Buffer,
+        inputs: &wgpu::Buffer,
+        record: &wgpu::Buffer,
+        windows: usize,
+    ) {
+        let group = bind(gpu, &kernels.forward, &[table, weights_t, inputs, record]);
+        dispatch(encoder, &kernels.forward, &group, windows as u32, 1);
+    }
+
+    /// Encodes back-propagation through the table's windows from the read-outs' d F / d d
+    /// in `grad_d`: `back` gets every step's gradients (d F / d a among them). Returns the
+    /// uniform it used, to keep until the submission has run.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_backward(
+        &self,
+        gpu: &Gpu,
+        kernels: &RecurrenceKernels,
+        encoder: &mut wgpu::CommandEncoder,
+        table: &wgpu::Buffer,
+        weights: &wgpu::Buffer,
+        record: &wgpu::Buffer,
+        grad_d: &wgpu::Buffer,
+        back: &wgpu::Buffer,
+        windows: usize,
+    ) -> PooledBuffer {
+        let params = gpu.uniform(&BackwardParams {
+            kl_scale: self.kl_scale,
+        });
+        let group = bind(
+            gpu,
+            &kernels.backward,
+            &[table, weights, record, grad_d, back, &params],
+        );
+        dispatch(encoder, &kernels.backward, &group, windows as u32, 1);
+        params
+    }
+
+    /// Encodes the weight gradients, summed over the table's windows, into `grads` (the
+    /// packed weights' layout). Returns the uniform it used.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn encode_weight_grads(
+        &self,
+        gpu: &Gpu,
+        kernels: &RecurrenceKernels,
+        encoder: &mut wgpu::CommandEncoder,
+        table: &wgpu::Buffer,
+        inputs: &wgpu::Buffer,
+        record: &wgpu::Buffer,
+        back: &wgpu::Buffer,
+        grads: &wgpu::Buffer,
+        windows: usize,
+    ) -> PooledBuffer {
+        let params = gpu.uniform(&WeightsParams {
+            windows: windows as u32,
+            total: self.weight_floats as u32,
+            _pad: [0; 2],
+        });
+        let group = bind(
+            gpu,
+            &kernels.weights,
+            &[table, inputs, record, back, grads, &params],
+        );
+        dispatch(
+            encoder,
+            &kernels.weights,
+            &group,
+            self.weight_floats.div_ceil(WEIGHTS_WORKGROUP) as u32,
+            1,
+        );
+        params
+    }
+}
+
 impl Recurrence<f32> for GpuRecurrence {
     fn forward<'a>(
         &'a self,
@@ -268,20 +449,23 @@ impl Recurrence<f32> for GpuRecurrence {
         if cfg!(target_arch = "wasm32") {
             return None;
         }
+        let layout = &self.layout;
         let steps: usize = windows.iter().map(|w| w.len).sum();
-        if !self.fits(windows.len(), steps) || windows.iter().any(|w| w.len == 0) {
+        if !layout.fits(&self.gpu, windows.len(), steps) || windows.iter().any(|w| w.len == 0) {
             return None;
         }
-        let s = self.strides;
+        let s = layout.strides;
+        let entries = layout.entries(
+            windows
+                .iter()
+                .map(|w| (w.len, matches!(w.posterior, Posterior::Prior))),
+        );
         let mut inputs = Vec::with_capacity(windows.len() * s.init + steps * s.input);
-        let mut entries = Vec::with_capacity(windows.len());
         let mut initial = Vec::with_capacity(windows.len());
-        let mut before = 0;
         for w in windows {
-            let input_at = inputs.len();
             // h0 and d0 = tanh(h0) per module, d0 computed here as the CPU backend does.
             let mut init: [(Vec<f32>, Vec<f32>); 4] = Default::default();
-            for (m, ml) in self.modules.iter().enumerate() {
+            for (m, ml) in layout.modules.iter().enumerate() {
                 let h0 =
                     w.h0.map_or_else(|| vec![0.0; ml.d], |h| h[m][..ml.d].to_vec());
                 let d0: Vec<f32> = h0.iter().map(|h| h.tanh()).collect();
@@ -289,9 +473,8 @@ impl Recurrence<f32> for GpuRecurrence {
                 inputs.extend_from_slice(&d0);
                 init[m] = (h0, d0);
             }
-            let prior = matches!(w.posterior, Posterior::Prior);
             for t in 0..w.len {
-                for (m, ml) in self.modules.iter().enumerate() {
+                for (m, ml) in layout.modules.iter().enumerate() {
                     let row = t * ml.z..(t + 1) * ml.z;
                     match w.posterior {
                         Posterior::Adaptive { a_mu, a_sigma } => {
@@ -303,38 +486,27 @@ impl Recurrence<f32> for GpuRecurrence {
                     inputs.extend_from_slice(&w.eps[m][row]);
                 }
             }
-            entries.push([
-                w.len,
-                input_at,
-                before * s.record,
-                prior as usize,
-                before * s.grad_d,
-                before * s.back,
-            ]);
             initial.push(init);
-            before += w.len;
         }
 
         let gpu = &*self.gpu;
-        let table = gpu.upload("recurrence table", &self.table(ablation, &entries));
+        let table = layout.upload_table(gpu, ablation, &entries);
         let input_buffer = gpu.upload("recurrence inputs", &inputs);
         let record = gpu.scratch(
             "recurrence record",
             steps * s.record,
             wgpu::BufferUsages::COPY_SRC,
         );
-        let group = bind(
-            gpu,
-            &self.kernels.forward,
-            &[&table, &self.weights_t, &input_buffer, &record],
-        );
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        dispatch(
+        layout.encode_forward(
+            gpu,
+            &self.kernels,
             &mut encoder,
-            &self.kernels.forward,
-            &group,
-            windows.len() as u32,
-            1,
+            &table,
+            &self.weights_t,
+            &input_buffer,
+            &record,
+            windows.len(),
         );
         let values = now(read_back(gpu, encoder, &[(&record, steps * s.record)]))
             .pop()
@@ -368,7 +540,6 @@ impl Recurrence<f32> for GpuRecurrence {
         }))
     }
 }
-
 impl GpuRecurrence {
     /// Module m's states over a window from its forward record.
     fn unpack_trace(
@@ -379,9 +550,9 @@ impl GpuRecurrence {
         h0: Vec<f32>,
         d0: Vec<f32>,
     ) -> ModuleTrace<f32> {
-        let ml = self.modules[m];
+        let ml = self.layout.modules[m];
         let (d, z) = (ml.d, ml.z);
-        let stride = self.strides.record;
+        let stride = self.layout.strides.record;
         let gather = |offset: usize, width: usize| {
             let mut out = Vec::with_capacity(len * width);
             for t in 0..len {
@@ -435,14 +606,15 @@ impl RecurrencePass<f32> for GpuPass<'_> {
     fn backward(&self, grad_d: &[[Option<&[f32]>; 4]], weight_grads: bool) -> RecurrenceGrads<f32> {
         let r = self.recurrence;
         let gpu = &*r.gpu;
-        let s = r.strides;
+        let layout = &r.layout;
+        let s = layout.strides;
         let mut from_readout = vec![0f32; self.steps * s.grad_d];
         for (entry, per_module) in self.entries.iter().zip(grad_d) {
             for (m, g) in per_module.iter().enumerate() {
                 let Some(g) = g else { continue };
-                let d = r.modules[m].d;
+                let d = layout.modules[m].d;
                 for t in 0..entry[0] {
-                    let at = entry[4] + t * s.grad_d + r.modules[m].grad_d;
+                    let at = entry[4] + t * s.grad_d + layout.modules[m].grad_d;
                     from_readout[at..at + d].copy_from_slice(&g[t * d..(t + 1) * d]);
                 }
             }
@@ -453,63 +625,44 @@ impl RecurrencePass<f32> for GpuPass<'_> {
             self.steps * s.back,
             wgpu::BufferUsages::COPY_SRC,
         );
-        let params = gpu.uniform(&BackwardParams {
-            kl_scale: r.kl_scale,
-        });
+        let windows = self.entries.len();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let group = bind(
+        let _backward_params = layout.encode_backward(
             gpu,
-            &r.kernels.backward,
-            &[
-                &self.table,
-                &r.weights,
-                &self.record,
-                &grad_d,
-                &back,
-                &params,
-            ],
-        );
-        dispatch(
+            &r.kernels,
             &mut encoder,
-            &r.kernels.backward,
-            &group,
-            self.entries.len() as u32,
-            1,
+            &self.table,
+            &r.weights,
+            &self.record,
+            &grad_d,
+            &back,
+            windows,
         );
         let grads = gpu.scratch(
             "recurrent weight gradients",
-            if weight_grads { r.weight_floats } else { 1 },
+            if weight_grads {
+                layout.weight_floats
+            } else {
+                1
+            },
             wgpu::BufferUsages::COPY_SRC,
         );
-        let weights_params = gpu.uniform(&WeightsParams {
-            windows: self.entries.len() as u32,
-            total: r.weight_floats as u32,
-            _pad: [0; 2],
-        });
-        if weight_grads {
-            let group = bind(
+        let _weights_params = weight_grads.then(|| {
+            layout.encode_weight_grads(
                 gpu,
-                &r.kernels.weights,
-                &[
-                    &self.table,
-                    &self.inputs,
-                    &self.record,
-                    &back,
-                    &grads,
-                    &weights_params,
-                ],
-            );
-            dispatch(
+                &r.kernels,
                 &mut encoder,
-                &r.kernels.weights,
-                &group,
-                r.weight_floats.div_ceil(WEIGHTS_WORKGROUP) as u32,
-                1,
-            );
-        }
+                &self.table,
+                &self.inputs,
+                &self.record,
+                &back,
+                &grads,
+                windows,
+            )
+        });
         let mut sources = vec![(&*back, self.steps * s.back)];
         if weight_grads {
-            sources.push((&*grads, r.weight_floats));
+            sources.push((&*grads, layout.weight_floats));
         }
         let mut results = now(read_back(gpu, encoder, &sources)).into_iter();
         let back = results.next().unwrap_or_default();
@@ -517,10 +670,10 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         for entry in &self.entries {
             let (len, at) = (entry[0], entry[5]);
             let gather = |m: usize, offset: usize| {
-                let z = r.modules[m].z;
+                let z = layout.modules[m].z;
                 let mut out = Vec::with_capacity(len * z);
                 for t in 0..len {
-                    let i = at + t * s.back + r.modules[m].back + offset * z;
+                    let i = at + t * s.back + layout.modules[m].back + offset * z;
                     out.extend_from_slice(&back[i..i + z]);
                 }
                 out
@@ -530,7 +683,7 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         }
         let weights = results.next().map(|g| {
             std::array::from_fn(|m| {
-                let ml = r.modules[m];
+                let ml = layout.modules[m];
                 let (d, z) = (ml.d, ml.z);
                 let take = |at: usize, n: usize| g[at..at + n].to_vec();
                 ModuleWeightGrads {

@@ -144,10 +144,25 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
 #[test]
 fn learning_with_resident_weights_follows_the_cpu() {
     let Some(gpu) = gpu() else { return };
-    learning_with_resident_weights(gpu.clone(), config());
+    learning_with_resident_weights(gpu.clone(), config(), None);
     // One hidden layer without a bias for vision, no output bias; proprioception with no
     // hidden layer (its output layer reads the module states directly).
-    learning_with_resident_weights(gpu, other_readouts());
+    learning_with_resident_weights(gpu, other_readouts(), None);
+}
+
+/// With the recurrence on the GPU the whole iteration stays there (`DeviceIteration`): the
+/// recurrent weights and every adaptive variable too, with their moments; only the
+/// free-energy terms come back. It follows the CPU iteration by iteration, as above, for
+/// sequences of one length (each copy between layouts one dispatch) and of several
+/// (per window), with and without prior biases and hidden read-out layers.
+#[test]
+fn whole_learning_iterations_on_the_device_follow_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    learning_with_resident_weights(gpu.clone(), config(), None);
+    let mut other = other_readouts();
+    other.prior_bias = !other.prior_bias;
+    learning_with_resident_weights(gpu, other, Some(vec![21, 9, 16]));
 }
 
 fn other_readouts() -> ModelConfig {
@@ -321,7 +336,11 @@ fn a_learners_model_reads_out_with_the_device_weights() {
     }
 }
 
-fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {
+fn learning_with_resident_weights(
+    gpu: WgpuBackend,
+    config: ModelConfig,
+    lengths: Option<Vec<usize>>,
+) {
     // Small chunks and row ranges: the column pass accumulates the output layer's weight
     // gradient over several chunks, the hidden layers' over several ranges of rows.
     // No call is worth a round trip (`min_work`): the resident read-outs must run on the
@@ -334,18 +353,37 @@ fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {
         min_work: usize::MAX,
     });
     assert!(gpu.resident_learning());
+    let gpu_recurrence = gpu.recurrence_on_gpu();
     let mut config = config;
     config.train.optimizer.weight_decay = 1e-3;
     let data = observations(&config, 3, 21);
+    let data = match lengths {
+        Some(lengths) => Observations::new(
+            data.tensor(Modality::Exteroceptive).clone(),
+            data.tensor(Modality::Proprioceptive).clone(),
+            Some(lengths),
+        )
+        .unwrap(),
+        None => data,
+    };
     let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
     let noise = NoiseMode::Sampled { seed: 3 };
     let mut cpu = Trainer::new(model.clone(), noise);
     let mut on_gpu = Trainer::new(model.clone(), noise).with_backend(Box::new(gpu.clone()));
-    let mut synced = Trainer::new(model, noise).with_backend(Box::new(gpu));
+    let mut synced = Trainer::new(model, noise).with_backend(Box::new(gpu.clone()));
     let iterations = 10;
     for i in 0..iterations {
         let a = cpu.step(&data).unwrap().total;
+        let read_backs = gpu.gpu().read_backs();
         let b = on_gpu.step(&data).unwrap().total;
+        if gpu_recurrence {
+            // One submission's results: the free-energy terms.
+            assert_eq!(
+                gpu.gpu().read_backs() - read_backs,
+                1,
+                "read-backs per iteration"
+            );
+        }
         let c = synced.step(&data).unwrap().total;
         assert!(
             (a - b).abs() <= 1e-5 * a.abs(),
@@ -354,11 +392,13 @@ fn learning_with_resident_weights(gpu: WgpuBackend, config: ModelConfig) {
         // The read-back does not disturb the device's state.
         assert_eq!(b, c, "iteration {i}: F after bringing the weights back");
         if i == 0 {
-            // Both read-outs, hidden layers included, stay on the device.
+            // Both read-outs, hidden layers included, stay on the device; with the
+            // recurrence there, everything.
             let resident = on_gpu.resident_tensors();
+            let whole = gpu_recurrence;
             let readouts: Vec<String> = pvrnn_core::train::trainable_names(cpu.model())
                 .into_iter()
-                .filter(|n| n.contains(".out.") || n.contains(".fnn."))
+                .filter(|n| whole || n.contains(".out.") || n.contains(".fnn."))
                 .collect();
             assert_eq!(resident.len(), readouts.len(), "{resident:?}");
             assert!(

@@ -2,7 +2,8 @@
 // same order of operations): g' = g + wd p; m = b1 m + (1 - b1) g'; v = b2 v + (1 - b2) g'^2;
 // p -= lr m sqrt(bias2) / (sqrt(v) + eps) when rectified, else p -= lr m. Elements from
 // `live` on have no gradient this step (rows of the output layer that were not observed):
-// g = 0 there, as on the host. One thread per element.
+// g = 0 there, as on the host. The tensor may be one range of packed buffers (the recurrent
+// weights: value, moments and gradient share the layout). One thread per element.
 
 struct Params {
     count: u32,       // elements of the tensor
@@ -17,6 +18,10 @@ struct Params {
     eps: f32,
     sqrt_bias2: f32,
     lr: f32,          // lr / bias1, times the rectification term when rectified
+    offset: u32,      // where the tensor starts in its buffers (a packed buffer holds several)
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -27,12 +32,13 @@ struct Params {
 
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
-    let i = (wg.y * p.groups_x + wg.x) * 64u + t;
-    if (i >= p.count) {
+    let e = (wg.y * p.groups_x + wg.x) * 64u + t;
+    if (e >= p.count) {
         return;
     }
+    let i = p.offset + e;
     var g = 0.0;
-    if (i < p.live) {
+    if (e < p.live) {
         g = grad[i];
     }
     let x = value[i];

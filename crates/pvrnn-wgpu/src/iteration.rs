@@ -1,0 +1,516 @@
+//! A whole learning iteration on the device: the recurrence's weights and every training
+//! sequence's adaptive variables stay there with their RAdam moments, beside the read-outs
+//! ([`crate::learner`]), so that an iteration uploads only its eps and a small table, runs
+//! in one submission (inputs packed from the adaptive variables and eps, the recurrence
+//! forward, both read-outs from the module states in its record, their d F / d d into the
+//! recurrence's backward pass, the recurrent weights' and the adaptive variables'
+//! gradients) and reads back only what the free energy needs: the read-outs' row losses
+//! and the KL terms per step and unit (summed on the host in f64, as the CPU backend sums
+//! them). Values move between the kernels' layouts with `shaders/strided_copy.wgsl`.
+
+use std::sync::Arc;
+
+use pvrnn_core::data::{Ablation, Observations, Observed};
+use pvrnn_core::free_energy::FreeEnergy;
+use pvrnn_core::optim::RAdam;
+use pvrnn_core::params::Model;
+use pvrnn_core::{Error, Modality, ModelConfig, Result};
+
+use crate::copy::{Strided, encode_copy};
+use crate::gpu::{Gpu, RecurrenceKernels};
+use crate::learner::{Part, ResidentLayer, ResidentTensor, resident_buffer};
+use crate::output::{GpuOutputLayer, Tiling, row_losses, vec4s};
+use crate::pool::PooledBuffer;
+use crate::readback::read_back;
+use crate::recurrence::RecurrenceLayout;
+
+/// The recurrence and the adaptive variables of a learning run, resident (see the module
+/// docs), and the read-outs it feeds.
+#[derive(Debug)]
+pub(crate) struct DeviceIteration {
+    config: ModelConfig,
+    layout: RecurrenceLayout,
+    kernels: Arc<RecurrenceKernels>,
+    /// The packed recurrent weights (the recurrence's layout), and the same with every
+    /// matrix transposed for the forward kernel, refreshed after each update.
+    weights: wgpu::Buffer,
+    weights_t: wgpu::Buffer,
+    /// The recurrent weights' gradients, packed the same way.
+    grads: wgpu::Buffer,
+    /// Per module, a_mu and a_sigma of every sequence, `[sequences, steps, z]`, and their
+    /// gradients.
+    adaptive: [[wgpu::Buffer; 2]; 4],
+    adaptive_grads: [[wgpu::Buffer; 2]; 4],
+    sequences: usize,
+    steps: usize,
+    /// The recurrence's inputs and the read-outs' d F / d d in its layout, sized for every
+    /// sequence at full length (cleared every iteration: initial states are zero, modules
+    /// without a read-out get no gradient from one).
+    inputs: wgpu::Buffer,
+    grad_d: wgpu::Buffer,
+    readouts: GpuOutputLayer,
+}
+
+impl DeviceIteration {
+    /// Uploads the recurrent weights and the adaptive variables of `model` with their
+    /// moments from `optimizer`, adding them to `tensors`; `None` where the kernels do not
+    /// hold the shapes or a read-out is not resident (`layers`).
+    pub(crate) fn new(
+        gpu: &Arc<Gpu>,
+        tiling: Tiling,
+        model: &Model<f32>,
+        optimizer: &RAdam<f32>,
+        layers: &[Option<Arc<ResidentLayer>>; 2],
+        index_of: &dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usize>,
+        tensors: &mut Vec<ResidentTensor>,
+    ) -> Option<Self> {
+        let config = &model.config;
+        let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
+        let (layout, packed) = RecurrenceLayout::new(&model.params, config);
+        if layers.iter().any(Option::is_none)
+            || sequences == 0
+            || steps == 0
+            || !layout.fits(gpu, sequences, sequences * steps)
+        {
+            return None;
+        }
+        let weights = resident_buffer(gpu, "resident recurrent weights", &packed);
+        let weights_t = resident_buffer(
+            gpu,
+            "resident recurrent weights, transposed",
+            &layout.transposed(&packed),
+        );
+        let grads = resident_buffer(
+            gpu,
+            "resident recurrent gradients",
+            &vec![0f32; packed.len()],
+        );
+        // The moments share the packed layout; each tensor is a range of the three buffers.
+        let mut moments = [vec![0f32; packed.len()], vec![0f32; packed.len()]];
+        let mut ranges = Vec::new();
+        for (m, p) in model.params.modules.iter().enumerate() {
+            for (tensor, offset) in layout.trainable(m, p) {
+                let index = index_of(tensor)?;
+                let len = tensor.len();
+                moments[0][offset..offset + len].copy_from_slice(&optimizer.m[index]);
+                moments[1][offset..offset + len].copy_from_slice(&optimizer.v[index]);
+                ranges.push((index, offset, len));
+            }
+        }
+        let [m_packed, v_packed] =
+            moments.map(|values| resident_buffer(gpu, "resident recurrent moments", &values));
+        for (index, offset, len) in ranges {
+            tensors.push(ResidentTensor {
+                index,
+                value: weights.clone(),
+                moments: [m_packed.clone(), v_packed.clone()],
+                grad: grads.clone(),
+                len,
+                offset,
+                part: Part::Whole,
+            });
+        }
+        // The adaptive variables follow the parameters in the trainer's order.
+        let first_adaptive = model
+            .params
+            .named()
+            .iter()
+            .filter(|(_, _, role)| *role == pvrnn_core::params::Role::Trainable)
+            .count();
+        let mut adaptive_tensor = |m: usize, k: usize| {
+            let tensor = if k == 0 {
+                &model.adaptive.a_mu[m]
+            } else {
+                &model.adaptive.a_sigma[m]
+            };
+            let index = first_adaptive + 2 * m + k;
+            let value = resident_buffer(gpu, "resident adaptive variables", tensor.data());
+            let grad = resident_buffer(
+                gpu,
+                "resident adaptive gradients",
+                &vec![0f32; tensor.len()],
+            );
+            tensors.push(ResidentTensor {
+                index,
+                value: value.clone(),
+                moments: [
+                    resident_buffer(gpu, "resident m", &optimizer.m[index]),
+                    resident_buffer(gpu, "resident v", &optimizer.v[index]),
+                ],
+                grad: grad.clone(),
+                len: tensor.len(),
+                offset: 0,
+                part: Part::Whole,
+            });
+            (value, grad)
+        };
+        let mut adaptive: [[Option<wgpu::Buffer>; 2]; 4] = Default::default();
+        let mut adaptive_grads: [[Option<wgpu::Buffer>; 2]; 4] = Default::default();
+        for m in 0..4 {
+            for k in 0..2 {
+                let (value, grad) = adaptive_tensor(m, k);
+                adaptive[m][k] = Some(value);
+                adaptive_grads[m][k] = Some(grad);
+            }
+        }
+        let s = layout.strides();
+        let inputs = resident_buffer(
+            gpu,
+            "resident recurrence inputs",
+            &vec![0f32; sequences * (s.init + steps * s.input)],
+        );
+        let grad_d = resident_buffer(
+            gpu,
+            "resident read-out gradients",
+            &vec![0f32; sequences * steps * s.grad_d],
+        );
+        let unwrap = |b: [[Option<wgpu::Buffer>; 2]; 4]| b.map(|pair| pair.map(Option::unwrap));
+        Some(Self {
+            config: config.clone(),
+            kernels: gpu.recurrence_kernels(),
+            weights,
+            weights_t,
+            grads,
+            adaptive: unwrap(adaptive),
+            adaptive_grads: unwrap(adaptive_grads),
+            sequences,
+            steps,
+            inputs,
+            grad_d,
+            readouts: GpuOutputLayer::with_resident(gpu.clone(), tiling, &model.params, layers),
+            layout,
+        })
+    }
+
+    /// The free energy of the device's model on `data` with every gradient left in the
+    /// resident buffers (see the module docs). `eps` per sequence and module, `[len, z]`.
+    pub(crate) fn free_energy(
+        &self,
+        gpu: &Gpu,
+        data: &Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Result<FreeEnergy> {
+        let lengths = data.lengths();
+        if data.sequences() != self.sequences || data.steps() > self.steps {
+            return Err(Error::Mismatch(format!(
+                "the learner holds adaptive variables for {} sequences of {} steps, but the data has {} sequences of {} steps",
+                self.sequences,
+                self.steps,
+                data.sequences(),
+                data.steps()
+            )));
+        }
+        if lengths.contains(&0) || eps.len() != lengths.len() {
+            return Err(Error::Mismatch(
+                "every training sequence needs at least one step and its eps".into(),
+            ));
+        }
+        let config = &self.config;
+        let layout = &self.layout;
+        let modules = layout.modules();
+        let s = layout.strides();
+        let windows = lengths.len();
+        let total: usize = lengths.iter().sum();
+        let entries = layout.entries(lengths.iter().map(|&len| (len, false)));
+        let mut before = Vec::with_capacity(windows);
+        let mut sum = 0;
+        for &len in lengths {
+            before.push(sum);
+            sum += len;
+        }
+        // Windows of one length are copied in one dispatch each way, others one by one.
+        let groups: Vec<(usize, usize)> = if lengths.iter().all(|&l| l == lengths[0]) {
+            vec![(0, windows)]
+        } else {
+            (0..windows).map(|w| (w, 1)).collect()
+        };
+
+        let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        // eps per module, `[steps of every window, z]`; the KL terms come back the same way.
+        let mut per_module_at = [0usize; 4];
+        let mut eps_flat = Vec::with_capacity(total * modules.iter().map(|m| m.z).sum::<usize>());
+        for (m, ml) in modules.iter().enumerate() {
+            per_module_at[m] = eps_flat.len();
+            for (w, &len) in lengths.iter().enumerate() {
+                let e = &eps[w][m];
+                if e.len() < len * ml.z {
+                    return Err(Error::Mismatch(format!(
+                        "eps of sequence {w} is shorter than its {len} steps"
+                    )));
+                }
+                eps_flat.extend_from_slice(&e[..len * ml.z]);
+            }
+        }
+        let table = layout.upload_table(gpu, &Ablation::none(), &entries);
+        let eps_buffer = gpu.upload("eps", &eps_flat);
+        let record = gpu.scratch(
+            "recurrence record",
+            total * s.record,
+            wgpu::BufferUsages::empty(),
+        );
+        let back = gpu.scratch(
+            "recurrence backward",
+            total * s.back,
+            wgpu::BufferUsages::empty(),
+        );
+        let mut keep: Vec<PooledBuffer> = Vec::new();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+
+        // The inputs: per window its initial states (zero), then per step and module
+        // a_mu, a_sigma and eps.
+        encoder.clear_buffer(&self.inputs, 0, None);
+        for &(first, count) in &groups {
+            let len = lengths[first];
+            for (m, ml) in modules.iter().enumerate() {
+                let z = ml.z;
+                let slot = |k: usize| Strided {
+                    offset: entries[first][1] + s.init + ml.input + k * z,
+                    block: s.init + len * s.input,
+                    row: s.input,
+                };
+                let adaptive_at = Strided {
+                    offset: first * self.steps * z,
+                    block: self.steps * z,
+                    row: z,
+                };
+                for k in 0..2 {
+                    encode_copy(
+                        gpu,
+                        &mut encoder,
+                        &self.adaptive[m][k],
+                        adaptive_at,
+                        &self.inputs,
+                        slot(k),
+                        [count, len, z],
+                        &mut keep,
+                    );
+                }
+                let eps_at = Strided {
+                    offset: per_module_at[m] + before[first] * z,
+                    block: len * z,
+                    row: z,
+                };
+                encode_copy(
+                    gpu,
+                    &mut encoder,
+                    &eps_buffer,
+                    eps_at,
+                    &self.inputs,
+                    slot(2),
+                    [count, len, z],
+                    &mut keep,
+                );
+            }
+        }
+        layout.encode_forward(
+            gpu,
+            &self.kernels,
+            &mut encoder,
+            &table,
+            &self.weights_t,
+            &self.inputs,
+            &record,
+            windows,
+        );
+
+        // Both read-outs from the module states in the record, their d F / d d into the
+        // recurrence's layout.
+        encoder.clear_buffer(&self.grad_d, 0, None);
+        let observed = Observed::all(config);
+        let mut readouts = Vec::with_capacity(2);
+        for modality in Modality::ALL {
+            let ml = modules[modality.module().index()];
+            let d = ml.d;
+            let k = observed.dims(config, modality);
+            let divisor = config
+                .accuracy_normalisation
+                .divisor(k, config.modality_dims(modality));
+            let targets: Vec<&[f32]> = (0..windows)
+                .flat_map(|w| (0..lengths[w]).map(move |t| data.step(modality, w, t)))
+                .collect();
+            // A read-out without hidden layers feeds its output layer's padded rows.
+            let width = if config.readout(modality).hidden.is_empty() {
+                4 * vec4s(d)
+            } else {
+                d
+            };
+            let input = gpu.scratch("read-out input", total * width, wgpu::BufferUsages::empty());
+            if width != d {
+                encoder.clear_buffer(&input, 0, None);
+            }
+            encode_copy(
+                gpu,
+                &mut encoder,
+                &record,
+                Strided::rows(ml.record + d, s.record),
+                &input,
+                Strided::rows(0, width),
+                [1, total, d],
+                &mut keep,
+            );
+            let readout = self
+                .readouts
+                .encode_readout(
+                    &mut encoder,
+                    modality,
+                    &input,
+                    total,
+                    k,
+                    divisor,
+                    &targets,
+                    Some(data.id()),
+                    true,
+                )
+                .ok_or_else(|| {
+                    Error::Mismatch(format!(
+                        "the {} read-out is not on the device",
+                        modality.name()
+                    ))
+                })?;
+            encode_copy(
+                gpu,
+                &mut encoder,
+                &readout.grad_d,
+                Strided::rows(0, readout.grad_stride),
+                &self.grad_d,
+                Strided::rows(ml.grad_d, s.grad_d),
+                [1, total, d],
+                &mut keep,
+            );
+            keep.push(input);
+            readouts.push((readout, divisor));
+        }
+
+        // Back through the recurrence: the weights' gradients, and d F / d a out to the
+        // adaptive variables' layout.
+        keep.push(layout.encode_backward(
+            gpu,
+            &self.kernels,
+            &mut encoder,
+            &table,
+            &self.weights,
+            &record,
+            &self.grad_d,
+            &back,
+            windows,
+        ));
+        keep.push(layout.encode_weight_grads(
+            gpu,
+            &self.kernels,
+            &mut encoder,
+            &table,
+            &self.inputs,
+            &record,
+            &back,
+            &self.grads,
+            windows,
+        ));
+        for (m, ml) in modules.iter().enumerate() {
+            let z = ml.z;
+            for k in 0..2 {
+                // Steps past a sequence's length get no gradient.
+                encoder.clear_buffer(&self.adaptive_grads[m][k], 0, None);
+                for &(first, count) in &groups {
+                    let len = lengths[first];
+                    encode_copy(
+                        gpu,
+                        &mut encoder,
+                        &back,
+                        Strided {
+                            offset: entries[first][5] + ml.back + k * z,
+                            block: len * s.back,
+                            row: s.back,
+                        },
+                        &self.adaptive_grads[m][k],
+                        Strided {
+                            offset: first * self.steps * z,
+                            block: self.steps * z,
+                            row: z,
+                        },
+                        [count, len, z],
+                        &mut keep,
+                    );
+                }
+            }
+        }
+
+        // The KL terms per step and unit, the last of the record's rows.
+        let kl = gpu.scratch("KL terms", eps_flat.len(), wgpu::BufferUsages::COPY_SRC);
+        for (m, ml) in modules.iter().enumerate() {
+            encode_copy(
+                gpu,
+                &mut encoder,
+                &record,
+                Strided::rows(ml.record + 2 * ml.d + 8 * ml.z, s.record),
+                &kl,
+                Strided::rows(per_module_at[m], ml.z),
+                [1, total, ml.z],
+                &mut keep,
+            );
+        }
+        let mut sources = vec![(&*kl, eps_flat.len())];
+        sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, total)));
+        let pending = read_back(gpu, encoder, &sources);
+        drop(encode_phase);
+        let results = {
+            let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
+            pvrnn_core::deferred::now(pending)
+        };
+        drop((keep, table, eps_buffer, record, back));
+
+        let mut results = results.into_iter();
+        let kl = results.next().unwrap_or_default();
+        let mut complexity = [0.0; 4];
+        for (m, ml) in modules.iter().enumerate() {
+            let z = ml.z;
+            let terms = &kl[per_module_at[m]..per_module_at[m] + total * z];
+            // As the CPU backend: per step the units' terms summed in f64, divided by z.
+            complexity[m] = terms
+                .chunks_exact(z.max(1))
+                .map(|step| step.iter().map(|&v| v as f64).sum::<f64>() / z as f64)
+                .sum();
+        }
+        let mut accuracy = [0.0; 2];
+        for ((sum, (_, divisor)), sums) in accuracy.iter_mut().zip(&readouts).zip(results) {
+            *sum = row_losses(sums, *divisor).into_iter().sum();
+        }
+        drop(readouts);
+        Ok(FreeEnergy::from_terms(
+            accuracy,
+            complexity,
+            config.kl_weight,
+        ))
+    }
+
+    /// Encodes the refresh of the forward kernel's copy of the weights after an update of
+    /// the packed ones: every value (the prior biases are read there too), then the
+    /// matrices transposed over theirs.
+    pub(crate) fn encode_transposes(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        keep: &mut Vec<PooledBuffer>,
+    ) {
+        encoder.copy_buffer_to_buffer(&self.weights, 0, &self.weights_t, 0, self.weights.size());
+        for (at, rows, cols) in self.layout.matrices() {
+            encode_copy(
+                gpu,
+                encoder,
+                &self.weights,
+                Strided {
+                    offset: at,
+                    block: cols,
+                    row: 1,
+                },
+                &self.weights_t,
+                Strided {
+                    offset: at,
+                    block: 1,
+                    row: rows,
+                },
+                [rows, cols, 1],
+                keep,
+            );
+        }
+    }
+}

@@ -12,6 +12,9 @@
 #   wgpu         the wgpu backend as it ships (read-outs and their optimiser resident)
 #   host-weights `--weights-on-host`: weights uploaded and updated on the host every
 #                iteration (the path before the resident learner)
+#   whole        `--gpu-recurrence`: the recurrence on the GPU too, and in learning the
+#                whole iteration there (recurrent weights and adaptive variables resident,
+#                one submission, only the free-energy terms read back)
 #   every-call   the wgpu backend with PVRNN_WGPU_MIN_WORK=0: online inference's small
 #                calls on the GPU too (the path before the threshold); inference only, and
 #                not with --quick
@@ -71,6 +74,7 @@ for round in $(seq "$rounds"); do
     for threads in $thread_counts; do
         bench wgpu "$threads" "$round" --backend wgpu
         bench host-weights "$threads" "$round" --backend wgpu --weights-on-host
+        bench whole "$threads" "$round" --backend wgpu --gpu-recurrence
         if [ "$quick" = 0 ]; then
             PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
         fi

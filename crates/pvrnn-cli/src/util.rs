@@ -342,8 +342,11 @@ pub struct BackendArgs {
     #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
     pub backend: BackendKind,
     /// With `--backend wgpu`: run the recurrence (forward, back-propagation through time,
-    /// its weight gradients) on the GPU too, one workgroup per window. Not yet timed on a
-    /// real GPU against the CPU's recurrence (docs/gpu.md), hence off by default.
+    /// its weight gradients) on the GPU too, one workgroup per window. In learning (unless
+    /// `--weights-on-host`) the whole iteration then stays on the GPU: the recurrent weights
+    /// and the adaptive variables with their optimiser state too, one submission per
+    /// iteration, only the free-energy terms read back. Not yet timed on a real GPU against
+    /// the CPU's recurrence (docs/gpu.md), hence off by default.
     #[arg(long)]
     pub gpu_recurrence: bool,
     /// With `--backend wgpu`: upload the weights and read their gradients back every

@@ -467,6 +467,10 @@ fn train_and_infer_run_on_the_wgpu_backend() {
     let (gpu, err) = train(&["--backend", "wgpu"]);
     assert!(err.contains("backend: wgpu on "), "{err}");
     assert!(
+        err.contains("trainable tensors (the rest updated on the CPU)"),
+        "{err}"
+    );
+    assert!(
         (cpu - gpu).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu F {gpu}"
     );
@@ -480,6 +484,7 @@ fn train_and_infer_run_on_the_wgpu_backend() {
     // The recurrence on the GPU too: the same learning, and the run says so.
     let (all_gpu, err) = train(&["--backend", "wgpu", "--gpu-recurrence"]);
     assert!(err.contains("recurrence on the GPU"), "{err}");
+    assert!(err.contains("each iteration runs there whole"), "{err}");
     assert!(
         (cpu - all_gpu).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu with the recurrence F {all_gpu}"

@@ -160,6 +160,11 @@ impl<T: Real> Trainer<T> {
             .unwrap_or_default()
     }
 
+    /// How many tensors the optimiser updates ([`trainable_names`]' length).
+    pub fn trainable_tensors(&self) -> usize {
+        self.optimizer.m.len()
+    }
+
     /// Copies the learner's resident tensors and moments into the host's model and
     /// optimiser, if it updated them since the last copy.
     fn sync(&mut self) {

@@ -450,11 +450,10 @@ impl DeviceIteration {
         }
         let mut sources = vec![(&*kl, eps_flat.len())];
         sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, total)));
-        let pending = read_back(gpu, encoder, &sources);
         drop(encode_phase);
         let results = {
             let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
-            pvrnn_core::deferred::now(pending)
+            pvrnn_core::deferred::now(read_back(gpu, encoder, &sources))
         };
         drop((keep, table, eps_buffer, record, back));
 

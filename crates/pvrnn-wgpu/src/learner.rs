@@ -6,7 +6,9 @@
 //! they are. At the paper's scale that is 1.6 M of the model's 1.7 M weights, so an
 //! iteration no longer uploads 6.5 MB of weights nor reads 6.5 MB of gradients back, and
 //! the host's RAdam covers only the rest. The recurrence and the KL terms stay where
-//! [`WgpuBackend`] puts them. A learner's loaded models serve learning's evaluation only:
+//! [`WgpuBackend`] puts them; with the recurrence on the GPU, the learner keeps the
+//! recurrent weights and the adaptive variables too and runs the whole iteration
+//! ([`DeviceIteration`]). A learner's loaded models serve learning's evaluation only:
 //! the host's copies of the resident weights are stale until downloaded.
 
 use std::sync::Arc;

@@ -12,8 +12,9 @@
 //! [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments on the GPU for
 //! the whole run, runs their hidden layers there too (`shaders/dense_*.wgsl`) and updates
 //! them there (`shaders/radam.wgsl`). The KL sums and the rest of the optimiser stay on
-//! the CPU backend, which calls this crate through those seams; they move over next
-//! (issue 12). In the browser (wasm32, wgpu's `webgpu` feature) the
+//! the CPU backend, which calls this crate through those seams, unless the recurrence is on
+//! the GPU: then the learner keeps everything and runs a whole learning iteration in one
+//! submission (`iteration.rs`), reading back only the free-energy terms. In the browser (wasm32, wgpu's `webgpu` feature) the
 //! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
 //! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
 //!

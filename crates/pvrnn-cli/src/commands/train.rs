@@ -253,6 +253,17 @@ pub fn run(a: Args) -> Result<()> {
     while trainer.iteration < total {
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
+        if last.is_none() && a.backend.backend != util::BackendKind::Cpu {
+            let (resident, all) = (
+                trainer.resident_tensors().len(),
+                trainer.trainable_tensors(),
+            );
+            bar.println(if resident == all {
+                format!("on the GPU for the whole run: all {all} trainable tensors, so each iteration runs there whole")
+            } else {
+                format!("on the GPU for the whole run: {resident} of {all} trainable tensors (the rest updated on the CPU)")
+            });
+        }
         log_file.append(it, &report)?;
         last = Some(report);
         bar.set_position(trainer.iteration);

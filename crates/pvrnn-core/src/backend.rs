@@ -224,6 +224,65 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// dimension of `modality` (`[n, dims]`): how a compact run's images and
     /// proprioception are reconstructed.
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T>;
+
+    /// Several of online inference's updates of one window's adaptive variables at once, on
+    /// a device that can run them without coming back to the host in between (see
+    /// [`ErrorRegression`]). `None` (the default): the caller runs them one
+    /// [`Self::evaluate`] at a time.
+    fn regress(&self, request: &RegressionRequest<'_, T>) -> Option<RegressionResult<T>> {
+        let _ = request;
+        None
+    }
+}
+
+/// Online inference's updates of one window (error regression, eq. 18) to run in one go:
+/// for each update u, the window's free energy with `eps[u]` and the adaptive variables
+/// as the previous update left them, d F / d a, and one RAdam step with `steps[u]`'s
+/// scalars ([`RAdam::begin_step`]) on the eight tensors (a_mu of each module, then
+/// a_sigma: the order of the inference optimiser's moments).
+#[derive(Clone, Debug)]
+pub struct RegressionRequest<'a, T> {
+    /// The window: its state entering, its adaptive variables before the first update
+    /// (`Posterior::Adaptive`), its targets; its `eps` is not read.
+    pub window: Window<'a, T>,
+    /// Per update, eps per module, `[len, z]`.
+    pub eps: &'a [[Vec<T>; 4]],
+    /// Per update, the optimiser step's scalars.
+    pub steps: &'a [RAdamStep],
+    /// The optimiser's moments before the first update, per tensor `[len, z]`.
+    pub m: &'a [Vec<T>],
+    pub v: &'a [Vec<T>],
+    pub observed: Observed,
+    pub ablation: Ablation,
+    /// As [`Request::resident_targets`].
+    pub resident_targets: Option<u64>,
+}
+
+/// What [`LoadedModel::regress`] returns: the adaptive variables and moments after every
+/// update, unless one diverged.
+#[derive(Clone, Debug)]
+pub struct RegressionResult<T> {
+    pub a_mu: [Vec<T>; 4],
+    pub a_sigma: [Vec<T>; 4],
+    pub m: Vec<Vec<T>>,
+    pub v: Vec<Vec<T>>,
+    /// The first update whose free energy terms or gradient were not finite (the host
+    /// then restarts the step as it would have; the values above are meaningless).
+    pub first_non_finite: Option<usize>,
+}
+
+/// Online inference's updates computed on other hardware, several at once (see
+/// [`LoadedModel::regress`]). The CPU backend accepts one
+/// ([`crate::cpu::CpuBackend::load_with`]) and hands it its weights.
+pub trait ErrorRegression<T: Real>: Send + Sync + std::fmt::Debug {
+    /// Runs `request`'s updates for a model with these weights; `None` leaves them to the
+    /// caller (shapes the device does not hold, for example).
+    fn regress(
+        &self,
+        params: &Params<T>,
+        config: &ModelConfig,
+        request: &RegressionRequest<'_, T>,
+    ) -> Option<RegressionResult<T>>;
 }
 
 /// The fused output layer's results for `n` rows (see [`OutputLayer::loss`]).

@@ -458,6 +458,18 @@ impl<T: Real> OnlineInference<T> {
             if done >= self.settings.iterations {
                 break;
             }
+            // All the updates this call may run, at once where the backend can.
+            let count = (self.settings.iterations - done).min(max - ran);
+            if let Some(outcome) = self.regress_on_device(t, done, count) {
+                match outcome {
+                    Ok(()) => ran += count,
+                    Err(failed) => {
+                        ran += failed + 1;
+                        self.restart_step_at_half_rate();
+                    }
+                }
+                continue;
+            }
             let eps = self.eps(Stream::InferIteration, &[t, done as u64], self.window_len());
             let ablation = self.settings.inference_ablation();
             let result = self
@@ -498,6 +510,61 @@ impl<T: Real> OnlineInference<T> {
             }
         }
         self.iterations_left()
+    }
+
+    /// Runs `count` updates of step `t` from update `done` through [`LoadedModel::regress`]
+    /// (the same eps and optimiser steps as one at a time); `None` if the backend runs them
+    /// one at a time, `Err(u)` if update `u` of them diverged (the step must restart).
+    fn regress_on_device(
+        &mut self,
+        t: u64,
+        done: usize,
+        count: usize,
+    ) -> Option<Result<(), usize>> {
+        let len = self.window_len();
+        let eps: Vec<[Vec<T>; 4]> = (0..count)
+            .map(|u| self.eps(Stream::InferIteration, &[t, (done + u) as u64], len))
+            .collect();
+        let mut optimizer = self.optimizer.clone();
+        let steps: Vec<_> = (0..count).map(|_| optimizer.begin_step()).collect();
+        let window = Window {
+            len,
+            h0: self
+                .held_h
+                .as_ref()
+                .map(|h| std::array::from_fn(|m| h[m].as_slice())),
+            posterior: Posterior::Adaptive {
+                a_mu: std::array::from_fn(|m| self.a_mu[m].as_slice()),
+                a_sigma: std::array::from_fn(|m| self.a_sigma[m].as_slice()),
+            },
+            eps: std::array::from_fn(|_| &[][..]),
+            targets: std::array::from_fn(|i| {
+                self.observations[i].iter().map(Vec::as_slice).collect()
+            }),
+        };
+        let request = crate::backend::RegressionRequest {
+            window,
+            eps: &eps,
+            steps: &steps,
+            m: &self.optimizer.m,
+            v: &self.optimizer.v,
+            observed: self.settings.observed,
+            ablation: self.settings.inference_ablation(),
+            resident_targets: Some(self.targets_id),
+        };
+        let result = self.loaded.regress(&request)?;
+        if let Some(failed) = result.first_non_finite {
+            return Some(Err(failed));
+        }
+        optimizer.m = result.m;
+        optimizer.v = result.v;
+        self.optimizer = optimizer;
+        self.a_mu = result.a_mu;
+        self.a_sigma = result.a_sigma;
+        if let Some(pending) = self.pending.as_mut() {
+            pending.iterations_done += count;
+        }
+        Some(Ok(()))
     }
 
     /// The step's window diverged: back to the step's start with half the rate (the same

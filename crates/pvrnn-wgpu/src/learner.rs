@@ -105,16 +105,23 @@ impl ResidentLayer {
         self.hidden_gradients.store(true, Ordering::SeqCst);
     }
 
-    /// Uploads one read-out of `model` with its moments from `optimizer`; `None` if the
-    /// kernels do not hold it or one of its tensors is not trainable.
+    /// Uploads read-out `mi` of `params` for inference: its weights only, no moments and no
+    /// gradients (the hidden layers on the device for online inference's updates); `None`
+    /// if the kernels do not hold it.
+    pub(crate) fn frozen(gpu: &Gpu, params: &Params<f32>, mi: usize) -> Option<Self> {
+        Self::upload(gpu, params, None, mi)
+    }
+
+    /// Uploads read-out `mi` of `params`, for learning (`learning`: the optimiser, whose
+    /// moments go up too, and each tensor's index in its order) or not; `None` if the
+    /// kernels do not hold it or, in learning, one of its tensors is not trainable.
     fn upload(
         gpu: &Gpu,
-        model: &Model<f32>,
-        optimizer: &RAdam<f32>,
+        params: &Params<f32>,
+        learning: Option<(&RAdam<f32>, &TensorIndex<'_>)>,
         mi: usize,
-        index_of: &dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usize>,
     ) -> Option<Self> {
-        let readout = &model.params.readouts[mi];
+        let readout = &params.readouts[mi];
         let out = &readout.out;
         let (dims, hidden_width) = (out.weight.shape()[0], out.weight.shape()[1]);
         if !fits(dims, hidden_width) {
@@ -126,8 +133,13 @@ impl ResidentLayer {
                        part: Part,
                        layout: &dyn Fn(&[f32]) -> Vec<f32>|
          -> Option<(wgpu::Buffer, wgpu::Buffer)> {
-            let index = index_of(tensor)?;
             let value = layout(tensor.data());
+            let Some((optimizer, index_of)) = learning else {
+                // Never written: kernels that compute no weight gradient do not bind it.
+                let no_gradient = resident_buffer(gpu, "no gradient", &[0.0]);
+                return Some((resident_buffer(gpu, "frozen tensor", &value), no_gradient));
+            };
+            let index = index_of(tensor)?;
             let len = value.len();
             let buffer = |label: &str, values: &[f32]| resident_buffer(gpu, label, values);
             let t = ResidentTensor {
@@ -239,7 +251,13 @@ impl GpuLearner {
     ) -> Option<Self> {
         let index_of = trainable_indices(&model.params);
         let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
-            ResidentLayer::upload(backend.gpu(), model, optimizer, mi, &index_of).map(Arc::new)
+            ResidentLayer::upload(
+                backend.gpu(),
+                &model.params,
+                Some((optimizer, &index_of)),
+                mi,
+            )
+            .map(Arc::new)
         });
         let mut more = Vec::new();
         let iteration = backend
@@ -314,6 +332,10 @@ impl GpuLearner {
         keep.push(params);
     }
 }
+
+/// A tensor's index in the trainer's order of trainable tensors, `None` for a fixed one
+/// (see [`trainable_indices`]).
+pub(crate) type TensorIndex<'a> = dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usize> + 'a;
 
 /// A long-lived storage buffer (not pooled: it lives as long as its learner).
 pub(crate) fn resident_buffer(gpu: &Gpu, label: &str, values: &[f32]) -> wgpu::Buffer {

@@ -29,6 +29,7 @@ mod output;
 mod pool;
 mod readback;
 mod recurrence;
+mod regression;
 mod template;
 
 use std::sync::Arc;
@@ -127,6 +128,15 @@ impl WgpuBackend {
         resident: &[Option<Arc<learner::ResidentLayer>>; 2],
     ) -> Box<dyn LoadedModel<f32>> {
         let layer = GpuOutputLayer::with_resident(self.gpu.clone(), self.tiling, params, resident);
+        // Online inference's updates in one submission per call, where the recurrence is on
+        // the GPU (not for a learner's models: learning never asks).
+        let regression =
+            (self.recurrence_on_gpu && resident.iter().all(Option::is_none)).then(|| {
+                Box::new(regression::GpuRegression::new(
+                    self.gpu.clone(),
+                    self.tiling,
+                )) as Box<dyn pvrnn_core::backend::ErrorRegression<f32>>
+            });
         let recurrence = self.recurrence_on_gpu.then(|| {
             Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
                 as Box<dyn Recurrence<f32>>
@@ -137,6 +147,7 @@ impl WgpuBackend {
             Offload {
                 output_layer: Some(Box::new(layer)),
                 recurrence,
+                regression,
             },
         )
     }

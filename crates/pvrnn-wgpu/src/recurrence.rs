@@ -225,12 +225,12 @@ impl RecurrenceLayout {
 #[derive(Debug)]
 pub struct GpuRecurrence {
     gpu: Arc<Gpu>,
-    kernels: Arc<RecurrenceKernels>,
-    layout: RecurrenceLayout,
-    weights: PooledBuffer,
+    pub(crate) kernels: Arc<RecurrenceKernels>,
+    pub(crate) layout: RecurrenceLayout,
+    pub(crate) weights: PooledBuffer,
     /// The same values with every matrix transposed (same offsets), for the forward
     /// kernel: its threads own output rows, so this layout makes their loads coalesced.
-    weights_t: PooledBuffer,
+    pub(crate) weights_t: PooledBuffer,
 }
 
 impl GpuRecurrence {
@@ -347,6 +347,46 @@ impl RecurrenceLayout {
             .collect()
     }
 
+    /// The recurrence's inputs for `windows` (see [`Self::entries`]), and each window's
+    /// initial states (h0, d0) per module: d0 = tanh(h0) computed here as the CPU backend
+    /// does, a = 0 for `Posterior::Prior`.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn pack_inputs(
+        &self,
+        windows: &[Window<'_, f32>],
+    ) -> (Vec<f32>, Vec<[(Vec<f32>, Vec<f32>); 4]>) {
+        let s = self.strides;
+        let steps: usize = windows.iter().map(|w| w.len).sum();
+        let mut inputs = Vec::with_capacity(windows.len() * s.init + steps * s.input);
+        let mut initial = Vec::with_capacity(windows.len());
+        for w in windows {
+            let mut init: [(Vec<f32>, Vec<f32>); 4] = Default::default();
+            for (m, ml) in self.modules.iter().enumerate() {
+                let h0 =
+                    w.h0.map_or_else(|| vec![0.0; ml.d], |h| h[m][..ml.d].to_vec());
+                let d0: Vec<f32> = h0.iter().map(|h| h.tanh()).collect();
+                inputs.extend_from_slice(&h0);
+                inputs.extend_from_slice(&d0);
+                init[m] = (h0, d0);
+            }
+            for t in 0..w.len {
+                for (m, ml) in self.modules.iter().enumerate() {
+                    let row = t * ml.z..(t + 1) * ml.z;
+                    match w.posterior {
+                        Posterior::Adaptive { a_mu, a_sigma } => {
+                            inputs.extend_from_slice(&a_mu[m][row.clone()]);
+                            inputs.extend_from_slice(&a_sigma[m][row.clone()]);
+                        }
+                        Posterior::Prior => inputs.resize(inputs.len() + 2 * ml.z, 0.0),
+                    }
+                    inputs.extend_from_slice(&w.eps[m][row]);
+                }
+            }
+            initial.push(init);
+        }
+        (inputs, initial)
+    }
+
     /// The windows' table, uploaded.
     pub(crate) fn upload_table(
         &self,
@@ -460,35 +500,7 @@ impl Recurrence<f32> for GpuRecurrence {
                 .iter()
                 .map(|w| (w.len, matches!(w.posterior, Posterior::Prior))),
         );
-        let mut inputs = Vec::with_capacity(windows.len() * s.init + steps * s.input);
-        let mut initial = Vec::with_capacity(windows.len());
-        for w in windows {
-            // h0 and d0 = tanh(h0) per module, d0 computed here as the CPU backend does.
-            let mut init: [(Vec<f32>, Vec<f32>); 4] = Default::default();
-            for (m, ml) in layout.modules.iter().enumerate() {
-                let h0 =
-                    w.h0.map_or_else(|| vec![0.0; ml.d], |h| h[m][..ml.d].to_vec());
-                let d0: Vec<f32> = h0.iter().map(|h| h.tanh()).collect();
-                inputs.extend_from_slice(&h0);
-                inputs.extend_from_slice(&d0);
-                init[m] = (h0, d0);
-            }
-            for t in 0..w.len {
-                for (m, ml) in layout.modules.iter().enumerate() {
-                    let row = t * ml.z..(t + 1) * ml.z;
-                    match w.posterior {
-                        Posterior::Adaptive { a_mu, a_sigma } => {
-                            inputs.extend_from_slice(&a_mu[m][row.clone()]);
-                            inputs.extend_from_slice(&a_sigma[m][row.clone()]);
-                        }
-                        Posterior::Prior => inputs.resize(inputs.len() + 2 * ml.z, 0.0),
-                    }
-                    inputs.extend_from_slice(&w.eps[m][row]);
-                }
-            }
-            initial.push(init);
-        }
-
+        let (inputs, initial) = layout.pack_inputs(windows);
         let gpu = &*self.gpu;
         let table = layout.upload_table(gpu, ablation, &entries);
         let input_buffer = gpu.upload("recurrence inputs", &inputs);

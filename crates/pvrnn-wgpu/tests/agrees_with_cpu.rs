@@ -20,10 +20,10 @@ use pvrnn_core::backend::{
 };
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
-use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
+use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence_on};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{
-    Ablation, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
+    Ablation, AblationMode, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
 };
 use pvrnn_wgpu::{GpuRecurrence, Tiling, WgpuBackend};
 
@@ -765,4 +765,114 @@ fn online_inference_agrees(gpu: WgpuBackend) {
 fn the_adapter_is_named() {
     let Some(gpu) = gpu() else { return };
     assert!(!gpu.adapter_name().trim().is_empty());
+}
+
+/// With the recurrence on the GPU, online inference runs all of a call's updates in one
+/// submission (`ErrorRegression`): one read-back for a step's updates, the CPU's results
+/// (updated one at a time there), the same in slices as in one go; with everything
+/// observed, and with proprioception unobserved and a module ablated during inference.
+#[test]
+fn online_inference_runs_a_steps_updates_in_one_submission() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let config = config();
+    let data = observations(&config, 1, 9);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 9, 3).unwrap());
+    let partly = Observed {
+        vision_levels: 1,
+        proprio: false,
+    };
+    for (observed, ablation) in [
+        (Observed::all(&config), Ablation::none()),
+        (partly, Ablation([false, true, false, false])),
+    ] {
+        let mut settings = InferenceSettings::from_config(&config, 2);
+        settings.window = 4;
+        settings.iterations = 6;
+        settings.observed = observed;
+        settings.ablation = ablation;
+        settings.ablation_mode = AblationMode::Inference;
+        let open = |backend: &dyn Backend<f32>| {
+            OnlineInference::with_backend(model.clone(), settings.clone(), backend).unwrap()
+        };
+        let (mut cpu, mut whole, mut sliced) = (open(&CpuBackend), open(&gpu), open(&gpu));
+        for t in 0..7 {
+            let x = Modality::ALL.map(|modality| data.step(modality, 0, t));
+            for inference in [&mut cpu, &mut whole, &mut sliced] {
+                inference.begin_step(x[0], x[1]).unwrap();
+            }
+            assert_eq!(cpu.iterate(usize::MAX), 0);
+            let before = gpu.gpu().read_backs();
+            assert_eq!(whole.iterate(usize::MAX), 0);
+            assert_eq!(gpu.gpu().read_backs() - before, 1, "step {t}: read-backs");
+            assert_eq!(sliced.iterate(2), 4);
+            assert_eq!(sliced.iterate(usize::MAX), 0);
+            let (a, b, c) = (
+                cpu.finish_step().unwrap(),
+                whole.finish_step().unwrap(),
+                sliced.finish_step().unwrap(),
+            );
+            let (fa, fb) = (a.window_free_energy.total, b.window_free_energy.total);
+            assert!(
+                (fa - fb).abs() <= 1e-4 * fa.abs(),
+                "step {t}: cpu F {fa}, gpu F {fb}"
+            );
+            assert_eq!(
+                b.window_free_energy, c.window_free_energy,
+                "step {t}: in slices"
+            );
+            for mi in 0..2 {
+                assert_close("reconstruction", &a.recon[mi], &b.recon[mi], 1e-3);
+            }
+            for m in 0..4 {
+                assert_close(
+                    "posterior mean",
+                    &a.modules[m].mu_q,
+                    &b.modules[m].mu_q,
+                    1e-3,
+                );
+                assert_close(
+                    "posterior sigma",
+                    &a.modules[m].sigma_q,
+                    &b.modules[m].sigma_q,
+                    1e-3,
+                );
+            }
+        }
+    }
+}
+
+/// A step whose updates diverge on the GPU (found there by the update kernel's check)
+/// restarts from the step's start at half the rate, as the CPU's does.
+#[test]
+fn a_diverging_step_restarts_on_the_gpu_as_on_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let config = config();
+    let data = observations(&config, 1, 4);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap());
+    let first_step = |backend: &dyn Backend<f32>, lr: f64| {
+        let mut settings = InferenceSettings::from_config(&config, 3);
+        settings.window = 4;
+        settings.iterations = 20;
+        settings.optimizer.lr = lr;
+        let mut inference =
+            OnlineInference::with_backend(model.clone(), settings, backend).unwrap();
+        inference.step(
+            data.step(Modality::Exteroceptive, 0, 0),
+            data.step(Modality::Proprioceptive, 0, 0),
+        )
+    };
+    // The smallest power of two that diverges on the CPU.
+    let (exponent, cpu) = (0..80)
+        .find_map(|e| match first_step(&CpuBackend, 2f64.powi(e)) {
+            Ok(out) if out.rate_halvings > 0 => Some((e, out)),
+            _ => None,
+        })
+        .expect("some rate diverges");
+    let on_gpu = first_step(&gpu, 2f64.powi(exponent)).unwrap();
+    assert_eq!(on_gpu.rate_halvings, cpu.rate_halvings);
+    for mi in 0..2 {
+        assert_close("reconstruction", &cpu.recon[mi], &on_gpu.recon[mi], 1e-3);
+    }
 }

@@ -6,8 +6,9 @@ mod recurrent;
 
 use crate::Real;
 use crate::backend::{
-    Backend, BatchResult, FullOutputs, Grads, LoadedModel, ModuleWeightGrads, OutputLayer,
-    Posterior, Recurrence, RecurrenceGrads, RecurrencePass, Request, Trace, Window, WindowResult,
+    Backend, BatchResult, ErrorRegression, FullOutputs, Grads, LoadedModel, ModuleWeightGrads,
+    OutputLayer, Posterior, Recurrence, RecurrenceGrads, RecurrencePass, RegressionRequest,
+    RegressionResult, Request, Trace, Window, WindowResult,
 };
 use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Ablation;
@@ -30,6 +31,8 @@ impl<T: Real> Backend<T> for CpuBackend {
 pub struct Offload<T: Real> {
     pub output_layer: Option<Box<dyn OutputLayer<T>>>,
     pub recurrence: Option<Box<dyn Recurrence<T>>>,
+    /// Online inference's updates, several at once ([`LoadedModel::regress`]).
+    pub regression: Option<Box<dyn ErrorRegression<T>>>,
 }
 
 impl<T: Real> Default for Offload<T> {
@@ -37,6 +40,7 @@ impl<T: Real> Default for Offload<T> {
         Self {
             output_layer: None,
             recurrence: None,
+            regression: None,
         }
     }
 }
@@ -66,6 +70,8 @@ struct CpuModel<T> {
     output_layer: Option<Box<dyn OutputLayer<T>>>,
     /// Computes the recurrence elsewhere when set (see [`Recurrence`]).
     recurrence: Option<Box<dyn Recurrence<T>>>,
+    /// Runs online inference's updates elsewhere when set (see [`ErrorRegression`]).
+    regression: Option<Box<dyn ErrorRegression<T>>>,
 }
 
 impl<T: Real> CpuModel<T> {
@@ -77,6 +83,7 @@ impl<T: Real> CpuModel<T> {
             out_t: Default::default(),
             output_layer: offload.output_layer,
             recurrence: offload.recurrence,
+            regression: offload.regression,
         }
     }
 
@@ -150,6 +157,12 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
 
     fn prior_rollout(&self, steps: usize) -> ([Vec<T>; 4], [Vec<T>; 4]) {
         prior_rollout(self, steps)
+    }
+
+    fn regress(&self, request: &RegressionRequest<'_, T>) -> Option<RegressionResult<T>> {
+        self.regression
+            .as_ref()?
+            .regress(&self.params, &self.config, request)
     }
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {

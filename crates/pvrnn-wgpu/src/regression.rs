@@ -1,0 +1,429 @@
+//! Online inference's updates of a window on the GPU, all of a call's updates in one
+//! submission (pvrnn-core's [`ErrorRegression`]): per update the recurrence forward, each
+//! observed read-out (hidden layers, output layer's loss, back to d F / d d) from the
+//! module states in the recurrence's record, the recurrence backward, and
+//! `shaders/regression_update.wgsl`, which checks the update's terms are finite, applies
+//! RAdam to the adaptive variables where the recurrence reads them and writes the next
+//! update's eps beside them. One read-back at the end: the adaptive variables, the moments
+//! and a flag per update. Without it every update is two or three round trips (the
+//! recurrence's states, the read-outs' gradients, d F / d a), 50 times per step: the
+//! latency that bounds online inference on a GPU (docs/gpu.md).
+//!
+//! Native only (in the browser the recurrence runs on the worker's CPU). The weights go up
+//! at the first call of a loaded model, not at load: learning loads a model every
+//! iteration and never calls it.
+
+use std::sync::{Arc, OnceLock};
+
+use bytemuck::{Pod, Zeroable};
+use pvrnn_core::backend::{ErrorRegression, RegressionRequest, RegressionResult, Window};
+use pvrnn_core::params::Params;
+use pvrnn_core::{Modality, ModelConfig};
+
+use crate::copy::{Strided, encode_copy};
+use crate::gpu::Gpu;
+use crate::learner::ResidentLayer;
+use crate::output::{GpuOutputLayer, Tiling, bind, dispatch, grid, vec4s};
+use crate::pool::PooledBuffer;
+use crate::readback::read_back;
+use crate::recurrence::GpuRecurrence;
+
+/// Where the update kernel's header, module table and per-update scalars start in `meta`
+/// (see `shaders/regression_update.wgsl`).
+const MODULES_AT: usize = 16;
+const STEPS_AT: usize = 48;
+const STEP_WORDS: usize = 12;
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct UpdateParams {
+    update: u32,
+    count: u32,
+    groups_x: u32,
+    _pad: u32,
+}
+
+/// A loaded model's error regression on the GPU; its weights go up at the first call.
+#[derive(Debug)]
+pub(crate) struct GpuRegression {
+    gpu: Arc<Gpu>,
+    tiling: Tiling,
+    uploaded: OnceLock<Option<Uploaded>>,
+}
+
+/// The weights on the device: the recurrence's, and both read-outs whole.
+#[derive(Debug)]
+struct Uploaded {
+    recurrence: GpuRecurrence,
+    readouts: GpuOutputLayer,
+}
+
+impl GpuRegression {
+    pub(crate) fn new(gpu: Arc<Gpu>, tiling: Tiling) -> Self {
+        Self {
+            gpu,
+            tiling,
+            uploaded: OnceLock::new(),
+        }
+    }
+
+    fn uploaded(&self, params: &Params<f32>, config: &ModelConfig) -> Option<&Uploaded> {
+        self.uploaded
+            .get_or_init(|| {
+                let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
+                    ResidentLayer::frozen(&self.gpu, params, mi).map(Arc::new)
+                });
+                Some(Uploaded {
+                    recurrence: GpuRecurrence::upload(self.gpu.clone(), params, config),
+                    readouts: GpuOutputLayer::with_resident(
+                        self.gpu.clone(),
+                        self.tiling,
+                        params,
+                        &layers,
+                    ),
+                })
+            })
+            .as_ref()
+    }
+}
+
+impl ErrorRegression<f32> for GpuRegression {
+    fn regress(
+        &self,
+        params: &Params<f32>,
+        config: &ModelConfig,
+        request: &RegressionRequest<'_, f32>,
+    ) -> Option<RegressionResult<f32>> {
+        if cfg!(target_arch = "wasm32") {
+            return None;
+        }
+        let updates = request.steps.len();
+        let w = &request.window;
+        if !matches!(w.posterior, pvrnn_core::backend::Posterior::Adaptive { .. })
+            || updates == 0
+            || w.len == 0
+            || request.eps.len() != updates
+            || request.m.len() != 8
+            || request.v.len() != 8
+        {
+            return None;
+        }
+        let up = self.uploaded(params, config)?;
+        let layout = &up.recurrence.layout;
+        let observed: Vec<(Modality, usize)> = Modality::ALL
+            .into_iter()
+            .map(|modality| (modality, request.observed.dims(config, modality)))
+            .filter(|&(_, k)| k > 0)
+            .collect();
+        if !layout.fits(&self.gpu, 1, w.len)
+            || observed
+                .iter()
+                .any(|&(modality, _)| !up.readouts.has_whole_readout(modality))
+        {
+            return None;
+        }
+        Some(run(&self.gpu, up, config, request, &observed))
+    }
+}
+
+/// The updates of `request` on the device (see the module docs).
+fn run(
+    gpu: &Gpu,
+    up: &Uploaded,
+    config: &ModelConfig,
+    request: &RegressionRequest<'_, f32>,
+    observed: &[(Modality, usize)],
+) -> RegressionResult<f32> {
+    let _phase = pvrnn_core::profile::phase("  error regression on the device");
+    let updates = request.steps.len();
+    let window = &request.window;
+    let len = window.len;
+    let recurrence = &up.recurrence;
+    let layout = &recurrence.layout;
+    let modules = layout.modules();
+    let s = layout.strides();
+    let zs: [usize; 4] = std::array::from_fn(|m| modules[m].z);
+    let sum_z: usize = zs.iter().sum();
+    let count = len * sum_z;
+    let z_offset: [usize; 4] = std::array::from_fn(|m| zs[..m].iter().sum());
+
+    // The inputs as the first update reads them (its eps in the eps slots).
+    let first = Window {
+        eps: std::array::from_fn(|m| request.eps[0][m].as_slice()),
+        ..window.clone()
+    };
+    let (inputs, _) = layout.pack_inputs(std::slice::from_ref(&first));
+    let entries = layout.entries(std::iter::once((len, false)));
+    let table = layout.upload_table(gpu, &request.ablation, &entries);
+    let inputs_buffer = readable(gpu, "regression inputs", &inputs);
+    // The moments in the update kernel's layout: m then v, a_mu then a_sigma, per step the
+    // modules' units side by side.
+    let mut moments = vec![0f32; 4 * count];
+    for (which, tensors) in [request.m, request.v].into_iter().enumerate() {
+        for k in 0..2 {
+            for (m, &z) in zs.iter().enumerate() {
+                let tensor = &tensors[4 * k + m];
+                for t in 0..len {
+                    let at = (2 * which + k) * count + t * sum_z + z_offset[m];
+                    moments[at..at + z].copy_from_slice(&tensor[t * z..(t + 1) * z]);
+                }
+            }
+        }
+    }
+    let moments_buffer = readable(gpu, "regression moments", &moments);
+    let has_rows = |modality: Modality| observed.iter().any(|&(o, _)| o == modality) as u32;
+    let mut meta = vec![0u32; STEPS_AT + STEP_WORDS * updates + updates * count];
+    meta[..9].copy_from_slice(&[
+        len as u32,
+        sum_z as u32,
+        s.init as u32,
+        s.input as u32,
+        s.back as u32,
+        s.record as u32,
+        updates as u32,
+        has_rows(Modality::Exteroceptive),
+        has_rows(Modality::Proprioceptive),
+    ]);
+    for (m, ml) in modules.iter().enumerate() {
+        let at = MODULES_AT + 8 * m;
+        meta[at..at + 5].copy_from_slice(&[
+            ml.z as u32,
+            z_offset[m] as u32,
+            ml.input as u32,
+            ml.back as u32,
+            (ml.record + 2 * ml.d + 8 * ml.z) as u32,
+        ]);
+    }
+    for (u, step) in request.steps.iter().enumerate() {
+        let at = STEPS_AT + STEP_WORDS * u;
+        meta[at] = step.rectified.is_some() as u32;
+        let scalars = [
+            step.beta1,
+            step.beta2,
+            1.0 - step.beta1,
+            1.0 - step.beta2,
+            step.weight_decay,
+            step.eps,
+            step.sqrt_bias2,
+            step.rectified.unwrap_or(step.plain),
+        ];
+        for (k, v) in scalars.into_iter().enumerate() {
+            meta[at + 1 + k] = (v as f32).to_bits();
+        }
+    }
+    let eps_at = STEPS_AT + STEP_WORDS * updates;
+    for (u, eps) in request.eps.iter().enumerate() {
+        for t in 0..len {
+            for (m, &z) in zs.iter().enumerate() {
+                let at = eps_at + u * count + t * sum_z + z_offset[m];
+                for (dst, v) in meta[at..at + z].iter_mut().zip(&eps[m][t * z..(t + 1) * z]) {
+                    *dst = v.to_bits();
+                }
+            }
+        }
+    }
+    let meta_buffer = gpu.upload("regression table", &meta);
+    let flags = gpu.scratch("regression flags", updates, wgpu::BufferUsages::COPY_SRC);
+    let record = gpu.scratch(
+        "recurrence record",
+        len * s.record,
+        wgpu::BufferUsages::empty(),
+    );
+    let back = gpu.scratch(
+        "recurrence backward",
+        len * s.back,
+        wgpu::BufferUsages::empty(),
+    );
+    let grad_d = gpu.scratch(
+        "read-out gradients",
+        len * s.grad_d,
+        wgpu::BufferUsages::empty(),
+    );
+    // Bound where a modality is not observed (its flag in `meta` says not to read it).
+    let no_rows = gpu.scratch("no row losses", 1, wgpu::BufferUsages::empty());
+    // Everything the submission uses stays out of the pool until it has run: a buffer
+    // taken again meanwhile would get its new contents (written through the queue) before
+    // the submission's first command.
+    let mut keep: Vec<PooledBuffer> = Vec::new();
+    let mut readouts_kept: Vec<crate::output::EncodedReadout> = Vec::new();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    encoder.clear_buffer(&flags, 0, None);
+    // Modules without an observed read-out get no gradient from one.
+    encoder.clear_buffer(&grad_d, 0, None);
+    // Each read-out's input: the module states, or the output layer's padded rows.
+    let inputs_of: Vec<(PooledBuffer, usize)> = observed
+        .iter()
+        .map(|&(modality, _)| {
+            let d = modules[modality.module().index()].d;
+            let width = if config.readout(modality).hidden.is_empty() {
+                4 * vec4s(d)
+            } else {
+                d
+            };
+            let x = gpu.scratch("read-out input", len * width, wgpu::BufferUsages::empty());
+            encoder.clear_buffer(&x, 0, None);
+            (x, width)
+        })
+        .collect();
+    let kernel = gpu.regression_kernel();
+    let (groups_x, groups_y) = grid(gpu, count);
+    for u in 0..updates {
+        layout.encode_forward(
+            gpu,
+            &recurrence.kernels,
+            &mut encoder,
+            &table,
+            &recurrence.weights_t,
+            &inputs_buffer,
+            &record,
+            1,
+        );
+        let mut readouts = Vec::with_capacity(observed.len());
+        for (&(modality, k), (x, width)) in observed.iter().zip(&inputs_of) {
+            let ml = modules[modality.module().index()];
+            encode_copy(
+                gpu,
+                &mut encoder,
+                &record,
+                Strided::rows(ml.record + ml.d, s.record),
+                x,
+                Strided::rows(0, *width),
+                [1, len, ml.d],
+                &mut keep,
+            );
+            let divisor = config
+                .accuracy_normalisation
+                .divisor(k, config.modality_dims(modality));
+            let readout = up
+                .readouts
+                .encode_readout(
+                    &mut encoder,
+                    modality,
+                    x,
+                    len,
+                    k,
+                    divisor,
+                    &window.targets[modality.index()],
+                    request.resident_targets,
+                    false,
+                )
+                .expect("the read-out is on the device (checked before)");
+            encode_copy(
+                gpu,
+                &mut encoder,
+                &readout.grad_d,
+                Strided::rows(0, readout.grad_stride),
+                &grad_d,
+                Strided::rows(ml.grad_d, s.grad_d),
+                [1, len, ml.d],
+                &mut keep,
+            );
+            readouts.push((modality, readout));
+        }
+        keep.push(layout.encode_backward(
+            gpu,
+            &recurrence.kernels,
+            &mut encoder,
+            &table,
+            &recurrence.weights,
+            &record,
+            &grad_d,
+            &back,
+            1,
+        ));
+        let params = gpu.uniform(&UpdateParams {
+            update: u as u32,
+            count: count as u32,
+            groups_x,
+            _pad: 0,
+        });
+        let rows = |modality: Modality| -> &wgpu::Buffer {
+            readouts
+                .iter()
+                .find(|(o, _)| *o == modality)
+                .map_or(&no_rows, |(_, r)| &r.row_loss)
+        };
+        let group = bind(
+            gpu,
+            &kernel,
+            &[
+                &params,
+                &meta_buffer,
+                &back,
+                &record,
+                rows(Modality::Exteroceptive),
+                rows(Modality::Proprioceptive),
+                &inputs_buffer,
+                &moments_buffer,
+                &flags,
+            ],
+        );
+        dispatch(&mut encoder, &kernel, &group, groups_x, groups_y);
+        keep.push(params);
+        readouts_kept.extend(readouts.into_iter().map(|(_, r)| r));
+    }
+    let results = pvrnn_core::deferred::now(read_back(
+        gpu,
+        encoder,
+        &[
+            (&inputs_buffer, inputs.len()),
+            (&moments_buffer, moments.len()),
+            (&flags, updates),
+        ],
+    ));
+    drop((
+        keep,
+        readouts_kept,
+        inputs_of,
+        table,
+        meta_buffer,
+        record,
+        back,
+        grad_d,
+        no_rows,
+    ));
+    let mut results = results.into_iter();
+    let (inputs, moments, flags) = (
+        results.next().unwrap_or_default(),
+        results.next().unwrap_or_default(),
+        results.next().unwrap_or_default(),
+    );
+    let first_non_finite = flags.iter().position(|f| f.to_bits() != 0);
+    // The adaptive variables from the inputs' a slots, the moments back per tensor.
+    let a = |k: usize, m: usize| {
+        let (z, ml) = (zs[m], modules[m]);
+        let mut out = Vec::with_capacity(len * z);
+        for t in 0..len {
+            let at = s.init + t * s.input + ml.input + k * z;
+            out.extend_from_slice(&inputs[at..at + z]);
+        }
+        out
+    };
+    let moment = |which: usize, i: usize| {
+        let (k, m) = (i / 4, i % 4);
+        let z = zs[m];
+        let mut out = Vec::with_capacity(len * z);
+        for t in 0..len {
+            let at = (2 * which + k) * count + t * sum_z + z_offset[m];
+            out.extend_from_slice(&moments[at..at + z]);
+        }
+        out
+    };
+    RegressionResult {
+        a_mu: std::array::from_fn(|m| a(0, m)),
+        a_sigma: std::array::from_fn(|m| a(1, m)),
+        m: (0..8).map(|i| moment(0, i)).collect(),
+        v: (0..8).map(|i| moment(1, i)).collect(),
+        first_non_finite,
+    }
+}
+
+/// A storage buffer holding `values` that can also be read back.
+fn readable(gpu: &Gpu, label: &str, values: &[f32]) -> PooledBuffer {
+    let buffer = gpu.scratch(label, values.len().max(1), wgpu::BufferUsages::COPY_SRC);
+    if !values.is_empty() {
+        gpu.queue
+            .write_buffer(&buffer, 0, bytemuck::cast_slice(values));
+    }
+    buffer
+}

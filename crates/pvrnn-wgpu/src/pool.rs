@@ -7,8 +7,13 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// Buffers kept per (size, usage) once returned; more are freed.
-const KEEP_PER_KEY: usize = 4;
+/// Buffers kept per (size, usage) once returned, at most: enough for a call that holds one
+/// per update of an inference step's 50 (the error regression's submission) to find them
+/// all again at its next call. Of large buffers fewer: at most [`KEEP_BYTES_PER_KEY`] in
+/// all, and always [`KEEP_AT_LEAST`]. More are freed.
+const KEEP_PER_KEY: usize = 64;
+const KEEP_BYTES_PER_KEY: u64 = 64 << 20;
+const KEEP_AT_LEAST: usize = 4;
 
 type Key = (u64, u32);
 
@@ -52,7 +57,9 @@ impl BufferPool {
         let key = (buffer.size(), buffer.usage().bits());
         let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
         let list = free.entry(key).or_default();
-        if list.len() < KEEP_PER_KEY {
+        let keep =
+            ((KEEP_BYTES_PER_KEY / key.0.max(1)) as usize).clamp(KEEP_AT_LEAST, KEEP_PER_KEY);
+        if list.len() < keep {
             list.push(buffer);
         }
     }

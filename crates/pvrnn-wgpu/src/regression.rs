@@ -135,6 +135,7 @@ fn run(
     observed: &[(Modality, usize)],
 ) -> RegressionResult<f32> {
     let _phase = pvrnn_core::profile::phase("  error regression on the device");
+    let encode_phase = pvrnn_core::profile::phase("    upload and encode");
     let updates = request.steps.len();
     let window = &request.window;
     let len = window.len;
@@ -362,6 +363,8 @@ fn run(
         keep.push(params);
         readouts_kept.extend(readouts.into_iter().map(|(_, r)| r));
     }
+    drop(encode_phase);
+    let run_phase = pvrnn_core::profile::phase("    run and read back");
     let results = pvrnn_core::deferred::now(read_back(
         gpu,
         encoder,
@@ -371,6 +374,7 @@ fn run(
             (&flags, updates),
         ],
     ));
+    drop(run_phase);
     drop((
         keep,
         readouts_kept,

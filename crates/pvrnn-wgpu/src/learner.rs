@@ -229,7 +229,7 @@ struct RAdamParams {
 
 /// A learning run on [`WgpuBackend`] with its read-outs resident (see the module docs), and
 /// with the recurrence on the GPU ([`WgpuBackend::with_recurrence_on_gpu`]) everything
-/// else too ([`DeviceIteration`]).
+/// else too (`iteration.rs`).
 #[derive(Debug)]
 pub struct GpuLearner {
     backend: WgpuBackend,

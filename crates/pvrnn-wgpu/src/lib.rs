@@ -14,7 +14,9 @@
 //! them there (`shaders/radam.wgsl`). The KL sums and the rest of the optimiser stay on
 //! the CPU backend, which calls this crate through those seams, unless the recurrence is on
 //! the GPU: then the learner keeps everything and runs a whole learning iteration in one
-//! submission (`iteration.rs`), reading back only the free-energy terms. In the browser (wasm32, wgpu's `webgpu` feature) the
+//! submission (`iteration.rs`), reading back only the free-energy terms; and online
+//! inference runs all the updates of an `iterate` call in one submission (`regression.rs`,
+//! pvrnn-core's [`pvrnn_core::backend::ErrorRegression`]). In the browser (wasm32, wgpu's `webgpu` feature) the
 //! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
 //! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
 //!

@@ -477,6 +477,7 @@ fn train_and_infer_run_on_the_wgpu_backend() {
     // The weights uploaded every iteration instead of kept on the GPU: the same learning.
     let (on_host, err) = train(&["--backend", "wgpu", "--weights-on-host"]);
     assert!(err.contains("weights on the host"), "{err}");
+    assert!(!err.contains("on the GPU for the whole run"), "{err}");
     assert!(
         (cpu - on_host).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu with the weights on the host F {on_host}"

@@ -175,6 +175,12 @@ pub trait Learner<T: Real>: Backend<T> {
     /// the device into the host's slices.
     fn download(&self, index: usize, value: &mut [T], m: &mut [T], v: &mut [T]);
 
+    /// Whether this learner keeps every trainable tensor on its device and evaluates a
+    /// learning iteration there whole ([`Self::free_energy`] then always answers).
+    fn runs_whole_iterations(&self) -> bool {
+        false
+    }
+
     /// A whole learning evaluation on the device, for a learner that keeps every trainable
     /// tensor there, the adaptive variables and the recurrence included: the free energy
     /// of the device's model on `data` (all of it observed, no ablation, as
@@ -182,7 +188,7 @@ pub trait Learner<T: Real>: Backend<T> {
     /// [`Self::update`], so that only the free-energy terms come back. `eps` per sequence
     /// and module, `[len, z]` ([`crate::free_energy::window_eps`]). `None` (the default):
     /// the trainer evaluates through [`Backend::load`] and updates the tensors that are not
-    /// resident on the host. A learner that keeps every trainable tensor must answer.
+    /// resident on the host. A learner that [`Self::runs_whole_iterations`] must answer.
     fn free_energy(
         &self,
         data: &Observations<T>,
@@ -232,6 +238,13 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     fn regress(&self, request: &RegressionRequest<'_, T>) -> Option<RegressionResult<T>> {
         let _ = request;
         None
+    }
+
+    /// Whether [`Self::regress`] may answer (it may still decline a call): lets online
+    /// inference skip preparing a request (every remaining update's eps) that would be
+    /// declined anyway.
+    fn regresses(&self) -> bool {
+        false
     }
 }
 

@@ -206,6 +206,10 @@ pub struct StepOutput<T> {
     pub rate_halvings: u32,
 }
 
+/// At most this many updates go to [`LoadedModel::regress`] in one call: a device keeps
+/// each update's intermediate buffers until its submission has run.
+pub const UPDATES_PER_REGRESSION: usize = 64;
+
 /// How often a diverged step is restarted at half the rate before online inference gives
 /// up with an error. `lr / 2^30` is in effect no update: the step then keeps the prior it
 /// started from. Restarts are cheap (a diverging rate fails within a few updates); a
@@ -454,17 +458,25 @@ impl<T: Real> OnlineInference<T> {
             let Some(pending) = self.pending.as_ref() else {
                 return 0;
             };
-            let done = pending.iterations_done;
+            let (done, halvings) = (pending.iterations_done, pending.rate_halvings);
             if done >= self.settings.iterations {
                 break;
             }
-            // All the updates this call may run, at once where the backend can.
-            let count = (self.settings.iterations - done).min(max - ran);
+            // The updates this call may run, at once where the backend can.
+            let count = (self.settings.iterations - done)
+                .min(max - ran)
+                .min(UPDATES_PER_REGRESSION);
             if let Some(outcome) = self.regress_on_device(t, done, count) {
                 match outcome {
                     Ok(()) => ran += count,
                     Err(failed) => {
                         ran += failed + 1;
+                        if halvings >= MAX_RATE_HALVINGS && failed > 0 {
+                            // Giving up keeps the state where the host's loop stops: after
+                            // the updates before the diverged one (finite, so they run
+                            // again the same way).
+                            let _ = self.regress_on_device(t, done, failed);
+                        }
                         self.restart_step_at_half_rate();
                     }
                 }
@@ -521,6 +533,9 @@ impl<T: Real> OnlineInference<T> {
         done: usize,
         count: usize,
     ) -> Option<Result<(), usize>> {
+        if !self.loaded.regresses() {
+            return None;
+        }
         let len = self.window_len();
         let eps: Vec<[Vec<T>; 4]> = (0..count)
             .map(|u| self.eps(Stream::InferIteration, &[t, (done + u) as u64], len))

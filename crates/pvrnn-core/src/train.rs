@@ -196,9 +196,24 @@ impl<T: Real> Trainer<T> {
         // The whole evaluation on the device, where the learner keeps everything there.
         let on_device = match &self.learner {
             Some(learner) => {
-                check_model_fits_data(&self.model, data)?;
-                let eps = window_eps(&self.model.config, data.lengths(), draw);
-                learner.free_energy(data, &eps).transpose()?
+                let whole = learner.runs_whole_iterations();
+                if whole != (learner.resident().len() == self.optimizer.m.len()) {
+                    return Err(Error::Mismatch(
+                        "the backend's learner keeps every trainable tensor on its device only if it evaluates iterations there whole".into(),
+                    ));
+                }
+                if whole {
+                    check_model_fits_data(&self.model, data)?;
+                    let eps = window_eps(&self.model.config, data.lengths(), draw);
+                    let report = learner.free_energy(data, &eps).ok_or_else(|| {
+                        Error::Mismatch(
+                            "the backend's learner did not evaluate the iteration it keeps on its device".into(),
+                        )
+                    })??;
+                    Some(report)
+                } else {
+                    None
+                }
             }
             None => None,
         };
@@ -232,11 +247,6 @@ impl<T: Real> Trainer<T> {
             grad_slices.extend(grads.adaptive.named().into_iter().map(|(_, t)| t.data()));
         }
         let resident = self.learner.as_ref().map_or(&[][..], |l| l.resident());
-        if grads.is_none() && resident.len() != self.optimizer.m.len() {
-            return Err(Error::Mismatch(
-                "the learner evaluated on its device but does not keep every trainable tensor there".into(),
-            ));
-        }
         let step = self.optimizer.begin_step();
         if let Some(learner) = &self.learner {
             let _phase = crate::profile::phase("optimiser on the device (queued)");

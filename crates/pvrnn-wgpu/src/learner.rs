@@ -426,13 +426,27 @@ impl Learner<f32> for GpuLearner {
             panic!("tensor {index} is not resident on this learner");
         };
         let gpu = self.gpu();
-        let encoder = gpu.device.create_command_encoder(&Default::default());
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        // The tensor's range of its three buffers (a packed buffer holds others too).
+        let len = t.len;
+        let part = gpu.scratch("download", 3 * len, wgpu::BufferUsages::COPY_SRC);
         let [mb, vb] = &t.moments;
-        let end = t.offset + t.len;
-        let sources = [(&t.value, end), (mb, end), (vb, end)];
-        let results = pvrnn_core::deferred::now(read_back(gpu, encoder, &sources));
-        for (dst, src) in [value, m, v].into_iter().zip(results) {
-            let src = &src[t.offset..];
+        for (k, buffer) in [&t.value, mb, vb].into_iter().enumerate() {
+            encoder.copy_buffer_to_buffer(
+                buffer,
+                (4 * t.offset) as u64,
+                &part,
+                (4 * k * len) as u64,
+                (4 * len) as u64,
+            );
+        }
+        let results = pvrnn_core::deferred::now(read_back(gpu, encoder, &[(&part, 3 * len)]));
+        drop(part);
+        let values = results.into_iter().next().unwrap_or_default();
+        for (dst, src) in [value, m, v]
+            .into_iter()
+            .zip(values.chunks_exact(len.max(1)))
+        {
             match layer_width {
                 Some(width) if t.part == Part::OutputWeight => {
                     dst.copy_from_slice(&unpad_rows(src, width));
@@ -440,6 +454,10 @@ impl Learner<f32> for GpuLearner {
                 _ => dst.copy_from_slice(src),
             }
         }
+    }
+
+    fn runs_whole_iterations(&self) -> bool {
+        self.iteration.is_some()
     }
 
     fn free_energy(

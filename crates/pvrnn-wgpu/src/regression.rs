@@ -115,7 +115,11 @@ impl ErrorRegression<f32> for GpuRegression {
             .map(|modality| (modality, request.observed.dims(config, modality)))
             .filter(|&(_, k)| k > 0)
             .collect();
+        // The update kernel's table (every update's eps) within one binding.
+        let sum_z: usize = layout.modules().iter().map(|m| m.z).sum();
+        let table_bytes = 4 * (STEPS_AT + updates * (STEP_WORDS + w.len * sum_z));
         if !layout.fits(&self.gpu, 1, w.len)
+            || table_bytes > self.gpu.limits().max_storage_buffer_binding_size as usize
             || observed
                 .iter()
                 .any(|&(modality, _)| !up.readouts.has_whole_readout(modality))

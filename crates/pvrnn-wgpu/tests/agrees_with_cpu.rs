@@ -770,7 +770,8 @@ fn the_adapter_is_named() {
 /// With the recurrence on the GPU, online inference runs all of a call's updates in one
 /// submission (`ErrorRegression`): one read-back for a step's updates, the CPU's results
 /// (updated one at a time there), the same in slices as in one go; with everything
-/// observed, and with proprioception unobserved and a module ablated during inference.
+/// observed, and with proprioception unobserved and a module ablated during inference
+/// (and more updates than one call takes: `UPDATES_PER_REGRESSION`).
 #[test]
 fn online_inference_runs_a_steps_updates_in_one_submission() {
     let Some(gpu) = gpu() else { return };
@@ -782,13 +783,14 @@ fn online_inference_runs_a_steps_updates_in_one_submission() {
         vision_levels: 1,
         proprio: false,
     };
-    for (observed, ablation) in [
-        (Observed::all(&config), Ablation::none()),
-        (partly, Ablation([false, true, false, false])),
+    let many = pvrnn_core::infer::UPDATES_PER_REGRESSION + 6;
+    for (observed, ablation, iterations, steps) in [
+        (Observed::all(&config), Ablation::none(), 6, 7),
+        (partly, Ablation([false, true, false, false]), many, 3),
     ] {
         let mut settings = InferenceSettings::from_config(&config, 2);
         settings.window = 4;
-        settings.iterations = 6;
+        settings.iterations = iterations;
         settings.observed = observed;
         settings.ablation = ablation;
         settings.ablation_mode = AblationMode::Inference;
@@ -796,7 +798,7 @@ fn online_inference_runs_a_steps_updates_in_one_submission() {
             OnlineInference::with_backend(model.clone(), settings.clone(), backend).unwrap()
         };
         let (mut cpu, mut whole, mut sliced) = (open(&CpuBackend), open(&gpu), open(&gpu));
-        for t in 0..7 {
+        for t in 0..steps {
             let x = Modality::ALL.map(|modality| data.step(modality, 0, t));
             for inference in [&mut cpu, &mut whole, &mut sliced] {
                 inference.begin_step(x[0], x[1]).unwrap();
@@ -804,8 +806,13 @@ fn online_inference_runs_a_steps_updates_in_one_submission() {
             assert_eq!(cpu.iterate(usize::MAX), 0);
             let before = gpu.gpu().read_backs();
             assert_eq!(whole.iterate(usize::MAX), 0);
-            assert_eq!(gpu.gpu().read_backs() - before, 1, "step {t}: read-backs");
-            assert_eq!(sliced.iterate(2), 4);
+            let calls = iterations.div_ceil(pvrnn_core::infer::UPDATES_PER_REGRESSION) as u64;
+            assert_eq!(
+                gpu.gpu().read_backs() - before,
+                calls,
+                "step {t}: read-backs"
+            );
+            assert_eq!(sliced.iterate(2), iterations - 2);
             assert_eq!(sliced.iterate(usize::MAX), 0);
             let (a, b, c) = (
                 cpu.finish_step().unwrap(),
@@ -875,4 +882,18 @@ fn a_diverging_step_restarts_on_the_gpu_as_on_the_cpu() {
     for mi in 0..2 {
         assert_close("reconstruction", &cpu.recon[mi], &on_gpu.recon[mi], 1e-3);
     }
+    // A rate that diverges at every halving: both give up with the same error.
+    let hopeless = (exponent..exponent + 40)
+        .find_map(|e| {
+            first_step(&CpuBackend, 2f64.powi(e))
+                .err()
+                .map(|err| (e, err))
+        })
+        .expect("a large enough rate diverges at every halving");
+    let on_gpu = first_step(&gpu, 2f64.powi(hopeless.0))
+        .unwrap_err()
+        .to_string();
+    let on_cpu = hopeless.1.to_string();
+    assert!(on_gpu.contains("restarted 30 times"), "{on_gpu}");
+    assert_eq!(on_gpu.split(" (").next(), on_cpu.split(" (").next());
 }

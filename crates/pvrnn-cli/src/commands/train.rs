@@ -253,11 +253,9 @@ pub fn run(a: Args) -> Result<()> {
     while trainer.iteration < total {
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
-        if last.is_none() && a.backend.backend != util::BackendKind::Cpu {
-            let (resident, all) = (
-                trainer.resident_tensors().len(),
-                trainer.trainable_tensors(),
-            );
+        let resident = last.is_none().then(|| trainer.resident_tensors().len());
+        if let Some(resident) = resident.filter(|&r| r > 0) {
+            let all = trainer.trainable_tensors();
             bar.println(if resident == all {
                 format!("on the GPU for the whole run: all {all} trainable tensors, so each iteration runs there whole")
             } else {

@@ -165,6 +165,10 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
             .regress(&self.params, &self.config, request)
     }
 
+    fn regresses(&self) -> bool {
+        self.regression.is_some()
+    }
+
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
         let r = &self.params.readouts[modality.index()];
         let acts = crate::deferred::now(self.hidden_activations(modality, d, n, true));

@@ -400,22 +400,7 @@ impl<T: Real> OnlineInference<T> {
         grads: Grads,
         full: FullOutputs,
     ) -> crate::backend::WindowResult<T> {
-        let len = self.window_len();
-        let window = Window {
-            len,
-            h0: self
-                .held_h
-                .as_ref()
-                .map(|h| std::array::from_fn(|m| h[m].as_slice())),
-            posterior: Posterior::Adaptive {
-                a_mu: std::array::from_fn(|m| self.a_mu[m].as_slice()),
-                a_sigma: std::array::from_fn(|m| self.a_sigma[m].as_slice()),
-            },
-            eps: std::array::from_fn(|m| eps[m].as_slice()),
-            targets: std::array::from_fn(|i| {
-                self.observations[i].iter().map(Vec::as_slice).collect()
-            }),
-        };
+        let window = self.window(std::array::from_fn(|m| eps[m].as_slice()));
         let request = Request {
             observed: self.settings.observed,
             ablation,
@@ -428,6 +413,25 @@ impl<T: Real> OnlineInference<T> {
             .evaluate_async(std::slice::from_ref(&window), &request)
             .await;
         result.windows.pop().expect("one window")
+    }
+
+    /// The window as it stands: its held state, its adaptive variables, its targets.
+    fn window<'a>(&'a self, eps: [&'a [T]; 4]) -> Window<'a, T> {
+        Window {
+            len: self.window_len(),
+            h0: self
+                .held_h
+                .as_ref()
+                .map(|h| std::array::from_fn(|m| h[m].as_slice())),
+            posterior: Posterior::Adaptive {
+                a_mu: std::array::from_fn(|m| self.a_mu[m].as_slice()),
+                a_sigma: std::array::from_fn(|m| self.a_sigma[m].as_slice()),
+            },
+            eps,
+            targets: std::array::from_fn(|i| {
+                self.observations[i].iter().map(Vec::as_slice).collect()
+            }),
+        }
     }
 
     fn eps(&self, stream: Stream, tags: &[u64], len: usize) -> [Vec<T>; 4] {
@@ -542,23 +546,9 @@ impl<T: Real> OnlineInference<T> {
             .collect();
         let mut optimizer = self.optimizer.clone();
         let steps: Vec<_> = (0..count).map(|_| optimizer.begin_step()).collect();
-        let window = Window {
-            len,
-            h0: self
-                .held_h
-                .as_ref()
-                .map(|h| std::array::from_fn(|m| h[m].as_slice())),
-            posterior: Posterior::Adaptive {
-                a_mu: std::array::from_fn(|m| self.a_mu[m].as_slice()),
-                a_sigma: std::array::from_fn(|m| self.a_sigma[m].as_slice()),
-            },
-            eps: std::array::from_fn(|_| &[][..]),
-            targets: std::array::from_fn(|i| {
-                self.observations[i].iter().map(Vec::as_slice).collect()
-            }),
-        };
         let request = crate::backend::RegressionRequest {
-            window,
+            // The eps are per update, below.
+            window: self.window([&[]; 4]),
             eps: &eps,
             steps: &steps,
             m: &self.optimizer.m,

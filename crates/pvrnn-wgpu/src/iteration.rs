@@ -144,15 +144,10 @@ impl DeviceIteration {
             });
             (value, grad)
         };
-        let mut adaptive: [[Option<wgpu::Buffer>; 2]; 4] = Default::default();
-        let mut adaptive_grads: [[Option<wgpu::Buffer>; 2]; 4] = Default::default();
-        for m in 0..4 {
-            for k in 0..2 {
-                let (value, grad) = adaptive_tensor(m, k);
-                adaptive[m][k] = Some(value);
-                adaptive_grads[m][k] = Some(grad);
-            }
-        }
+        let pairs: [[(wgpu::Buffer, wgpu::Buffer); 2]; 4] =
+            std::array::from_fn(|m| std::array::from_fn(|k| adaptive_tensor(m, k)));
+        let adaptive = pairs.clone().map(|pair| pair.map(|(value, _)| value));
+        let adaptive_grads = pairs.map(|pair| pair.map(|(_, grad)| grad));
         let s = layout.strides();
         let inputs = resident_buffer(
             gpu,
@@ -164,15 +159,14 @@ impl DeviceIteration {
             "resident read-out gradients",
             &vec![0f32; sequences * steps * s.grad_d],
         );
-        let unwrap = |b: [[Option<wgpu::Buffer>; 2]; 4]| b.map(|pair| pair.map(Option::unwrap));
         Some(Self {
             config: config.clone(),
             kernels: gpu.recurrence_kernels(),
             weights,
             weights_t,
             grads,
-            adaptive: unwrap(adaptive),
-            adaptive_grads: unwrap(adaptive_grads),
+            adaptive,
+            adaptive_grads,
             sequences,
             steps,
             inputs,

@@ -4,7 +4,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::Gpu;
-use crate::output::{bind, dispatch, grid};
+use crate::output::{Recorder, bind, dispatch, grid};
 use crate::pool::PooledBuffer;
 
 /// Where values sit in a buffer: the first one, and the steps between blocks and rows.
@@ -48,7 +48,7 @@ struct CopyParams {
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn encode_copy(
     gpu: &Gpu,
-    encoder: &mut wgpu::CommandEncoder,
+    encoder: &mut dyn Recorder,
     src: &wgpu::Buffer,
     from: Strided,
     dst: &wgpu::Buffer,

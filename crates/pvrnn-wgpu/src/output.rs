@@ -369,17 +369,67 @@ pub(crate) fn bind(
     })
 }
 
+/// Where kernels' dispatches go: straight into a command encoder (a compute pass each), or
+/// into a [`DispatchList`] to replay, the same dispatches many times over (online
+/// inference's updates: bind groups and passes cost the host more than the small kernels).
+pub(crate) trait Recorder {
+    fn record(&mut self, pipeline: &wgpu::ComputePipeline, group: &wgpu::BindGroup, x: u32, y: u32);
+}
+
+impl Recorder for wgpu::CommandEncoder {
+    fn record(
+        &mut self,
+        pipeline: &wgpu::ComputePipeline,
+        group: &wgpu::BindGroup,
+        x: u32,
+        y: u32,
+    ) {
+        let mut pass = self.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+}
+
+/// Dispatches recorded once and replayed into compute passes (see [`Recorder`]).
+#[derive(Debug, Default)]
+pub(crate) struct DispatchList {
+    dispatches: Vec<(wgpu::ComputePipeline, wgpu::BindGroup, u32, u32)>,
+}
+
+impl Recorder for DispatchList {
+    fn record(
+        &mut self,
+        pipeline: &wgpu::ComputePipeline,
+        group: &wgpu::BindGroup,
+        x: u32,
+        y: u32,
+    ) {
+        self.dispatches
+            .push((pipeline.clone(), group.clone(), x, y));
+    }
+}
+
+impl DispatchList {
+    /// Every recorded dispatch, in order, into `pass` (wgpu orders each after the ones
+    /// whose results it reads).
+    pub(crate) fn replay(&self, pass: &mut wgpu::ComputePass<'_>) {
+        for (pipeline, group, x, y) in &self.dispatches {
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(*x, *y, 1);
+        }
+    }
+}
+
 pub(crate) fn dispatch(
-    encoder: &mut wgpu::CommandEncoder,
+    recorder: &mut (impl Recorder + ?Sized),
     pipeline: &wgpu::ComputePipeline,
     group: &wgpu::BindGroup,
     x: u32,
     y: u32,
 ) {
-    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, group, &[]);
-    pass.dispatch_workgroups(x, y, 1);
+    recorder.record(pipeline, group, x, y);
 }
 
 /// The output layer's loss encoded on the device (see [`GpuOutputLayer::encode_loss`]): the
@@ -414,7 +464,7 @@ impl GpuOutputLayer {
     #[allow(clippy::too_many_arguments)]
     fn encode_loss(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         layer: &Layer,
         modality: Modality,
         x: &wgpu::Buffer,
@@ -589,7 +639,7 @@ impl GpuOutputLayer {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_readout(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         modality: Modality,
         input: &wgpu::Buffer,
         n: usize,
@@ -657,7 +707,7 @@ impl GpuOutputLayer {
     /// the output layer's kernels. Returns them bottom first.
     fn encode_hidden_forward(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         readout: &ResidentLayer,
         d: &wgpu::Buffer,
         n: usize,
@@ -712,7 +762,7 @@ impl GpuOutputLayer {
     #[allow(clippy::too_many_arguments)]
     fn encode_hidden_backward(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         readout: &ResidentLayer,
         d: &wgpu::Buffer,
         acts: &[(PooledBuffer, usize)],

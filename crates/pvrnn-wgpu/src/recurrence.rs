@@ -18,7 +18,7 @@ use pvrnn_core::data::Ablation;
 use pvrnn_core::params::{ModuleParams, Params};
 
 use crate::gpu::{Gpu, RecurrenceKernels};
-use crate::output::{bind, dispatch};
+use crate::output::{Recorder, bind, dispatch};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use pvrnn_core::deferred::now;
@@ -403,7 +403,7 @@ impl RecurrenceLayout {
         &self,
         gpu: &Gpu,
         kernels: &RecurrenceKernels,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         table: &wgpu::Buffer,
         weights_t: &wgpu::Buffer,
         inputs: &wgpu::Buffer,
@@ -422,7 +422,7 @@ impl RecurrenceLayout {
         &self,
         gpu: &Gpu,
         kernels: &RecurrenceKernels,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         table: &wgpu::Buffer,
         weights: &wgpu::Buffer,
         record: &wgpu::Buffer,
@@ -449,7 +449,7 @@ impl RecurrenceLayout {
         &self,
         gpu: &Gpu,
         kernels: &RecurrenceKernels,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         table: &wgpu::Buffer,
         inputs: &wgpu::Buffer,
         record: &wgpu::Buffer,

@@ -23,7 +23,7 @@ use pvrnn_core::{Modality, ModelConfig};
 use crate::copy::{Strided, encode_copy};
 use crate::gpu::Gpu;
 use crate::learner::ResidentLayer;
-use crate::output::{GpuOutputLayer, Tiling, bind, dispatch, grid, vec4s};
+use crate::output::{DispatchList, GpuOutputLayer, Tiling, bind, grid, vec4s};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::GpuRecurrence;
@@ -250,7 +250,6 @@ fn run(
     // taken again meanwhile would get its new contents (written through the queue) before
     // the submission's first command.
     let mut keep: Vec<PooledBuffer> = Vec::new();
-    let mut readouts_kept: Vec<crate::output::EncodedReadout> = Vec::new();
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     encoder.clear_buffer(&flags, 0, None);
     // Modules without an observed read-out get no gradient from one.
@@ -270,102 +269,117 @@ fn run(
             (x, width)
         })
         .collect();
+    // One update's work, recorded once: every update runs the same dispatches on the same
+    // buffers, so their bind groups are made once and replayed (each bind group and
+    // compute pass costs the host tens of microseconds; an update is some 17 dispatches).
+    let mut update = DispatchList::default();
+    layout.encode_forward(
+        gpu,
+        &recurrence.kernels,
+        &mut update,
+        &table,
+        &recurrence.weights_t,
+        &inputs_buffer,
+        &record,
+        1,
+    );
+    let mut readouts = Vec::with_capacity(observed.len());
+    for (&(modality, k), (x, width)) in observed.iter().zip(&inputs_of) {
+        let ml = modules[modality.module().index()];
+        encode_copy(
+            gpu,
+            &mut update,
+            &record,
+            Strided::rows(ml.record + ml.d, s.record),
+            x,
+            Strided::rows(0, *width),
+            [1, len, ml.d],
+            &mut keep,
+        );
+        let divisor = config
+            .accuracy_normalisation
+            .divisor(k, config.modality_dims(modality));
+        let readout = up
+            .readouts
+            .encode_readout(
+                &mut update,
+                modality,
+                x,
+                len,
+                k,
+                divisor,
+                &window.targets[modality.index()],
+                request.resident_targets,
+                false,
+            )
+            .expect("the read-out is on the device (checked before)");
+        encode_copy(
+            gpu,
+            &mut update,
+            &readout.grad_d,
+            Strided::rows(0, readout.grad_stride),
+            &grad_d,
+            Strided::rows(ml.grad_d, s.grad_d),
+            [1, len, ml.d],
+            &mut keep,
+        );
+        readouts.push((modality, readout));
+    }
+    keep.push(layout.encode_backward(
+        gpu,
+        &recurrence.kernels,
+        &mut update,
+        &table,
+        &recurrence.weights,
+        &record,
+        &grad_d,
+        &back,
+        1,
+    ));
+    // Then the update kernel, which alone differs between updates (their index).
     let kernel = gpu.regression_kernel();
     let (groups_x, groups_y) = grid(gpu, count);
-    for u in 0..updates {
-        layout.encode_forward(
-            gpu,
-            &recurrence.kernels,
-            &mut encoder,
-            &table,
-            &recurrence.weights_t,
-            &inputs_buffer,
-            &record,
-            1,
-        );
-        let mut readouts = Vec::with_capacity(observed.len());
-        for (&(modality, k), (x, width)) in observed.iter().zip(&inputs_of) {
-            let ml = modules[modality.module().index()];
-            encode_copy(
+    let rows = |modality: Modality| -> &wgpu::Buffer {
+        readouts
+            .iter()
+            .find(|(o, _)| *o == modality)
+            .map_or(&no_rows, |(_, r)| &r.row_loss)
+    };
+    let groups: Vec<wgpu::BindGroup> = (0..updates)
+        .map(|u| {
+            let params = gpu.uniform(&UpdateParams {
+                update: u as u32,
+                count: count as u32,
+                groups_x,
+                _pad: 0,
+            });
+            let group = bind(
                 gpu,
-                &mut encoder,
-                &record,
-                Strided::rows(ml.record + ml.d, s.record),
-                x,
-                Strided::rows(0, *width),
-                [1, len, ml.d],
-                &mut keep,
+                &kernel,
+                &[
+                    &params,
+                    &meta_buffer,
+                    &back,
+                    &record,
+                    rows(Modality::Exteroceptive),
+                    rows(Modality::Proprioceptive),
+                    &inputs_buffer,
+                    &moments_buffer,
+                    &flags,
+                ],
             );
-            let divisor = config
-                .accuracy_normalisation
-                .divisor(k, config.modality_dims(modality));
-            let readout = up
-                .readouts
-                .encode_readout(
-                    &mut encoder,
-                    modality,
-                    x,
-                    len,
-                    k,
-                    divisor,
-                    &window.targets[modality.index()],
-                    request.resident_targets,
-                    false,
-                )
-                .expect("the read-out is on the device (checked before)");
-            encode_copy(
-                gpu,
-                &mut encoder,
-                &readout.grad_d,
-                Strided::rows(0, readout.grad_stride),
-                &grad_d,
-                Strided::rows(ml.grad_d, s.grad_d),
-                [1, len, ml.d],
-                &mut keep,
-            );
-            readouts.push((modality, readout));
+            keep.push(params);
+            group
+        })
+        .collect();
+    {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        for group in &groups {
+            update.replay(&mut pass);
+            pass.set_pipeline(&kernel);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(groups_x, groups_y, 1);
         }
-        keep.push(layout.encode_backward(
-            gpu,
-            &recurrence.kernels,
-            &mut encoder,
-            &table,
-            &recurrence.weights,
-            &record,
-            &grad_d,
-            &back,
-            1,
-        ));
-        let params = gpu.uniform(&UpdateParams {
-            update: u as u32,
-            count: count as u32,
-            groups_x,
-            _pad: 0,
-        });
-        let rows = |modality: Modality| -> &wgpu::Buffer {
-            readouts
-                .iter()
-                .find(|(o, _)| *o == modality)
-                .map_or(&no_rows, |(_, r)| &r.row_loss)
-        };
-        let group = bind(
-            gpu,
-            &kernel,
-            &[
-                &params,
-                &meta_buffer,
-                &back,
-                &record,
-                rows(Modality::Exteroceptive),
-                rows(Modality::Proprioceptive),
-                &inputs_buffer,
-                &moments_buffer,
-                &flags,
-            ],
-        );
-        dispatch(&mut encoder, &kernel, &group, groups_x, groups_y);
-        keep.push(params);
-        readouts_kept.extend(readouts.into_iter().map(|(_, r)| r));
     }
     drop(encode_phase);
     let run_phase = pvrnn_core::profile::phase("    run and read back");
@@ -381,7 +395,7 @@ fn run(
     drop(run_phase);
     drop((
         keep,
-        readouts_kept,
+        readouts,
         inputs_of,
         table,
         meta_buffer,

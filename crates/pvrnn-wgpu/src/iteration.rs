@@ -19,7 +19,7 @@ use pvrnn_core::{Error, Modality, ModelConfig, Result};
 use crate::copy::{Strided, encode_copy};
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::learner::{Part, ResidentLayer, ResidentTensor, resident_buffer};
-use crate::output::{GpuOutputLayer, Tiling, row_losses, vec4s};
+use crate::output::{DispatchList, GpuOutputLayer, Tiling, row_losses, vec4s};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::RecurrenceLayout;
@@ -249,10 +249,22 @@ impl DeviceIteration {
         );
         let mut keep: Vec<PooledBuffer> = Vec::new();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        // Buffers that start from zero are cleared first; the dispatches are recorded and
+        // then run in one compute pass (a pass per dispatch costs the host more than the
+        // small kernels).
+        let mut work = DispatchList::default();
 
         // The inputs: per window its initial states (zero), then per step and module
         // a_mu, a_sigma and eps.
         encoder.clear_buffer(&self.inputs, 0, None);
+        // Modules without a read-out get no gradient from one.
+        encoder.clear_buffer(&self.grad_d, 0, None);
+        for pair in &self.adaptive_grads {
+            for grads in pair {
+                // Steps past a sequence's length get no gradient.
+                encoder.clear_buffer(grads, 0, None);
+            }
+        }
         for &(first, count) in &groups {
             let len = lengths[first];
             for (m, ml) in modules.iter().enumerate() {
@@ -270,7 +282,7 @@ impl DeviceIteration {
                 for k in 0..2 {
                     encode_copy(
                         gpu,
-                        &mut encoder,
+                        &mut work,
                         &self.adaptive[m][k],
                         adaptive_at,
                         &self.inputs,
@@ -286,7 +298,7 @@ impl DeviceIteration {
                 };
                 encode_copy(
                     gpu,
-                    &mut encoder,
+                    &mut work,
                     &eps_buffer,
                     eps_at,
                     &self.inputs,
@@ -299,7 +311,7 @@ impl DeviceIteration {
         layout.encode_forward(
             gpu,
             &self.kernels,
-            &mut encoder,
+            &mut work,
             &table,
             &self.weights_t,
             &self.inputs,
@@ -309,7 +321,6 @@ impl DeviceIteration {
 
         // Both read-outs from the module states in the record, their d F / d d into the
         // recurrence's layout.
-        encoder.clear_buffer(&self.grad_d, 0, None);
         let observed = Observed::all(config);
         let mut readouts = Vec::with_capacity(2);
         for modality in Modality::ALL {
@@ -334,7 +345,7 @@ impl DeviceIteration {
             }
             encode_copy(
                 gpu,
-                &mut encoder,
+                &mut work,
                 &record,
                 Strided::rows(ml.record + d, s.record),
                 &input,
@@ -345,7 +356,7 @@ impl DeviceIteration {
             let readout = self
                 .readouts
                 .encode_readout(
-                    &mut encoder,
+                    &mut work,
                     modality,
                     &input,
                     total,
@@ -363,7 +374,7 @@ impl DeviceIteration {
                 })?;
             encode_copy(
                 gpu,
-                &mut encoder,
+                &mut work,
                 &readout.grad_d,
                 Strided::rows(0, readout.grad_stride),
                 &self.grad_d,
@@ -380,7 +391,7 @@ impl DeviceIteration {
         keep.push(layout.encode_backward(
             gpu,
             &self.kernels,
-            &mut encoder,
+            &mut work,
             &table,
             &self.weights,
             &record,
@@ -391,7 +402,7 @@ impl DeviceIteration {
         keep.push(layout.encode_weight_grads(
             gpu,
             &self.kernels,
-            &mut encoder,
+            &mut work,
             &table,
             &self.inputs,
             &record,
@@ -402,13 +413,11 @@ impl DeviceIteration {
         for (m, ml) in modules.iter().enumerate() {
             let z = ml.z;
             for k in 0..2 {
-                // Steps past a sequence's length get no gradient.
-                encoder.clear_buffer(&self.adaptive_grads[m][k], 0, None);
                 for &(first, count) in &groups {
                     let len = lengths[first];
                     encode_copy(
                         gpu,
-                        &mut encoder,
+                        &mut work,
                         &back,
                         Strided {
                             offset: entries[first][5] + ml.back + k * z,
@@ -433,7 +442,7 @@ impl DeviceIteration {
         for (m, ml) in modules.iter().enumerate() {
             encode_copy(
                 gpu,
-                &mut encoder,
+                &mut work,
                 &record,
                 Strided::rows(ml.record + 2 * ml.d + 8 * ml.z, s.record),
                 &kl,
@@ -441,6 +450,10 @@ impl DeviceIteration {
                 [1, total, ml.z],
                 &mut keep,
             );
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            work.replay(&mut pass);
         }
         let mut sources = vec![(&*kl, eps_flat.len())];
         sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, total)));
@@ -485,10 +498,11 @@ impl DeviceIteration {
         keep: &mut Vec<PooledBuffer>,
     ) {
         encoder.copy_buffer_to_buffer(&self.weights, 0, &self.weights_t, 0, self.weights.size());
+        let mut work = DispatchList::default();
         for (at, rows, cols) in self.layout.matrices() {
             encode_copy(
                 gpu,
-                encoder,
+                &mut work,
                 &self.weights,
                 Strided {
                     offset: at,
@@ -505,5 +519,7 @@ impl DeviceIteration {
                 keep,
             );
         }
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        work.replay(&mut pass);
     }
 }

@@ -24,7 +24,9 @@ use wgpu::util::DeviceExt;
 use crate::WgpuBackend;
 use crate::gpu::Gpu;
 use crate::iteration::DeviceIteration;
-use crate::output::{bind, dispatch, fits, grid, pad_rows, unpad_rows, vec4s};
+use crate::output::{
+    DispatchList, Recorder, bind, dispatch, fits, grid, pad_rows, unpad_rows, vec4s,
+};
 use crate::readback::read_back;
 
 /// One read-out (its hidden layers and its output layer) kept on the device for a learning
@@ -297,7 +299,7 @@ impl GpuLearner {
     /// rest without.
     fn encode_update(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
+        encoder: &mut dyn Recorder,
         step: &RAdamStep,
         t: &ResidentTensor,
         live: usize,
@@ -378,6 +380,8 @@ impl Learner<f32> for GpuLearner {
         let gpu = self.gpu();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         let mut keep = Vec::new();
+        // Every tensor's update in one compute pass.
+        let mut work = DispatchList::default();
         for layer in self.layers.iter().flatten() {
             let k = layer.rows_with_gradient.swap(0, Ordering::SeqCst);
             let hidden = layer.hidden_gradients.swap(false, Ordering::SeqCst);
@@ -389,11 +393,15 @@ impl Learner<f32> for GpuLearner {
                     Part::Hidden => 0,
                     Part::Whole => t.len,
                 };
-                self.encode_update(&mut encoder, step, t, live, &mut keep);
+                self.encode_update(&mut work, step, t, live, &mut keep);
             }
         }
         for t in &self.more {
-            self.encode_update(&mut encoder, step, t, t.len, &mut keep);
+            self.encode_update(&mut work, step, t, t.len, &mut keep);
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            work.replay(&mut pass);
         }
         if let Some(iteration) = &self.iteration {
             iteration.encode_transposes(gpu, &mut encoder, &mut keep);

@@ -366,6 +366,10 @@ fn trainable_indices(params: &Params<f32>) -> impl Fn(&pvrnn_core::Tensor<f32>) 
 }
 
 impl Backend<f32> for GpuLearner {
+    /// A model whose read-outs are the learner's. When the learner runs whole iterations,
+    /// the recurrent weights and adaptive variables it keeps are not in such a model (it
+    /// takes them from `params` and the windows, the host's stale copies): learning then
+    /// evaluates through [`Learner::free_energy`] only, as `Trainer` does.
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
         self.backend.load_with_layers(params, config, &self.layers)
     }

@@ -254,6 +254,9 @@ pub struct OnlineInference<T: Real> {
     pending: Option<Pending<T>>,
     /// Extra read-outs of every step's final pass (contribution maps in one run).
     readout_ablations: Vec<Ablation>,
+    /// The backend declined this step's window for [`LoadedModel::regress`]: its updates
+    /// run one at a time without asking again (the window's shape holds for the step).
+    regress_declined: bool,
 }
 
 impl<T: Real> OnlineInference<T> {
@@ -283,6 +286,7 @@ impl<T: Real> OnlineInference<T> {
             optimizer,
             pending: None,
             readout_ablations: Vec::new(),
+            regress_declined: false,
             loaded: backend.load(&model.params, config),
             model,
             settings,
@@ -369,6 +373,7 @@ impl<T: Real> OnlineInference<T> {
             rows.push(row);
         }
         self.targets_id = crate::data::next_id();
+        self.regress_declined = false;
         self.latest = [x_extero.to_vec(), x_proprio.to_vec()];
         let sizes: Vec<usize> = (0..8).map(|i| self.a_mu[i % 4].len()).collect();
         if self.settings.reset_moments_each_step || self.steps_done == 0 {
@@ -537,7 +542,7 @@ impl<T: Real> OnlineInference<T> {
         done: usize,
         count: usize,
     ) -> Option<Result<(), usize>> {
-        if !self.loaded.regresses() {
+        if self.regress_declined || !self.loaded.regresses() {
             return None;
         }
         let len = self.window_len();
@@ -557,7 +562,10 @@ impl<T: Real> OnlineInference<T> {
             ablation: self.settings.inference_ablation(),
             resident_targets: Some(self.targets_id),
         };
-        let result = self.loaded.regress(&request)?;
+        let Some(result) = self.loaded.regress(&request) else {
+            self.regress_declined = true;
+            return None;
+        };
         if let Some(failed) = result.first_non_finite {
             return Some(Err(failed));
         }

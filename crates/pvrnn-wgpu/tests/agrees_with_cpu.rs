@@ -897,3 +897,39 @@ fn a_diverging_step_restarts_on_the_gpu_as_on_the_cpu() {
     assert!(on_gpu.contains("restarted 30 times"), "{on_gpu}");
     assert_eq!(on_gpu.split(" (").next(), on_cpu.split(" (").next());
 }
+
+/// A window the device does not hold (here a module wider than the recurrence kernels'
+/// 128 units) is declined once per step and its updates run one at a time, as without the
+/// recurrence on the GPU: the same results as the CPU's.
+#[test]
+fn online_inference_runs_declined_windows_one_update_at_a_time() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let mut config = config();
+    config.executive.d = 129;
+    let data = observations(&config, 1, 4);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 3).unwrap());
+    let mut settings = InferenceSettings::from_config(&config, 2);
+    settings.window = 3;
+    settings.iterations = 4;
+    let open = |backend: &dyn Backend<f32>| {
+        OnlineInference::with_backend(model.clone(), settings.clone(), backend).unwrap()
+    };
+    let (mut cpu, mut on_gpu) = (open(&CpuBackend), open(&gpu));
+    for t in 0..4 {
+        let x = Modality::ALL.map(|modality| data.step(modality, 0, t));
+        let a = cpu.step(x[0], x[1]).unwrap();
+        let before = gpu.gpu().read_backs();
+        let b = on_gpu.step(x[0], x[1]).unwrap();
+        // The output layers' round trips, several per update.
+        assert!(
+            gpu.gpu().read_backs() - before > 4,
+            "step {t}: one update at a time"
+        );
+        let (fa, fb) = (a.window_free_energy.total, b.window_free_energy.total);
+        assert!(
+            (fa - fb).abs() <= 1e-4 * fa.abs(),
+            "step {t}: cpu F {fa}, gpu F {fb}"
+        );
+    }
+}

@@ -35,6 +35,11 @@ struct Args {
     /// lavapipe included). The status bar says which.
     #[arg(long, value_enum, default_value_t = Compute::Auto)]
     backend: Compute,
+    /// On a GPU: run the recurrence there too, so that each slice of a live run's updates
+    /// goes to the GPU in one submission instead of round trips per update (as `pvrnn
+    /// --gpu-recurrence`; off by default until timed on a GPU, docs/gpu.md).
+    #[arg(long)]
+    gpu_recurrence: bool,
     /// What draws the window: `auto` (wgpu on a GPU, glow's OpenGL where the only Vulkan
     /// device is a CPU implementation or there is none; glow if wgpu fails to open the
     /// window), `wgpu` or `glow`. The status bar says which.
@@ -98,6 +103,7 @@ enum Compute {
 #[cfg(not(target_arch = "wasm32"))]
 fn open_backend(
     compute: Compute,
+    gpu_recurrence: bool,
 ) -> Option<(
     std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>>,
     String,
@@ -107,7 +113,11 @@ fn open_backend(
     }
     match pvrnn_wgpu::WgpuBackend::new() {
         Ok(gpu) if compute == Compute::Wgpu || !gpu.gpu().is_cpu() => {
-            let name = format!("wgpu on {}", gpu.adapter_name());
+            let mut name = format!("wgpu on {}", gpu.adapter_name());
+            if gpu_recurrence {
+                name.push_str(", recurrence on the GPU");
+            }
+            let gpu = gpu.with_recurrence_on_gpu(gpu_recurrence);
             Some((std::sync::Arc::new(gpu), name))
         }
         Ok(_) => None,
@@ -195,8 +205,12 @@ fn main() {
             .borrow_mut()
             .take()
             .or_else(|| Bundle::open_dir(&dir).ok());
-        let (screenshot, hash, compute) =
-            (args.screenshot.clone(), args.view.clone(), args.backend);
+        let (screenshot, hash, compute, gpu_recurrence) = (
+            args.screenshot.clone(),
+            args.view.clone(),
+            args.backend,
+            args.gpu_recurrence,
+        );
         let created = created.clone();
         eframe::run_native(
             "PV-RNN explorer",
@@ -209,7 +223,7 @@ fn main() {
                 if let Some(hash) = &hash {
                     app.apply_hash(hash);
                 }
-                app.compute_in_background_on(&cc.egui_ctx, open_backend(compute));
+                app.compute_in_background_on(&cc.egui_ctx, open_backend(compute, gpu_recurrence));
                 if let Some(path) = screenshot {
                     app.screenshot_and_close(path);
                 }

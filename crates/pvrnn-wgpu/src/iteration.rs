@@ -19,7 +19,7 @@ use pvrnn_core::{Error, Modality, ModelConfig, Result};
 use crate::copy::{Strided, encode_copy};
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::learner::{Part, ResidentLayer, ResidentTensor, resident_buffer};
-use crate::output::{DispatchList, GpuOutputLayer, Tiling, row_losses, vec4s};
+use crate::output::{DispatchList, EncodedReadout, GpuOutputLayer, Tiling, row_losses, vec4s};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::RecurrenceLayout;
@@ -324,66 +324,36 @@ impl DeviceIteration {
         let observed = Observed::all(config);
         let mut readouts = Vec::with_capacity(2);
         for modality in Modality::ALL {
-            let ml = modules[modality.module().index()];
-            let d = ml.d;
             let k = observed.dims(config, modality);
-            let divisor = config
-                .accuracy_normalisation
-                .divisor(k, config.modality_dims(modality));
             let targets: Vec<&[f32]> = (0..windows)
                 .flat_map(|w| (0..lengths[w]).map(move |t| data.step(modality, w, t)))
                 .collect();
-            // A read-out without hidden layers feeds its output layer's padded rows.
-            let width = if config.readout(modality).hidden.is_empty() {
-                4 * vec4s(d)
-            } else {
-                d
-            };
-            let input = gpu.scratch("read-out input", total * width, wgpu::BufferUsages::empty());
-            if width != d {
-                encoder.clear_buffer(&input, 0, None);
-            }
-            encode_copy(
+            let readout = encode_readout_of_record(
                 gpu,
+                &self.readouts,
+                config,
+                layout,
+                &mut encoder,
                 &mut work,
-                &record,
-                Strided::rows(ml.record + d, s.record),
-                &input,
-                Strided::rows(0, width),
-                [1, total, d],
+                RecordRows {
+                    record: &record,
+                    grad_d: &self.grad_d,
+                    rows: total,
+                },
+                modality,
+                k,
+                &targets,
+                Some(data.id()),
+                true,
                 &mut keep,
-            );
-            let readout = self
-                .readouts
-                .encode_readout(
-                    &mut work,
-                    modality,
-                    &input,
-                    total,
-                    k,
-                    divisor,
-                    &targets,
-                    Some(data.id()),
-                    true,
-                )
-                .ok_or_else(|| {
-                    Error::Mismatch(format!(
-                        "the {} read-out is not on the device",
-                        modality.name()
-                    ))
-                })?;
-            encode_copy(
-                gpu,
-                &mut work,
-                &readout.grad_d,
-                Strided::rows(0, readout.grad_stride),
-                &self.grad_d,
-                Strided::rows(ml.grad_d, s.grad_d),
-                [1, total, d],
-                &mut keep,
-            );
-            keep.push(input);
-            readouts.push((readout, divisor));
+            )
+            .ok_or_else(|| {
+                Error::Mismatch(format!(
+                    "the {} read-out is not on the device",
+                    modality.name()
+                ))
+            })?;
+            readouts.push(readout);
         }
 
         // Back through the recurrence: the weights' gradients, and d F / d a out to the
@@ -522,4 +492,88 @@ impl DeviceIteration {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
         work.replay(&mut pass);
     }
+}
+
+/// A recurrence record's rows and the buffer for the read-outs' d F / d d in the
+/// recurrence's layout.
+pub(crate) struct RecordRows<'a> {
+    pub(crate) record: &'a wgpu::Buffer,
+    pub(crate) grad_d: &'a wgpu::Buffer,
+    pub(crate) rows: usize,
+}
+
+/// Encodes the whole read-out of `modality` (its first `k` dimensions observed) from the
+/// module states in a recurrence record: the states copied out into the read-out's input
+/// (the output layer's padded rows, cleared first, for a read-out without hidden layers),
+/// the read-out ([`GpuOutputLayer::encode_readout`]) and its d F / d d copied into the
+/// recurrence's layout. Returns the read-out and its accuracy divisor; `None` unless the
+/// read-out is on the device whole. Buffers the submission uses go into `keep`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn encode_readout_of_record(
+    gpu: &Gpu,
+    readouts: &GpuOutputLayer,
+    config: &ModelConfig,
+    layout: &RecurrenceLayout,
+    encoder: &mut wgpu::CommandEncoder,
+    work: &mut DispatchList,
+    at: RecordRows<'_>,
+    modality: Modality,
+    k: usize,
+    targets: &[&[f32]],
+    resident: Option<u64>,
+    weight_grads: bool,
+    keep: &mut Vec<PooledBuffer>,
+) -> Option<(EncodedReadout, usize)> {
+    let s = layout.strides();
+    let ml = layout.modules()[modality.module().index()];
+    let d = ml.d;
+    let divisor = config
+        .accuracy_normalisation
+        .divisor(k, config.modality_dims(modality));
+    let width = if config.readout(modality).hidden.is_empty() {
+        4 * vec4s(d)
+    } else {
+        d
+    };
+    let input = gpu.scratch(
+        "read-out input",
+        at.rows * width,
+        wgpu::BufferUsages::empty(),
+    );
+    if width != d {
+        encoder.clear_buffer(&input, 0, None);
+    }
+    encode_copy(
+        gpu,
+        work,
+        at.record,
+        Strided::rows(ml.record + d, s.record),
+        &input,
+        Strided::rows(0, width),
+        [1, at.rows, d],
+        keep,
+    );
+    let readout = readouts.encode_readout(
+        work,
+        modality,
+        &input,
+        at.rows,
+        k,
+        divisor,
+        targets,
+        resident,
+        weight_grads,
+    )?;
+    encode_copy(
+        gpu,
+        work,
+        &readout.grad_d,
+        Strided::rows(0, readout.grad_stride),
+        at.grad_d,
+        Strided::rows(ml.grad_d, s.grad_d),
+        [1, at.rows, d],
+        keep,
+    );
+    keep.push(input);
+    Some((readout, divisor))
 }

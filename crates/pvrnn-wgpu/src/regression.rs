@@ -20,10 +20,10 @@ use pvrnn_core::backend::{ErrorRegression, RegressionRequest, RegressionResult, 
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 
-use crate::copy::{Strided, encode_copy};
 use crate::gpu::Gpu;
+use crate::iteration::{RecordRows, encode_readout_of_record};
 use crate::learner::ResidentLayer;
-use crate::output::{DispatchList, GpuOutputLayer, Tiling, bind, grid, vec4s};
+use crate::output::{DispatchList, GpuOutputLayer, Tiling, bind, grid};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::GpuRecurrence;
@@ -254,21 +254,6 @@ fn run(
     encoder.clear_buffer(&flags, 0, None);
     // Modules without an observed read-out get no gradient from one.
     encoder.clear_buffer(&grad_d, 0, None);
-    // Each read-out's input: the module states, or the output layer's padded rows.
-    let inputs_of: Vec<(PooledBuffer, usize)> = observed
-        .iter()
-        .map(|&(modality, _)| {
-            let d = modules[modality.module().index()].d;
-            let width = if config.readout(modality).hidden.is_empty() {
-                4 * vec4s(d)
-            } else {
-                d
-            };
-            let x = gpu.scratch("read-out input", len * width, wgpu::BufferUsages::empty());
-            encoder.clear_buffer(&x, 0, None);
-            (x, width)
-        })
-        .collect();
     // One update's work, recorded once: every update runs the same dispatches on the same
     // buffers, so their bind groups are made once and replayed (each bind group and
     // compute pass costs the host tens of microseconds; an update is some 17 dispatches).
@@ -284,45 +269,27 @@ fn run(
         1,
     );
     let mut readouts = Vec::with_capacity(observed.len());
-    for (&(modality, k), (x, width)) in observed.iter().zip(&inputs_of) {
-        let ml = modules[modality.module().index()];
-        encode_copy(
+    for &(modality, k) in observed {
+        let (readout, _) = encode_readout_of_record(
             gpu,
+            &up.readouts,
+            config,
+            layout,
+            &mut encoder,
             &mut update,
-            &record,
-            Strided::rows(ml.record + ml.d, s.record),
-            x,
-            Strided::rows(0, *width),
-            [1, len, ml.d],
+            RecordRows {
+                record: &record,
+                grad_d: &grad_d,
+                rows: len,
+            },
+            modality,
+            k,
+            &window.targets[modality.index()],
+            request.resident_targets,
+            false,
             &mut keep,
-        );
-        let divisor = config
-            .accuracy_normalisation
-            .divisor(k, config.modality_dims(modality));
-        let readout = up
-            .readouts
-            .encode_readout(
-                &mut update,
-                modality,
-                x,
-                len,
-                k,
-                divisor,
-                &window.targets[modality.index()],
-                request.resident_targets,
-                false,
-            )
-            .expect("the read-out is on the device (checked before)");
-        encode_copy(
-            gpu,
-            &mut update,
-            &readout.grad_d,
-            Strided::rows(0, readout.grad_stride),
-            &grad_d,
-            Strided::rows(ml.grad_d, s.grad_d),
-            [1, len, ml.d],
-            &mut keep,
-        );
+        )
+        .expect("the read-out is on the device (checked before)");
         readouts.push((modality, readout));
     }
     keep.push(layout.encode_backward(
@@ -396,7 +363,6 @@ fn run(
     drop((
         keep,
         readouts,
-        inputs_of,
         table,
         meta_buffer,
         record,

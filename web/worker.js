@@ -3,5 +3,7 @@
 import init, { run_worker } from "./pvrnn-explorer.js";
 
 await init();
-// Where runs compute (auto, cpu or webgpu): the page passes its own `?compute=`.
-run_worker(new URLSearchParams(self.location.search).get("compute") ?? "auto");
+// Where runs compute (auto, cpu or webgpu) and the recurrence (cpu or gpu): the page passes
+// its own `?compute=` and `?recurrence=`.
+const page = new URLSearchParams(self.location.search);
+run_worker(page.get("compute") ?? "auto", page.get("recurrence") ?? "cpu");

@@ -157,7 +157,8 @@ try {
 
 // WebGPU in the worker: a browser with WebGPU (headless Chromium: SwiftShader's adapter,
 // with --enable-unsafe-webgpu) and `?compute=webgpu` must take it; `auto` (the default) says
-// what it chose. Agreement with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
+// what it chose; `&recurrence=gpu` puts online inference's updates on it too. Agreement
+// with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
 if (webgpu) {
   const gpuBrowser = await chromium.launch({
     executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
@@ -166,12 +167,13 @@ if (webgpu) {
            '--enable-unsafe-swiftshader'],
   });
   try {
-    for (const preference of ['webgpu', 'auto']) {
+    for (const preference of ['webgpu', 'auto', 'webgpu&recurrence=gpu']) {
       const { page, logs } = await openPage(gpuBrowser, `compute=${preference}`);
       const chosen = await waitForLog(page, logs, 'live runs compute on');
       console.log(`?compute=${preference}: ${chosen ?? 'the worker never said where it computes'}`);
       if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
-      else if (preference === 'webgpu' && !chosen.includes('WebGPU')) fail(`?compute=webgpu did not take WebGPU: ${chosen}`);
+      else if (preference.startsWith('webgpu') && !chosen.includes('WebGPU')) fail(`?compute=${preference} did not take WebGPU: ${chosen}`);
+      else if (preference.includes('recurrence=gpu') !== chosen.includes('recurrence on the GPU')) fail(`?compute=${preference}: the recurrence runs in the wrong place: ${chosen}`);
       for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console (?compute=${preference}): ${l}`);
       await page.close();
     }

@@ -234,8 +234,12 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// Several of online inference's updates of one window's adaptive variables at once, on
     /// a device that can run them without coming back to the host in between (see
     /// [`ErrorRegression`]). `None` (the default): the caller runs them one
-    /// [`Self::evaluate`] at a time.
-    fn regress(&self, request: &RegressionRequest<'_, T>) -> Option<RegressionResult<T>> {
+    /// [`Self::evaluate`] at a time. Whether it runs them is decided at once; the result is
+    /// [`Deferred`] (WebGPU hands it over through the browser's event loop).
+    fn regress<'a>(
+        &'a self,
+        request: &RegressionRequest<'_, T>,
+    ) -> Option<Deferred<'a, RegressionResult<T>>> {
         let _ = request;
         None
     }
@@ -289,13 +293,14 @@ pub struct RegressionResult<T> {
 /// ([`crate::cpu::CpuBackend::load_with`]) and hands it its weights.
 pub trait ErrorRegression<T: Real>: Send + Sync + std::fmt::Debug {
     /// Runs `request`'s updates for a model with these weights; `None` leaves them to the
-    /// caller (shapes the device does not hold, for example).
-    fn regress(
-        &self,
-        params: &Params<T>,
-        config: &ModelConfig,
+    /// caller (shapes the device does not hold, for example). The request is read before
+    /// this returns; the result may come later ([`Deferred`]).
+    fn regress<'a>(
+        &'a self,
+        params: &'a Params<T>,
+        config: &'a ModelConfig,
         request: &RegressionRequest<'_, T>,
-    ) -> Option<RegressionResult<T>>;
+    ) -> Option<Deferred<'a, RegressionResult<T>>>;
 }
 
 /// The fused output layer's results for `n` rows (see [`OutputLayer::loss`]).

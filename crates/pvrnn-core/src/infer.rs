@@ -475,7 +475,7 @@ impl<T: Real> OnlineInference<T> {
             let count = (self.settings.iterations - done)
                 .min(max - ran)
                 .min(UPDATES_PER_REGRESSION);
-            if let Some(outcome) = self.regress_on_device(t, done, count) {
+            if let Some(outcome) = self.regress_on_device(t, done, count).await {
                 match outcome {
                     Ok(()) => ran += count,
                     Err(failed) => {
@@ -484,7 +484,7 @@ impl<T: Real> OnlineInference<T> {
                             // Giving up keeps the state where the host's loop stops: after
                             // the updates before the diverged one (finite, so they run
                             // again the same way).
-                            let _ = self.regress_on_device(t, done, failed);
+                            let _ = self.regress_on_device(t, done, failed).await;
                         }
                         self.restart_step_at_half_rate();
                     }
@@ -536,7 +536,7 @@ impl<T: Real> OnlineInference<T> {
     /// Runs `count` updates of step `t` from update `done` through [`LoadedModel::regress`]
     /// (the same eps and optimiser steps as one at a time); `None` if the backend runs them
     /// one at a time, `Err(u)` if update `u` of them diverged (the step must restart).
-    fn regress_on_device(
+    async fn regress_on_device(
         &mut self,
         t: u64,
         done: usize,
@@ -562,10 +562,11 @@ impl<T: Real> OnlineInference<T> {
             ablation: self.settings.inference_ablation(),
             resident_targets: Some(self.targets_id),
         };
-        let Some(result) = self.loaded.regress(&request) else {
+        let Some(pending) = self.loaded.regress(&request) else {
             self.regress_declined = true;
             return None;
         };
+        let result = pending.await;
         if let Some(failed) = result.first_non_finite {
             return Some(Err(failed));
         }

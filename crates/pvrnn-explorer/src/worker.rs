@@ -295,14 +295,22 @@ impl Ticker {
 /// Where the worker's runs compute, from the page's `?compute=` (`auto`, `cpu`, `webgpu`):
 /// the engine and the status bar's words for it. `auto` takes a WebGPU adapter unless it is
 /// a CPU implementation (SwiftShader, WARP: slower than the CPU backend); `webgpu` takes
-/// any; without an adapter, the CPU.
-async fn open_engine(preference: &str) -> (Engine, String) {
+/// any; without an adapter, the CPU. With `recurrence_on_gpu` (the page's
+/// `?recurrence=gpu`), a WebGPU engine runs online inference's updates there too, a slice
+/// of them per submission.
+async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, String) {
     if preference == "cpu" {
         return (Engine::default(), "CPU (worker)".into());
     }
     match pvrnn_wgpu::WgpuBackend::open().await {
         Ok(gpu) if preference == "webgpu" || !gpu.gpu().is_cpu() => {
-            let name = format!("WebGPU, {} (worker)", gpu.adapter_name());
+            let recurrence = if recurrence_on_gpu {
+                ", recurrence on the GPU"
+            } else {
+                ""
+            };
+            let name = format!("WebGPU, {}{recurrence} (worker)", gpu.adapter_name());
+            let gpu = gpu.with_recurrence_on_gpu(recurrence_on_gpu);
             (Engine::on(Arc::new(gpu)), name)
         }
         Ok(gpu) => (
@@ -320,9 +328,10 @@ async fn open_engine(preference: &str) -> (Engine, String) {
 }
 
 /// The worker's entry point (called by `web/worker.js` after the module loaded) with the
-/// page's compute preference (see [`open_engine`]).
+/// page's compute preference and where the recurrence runs (`cpu`, `gpu`; see
+/// [`open_engine`]).
 #[wasm_bindgen]
-pub fn run_worker(compute: String) -> Result<(), JsValue> {
+pub fn run_worker(compute: String, recurrence: String) -> Result<(), JsValue> {
     let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().dyn_into()?;
     let side = Rc::new(RefCell::new(WorkerSide {
         engine: None,
@@ -393,7 +402,7 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
     on_message.forget();
 
     wasm_bindgen_futures::spawn_local(async move {
-        let (engine, compute) = open_engine(&compute).await;
+        let (engine, compute) = open_engine(&compute, recurrence == "gpu").await;
         crate::web::log(&format!("worker: live runs compute on {compute}"));
         side.borrow_mut().engine = Some(engine);
         if let Err(err) = scope.post_message(&Reply::Ready { compute }.encode().0) {

@@ -16,9 +16,11 @@
 //! the GPU: then the learner keeps everything and runs a whole learning iteration in one
 //! submission (`iteration.rs`), reading back only the free-energy terms; and online
 //! inference runs all the updates of an `iterate` call in one submission (`regression.rs`,
-//! pvrnn-core's [`pvrnn_core::backend::ErrorRegression`]). In the browser (wasm32, wgpu's `webgpu` feature) the
-//! output layers run on WebGPU and their read-backs are awaited ([`WgpuBackend::open`],
-//! [`pvrnn_core::deferred`]); the recurrence stays on the CPU there.
+//! pvrnn-core's [`pvrnn_core::backend::ErrorRegression`]). In the browser (wasm32, wgpu's
+//! `webgpu` feature) the output layers run on WebGPU and their read-backs are awaited
+//! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]); with the recurrence on the GPU, online
+//! inference's updates run there in one submission per call as natively (the rest of the
+//! recurrence, a step's final pass, stays on the worker's CPU: its seam is synchronous).
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device).
@@ -95,9 +97,10 @@ impl WgpuBackend {
     }
 
     /// Runs the recurrence (forward, back-propagation through time and its weight
-    /// gradients) on the GPU too, instead of the CPU. Off by default: its states still come
-    /// back to the CPU for the hidden read-out layers every call, and it has not yet been
-    /// timed on a real GPU against the CPU's recurrence (docs/gpu.md).
+    /// gradients) on the GPU too, instead of the CPU: a learning iteration then runs there
+    /// whole ([`GpuLearner`]), and online inference a call's updates in one submission (in
+    /// the browser, only these). Off by default: it has not yet been timed on a real GPU
+    /// against the CPU's recurrence (docs/gpu.md).
     pub fn with_recurrence_on_gpu(mut self, on: bool) -> Self {
         self.recurrence_on_gpu = on;
         self
@@ -139,7 +142,9 @@ impl WgpuBackend {
                     self.tiling,
                 )) as Box<dyn pvrnn_core::backend::ErrorRegression<f32>>
             });
-        let recurrence = self.recurrence_on_gpu.then(|| {
+        // In the browser the recurrence's own seam (synchronous) cannot await WebGPU's
+        // read-backs: there only the error regression, which is awaited, runs it.
+        let recurrence = (self.recurrence_on_gpu && !cfg!(target_arch = "wasm32")).then(|| {
             Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
                 as Box<dyn Recurrence<f32>>
         });

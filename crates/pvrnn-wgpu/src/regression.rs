@@ -9,14 +9,15 @@
 //! recurrence's states, the read-outs' gradients, d F / d a), 50 times per step: the
 //! latency that bounds online inference on a GPU (docs/gpu.md).
 //!
-//! Native only (in the browser the recurrence runs on the worker's CPU). The weights go up
-//! at the first call of a loaded model, not at load: learning loads a model every
-//! iteration and never calls it.
+//! The same natively and in the browser: the result is [`Deferred`], so WebGPU's read-back
+//! arrives through the worker's event loop. The weights go up at the first call of a loaded
+//! model, not at load: learning loads a model every iteration and never calls it.
 
 use std::sync::{Arc, OnceLock};
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::backend::{ErrorRegression, RegressionRequest, RegressionResult, Window};
+use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 
@@ -26,7 +27,7 @@ use crate::learner::ResidentLayer;
 use crate::output::{DispatchList, GpuOutputLayer, Tiling, bind, grid};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use crate::recurrence::GpuRecurrence;
+use crate::recurrence::{GpuRecurrence, ModuleLayout, Strides};
 
 /// Where the update kernel's header, module table and per-update scalars start in `meta`
 /// (see `shaders/regression_update.wgsl`).
@@ -88,15 +89,12 @@ impl GpuRegression {
 }
 
 impl ErrorRegression<f32> for GpuRegression {
-    fn regress(
-        &self,
-        params: &Params<f32>,
-        config: &ModelConfig,
+    fn regress<'a>(
+        &'a self,
+        params: &'a Params<f32>,
+        config: &'a ModelConfig,
         request: &RegressionRequest<'_, f32>,
-    ) -> Option<RegressionResult<f32>> {
-        if cfg!(target_arch = "wasm32") {
-            return None;
-        }
+    ) -> Option<Deferred<'a, RegressionResult<f32>>> {
         let updates = request.steps.len();
         let w = &request.window;
         if !matches!(w.posterior, pvrnn_core::backend::Posterior::Adaptive { .. })
@@ -130,15 +128,16 @@ impl ErrorRegression<f32> for GpuRegression {
     }
 }
 
-/// The updates of `request` on the device (see the module docs).
-fn run(
-    gpu: &Gpu,
+/// The updates of `request` on the device (see the module docs): encoded and submitted
+/// now, read back when awaited.
+fn run<'a>(
+    gpu: &'a Gpu,
     up: &Uploaded,
     config: &ModelConfig,
     request: &RegressionRequest<'_, f32>,
     observed: &[(Modality, usize)],
-) -> RegressionResult<f32> {
-    let _phase = pvrnn_core::profile::phase("  error regression on the device");
+) -> Deferred<'a, RegressionResult<f32>> {
+    let phase = pvrnn_core::profile::phase("  error regression on the device");
     let encode_phase = pvrnn_core::profile::phase("    upload and encode");
     let updates = request.steps.len();
     let window = &request.window;
@@ -350,7 +349,7 @@ fn run(
     }
     drop(encode_phase);
     let run_phase = pvrnn_core::profile::phase("    run and read back");
-    let results = pvrnn_core::deferred::now(read_back(
+    let pending = read_back(
         gpu,
         encoder,
         &[
@@ -358,9 +357,8 @@ fn run(
             (&moments_buffer, moments.len()),
             (&flags, updates),
         ],
-    ));
-    drop(run_phase);
-    drop((
+    );
+    let used = (
         keep,
         readouts,
         table,
@@ -369,7 +367,31 @@ fn run(
         back,
         grad_d,
         no_rows,
-    ));
+        inputs_buffer,
+        moments_buffer,
+        flags,
+    );
+    let modules = *modules;
+    Box::pin(async move {
+        let results = pending.await;
+        drop(run_phase);
+        drop(phase);
+        drop(used);
+        unpack(results, &zs, &modules, s, len)
+    })
+}
+
+/// The adaptive variables and moments from the read-back (see [`run`]).
+fn unpack(
+    results: Vec<Vec<f32>>,
+    zs: &[usize; 4],
+    modules: &[ModuleLayout; 4],
+    s: Strides,
+    len: usize,
+) -> RegressionResult<f32> {
+    let sum_z: usize = zs.iter().sum();
+    let count = len * sum_z;
+    let z_offset: [usize; 4] = std::array::from_fn(|m| zs[..m].iter().sum());
     let mut results = results.into_iter();
     let (inputs, moments, flags) = (
         results.next().unwrap_or_default(),

@@ -63,3 +63,55 @@ async fn online_inference_on_webgpu_matches_the_cpu() {
         gpu.gpu().read_backs()
     );
 }
+
+#[wasm_bindgen_test]
+async fn error_regression_on_webgpu_runs_a_calls_updates_in_one_read_back() {
+    let gpu = WgpuBackend::open()
+        .await
+        .unwrap_or_else(|e| {
+            panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
+        })
+        .with_tiling(pvrnn_wgpu::Tiling {
+            min_work: 0,
+            ..pvrnn_wgpu::Tiling::default()
+        })
+        .with_recurrence_on_gpu(true);
+    let config = config();
+    let steps = 3;
+    let data = observations(&config, 1, steps);
+    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, steps, 5).unwrap());
+    let mut settings = InferenceSettings::from_config(&config, 2);
+    settings.window = 3;
+    settings.iterations = 4;
+    settings.observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let mut on_cpu = OnlineInference::new(model.clone(), settings.clone()).unwrap();
+    let mut on_gpu = OnlineInference::with_backend(model, settings, &gpu).unwrap();
+    for t in 0..steps {
+        let x = data.step(Modality::Exteroceptive, 0, t);
+        let p = data.step(Modality::Proprioceptive, 0, t);
+        let want = on_cpu.step(x, p).unwrap();
+        on_gpu.begin_step(x, p).unwrap();
+        let before = gpu.gpu().read_backs();
+        assert_eq!(on_gpu.iterate_async(usize::MAX).await, 0);
+        // The recurrence, both read-outs and the optimiser for all four updates: one
+        // submission, one read-back (one at a time it is two per update at least).
+        assert_eq!(
+            gpu.gpu().read_backs() - before,
+            1,
+            "step {t}: the updates were not run in one submission"
+        );
+        let got = on_gpu.finish_step_async().await.unwrap();
+        let (a, b) = (want.window_free_energy.total, got.window_free_energy.total);
+        assert!((a - b).abs() <= 1e-4 * a.abs(), "step {t}: F {a} vs {b}");
+        for mi in 0..2 {
+            assert_close("reconstruction", &want.recon[mi], &got.recon[mi], 1e-3);
+        }
+        for (w, g) in want.modules.iter().zip(&got.modules) {
+            assert_close("posterior mu", &w.mu_q, &g.mu_q, 1e-3);
+            assert_close("posterior sigma", &w.sigma_q, &g.sigma_q, 1e-3);
+        }
+    }
+}

@@ -159,7 +159,10 @@ impl<T: Real> LoadedModel<T> for CpuModel<T> {
         prior_rollout(self, steps)
     }
 
-    fn regress(&self, request: &RegressionRequest<'_, T>) -> Option<RegressionResult<T>> {
+    fn regress<'a>(
+        &'a self,
+        request: &RegressionRequest<'_, T>,
+    ) -> Option<crate::deferred::Deferred<'a, RegressionResult<T>>> {
         self.regression
             .as_ref()?
             .regress(&self.params, &self.config, request)

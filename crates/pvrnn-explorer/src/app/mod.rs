@@ -192,7 +192,11 @@ impl ExplorerApp {
     pub fn new_web(bundle_url: &str, ctx: &egui::Context) -> Self {
         let mut app = Self::new(None, ViewState::default());
         // Live inference in a worker beside the page; in the page itself if that fails.
-        let worker = format!("./worker.js?compute={}", crate::web::compute_preference());
+        let worker = format!(
+            "./worker.js?compute={}&recurrence={}",
+            crate::web::compute_preference(),
+            crate::web::recurrence_preference()
+        );
         match crate::worker::WorkerClient::spawn(&worker, ctx.clone()) {
             Ok(worker) => {
                 app.store = RunStore::with_executor(crate::runs::Executor::Worker(worker))

@@ -33,7 +33,7 @@ impl ExplorerApp {
         }
         ui.weak(self.compute_label.as_str())
             .on_hover_text(
-                "where live runs compute (desktop: --backend auto|cpu|wgpu; web: ?compute=auto|cpu|webgpu before the #)",
+                "where live runs compute (desktop: --backend auto|cpu|wgpu [--gpu-recurrence]; web: ?compute=auto|cpu|webgpu[&recurrence=gpu] before the #)",
             );
         if !self.renderer_label.is_empty() {
             ui.weak(self.renderer_label.as_str()).on_hover_text(

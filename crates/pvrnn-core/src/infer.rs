@@ -257,6 +257,9 @@ pub struct OnlineInference<T: Real> {
     /// The backend declined this step's window for [`LoadedModel::regress`]: its updates
     /// run one at a time without asking again (the window's shape holds for the step).
     regress_declined: bool,
+    /// Steps whose window a backend that runs updates at once declined (see
+    /// [`Self::steps_declined_by_device`]).
+    steps_declined: usize,
 }
 
 impl<T: Real> OnlineInference<T> {
@@ -287,6 +290,7 @@ impl<T: Real> OnlineInference<T> {
             pending: None,
             readout_ablations: Vec::new(),
             regress_declined: false,
+            steps_declined: 0,
             loaded: backend.load(&model.params, config),
             model,
             settings,
@@ -317,6 +321,14 @@ impl<T: Real> OnlineInference<T> {
     /// A step has begun and is not finished yet.
     pub fn in_step(&self) -> bool {
         self.pending.is_some()
+    }
+
+    /// Steps so far whose updates the backend could have run at once on its device
+    /// ([`LoadedModel::regresses`]) but declined (a window its kernels do not hold), so
+    /// that they ran one at a time: how a caller that asked for the device sees that the
+    /// work did not go there.
+    pub fn steps_declined_by_device(&self) -> usize {
+        self.steps_declined
     }
 
     /// Iterations still to run for the step in progress (0 when none is in progress).
@@ -564,6 +576,7 @@ impl<T: Real> OnlineInference<T> {
         };
         let Some(pending) = self.loaded.regress(&request) else {
             self.regress_declined = true;
+            self.steps_declined += 1;
             return None;
         };
         let result = pending.await;

@@ -127,6 +127,9 @@ pub struct Finished {
     pub steps: usize,
     pub busy: Duration,
     pub wall: Duration,
+    /// Steps whose updates the GPU was asked to run at once but declined, so that they ran
+    /// one at a time (`OnlineInference::steps_declined_by_device`).
+    pub declined_by_device: usize,
 }
 
 /// What the engine reports.
@@ -286,6 +289,7 @@ impl Engine {
                             steps: job.next,
                             busy: job.busy,
                             wall: job.started.elapsed(),
+                            declined_by_device: job.inference.steps_declined_by_device(),
                         }));
                         self.current = None;
                     }

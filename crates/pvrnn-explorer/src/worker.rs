@@ -208,6 +208,7 @@ impl Reply {
                         ("steps", (f.steps as f64).into()),
                         ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
                         ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
+                        ("declined", (f.declined_by_device as f64).into()),
                     ],
                 ),
                 Event::Failed(key, e) => message(
@@ -256,6 +257,7 @@ impl Reply {
                 steps: number_field(m, "steps")? as usize,
                 busy: ms("busy_ms")?,
                 wall: ms("wall_ms")?,
+                declined_by_device: number_field(m, "declined")? as usize,
             }),
             "failed" => Event::Failed(key, string_field(m, "message")?),
             other => return Err(format!("unknown worker message `{other}`")),
@@ -305,7 +307,7 @@ async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, Stri
     match pvrnn_wgpu::WgpuBackend::open().await {
         Ok(gpu) if preference == "webgpu" || !gpu.gpu().is_cpu() => {
             let recurrence = if recurrence_on_gpu {
-                ", recurrence on the GPU"
+                ", inference updates on the GPU"
             } else {
                 ""
             };

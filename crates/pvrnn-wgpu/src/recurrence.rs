@@ -485,7 +485,8 @@ impl Recurrence<f32> for GpuRecurrence {
         ablation: &Ablation,
     ) -> Option<Box<dyn RecurrencePass<f32> + 'a>> {
         // WebGPU's read-backs arrive through the event loop, which this synchronous seam
-        // cannot wait for: in the browser the CPU runs the recurrence.
+        // cannot wait for: the browser never builds this offload (the error regression,
+        // which is awaited, runs the recurrence there); kept as a guard.
         if cfg!(target_arch = "wasm32") {
             return None;
         }

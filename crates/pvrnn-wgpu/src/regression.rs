@@ -375,9 +375,10 @@ fn run<'a>(
     Box::pin(async move {
         let results = pending.await;
         drop(run_phase);
-        drop(phase);
         drop(used);
-        unpack(results, &zs, &modules, s, len)
+        let result = unpack(results, &zs, &modules, s, len);
+        drop(phase);
+        result
     })
 }
 

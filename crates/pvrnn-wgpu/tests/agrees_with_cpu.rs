@@ -814,6 +814,7 @@ fn online_inference_runs_a_steps_updates_in_one_submission() {
             );
             assert_eq!(sliced.iterate(2), iterations - 2);
             assert_eq!(sliced.iterate(usize::MAX), 0);
+            assert_eq!(whole.steps_declined_by_device(), 0);
             let (a, b, c) = (
                 cpu.finish_step().unwrap(),
                 whole.finish_step().unwrap(),
@@ -931,5 +932,8 @@ fn online_inference_runs_declined_windows_one_update_at_a_time() {
             (fa - fb).abs() <= 1e-4 * fa.abs(),
             "step {t}: cpu F {fa}, gpu F {fb}"
         );
+        // Said, for a caller that asked for the device (the explorer's run note).
+        assert_eq!(on_gpu.steps_declined_by_device(), t + 1);
     }
+    assert_eq!(cpu.steps_declined_by_device(), 0, "the CPU is never asked");
 }

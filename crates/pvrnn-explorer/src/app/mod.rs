@@ -499,18 +499,7 @@ impl ExplorerApp {
             ctx.request_repaint();
         }
         for f in self.store.take_finished() {
-            let what = format!(
-                "run {} ({}) computed live: {} steps",
-                f.key.sequence,
-                condition_label(&f.key.condition),
-                f.steps,
-            );
-            let timing = format!(
-                "in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
-                f.wall.as_secs_f64(),
-                f.steps as f64 / f.wall.as_secs_f64().max(1e-9),
-                f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
-            );
+            let (what, timing) = status::finished_note(&f);
             #[cfg(target_arch = "wasm32")]
             crate::web::log(&format!("{what} {timing}"));
             self.last_run_note = Some((what, timing));

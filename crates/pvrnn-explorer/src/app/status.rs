@@ -1,6 +1,33 @@
 //! Status and progress: what is loading or computing, and how the last live run went.
 
 use super::*;
+use crate::engine::Finished;
+
+/// What the status bar says of a finished live run, and its timing (the hover text; the
+/// web build also logs both).
+pub(super) fn finished_note(f: &Finished) -> (String, String) {
+    let what = format!(
+        "run {} ({}) computed live: {} steps",
+        f.key.sequence,
+        condition_label(&f.key.condition),
+        f.steps,
+    );
+    let mut timing = format!(
+        "in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
+        f.wall.as_secs_f64(),
+        f.steps as f64 / f.wall.as_secs_f64().max(1e-9),
+        f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
+    );
+    if f.declined_by_device > 0 {
+        // The status bar said the GPU runs the updates: say where they did not.
+        timing.push_str(&format!(
+            "; the GPU declined the inference updates of {} of its steps (a shape its \
+             kernels do not hold), which ran one at a time",
+            f.declined_by_device
+        ));
+    }
+    (what, timing)
+}
 
 impl ExplorerApp {
     pub(super) fn progress_ui(&self, ui: &mut egui::Ui) {
@@ -40,5 +67,38 @@ impl ExplorerApp {
                 "what draws the window (desktop: --renderer auto|wgpu|glow; web: ?render=glow|wgpu before the #)",
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runs::{Condition, RunKey};
+
+    #[test]
+    fn a_finished_run_says_its_speed_and_where_the_gpu_declined() {
+        let mut f = Finished {
+            key: RunKey {
+                sequence: "wiping_650mm_test0".into(),
+                condition: Condition::standard(&pvrnn_core::ModelConfig::default()),
+            },
+            steps: 300,
+            busy: Duration::from_secs(20),
+            wall: Duration::from_secs(30),
+            declined_by_device: 0,
+        };
+        let (what, timing) = finished_note(&f);
+        assert!(what.starts_with("run wiping_650mm_test0 ("), "{what}");
+        assert!(what.ends_with("computed live: 300 steps"), "{what}");
+        assert_eq!(
+            timing,
+            "in 30.0 s = 10.0 steps/s (15.0 steps/s of computing time)"
+        );
+        f.declined_by_device = 12;
+        let (_, timing) = finished_note(&f);
+        assert!(
+            timing.ends_with("; the GPU declined the inference updates of 12 of its steps (a shape its kernels do not hold), which ran one at a time"),
+            "{timing}"
+        );
     }
 }

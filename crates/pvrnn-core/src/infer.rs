@@ -204,6 +204,10 @@ pub struct StepOutput<T> {
     /// half the rate (0 almost always; see [`MAX_RATE_HALVINGS`]). The step's result is
     /// then that of a rate of `lr / 2^rate_halvings`.
     pub rate_halvings: u32,
+    /// The backend could have run this step's updates at once on its device but declined
+    /// the window (a shape its kernels do not hold): they ran one at a time (see
+    /// [`OnlineInference::steps_declined_by_device`]).
+    pub declined_by_device: bool,
 }
 
 /// At most this many updates go to [`LoadedModel::regress`] in one call: a device keeps
@@ -763,6 +767,7 @@ impl<T: Real> OnlineInference<T> {
             step_accuracy,
             ablated_recon,
             rate_halvings,
+            declined_by_device: self.regress_declined,
         })
     }
 

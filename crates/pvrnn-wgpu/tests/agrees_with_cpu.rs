@@ -820,6 +820,7 @@ fn online_inference_runs_a_steps_updates_in_one_submission() {
                 whole.finish_step().unwrap(),
                 sliced.finish_step().unwrap(),
             );
+            assert!(!b.declined_by_device && !c.declined_by_device);
             let (fa, fb) = (a.window_free_energy.total, b.window_free_energy.total);
             assert!(
                 (fa - fb).abs() <= 1e-4 * fa.abs(),
@@ -932,8 +933,10 @@ fn online_inference_runs_declined_windows_one_update_at_a_time() {
             (fa - fb).abs() <= 1e-4 * fa.abs(),
             "step {t}: cpu F {fa}, gpu F {fb}"
         );
-        // Said, for a caller that asked for the device (the explorer's run note).
+        // Said, for a caller that asked for the device (the explorer's run note, `pvrnn
+        // infer`'s message).
         assert_eq!(on_gpu.steps_declined_by_device(), t + 1);
+        assert!(b.declined_by_device && !a.declined_by_device, "step {t}");
     }
     assert_eq!(cpu.steps_declined_by_device(), 0, "the CPU is never asked");
 }

@@ -14,35 +14,58 @@ use std::sync::Arc;
 use common::{assert_close, config, observations};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
-use pvrnn_core::{Modality, Model, Observed};
+use pvrnn_core::{Modality, Model, Observations, Observed};
 use pvrnn_wgpu::WgpuBackend;
 use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
 
 wasm_bindgen_test_configure!(run_in_dedicated_worker);
 
-#[wasm_bindgen_test]
-async fn online_inference_on_webgpu_matches_the_cpu() {
-    let gpu = WgpuBackend::open().await.unwrap_or_else(|e| {
-        panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
-    });
-    // Every call on the GPU, however small (these shapes are).
-    let gpu = gpu.with_tiling(pvrnn_wgpu::Tiling {
-        min_work: 0,
-        ..pvrnn_wgpu::Tiling::default()
-    });
+/// The adapter, with every call on it however small (these shapes are).
+async fn open_gpu() -> WgpuBackend {
+    WgpuBackend::open()
+        .await
+        .unwrap_or_else(|e| {
+            panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
+        })
+        .with_tiling(pvrnn_wgpu::Tiling {
+            min_work: 0,
+            ..pvrnn_wgpu::Tiling::default()
+        })
+}
+
+/// The test model (initialised with `seed`), `steps` of data, and online inference of it
+/// with `iterations` updates per step over a window of 3, on the CPU and on `gpu`.
+fn cpu_and_gpu(
+    gpu: &WgpuBackend,
+    steps: usize,
+    iterations: usize,
+    seed: u64,
+) -> (
+    Observations<f32>,
+    OnlineInference<f32>,
+    OnlineInference<f32>,
+) {
     let config = config();
-    let steps = 4;
     let data = observations(&config, 1, steps);
-    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, steps, 3).unwrap());
+    let model =
+        Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, steps, seed).unwrap());
     let mut settings = InferenceSettings::from_config(&config, 2);
     settings.window = 3;
-    settings.iterations = 3;
+    settings.iterations = iterations;
     settings.observed = Observed {
         vision_levels: 1,
         proprio: true,
     };
-    let mut on_cpu = OnlineInference::new(model.clone(), settings.clone()).unwrap();
-    let mut on_gpu = OnlineInference::with_backend(model, settings, &gpu).unwrap();
+    let on_cpu = OnlineInference::new(model.clone(), settings.clone()).unwrap();
+    let on_gpu = OnlineInference::with_backend(model, settings, gpu).unwrap();
+    (data, on_cpu, on_gpu)
+}
+
+#[wasm_bindgen_test]
+async fn online_inference_on_webgpu_matches_the_cpu() {
+    let gpu = open_gpu().await;
+    let steps = 4;
+    let (data, mut on_cpu, mut on_gpu) = cpu_and_gpu(&gpu, steps, 3, 3);
     for t in 0..steps {
         let x = data.step(Modality::Exteroceptive, 0, t);
         let p = data.step(Modality::Proprioceptive, 0, t);
@@ -66,29 +89,9 @@ async fn online_inference_on_webgpu_matches_the_cpu() {
 
 #[wasm_bindgen_test]
 async fn error_regression_on_webgpu_runs_a_calls_updates_in_one_read_back() {
-    let gpu = WgpuBackend::open()
-        .await
-        .unwrap_or_else(|e| {
-            panic!("{e} (headless Chromium needs --enable-unsafe-webgpu for WebGPU)")
-        })
-        .with_tiling(pvrnn_wgpu::Tiling {
-            min_work: 0,
-            ..pvrnn_wgpu::Tiling::default()
-        })
-        .with_recurrence_on_gpu(true);
-    let config = config();
+    let gpu = open_gpu().await.with_recurrence_on_gpu(true);
     let steps = 3;
-    let data = observations(&config, 1, steps);
-    let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, steps, 5).unwrap());
-    let mut settings = InferenceSettings::from_config(&config, 2);
-    settings.window = 3;
-    settings.iterations = 4;
-    settings.observed = Observed {
-        vision_levels: 1,
-        proprio: true,
-    };
-    let mut on_cpu = OnlineInference::new(model.clone(), settings.clone()).unwrap();
-    let mut on_gpu = OnlineInference::with_backend(model, settings, &gpu).unwrap();
+    let (data, mut on_cpu, mut on_gpu) = cpu_and_gpu(&gpu, steps, 4, 5);
     for t in 0..steps {
         let x = data.step(Modality::Exteroceptive, 0, t);
         let p = data.step(Modality::Proprioceptive, 0, t);

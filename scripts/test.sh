@@ -40,6 +40,8 @@ step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown
 
 step "WebGPU in a browser worker (SwiftShader's adapter): online inference agrees with the CPU"
+# SwiftShader is slow: the runner's default 20 s for the whole run is not enough.
+WASM_BINDGEN_TEST_TIMEOUT=300 \
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webgpu-webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
     cargo test -p pvrnn-wgpu --target wasm32-unknown-unknown --test webgpu
 

@@ -427,12 +427,13 @@ pub struct RecurrenceGrads<T> {
 /// weights are the ones given at load time.
 pub trait Recurrence<T: Real>: Send + Sync + std::fmt::Debug {
     /// Runs every window forward. `None` leaves the batch to the CPU (for example shapes
-    /// the kernels do not hold).
+    /// the kernels do not hold); whether it takes the batch is decided at once, the states
+    /// may come later ([`Deferred`]: WebGPU's arrive through the browser's event loop).
     fn forward<'a>(
         &'a self,
         windows: &[Window<'_, T>],
         ablation: &Ablation,
-    ) -> Option<Box<dyn RecurrencePass<T> + 'a>>;
+    ) -> Option<Deferred<'a, Box<dyn RecurrencePass<T> + 'a>>>;
 }
 
 /// A batch run forward: its states, and what back-propagation needs of them (a GPU keeps
@@ -442,8 +443,13 @@ pub trait RecurrencePass<T: Real>: Send + std::fmt::Debug {
     fn traces(&self) -> &[Trace<T>];
 
     /// Back-propagation through time. `grad_d[w][m]` is d F / d d_t of module m from its
-    /// read-out in window w (`[len, d]`), if the module has an observed read-out.
-    fn backward(&self, grad_d: &[[Option<&[T]>; 4]], weight_grads: bool) -> RecurrenceGrads<T>;
+    /// read-out in window w (`[len, d]`), if the module has an observed read-out. `grad_d`
+    /// is read before this returns; the gradients may come later.
+    fn backward<'s>(
+        &'s self,
+        grad_d: &[[Option<&[T]>; 4]],
+        weight_grads: bool,
+    ) -> Deferred<'s, RecurrenceGrads<T>>;
 
     /// The states, given up.
     fn into_traces(self: Box<Self>) -> Vec<Trace<T>>;

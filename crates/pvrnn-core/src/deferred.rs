@@ -35,7 +35,7 @@ pub fn now<F: Future>(future: F) -> F::Output {
         Poll::Pending => panic!(
             "a GPU result can only arrive through the browser's event loop here: use the \
              asynchronous entry points (LoadedModel::evaluate_async, \
-             OnlineInference::iterate_async / finish_step_async)"
+             OnlineInference::iterate_async / finish_step_async, free_energy_async)"
         ),
     }
 }

@@ -123,6 +123,24 @@ pub fn free_energy<T: Real>(
     noise: NoiseDraw,
     with_gradients: bool,
 ) -> Result<(FreeEnergy, Option<Gradients<T>>)> {
+    crate::deferred::now(free_energy_async(
+        backend,
+        model,
+        data,
+        noise,
+        with_gradients,
+    ))
+}
+
+/// [`free_energy`] on a backend whose results arrive through the browser's event loop
+/// (WebGPU; see [`crate::deferred`]): the same evaluation, awaited.
+pub async fn free_energy_async<T: Real>(
+    backend: &dyn Backend<T>,
+    model: &Model<T>,
+    data: &Observations<T>,
+    noise: NoiseDraw,
+    with_gradients: bool,
+) -> Result<(FreeEnergy, Option<Gradients<T>>)> {
     check_model_fits_data(model, data)?;
     let config = &model.config;
     let sequences = data.sequences();
@@ -167,7 +185,7 @@ pub fn free_energy<T: Real>(
     };
     let result = {
         let _phase = crate::profile::phase("evaluate");
-        loaded.evaluate(&windows, &request)
+        loaded.evaluate_async(&windows, &request).await
     };
     let _phase = crate::profile::phase("collect gradients");
 

@@ -18,9 +18,8 @@
 //! inference runs all the updates of an `iterate` call in one submission (`regression.rs`,
 //! pvrnn-core's [`pvrnn_core::backend::ErrorRegression`]). In the browser (wasm32, wgpu's
 //! `webgpu` feature) the output layers run on WebGPU and their read-backs are awaited
-//! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]); with the recurrence on the GPU, online
-//! inference's updates run there in one submission per call as natively (the rest of the
-//! recurrence, a step's final pass, stays on the worker's CPU: its seam is synchronous).
+//! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]); with the recurrence on the GPU, it runs
+//! there too, online inference's updates in one submission per call as natively.
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device).
@@ -98,8 +97,8 @@ impl WgpuBackend {
 
     /// Runs the recurrence (forward, back-propagation through time and its weight
     /// gradients) on the GPU too, instead of the CPU: a learning iteration then runs there
-    /// whole ([`GpuLearner`]), and online inference a call's updates in one submission (in
-    /// the browser, only these). Off by default: it has not yet been timed on a real GPU
+    /// whole ([`GpuLearner`]), and online inference a call's updates in one submission. Off
+    /// by default: it has not yet been timed on a real GPU
     /// against the CPU's recurrence (docs/gpu.md).
     pub fn with_recurrence_on_gpu(mut self, on: bool) -> Self {
         self.recurrence_on_gpu = on;
@@ -142,9 +141,7 @@ impl WgpuBackend {
                     self.tiling,
                 )) as Box<dyn pvrnn_core::backend::ErrorRegression<f32>>
             });
-        // In the browser the recurrence's own seam (synchronous) cannot await WebGPU's
-        // read-backs: there only the error regression, which is awaited, runs it.
-        let recurrence = (self.recurrence_on_gpu && !cfg!(target_arch = "wasm32")).then(|| {
+        let recurrence = self.recurrence_on_gpu.then(|| {
             Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
                 as Box<dyn Recurrence<f32>>
         });

@@ -21,7 +21,7 @@ use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{Recorder, bind, dispatch};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use pvrnn_core::deferred::now;
+use pvrnn_core::deferred::Deferred;
 
 /// Units per module the kernels' workgroup arrays hold (`MAX_UNITS` in the WGSL).
 const MAX_UNITS: usize = 128;
@@ -483,13 +483,7 @@ impl Recurrence<f32> for GpuRecurrence {
         &'a self,
         windows: &[Window<'_, f32>],
         ablation: &Ablation,
-    ) -> Option<Box<dyn RecurrencePass<f32> + 'a>> {
-        // WebGPU's read-backs arrive through the event loop, which this synchronous seam
-        // cannot wait for: the browser never builds this offload (the error regression,
-        // which is awaited, runs the recurrence there); kept as a guard.
-        if cfg!(target_arch = "wasm32") {
-            return None;
-        }
+    ) -> Option<Deferred<'a, Box<dyn RecurrencePass<f32> + 'a>>> {
         let layout = &self.layout;
         let steps: usize = windows.iter().map(|w| w.len).sum();
         if !layout.fits(&self.gpu, windows.len(), steps) || windows.iter().any(|w| w.len == 0) {
@@ -521,35 +515,31 @@ impl Recurrence<f32> for GpuRecurrence {
             &record,
             windows.len(),
         );
-        let values = now(read_back(gpu, encoder, &[(&record, steps * s.record)]))
-            .pop()
-            .unwrap_or_default();
-
-        let traces = windows
-            .iter()
-            .zip(&entries)
-            .zip(initial)
-            .map(|((w, entry), init)| {
-                let at = entry[2];
-                let mut init = init.into_iter();
-                let modules = std::array::from_fn(|m| {
-                    let (h0, d0) = init.next().unwrap_or_default();
-                    self.unpack_trace(&values[at..], w.len, m, h0, d0)
-                });
-                Trace {
-                    len: w.len,
-                    modules,
-                }
-            })
-            .collect();
-        Some(Box::new(GpuPass {
-            recurrence: self,
-            table,
-            inputs: input_buffer,
-            record,
-            traces,
-            entries,
-            steps,
+        let pending = read_back(gpu, encoder, &[(&record, steps * s.record)]);
+        Some(Box::pin(async move {
+            let values = pending.await.pop().unwrap_or_default();
+            let traces = entries
+                .iter()
+                .zip(initial)
+                .map(|(entry, init)| {
+                    let (len, at) = (entry[0], entry[2]);
+                    let mut init = init.into_iter();
+                    let modules = std::array::from_fn(|m| {
+                        let (h0, d0) = init.next().unwrap_or_default();
+                        self.unpack_trace(&values[at..], len, m, h0, d0)
+                    });
+                    Trace { len, modules }
+                })
+                .collect();
+            Box::new(GpuPass {
+                recurrence: self,
+                table,
+                inputs: input_buffer,
+                record,
+                traces,
+                entries,
+                steps,
+            }) as Box<dyn RecurrencePass<f32> + 'a>
         }))
     }
 }
@@ -616,7 +606,11 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         &self.traces
     }
 
-    fn backward(&self, grad_d: &[[Option<&[f32]>; 4]], weight_grads: bool) -> RecurrenceGrads<f32> {
+    fn backward<'s>(
+        &'s self,
+        grad_d: &[[Option<&[f32]>; 4]],
+        weight_grads: bool,
+    ) -> Deferred<'s, RecurrenceGrads<f32>> {
         let r = self.recurrence;
         let gpu = &*r.gpu;
         let layout = &r.layout;
@@ -640,7 +634,7 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         );
         let windows = self.entries.len();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let _backward_params = layout.encode_backward(
+        let backward_params = layout.encode_backward(
             gpu,
             &r.kernels,
             &mut encoder,
@@ -660,7 +654,7 @@ impl RecurrencePass<f32> for GpuPass<'_> {
             },
             wgpu::BufferUsages::COPY_SRC,
         );
-        let _weights_params = weight_grads.then(|| {
+        let weights_params = weight_grads.then(|| {
             layout.encode_weight_grads(
                 gpu,
                 &r.kernels,
@@ -677,7 +671,28 @@ impl RecurrencePass<f32> for GpuPass<'_> {
         if weight_grads {
             sources.push((&*grads, layout.weight_floats));
         }
-        let mut results = now(read_back(gpu, encoder, &sources)).into_iter();
+        let pending = read_back(gpu, encoder, &sources);
+        // The submission's buffers stay out of the pool until it has run.
+        let used = (grad_d, back, grads, backward_params, weights_params);
+        Box::pin(async move {
+            let results = pending.await;
+            drop(used);
+            self.unpack_grads(results)
+        })
+    }
+
+    fn into_traces(self: Box<Self>) -> Vec<Trace<f32>> {
+        self.traces
+    }
+}
+
+impl GpuPass<'_> {
+    /// The backward pass's read-back: d F / d a per window, and the weights' gradients
+    /// when they were asked for.
+    fn unpack_grads(&self, results: Vec<Vec<f32>>) -> RecurrenceGrads<f32> {
+        let layout = &self.recurrence.layout;
+        let s = layout.strides;
+        let mut results = results.into_iter();
         let back = results.next().unwrap_or_default();
         let (mut a_mu, mut a_sigma) = (Vec::new(), Vec::new());
         for entry in &self.entries {
@@ -715,9 +730,5 @@ impl RecurrencePass<f32> for GpuPass<'_> {
             a_sigma,
             weights,
         }
-    }
-
-    fn into_traces(self: Box<Self>) -> Vec<Trace<f32>> {
-        self.traces
     }
 }

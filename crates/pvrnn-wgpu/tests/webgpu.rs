@@ -13,8 +13,9 @@ use std::sync::Arc;
 
 use common::{assert_close, config, observations};
 use pvrnn_core::cpu::CpuBackend;
+use pvrnn_core::free_energy::{NoiseDraw, free_energy, free_energy_async};
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
-use pvrnn_core::{Modality, Model, Observations, Observed};
+use pvrnn_core::{Modality, Model, NoiseMode, Observations, Observed};
 use pvrnn_wgpu::WgpuBackend;
 use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
 
@@ -90,8 +91,11 @@ async fn online_inference_on_webgpu_matches_the_cpu() {
 #[wasm_bindgen_test]
 async fn error_regression_on_webgpu_runs_a_calls_updates_in_one_read_back() {
     let gpu = open_gpu().await.with_recurrence_on_gpu(true);
+    // The same without the recurrence, for the final pass's read-backs.
+    let plain = open_gpu().await;
     let steps = 3;
     let (data, mut on_cpu, mut on_gpu) = cpu_and_gpu(&gpu, steps, 4, 5);
+    let (_, _, mut on_plain) = cpu_and_gpu(&plain, steps, 4, 5);
     for t in 0..steps {
         let x = data.step(Modality::Exteroceptive, 0, t);
         let p = data.step(Modality::Proprioceptive, 0, t);
@@ -106,7 +110,20 @@ async fn error_regression_on_webgpu_runs_a_calls_updates_in_one_read_back() {
             1,
             "step {t}: the updates were not run in one submission"
         );
+        let before = gpu.gpu().read_backs();
         let got = on_gpu.finish_step_async().await.unwrap();
+        let final_pass = gpu.gpu().read_backs() - before;
+        on_plain.begin_step(x, p).unwrap();
+        on_plain.iterate_async(usize::MAX).await;
+        let before = plain.gpu().read_backs();
+        on_plain.finish_step_async().await.unwrap();
+        // The final pass's recurrence and the prior's one-step prediction on the adapter
+        // too: their states, two more read-backs.
+        assert_eq!(
+            final_pass,
+            plain.gpu().read_backs() - before + 2,
+            "step {t}: the final pass's recurrence did not run on the adapter"
+        );
         let (a, b) = (want.window_free_energy.total, got.window_free_energy.total);
         assert!((a - b).abs() <= 1e-4 * a.abs(), "step {t}: F {a} vs {b}");
         for mi in 0..2 {
@@ -116,5 +133,52 @@ async fn error_regression_on_webgpu_runs_a_calls_updates_in_one_read_back() {
             assert_close("posterior mu", &w.mu_q, &g.mu_q, 1e-3);
             assert_close("posterior sigma", &w.sigma_q, &g.sigma_q, 1e-3);
         }
+    }
+}
+
+/// Learning's free energy and every gradient with the recurrence on WebGPU (forward,
+/// back-propagation through time, the weights' gradients), awaited, against the CPU's.
+#[wasm_bindgen_test]
+async fn the_recurrence_on_webgpu_gives_the_cpus_free_energy_and_gradients() {
+    let gpu = open_gpu().await.with_recurrence_on_gpu(true);
+    let plain = open_gpu().await;
+    let mut config = config();
+    config.prior_bias = true;
+    let (sequences, steps) = (2, 6);
+    let data = observations(&config, sequences, steps);
+    let model = Model::<f32>::init_on(&CpuBackend, config, sequences, steps, 7).unwrap();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
+    let (f_cpu, g_cpu) = free_energy(&CpuBackend, &model, &data, draw, true).unwrap();
+    let (f_gpu, g_gpu) = free_energy_async(&gpu, &model, &data, draw, true)
+        .await
+        .unwrap();
+    free_energy_async(&plain, &model, &data, draw, true)
+        .await
+        .unwrap();
+    // The recurrence's states and its gradients: two read-backs more than without it.
+    assert_eq!(
+        gpu.gpu().read_backs(),
+        plain.gpu().read_backs() + 2,
+        "the recurrence did not run on the adapter"
+    );
+    let (a, b) = (f_cpu.total, f_gpu.total);
+    assert!((a - b).abs() <= 1e-5 * a.abs(), "F: cpu {a} gpu {b}");
+    let (g_cpu, g_gpu) = (g_cpu.unwrap(), g_gpu.unwrap());
+    for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
+        assert_close(&name, a.data(), b.data(), 1e-4);
+    }
+    for m in 0..4 {
+        assert_close(
+            "a_mu",
+            g_cpu.adaptive.a_mu[m].data(),
+            g_gpu.adaptive.a_mu[m].data(),
+            1e-4,
+        );
+        assert_close(
+            "a_sigma",
+            g_cpu.adaptive.a_sigma[m].data(),
+            g_gpu.adaptive.a_sigma[m].data(),
+            1e-4,
+        );
     }
 }

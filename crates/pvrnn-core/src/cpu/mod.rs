@@ -87,17 +87,22 @@ impl<T: Real> CpuModel<T> {
         }
     }
 
-    /// The recurrence forward over `windows`, where the offloaded one takes it, else here.
-    fn recurrence_forward<'a>(
+    /// The recurrence forward over `windows`, where the offloaded one takes it (awaited:
+    /// see [`crate::deferred`]), else here.
+    async fn recurrence_forward<'a>(
         &'a self,
         windows: &[Window<'_, T>],
         ablation: &Ablation,
     ) -> Box<dyn RecurrencePass<T> + 'a> {
         let _phase = crate::profile::phase("  recurrence forward");
-        self.recurrence
+        match self
+            .recurrence
             .as_ref()
             .and_then(|r| r.forward(windows, ablation))
-            .unwrap_or_else(|| Box::new(CpuPass::forward(&self.prepared, windows, *ablation)))
+        {
+            Some(pending) => pending.await,
+            None => Box::new(CpuPass::forward(&self.prepared, windows, *ablation)),
+        }
     }
 
     /// The read-out's hidden activations for the module states `d` (`[n, d]`), bottom
@@ -195,7 +200,7 @@ async fn evaluate<T: Real>(
     req: &Request,
 ) -> BatchResult<T> {
     let (params, config) = (&model.params, &model.config);
-    let pass = model.recurrence_forward(windows, &req.ablation);
+    let pass = model.recurrence_forward(windows, &req.ablation).await;
     let traces = pass.traces();
     let mut offsets = Vec::with_capacity(windows.len() + 1);
     let mut total = 0;
@@ -366,7 +371,7 @@ async fn evaluate<T: Real>(
     }
 
     let backward_phase = crate::profile::phase("  recurrence backward");
-    let grads = want_grads.then(|| {
+    let grads = if want_grads {
         let from_readout: Vec<[Option<&[T]>; 4]> = (0..windows.len())
             .map(|i| {
                 let rows = offsets[i]..offsets[i + 1];
@@ -381,8 +386,10 @@ async fn evaluate<T: Real>(
                 per_module
             })
             .collect();
-        pass.backward(&from_readout, all_grads)
-    });
+        Some(pass.backward(&from_readout, all_grads).await)
+    } else {
+        None
+    };
     drop(backward_phase);
 
     let _phase = crate::profile::phase("  collect results");
@@ -479,7 +486,11 @@ impl<T: Real> RecurrencePass<T> for CpuPass<'_, T> {
         &self.traces
     }
 
-    fn backward(&self, grad_d: &[[Option<&[T]>; 4]], weight_grads: bool) -> RecurrenceGrads<T> {
+    fn backward<'s>(
+        &'s self,
+        grad_d: &[[Option<&[T]>; 4]],
+        weight_grads: bool,
+    ) -> crate::deferred::Deferred<'s, RecurrenceGrads<T>> {
         let per_window = parallel::map(self.traces.len(), |i| {
             recurrent::backward(
                 self.prepared,
@@ -510,11 +521,11 @@ impl<T: Real> RecurrencePass<T> for CpuPass<'_, T> {
                 }
             }
         }
-        RecurrenceGrads {
+        crate::deferred::ready(RecurrenceGrads {
             a_mu,
             a_sigma,
             weights: sum,
-        }
+        })
     }
 
     fn into_traces(self: Box<Self>) -> Vec<Trace<T>> {
@@ -534,7 +545,13 @@ fn prior_rollout<T: Real>(model: &CpuModel<T>, steps: usize) -> ([Vec<T>; 4], [V
         eps: std::array::from_fn(|m| zeros[m].as_slice()),
         targets: [Vec::new(), Vec::new()],
     };
-    let pass = model.recurrence_forward(std::slice::from_ref(&window), &Ablation::none());
+    // Here, not on an offloaded recurrence: this synchronous call (model initialisation)
+    // must not wait on a browser's event loop.
+    let pass = Box::new(CpuPass::forward(
+        &model.prepared,
+        std::slice::from_ref(&window),
+        Ablation::none(),
+    ));
     let trace = pass.into_traces().into_iter().next();
     let modules = trace.map(|t| t.modules).unwrap_or_default();
     (

@@ -173,7 +173,7 @@ if (webgpu) {
       console.log(`?compute=${preference}: ${chosen ?? 'the worker never said where it computes'}`);
       if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
       else if (preference.startsWith('webgpu') && !chosen.includes('WebGPU')) fail(`?compute=${preference} did not take WebGPU: ${chosen}`);
-      else if (preference.includes('recurrence=gpu') !== chosen.includes('updates on the GPU')) fail(`?compute=${preference}: the inference updates run in the wrong place: ${chosen}`);
+      else if (preference.includes('recurrence=gpu') !== chosen.includes('recurrence on the GPU')) fail(`?compute=${preference}: the recurrence runs in the wrong place: ${chosen}`);
       for (const l of logs) if (/panicked|pageerror|validation error|uncaptured|wgpu error/i.test(l)) fail(`console (?compute=${preference}): ${l}`);
       await page.close();
     }

@@ -298,8 +298,8 @@ impl Ticker {
 /// the engine and the status bar's words for it. `auto` takes a WebGPU adapter unless it is
 /// a CPU implementation (SwiftShader, WARP: slower than the CPU backend); `webgpu` takes
 /// any; without an adapter, the CPU. With `recurrence_on_gpu` (the page's
-/// `?recurrence=gpu`), a WebGPU engine runs online inference's updates there too, a slice
-/// of them per submission.
+/// `?recurrence=gpu`), a WebGPU engine runs the recurrence there too, online inference's
+/// updates a slice per submission.
 async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, String) {
     if preference == "cpu" {
         return (Engine::default(), "CPU (worker)".into());
@@ -307,7 +307,7 @@ async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, Stri
     match pvrnn_wgpu::WgpuBackend::open().await {
         Ok(gpu) if preference == "webgpu" || !gpu.gpu().is_cpu() => {
             let recurrence = if recurrence_on_gpu {
-                ", inference updates on the GPU"
+                ", recurrence on the GPU"
             } else {
                 ""
             };

@@ -157,7 +157,7 @@ try {
 
 // WebGPU in the worker: a browser with WebGPU (headless Chromium: SwiftShader's adapter,
 // with --enable-unsafe-webgpu) and `?compute=webgpu` must take it; `auto` (the default) says
-// what it chose; `&recurrence=gpu` puts online inference's updates on it too. Agreement
+// what it chose; `&recurrence=gpu` puts the recurrence on it too. Agreement
 // with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
 if (webgpu) {
   const gpuBrowser = await chromium.launch({

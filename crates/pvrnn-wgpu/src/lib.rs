@@ -22,7 +22,8 @@
 //! there too, online inference's updates in one submission per call as natively.
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
-//! free energy and every gradient against it on a CPU Vulkan device).
+//! free energy and every gradient against it on a CPU Vulkan device, and in headless
+//! Chromium on SwiftShader's WebGPU adapter).
 
 mod copy;
 mod gpu;

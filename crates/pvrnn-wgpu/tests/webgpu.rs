@@ -161,8 +161,23 @@ async fn the_recurrence_on_webgpu_gives_the_cpus_free_energy_and_gradients() {
         plain.gpu().read_backs() + 2,
         "the recurrence did not run on the adapter"
     );
-    let (a, b) = (f_cpu.total, f_gpu.total);
-    assert!((a - b).abs() <= 1e-5 * a.abs(), "F: cpu {a} gpu {b}");
+    let terms = |f: &pvrnn_core::FreeEnergy| {
+        [
+            f.total,
+            f.accuracy.exteroceptive,
+            f.accuracy.proprioceptive,
+            f.complexity.executive,
+            f.complexity.associative,
+            f.complexity.exteroceptive,
+            f.complexity.proprioceptive,
+        ]
+    };
+    for (a, b) in terms(&f_cpu).into_iter().zip(terms(&f_gpu)) {
+        assert!(
+            (a - b).abs() <= 1e-5 * a.abs(),
+            "free-energy term: cpu {a} gpu {b}"
+        );
+    }
     let (g_cpu, g_gpu) = (g_cpu.unwrap(), g_gpu.unwrap());
     for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
         assert_close(&name, a.data(), b.data(), 1e-4);

@@ -545,13 +545,14 @@ fn prior_rollout<T: Real>(model: &CpuModel<T>, steps: usize) -> ([Vec<T>; 4], [V
         eps: std::array::from_fn(|m| zeros[m].as_slice()),
         targets: [Vec::new(), Vec::new()],
     };
-    // Here, not on an offloaded recurrence: this synchronous call (model initialisation)
-    // must not wait on a browser's event loop.
-    let pass = Box::new(CpuPass::forward(
-        &model.prepared,
-        std::slice::from_ref(&window),
-        Ablation::none(),
-    ));
+    let windows = std::slice::from_ref(&window);
+    // Natively on the offloaded recurrence if any (its results are ready at once); in the
+    // browser here, because this synchronous call (model initialisation) cannot wait on
+    // the event loop that WebGPU's read-backs need.
+    #[cfg(not(target_arch = "wasm32"))]
+    let pass = crate::deferred::now(model.recurrence_forward(windows, &Ablation::none()));
+    #[cfg(target_arch = "wasm32")]
+    let pass = Box::new(CpuPass::forward(&model.prepared, windows, Ablation::none()));
     let trace = pass.into_traces().into_iter().next();
     let modules = trace.map(|t| t.modules).unwrap_or_default();
     (

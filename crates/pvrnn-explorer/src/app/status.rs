@@ -19,7 +19,7 @@ pub(super) fn finished_note(f: &Finished) -> (String, String) {
         f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
     );
     if f.declined_by_device > 0 {
-        // The status bar said the GPU runs the updates: say where they did not.
+        // The status bar said the recurrence runs on the GPU: say where the updates did not.
         timing.push_str(&format!(
             "; the GPU declined the inference updates of {} of its steps (a shape its \
              kernels do not hold), which ran one at a time",

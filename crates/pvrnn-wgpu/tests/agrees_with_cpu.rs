@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::{assert_close, config, observations};
+use common::{assert_close, assert_same_free_energy_and_gradients, config, observations};
 
 use std::sync::Arc;
 
@@ -62,41 +62,10 @@ fn free_energy_and_gradients_agree_with(
     let data = observations(&config, sequences, steps);
     let model = Model::<f32>::init_on(&CpuBackend, config, sequences, steps, 7).unwrap();
     let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
-    let (f_cpu, g_cpu) = free_energy(&CpuBackend, &model, &data, draw, true).unwrap();
-    let (f_gpu, g_gpu) = free_energy(&gpu, &model, &data, draw, true).unwrap();
-    let terms = |f: &pvrnn_core::FreeEnergy| {
-        [
-            f.total,
-            f.accuracy.exteroceptive,
-            f.accuracy.proprioceptive,
-            f.complexity.executive,
-            f.complexity.exteroceptive,
-        ]
-    };
-    for (a, b) in terms(&f_cpu).into_iter().zip(terms(&f_gpu)) {
-        assert!(
-            (a - b).abs() <= 1e-5 * a.abs(),
-            "free-energy term: cpu {a} gpu {b}"
-        );
-    }
-    let (g_cpu, g_gpu) = (g_cpu.unwrap(), g_gpu.unwrap());
-    for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
-        assert_close(&name, a.data(), b.data(), 1e-4);
-    }
-    for m in 0..4 {
-        assert_close(
-            "a_mu",
-            g_cpu.adaptive.a_mu[m].data(),
-            g_gpu.adaptive.a_mu[m].data(),
-            1e-4,
-        );
-        assert_close(
-            "a_sigma",
-            g_cpu.adaptive.a_sigma[m].data(),
-            g_gpu.adaptive.a_sigma[m].data(),
-            1e-4,
-        );
-    }
+    assert_same_free_energy_and_gradients(
+        free_energy(&CpuBackend, &model, &data, draw, true).unwrap(),
+        free_energy(&gpu, &model, &data, draw, true).unwrap(),
+    );
 }
 
 #[test]

@@ -11,7 +11,7 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{assert_close, config, observations};
+use common::{assert_close, assert_same_free_energy_and_gradients, config, observations};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::free_energy::{NoiseDraw, free_energy, free_energy_async};
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
@@ -161,39 +161,5 @@ async fn the_recurrence_on_webgpu_gives_the_cpus_free_energy_and_gradients() {
         plain.gpu().read_backs() + 2,
         "the recurrence did not run on the adapter"
     );
-    let terms = |f: &pvrnn_core::FreeEnergy| {
-        [
-            f.total,
-            f.accuracy.exteroceptive,
-            f.accuracy.proprioceptive,
-            f.complexity.executive,
-            f.complexity.associative,
-            f.complexity.exteroceptive,
-            f.complexity.proprioceptive,
-        ]
-    };
-    for (a, b) in terms(&f_cpu).into_iter().zip(terms(&f_gpu)) {
-        assert!(
-            (a - b).abs() <= 1e-5 * a.abs(),
-            "free-energy term: cpu {a} gpu {b}"
-        );
-    }
-    let (g_cpu, g_gpu) = (g_cpu.unwrap(), g_gpu.unwrap());
-    for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
-        assert_close(&name, a.data(), b.data(), 1e-4);
-    }
-    for m in 0..4 {
-        assert_close(
-            "a_mu",
-            g_cpu.adaptive.a_mu[m].data(),
-            g_gpu.adaptive.a_mu[m].data(),
-            1e-4,
-        );
-        assert_close(
-            "a_sigma",
-            g_cpu.adaptive.a_sigma[m].data(),
-            g_gpu.adaptive.a_sigma[m].data(),
-            1e-4,
-        );
-    }
+    assert_same_free_energy_and_gradients((f_cpu, g_cpu), (f_gpu, g_gpu));
 }

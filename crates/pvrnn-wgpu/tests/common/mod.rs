@@ -3,7 +3,8 @@
 #![allow(dead_code)] // each test file uses its part
 
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
-use pvrnn_core::{ModelConfig, Observations, Tensor};
+use pvrnn_core::free_energy::Gradients;
+use pvrnn_core::{FreeEnergy, ModelConfig, Observations, Tensor};
 
 /// Small, but with the paper's 50-unit top hidden layer and enough vision columns and rows
 /// for several column tiles, row blocks and (with small tiling) splits and chunks.
@@ -66,4 +67,48 @@ pub fn assert_close(name: &str, cpu: &[f32], gpu: &[f32], tol: f64) {
         diff <= tol * scale + 1e-9,
         "{name}: max difference {diff:e} against max magnitude {scale:e}"
     );
+}
+
+/// Two backends' free energy and gradients ([`pvrnn_core::free_energy::free_energy`]):
+/// every term within 1e-5 relative, every weight's and adaptive variable's gradient within
+/// 1e-4 (f32 summation order).
+pub fn assert_same_free_energy_and_gradients(
+    cpu: (FreeEnergy, Option<Gradients<f32>>),
+    gpu: (FreeEnergy, Option<Gradients<f32>>),
+) {
+    let terms = |f: &FreeEnergy| {
+        [
+            f.total,
+            f.accuracy.exteroceptive,
+            f.accuracy.proprioceptive,
+            f.complexity.executive,
+            f.complexity.associative,
+            f.complexity.exteroceptive,
+            f.complexity.proprioceptive,
+        ]
+    };
+    for (a, b) in terms(&cpu.0).into_iter().zip(terms(&gpu.0)) {
+        assert!(
+            (a - b).abs() <= 1e-5 * a.abs(),
+            "free-energy term: cpu {a} gpu {b}"
+        );
+    }
+    let (g_cpu, g_gpu) = (cpu.1.expect("CPU gradients"), gpu.1.expect("GPU gradients"));
+    for ((name, a, _), (_, b, _)) in g_cpu.params.named().into_iter().zip(g_gpu.params.named()) {
+        assert_close(&name, a.data(), b.data(), 1e-4);
+    }
+    for m in 0..4 {
+        assert_close(
+            "a_mu",
+            g_cpu.adaptive.a_mu[m].data(),
+            g_gpu.adaptive.a_mu[m].data(),
+            1e-4,
+        );
+        assert_close(
+            "a_sigma",
+            g_cpu.adaptive.a_sigma[m].data(),
+            g_gpu.adaptive.a_sigma[m].data(),
+            1e-4,
+        );
+    }
 }

@@ -4,6 +4,7 @@
 
 use glam::{DAffine3, DVec3};
 
+use crate::math::{cos, sin};
 use crate::shapes::{Mesh, Shape};
 
 const GRAVITY: DVec3 = DVec3::new(0.0, 0.0, -9.81);
@@ -28,7 +29,7 @@ impl Cloth {
     /// An `n` x `n` square towel of side `size`, flat at `center`, rotated by `yaw`.
     pub fn new(center: DVec3, yaw: f64, size: f64, n: usize) -> Self {
         let step = size / (n - 1) as f64;
-        let (c, s) = (yaw.cos(), yaw.sin());
+        let (c, s) = (cos(yaw), sin(yaw));
         let mut pos = Vec::with_capacity(n * n);
         for i in 0..n {
             for j in 0..n {

@@ -22,6 +22,7 @@
 pub mod arm;
 pub mod body;
 pub mod cloth;
+mod math;
 pub mod render;
 pub mod scene;
 pub mod shapes;

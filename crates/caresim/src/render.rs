@@ -4,6 +4,7 @@
 
 use glam::{DVec3, Vec3};
 
+use crate::math::tan;
 use crate::shapes::Mesh;
 
 /// Surface appearance of a mesh.
@@ -99,7 +100,7 @@ pub fn render(
         depth: vec![f32::INFINITY; w * w],
         ids: vec![0; w * w],
     };
-    let focal = (0.5 * w as f64 / (0.5 * camera.fov_y).tan()) as f32;
+    let focal = (0.5 * w as f64 / tan(0.5 * camera.fov_y)) as f32;
     let light = LIGHT.normalize();
     let toward_camera = -Vec3::new(
         camera.forward.x as f32,

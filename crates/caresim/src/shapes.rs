@@ -3,6 +3,8 @@
 
 use glam::{DMat3, DVec3};
 
+use crate::math::{cos, sin};
+
 /// A solid primitive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
@@ -153,7 +155,7 @@ impl Mesh {
                     let v = std::f64::consts::PI * i as f64 / rings as f64;
                     for j in 0..=seg {
                         let u = std::f64::consts::TAU * j as f64 / seg as f64;
-                        let unit = DVec3::new(v.sin() * u.cos(), v.sin() * u.sin(), v.cos());
+                        let unit = DVec3::new(sin(v) * cos(u), sin(v) * sin(u), cos(v));
                         let p = c + rot * (unit * radii);
                         let n = (rot * (unit / radii)).normalize();
                         m.push_vertex(p, n);
@@ -175,11 +177,11 @@ impl Mesh {
                 let mut rings: Vec<(f64, f64)> = Vec::new(); // (offset along axis, radius scale)
                 for i in 0..=cap_rings {
                     let ang = std::f64::consts::FRAC_PI_2 * (1.0 - i as f64 / cap_rings as f64);
-                    rings.push((-ang.sin() * r, ang.cos()));
+                    rings.push((-sin(ang) * r, cos(ang)));
                 }
                 for i in 0..=cap_rings {
                     let ang = std::f64::consts::FRAC_PI_2 * i as f64 / cap_rings as f64;
-                    rings.push((len + ang.sin() * r, ang.cos()));
+                    rings.push((len + sin(ang) * r, cos(ang)));
                 }
                 for &(off, scale) in &rings {
                     let base = a + w * off;
@@ -192,7 +194,7 @@ impl Mesh {
                     };
                     for j in 0..=seg {
                         let t = std::f64::consts::TAU * j as f64 / seg as f64;
-                        let radial = u * t.cos() + v * t.sin();
+                        let radial = u * cos(t) + v * sin(t);
                         let n = (radial * scale + w * axial).normalize_or_zero();
                         m.push_vertex(base + radial * r * scale, n);
                     }

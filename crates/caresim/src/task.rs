@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::arm::{GRAVITY, IkTarget};
 use crate::body::{Landmarks, Mannequin, Posture, UPPER_COM, UPPER_MASS};
+use crate::math::{cos, ln, sin};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -65,7 +66,7 @@ impl SimRng {
     pub(crate) fn normal(&mut self) -> f64 {
         let u1 = 1.0 - self.uniform();
         let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        (-2.0 * ln(u1)).sqrt() * cos(std::f64::consts::TAU * u2)
     }
 }
 
@@ -115,7 +116,7 @@ impl Jitter {
     fn at(&self, t: f64) -> DVec3 {
         let axis = |a: usize| {
             (0..3)
-                .map(|k| (std::f64::consts::TAU * self.freq[k] * t + self.phase[a][k]).sin())
+                .map(|k| sin(std::f64::consts::TAU * self.freq[k] * t + self.phase[a][k]))
                 .sum::<f64>()
                 / 3f64.sqrt()
         };
@@ -414,7 +415,7 @@ impl Script {
                     // Holding the upper body: its weight's moment about the hips over the
                     // lever to the hand, taken over from the bed as it lifts off.
                     let lever = (self.back_local - DVec3::new(0.0, 0.0, 0.1)).length();
-                    let full = UPPER_MASS * GRAVITY * UPPER_COM * lift.cos() / lever;
+                    let full = UPPER_MASS * GRAVITY * UPPER_COM * cos(lift) / lever;
                     let support = 8.0 + (full - 8.0) * min_jerk(tau / 0.3);
                     forces[0] = DVec3::new(0.0, 0.0, -support);
                     forces[1] = DVec3::new(0.0, 0.0, 6.0 + 6.0 * tau);
@@ -430,7 +431,7 @@ impl Script {
                     let s = (t - t1) / d1;
                     let (along, across) = self.wipe_dirs;
                     let stroke =
-                        |s: f64| 0.5 * (1.0 - (std::f64::consts::TAU * w.strokes as f64 * s).cos());
+                        |s: f64| 0.5 * (1.0 - cos(std::f64::consts::TAU * w.strokes as f64 * s));
                     let flat = |s: f64| {
                         self.wipe_start
                             + along * (w.amplitude * stroke(s))

@@ -35,7 +35,8 @@ pub struct CardEvaluation {
     pub rows: Vec<CardRow>,
 }
 
-/// The model's mean error (± SE over sequences x trials) and the baselines' on one group.
+/// The model's mean error (± SE over sequences, each the mean of its trials) and the
+/// baselines' on one group.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CardRow {
     /// `recon` (posterior reconstruction of x_t) or `next` (prior prediction of x_t+1).
@@ -48,7 +49,7 @@ pub struct CardRow {
     pub observed: bool,
     pub model: f64,
     pub model_se: Option<f64>,
-    /// (baseline, value): `upsample`, `previous`, `mean`.
+    /// (baseline, value): `upsample`, `upsample_detail`, `nearest`, `previous`, `mean`.
     pub baselines: Vec<(String, f64)>,
 }
 
@@ -80,7 +81,7 @@ impl ModelCard {
         for e in &self.evaluations {
             let _ = writeln!(
                 md,
-                "\n## {} ({} test sequences x {} trials)\n\nMean squared error in model units (mean ± SE over sequences x trials; baselines are deterministic). * = not observed.\n",
+                "\n## {} ({} test sequences x {} trials)\n\nMean squared error in model units (mean ± SE over sequences, each the mean of its trials; baselines are deterministic). * = not observed.\n",
                 e.condition, e.sequences, e.trials
             );
             let _ = writeln!(md, "| target | group | pixels | model | baselines |");

@@ -7,10 +7,11 @@ use std::sync::Arc;
 use pvrnn_core::backend::Backend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
 use pvrnn_core::{Modality, Model, Observations};
-use pvrnn_dataset::{Dataset, Selection, Split};
+use pvrnn_dataset::{Dataset, Selection};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::baselines::{NearestFrames, mean_detail, upsampled_with_detail};
 use crate::groups::{Group, groups};
 use crate::metrics::{StepErrors, change_mask, score, upsampled_vision};
 use crate::{Error, Result};
@@ -37,6 +38,14 @@ pub enum Source {
     Mean,
     /// Bilinear upsampling of the highest observed resolution to the unobserved ones.
     Upsample,
+    /// Upsampling plus the fine detail of the mean learning image (that image minus its
+    /// own upsampling from the highest observed resolution): what a network that only
+    /// memorised the average scene would add to upsampling.
+    #[serde(rename = "upsample_detail")]
+    UpsampleDetail,
+    /// The learning frame whose observed inputs are closest (each modality's squared
+    /// distance over its observed dimensions, divided by their number), whole.
+    Nearest,
 }
 
 impl Target {
@@ -50,11 +59,21 @@ impl Target {
 }
 
 impl Source {
-    pub const ALL: [Source; 4] = [
+    pub const ALL: [Source; 6] = [
         Source::Model,
         Source::Previous,
         Source::Mean,
         Source::Upsample,
+        Source::UpsampleDetail,
+        Source::Nearest,
+    ];
+    /// Every source but the model, in the order reports list them.
+    pub const BASELINES: [Source; 5] = [
+        Source::Upsample,
+        Source::UpsampleDetail,
+        Source::Nearest,
+        Source::Previous,
+        Source::Mean,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -62,6 +81,8 @@ impl Source {
             Source::Previous => "previous",
             Source::Mean => "mean",
             Source::Upsample => "upsample",
+            Source::UpsampleDetail => "upsample_detail",
+            Source::Nearest => "nearest",
         }
     }
 }
@@ -76,6 +97,9 @@ pub struct EvalSettings {
     pub change_threshold: f64,
     /// Time steps shown in each sequence's picture of actual vs predicted images.
     pub image_columns: usize,
+    /// Whether to search the learning split for each step's nearest neighbour (the
+    /// `nearest` baseline; early stopping's validation skips it).
+    pub nearest_neighbour: bool,
 }
 
 /// One sequence's identity as the report shows it.
@@ -172,28 +196,7 @@ pub struct Evaluation {
     pub cameras: Vec<String>,
 }
 
-/// Mean normalised input (vision, proprioception) over every step of the learning split.
-pub fn learning_mean(dataset: &Dataset, model: &Model<f32>) -> Result<[Vec<f32>; 2]> {
-    let learn = dataset.select(&Selection::Split(Split::Learn))?;
-    let config = &model.config;
-    let mut sums = [
-        vec![0f64; config.vision.dims()],
-        vec![0f64; config.proprio_dims],
-    ];
-    let mut steps = 0usize;
-    for seq in learn {
-        let obs = dataset.observations(&[seq], config)?;
-        for t in 0..seq.len() {
-            for m in Modality::ALL {
-                for (s, &v) in sums[m.index()].iter_mut().zip(obs.step(m, 0, t)) {
-                    *s += v as f64;
-                }
-            }
-        }
-        steps += seq.len();
-    }
-    Ok(sums.map(|s| s.into_iter().map(|v| (v / steps as f64) as f32).collect()))
-}
+pub use crate::baselines::learning_mean;
 
 /// Per step, the vision dimensions that changed from the previous step (none at t = 0).
 type ChangeMasks = Vec<Option<Vec<bool>>>;
@@ -227,9 +230,10 @@ pub fn evaluate(
     );
     let threshold = (settings.change_threshold / 255.0 * 1.8) as f32;
     let vision_levels = settings.inference.observed.vision_levels;
+    let detail = mean_detail(&config.vision, &mean[0], vision_levels);
 
     // Per sequence: change masks (masks[t]: from t-1 to t) and the baselines' series.
-    let prepared: Vec<(ChangeMasks, Vec<Series>)> = (0..sequences.len())
+    let mut prepared: Vec<(ChangeMasks, Vec<Series>)> = (0..sequences.len())
         .into_par_iter()
         .map(|s| {
             let len = data.lengths()[s];
@@ -290,9 +294,55 @@ pub fn evaluate(
                         .collect(),
                 });
             }
+            if let Some(detail) = &detail {
+                series.push(Series {
+                    source: Source::UpsampleDetail,
+                    target: Target::Recon,
+                    trial: None,
+                    steps: (0..len)
+                        .map(|t| {
+                            let up = upsampled_with_detail(
+                                &config.vision,
+                                x(t)[0],
+                                vision_levels,
+                                detail,
+                            )
+                            .expect("some levels observed, some not");
+                            Some(score(&groups, [&up, x(t)[1]], x(t), masks[t].as_deref()))
+                        })
+                        .collect(),
+                });
+            }
             (masks, series)
         })
         .collect();
+    if settings.nearest_neighbour
+        && let Some(nearest) = NearestFrames::search(
+            dataset,
+            &model,
+            &sequences,
+            &data,
+            &settings.inference.observed,
+        )?
+    {
+        let mut steps: Vec<Vec<Option<StepErrors>>> =
+            data.lengths().iter().map(|&len| vec![None; len]).collect();
+        nearest.for_each(dataset, &model, |s, t, frame| {
+            let truth = [
+                data.step(Modality::Exteroceptive, s, t),
+                data.step(Modality::Proprioceptive, s, t),
+            ];
+            steps[s][t] = Some(score(&groups, frame, truth, prepared[s].0[t].as_deref()));
+        })?;
+        for ((_, series), steps) in prepared.iter_mut().zip(steps) {
+            series.push(Series {
+                source: Source::Nearest,
+                target: Target::Recon,
+                trial: None,
+                steps,
+            });
+        }
+    }
 
     let jobs: Vec<(usize, usize)> = (0..sequences.len())
         .flat_map(|s| (0..settings.trials).map(move |k| (s, k)))

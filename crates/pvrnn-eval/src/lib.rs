@@ -16,6 +16,7 @@
 //! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
 //! - [`validation`]: early stopping, a training run scored on held-out sequences as it goes.
 
+pub mod baselines;
 pub mod evaluate;
 pub mod groups;
 pub mod metrics;

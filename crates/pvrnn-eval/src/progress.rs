@@ -144,7 +144,8 @@ pub fn read_summary(text: &str, what: &str) -> Result<Evaluated> {
     let best_baseline = COLUMNS
         .iter()
         .map(|(t, g)| {
-            ["upsample", "previous", "mean"]
+            crate::Source::BASELINES
+                .map(crate::Source::name)
                 .iter()
                 .filter_map(|s| find(t, g, s).map(|v| (v, s.to_string())))
                 .min_by(|a, b| a.0.total_cmp(&b.0))
@@ -207,7 +208,8 @@ pub fn card_evaluation(text: &str, what: &str) -> Result<CardEvaluation> {
                 let Some((model, model_se)) = summary.figure(target, group, "model", pixels) else {
                     continue;
                 };
-                let baselines = ["upsample", "previous", "mean"]
+                let baselines = crate::Source::BASELINES
+                    .map(crate::Source::name)
                     .iter()
                     .filter_map(|b| {
                         summary

@@ -1,7 +1,8 @@
-//! From an [`Evaluation`] to figures (per trial, then mean ± SE over sequences x trials per
-//! scope), and the report files: `summary.json`, `summary.md`, `per_sequence.csv`,
+//! From an [`Evaluation`] to figures (per trial, then per sequence the mean of its trials,
+//! then mean ± SE over the scope's sequences), and the report files: `summary.json`, `summary.md`, `per_sequence.csv`,
 //! `per_step.csv`.
 
+use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -69,9 +70,10 @@ pub struct Figure {
     pub group: String,
     pub pixels: Pixels,
     pub mean: f64,
-    /// Standard error over the scope's sequences x trials (model only).
+    /// Standard error over the scope's sequences (model only): a sequence's trials share
+    /// its data, so they are averaged first rather than counted as samples.
     pub se: Option<f64>,
-    /// Trial values averaged.
+    /// Sequences averaged (each the mean of its trials).
     pub n: usize,
 }
 
@@ -89,6 +91,10 @@ pub struct Comparison {
     pub baseline_value: f64,
     pub ratio: f64,
     pub model_better: bool,
+    /// Sequences of the scope on which the model (the mean of its trials) is better than
+    /// the baseline, and how many sequences both were scored on.
+    pub wins: usize,
+    pub sequences: usize,
 }
 
 /// Whether a source's figure means something for a target and group: the previous step
@@ -97,7 +103,10 @@ pub fn applicable(source: Source, target: Target, group: &Group) -> bool {
     match source {
         Source::Model | Source::Mean => true,
         Source::Previous => target == Target::Next,
-        Source::Upsample => target == Target::Recon && group.is_vision() && !group.observed,
+        Source::Upsample | Source::UpsampleDetail => {
+            target == Target::Recon && group.is_vision() && !group.observed
+        }
+        Source::Nearest => target == Target::Recon,
     }
 }
 
@@ -180,24 +189,38 @@ pub fn mean_se(values: &[f64]) -> (f64, Option<f64>) {
     (mean, Some((var / n).sqrt()))
 }
 
-/// Every figure of every scope.
+/// What a figure or a comparison is of: (source, target, group index, pixels).
+type Quantity = (Source, Target, usize, Pixels);
+
+/// Per quantity and sequence, the mean of that sequence's trial values (a deterministic
+/// baseline has one value).
+pub fn sequence_means(values: &[TrialValue]) -> HashMap<(Quantity, usize), f64> {
+    let mut sums: HashMap<(Quantity, usize), (f64, usize)> = HashMap::new();
+    for v in values {
+        let e = sums
+            .entry(((v.source, v.target, v.group, v.pixels), v.sequence))
+            .or_default();
+        e.0 += v.mse;
+        e.1 += 1;
+    }
+    sums.into_iter()
+        .map(|(k, (sum, n))| (k, sum / n as f64))
+        .collect()
+}
+
+/// Every figure of every scope: mean ± SE over the scope's sequences of each sequence's
+/// trial mean.
 pub fn figures(eval: &Evaluation, values: &[TrialValue]) -> Vec<Figure> {
+    let means = sequence_means(values);
     let mut out = Vec::new();
     for (scope, members) in scopes(eval) {
         for target in Target::ALL {
             for source in Source::ALL {
                 for (g, group) in eval.groups.iter().enumerate() {
                     for pixels in Pixels::ALL {
-                        let v: Vec<f64> = values
+                        let v: Vec<f64> = members
                             .iter()
-                            .filter(|v| {
-                                v.target == target
-                                    && v.source == source
-                                    && v.group == g
-                                    && v.pixels == pixels
-                                    && members.contains(&v.sequence)
-                            })
-                            .map(|v| v.mse)
+                            .filter_map(|&s| means.get(&((source, target, g, pixels), s)).copied())
                             .collect();
                         if v.is_empty() {
                             continue;
@@ -239,16 +262,25 @@ fn find<'a>(
 }
 
 /// The model against each applicable baseline, for every level and proprioception group
-/// (not per camera) in the `all` and per-task scopes.
-pub fn comparisons(eval: &Evaluation, figures: &[Figure]) -> Vec<Comparison> {
+/// (not per camera) in the `all` and per-task scopes, with the sequences it wins.
+pub fn comparisons(
+    eval: &Evaluation,
+    values: &[TrialValue],
+    figures: &[Figure],
+) -> Vec<Comparison> {
+    let means = sequence_means(values);
     let mut out = Vec::new();
-    let scopes: Vec<String> = scopes(eval)
+    let scopes: Vec<(String, Vec<usize>)> = scopes(eval)
         .into_iter()
-        .map(|s| s.0)
-        .filter(|s| !s.starts_with("sequence:"))
+        .filter(|s| !s.0.starts_with("sequence:"))
         .collect();
-    for scope in &scopes {
-        for group in eval.groups.iter().filter(|g| is_summary_group(g)) {
+    for (scope, members) in &scopes {
+        for (g, group) in eval
+            .groups
+            .iter()
+            .enumerate()
+            .filter(|(_, g)| is_summary_group(g))
+        {
             for target in Target::ALL {
                 for pixels in Pixels::ALL {
                     let Some(model) =
@@ -256,10 +288,19 @@ pub fn comparisons(eval: &Evaluation, figures: &[Figure]) -> Vec<Comparison> {
                     else {
                         continue;
                     };
-                    for baseline in [Source::Upsample, Source::Previous, Source::Mean] {
+                    for baseline in Source::BASELINES {
                         if let Some(b) = find(figures, scope, target, baseline, &group.name, pixels)
                         {
                             let ratio = model.mean / b.mean;
+                            let pairs: Vec<(f64, f64)> = members
+                                .iter()
+                                .filter_map(|&s| {
+                                    Some((
+                                        *means.get(&((Source::Model, target, g, pixels), s))?,
+                                        *means.get(&((baseline, target, g, pixels), s))?,
+                                    ))
+                                })
+                                .collect();
                             out.push(Comparison {
                                 scope: scope.clone(),
                                 target,
@@ -271,6 +312,8 @@ pub fn comparisons(eval: &Evaluation, figures: &[Figure]) -> Vec<Comparison> {
                                 baseline_value: b.mean,
                                 ratio,
                                 model_better: model.mean < b.mean,
+                                wins: pairs.iter().filter(|(m, b)| m < b).count(),
+                                sequences: pairs.len(),
                             });
                         }
                     }
@@ -409,7 +452,7 @@ pub fn sig(v: f64) -> String {
 pub fn write_report(eval: &Evaluation, meta: &ReportMeta, dir: &Path) -> Result<()> {
     let values = trial_values(eval);
     let figures = figures(eval, &values);
-    let comparisons = comparisons(eval, &figures);
+    let comparisons = comparisons(eval, &values, &figures);
     let condition = Condition::of(eval);
     let summary = Summary {
         format: "pvrnn-evaluation/1",
@@ -557,15 +600,18 @@ fn markdown(
     let _ = writeln!(
         md,
         "- **Errors**: mean squared error in the model's normalised units (inputs in [-0.9, 0.9]). \
-         Per trial pooled over steps and dimensions, then mean ± standard error over sequences x trials. \
+         Per trial pooled over steps and dimensions; per sequence the mean of its trials; then mean ± standard \
+         error over sequences (trials of one sequence share its data and are not counted as samples). \
          *recon*: the posterior reconstruction of the current step x_t (all dimensions, observed or not); \
          *next*: the one-step prior prediction of x_(t+1). Groups marked * were not observed."
     );
     let _ = writeln!(
         md,
         "- **Baselines** (deterministic; mean over sequences): *upsample*: bilinear upsampling of the highest observed resolution; \
+         *upsample_detail*: that plus the fine detail of the mean learning image (the mean image minus its own upsampling from the observed resolution); \
+         *nearest*: the learning-split frame whose observed inputs are closest (each modality's mean squared distance over its observed dimensions, summed), whole; \
          *previous*: the current step's true input as the prediction of the next (it sees dimensions the model may not); \
-         *mean*: the mean learning-split input."
+         *mean*: the mean learning-split input. *won*: the sequences on which the model (mean of its trials) beats the baseline."
     );
     let _ = writeln!(
         md,
@@ -576,13 +622,13 @@ fn markdown(
     let ratio_table = |md: &mut String, rows: Vec<&Comparison>| {
         let _ = writeln!(
             md,
-            "| scope | target | group | pixels | baseline | model | baseline value | model / baseline |"
+            "| scope | target | group | pixels | baseline | model | baseline value | model / baseline | won |"
         );
-        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
         for c in rows {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {} | {} | {} | **{:.3}** {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | **{:.3}** {} | {} of {} |",
                 c.scope,
                 c.target.name(),
                 c.group,
@@ -594,7 +640,9 @@ fn markdown(
                 },
                 sig(c.baseline_value),
                 c.ratio,
-                if c.model_better { "better" } else { "worse" }
+                if c.model_better { "better" } else { "worse" },
+                c.wins,
+                c.sequences
             );
         }
     };
@@ -666,9 +714,9 @@ fn markdown(
 fn comparison_header(md: &mut String, first: &str) {
     let _ = writeln!(
         md,
-        "| {first} | recon: model | upsample | mean | next: model | previous | mean |"
+        "| {first} | recon: model | upsample | upsample_detail | nearest | mean | next: model | previous | mean |"
     );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
 }
 
 /// One row of that table; `figure` finds the mean (± SE) of a target and source.
@@ -679,9 +727,11 @@ fn comparison_row<'a>(
 ) {
     let _ = writeln!(
         md,
-        "| {label} | {} | {} | {} | {} | {} | {} |",
+        "| {label} | {} | {} | {} | {} | {} | {} | {} | {} |",
         cell(figure(Target::Recon, Source::Model)),
         cell(figure(Target::Recon, Source::Upsample)),
+        cell(figure(Target::Recon, Source::UpsampleDetail)),
+        cell(figure(Target::Recon, Source::Nearest)),
         cell(figure(Target::Recon, Source::Mean)),
         cell(figure(Target::Next, Source::Model)),
         cell(figure(Target::Next, Source::Previous)),

@@ -74,6 +74,7 @@ pub fn validate(
         trials: 1,
         change_threshold: 8.0,
         image_columns: 1,
+        nearest_neighbour: false,
     };
     let eval = evaluate(model, backend, dataset, &Selection::All, &settings, &|| {})?;
     let figures = figures(&eval, &trial_values(&eval));

@@ -92,6 +92,7 @@ fn settings(model: &Model<f32>, vision_levels: usize, trials: usize) -> EvalSett
         trials,
         change_threshold: 8.0,
         image_columns: 4,
+        nearest_neighbour: true,
     }
 }
 
@@ -231,6 +232,88 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
         / n4;
     assert!((mean_recon.steps[2].as_ref().unwrap().all[3].mse().unwrap() - expect).abs() < 1e-9);
 
+    // Upsampling plus the mean image's detail: upsampled 2x2 + (mean 4x4 - upsampled mean 2x2).
+    let baseline = |source: Source| {
+        seq.series
+            .iter()
+            .find(|s| s.source == source && s.target == Target::Recon)
+            .unwrap()
+    };
+    let v2 = |v: &[f32], camera: usize| {
+        let at = layout.image_offset(0, camera);
+        v[at..at + 12].to_vec()
+    };
+    let mut detailed = vec![0f32; layout.dims()];
+    for camera in 0..2 {
+        let up = pvrnn_eval::metrics::upsample_bilinear(&v2(x(2), camera), 2, 3, 4);
+        let up_mean = pvrnn_eval::metrics::upsample_bilinear(&v2(&mean[0], camera), 2, 3, 4);
+        let at = layout.image_offset(1, camera);
+        for i in 0..48 {
+            detailed[at + i] = up[i] + mean[0][at + i] - up_mean[i];
+        }
+    }
+    let expect: f64 = v4
+        .clone()
+        .map(|d| (detailed[d] as f64 - x(2)[d] as f64).powi(2))
+        .sum::<f64>()
+        / n4;
+    let got = baseline(Source::UpsampleDetail).steps[2]
+        .as_ref()
+        .unwrap()
+        .all[3]
+        .mse()
+        .unwrap();
+    assert!((got - expect).abs() < 1e-9, "{got} vs {expect}");
+
+    // The nearest neighbour: over every learning frame, the smallest distance over the
+    // observed inputs (2x2 vision and proprioception, each divided by its dimensions); its
+    // whole 4x4 image is the reconstruction.
+    let learn = ds.select(&Selection::Split(Split::Learn)).unwrap();
+    let reference = ds.observations(&learn, &model.config).unwrap();
+    let p = |data: &pvrnn_core::Observations<f32>, s: usize, t: usize| {
+        data.step(Modality::Proprioceptive, s, t).to_vec()
+    };
+    let distance = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+            .sum::<f64>()
+            / a.len() as f64
+    };
+    let observed = layout.observed_dims(1);
+    for t in [0, 4, 9] {
+        let (l, u) = (0..learn.len())
+            .flat_map(|l| (0..T).map(move |u| (l, u)))
+            .min_by(|&(l1, u1), &(l2, u2)| {
+                let d = |l: usize, u: usize| {
+                    distance(
+                        &x(t)[..observed],
+                        &reference.step(Modality::Exteroceptive, l, u)[..observed],
+                    ) + distance(&p(&data, 1, t), &p(&reference, l, u))
+                };
+                d(l1, u1).total_cmp(&d(l2, u2))
+            })
+            .unwrap();
+        let frame = reference.step(Modality::Exteroceptive, l, u);
+        let expect: f64 = v4
+            .clone()
+            .map(|d| (frame[d] as f64 - x(t)[d] as f64).powi(2))
+            .sum::<f64>()
+            / n4;
+        let got = baseline(Source::Nearest).steps[t].as_ref().unwrap().all[3]
+            .mse()
+            .unwrap();
+        assert!((got - expect).abs() < 1e-9, "step {t}: {got} vs {expect}");
+        let joints = baseline(Source::Nearest).steps[t].as_ref().unwrap().all[6]
+            .mse()
+            .unwrap();
+        let expect = (0..14)
+            .map(|d| (p(&reference, l, u)[d] as f64 - p(&data, 1, t)[d] as f64).powi(2))
+            .sum::<f64>()
+            / 14.0;
+        assert!((joints - expect).abs() < 1e-9);
+    }
+
     // Upsampling only when some levels are observed and some not.
     assert!(seq.series.iter().any(|s| s.source == Source::Upsample));
     let all = evaluate_test(&ds, &model, &settings(&model, 2, 1)).unwrap();
@@ -240,9 +323,25 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
             .all(|s| s.series.iter().all(|x| x.source != Source::Upsample))
     );
 
-    // Figures: the model averages sequences x trials, a baseline the sequences.
+    // Figures: a sequence's trials are averaged first, then mean ± SE over sequences.
     let values = report::trial_values(&eval);
     let figures = report::figures(&eval, &values);
+    let sequence_mean = |s: usize| {
+        let v: Vec<f64> = values
+            .iter()
+            .filter(|v| {
+                v.sequence == s
+                    && v.source == Source::Model
+                    && v.target == Target::Recon
+                    && v.group == 3
+                    && v.pixels == Pixels::All
+            })
+            .map(|v| v.mse)
+            .collect();
+        assert_eq!(v.len(), 2, "two trials");
+        v.iter().sum::<f64>() / 2.0
+    };
+    let (m0, m1) = (sequence_mean(0), sequence_mean(1));
     let model_v4 = figures
         .iter()
         .find(|f| {
@@ -253,8 +352,10 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
                 && f.pixels == Pixels::All
         })
         .unwrap();
-    assert_eq!(model_v4.n, 4);
-    assert!(model_v4.se.is_some());
+    assert_eq!(model_v4.n, 2);
+    assert!((model_v4.mean - (m0 + m1) / 2.0).abs() < 1e-12);
+    // The SE of two values is half their distance.
+    assert!((model_v4.se.unwrap() - (m0 - m1).abs() / 2.0).abs() < 1e-12);
     let up = figures
         .iter()
         .find(|f| {
@@ -276,7 +377,7 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
             .iter()
             .any(|f| f.source == Source::Previous && f.target == Target::Recon)
     );
-    let comparisons = report::comparisons(&eval, &figures);
+    let comparisons = report::comparisons(&eval, &values, &figures);
     let c = comparisons
         .iter()
         .find(|c| {
@@ -288,6 +389,32 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
         .unwrap();
     assert_eq!(c.model_better, c.model < c.baseline_value);
     assert!((c.ratio - model_v4.mean / c.baseline_value).abs() < 1e-12);
+    // Wins: the sequences whose trial mean is below the baseline's value there.
+    let up_of = |s: usize| {
+        values
+            .iter()
+            .find(|v| {
+                v.sequence == s
+                    && v.source == Source::Upsample
+                    && v.group == 3
+                    && v.pixels == Pixels::All
+            })
+            .unwrap()
+            .mse
+    };
+    assert_eq!(c.sequences, 2);
+    assert_eq!(
+        c.wins,
+        usize::from(m0 < up_of(0)) + usize::from(m1 < up_of(1))
+    );
+    for baseline in [Source::UpsampleDetail, Source::Nearest, Source::Mean] {
+        assert!(
+            comparisons
+                .iter()
+                .any(|c| c.scope == "all" && c.group == "v4" && c.baseline == baseline),
+            "{baseline:?}"
+        );
+    }
 }
 
 #[test]
@@ -319,10 +446,10 @@ fn reports_plots_and_the_progress_table_are_written() {
     assert!(md.contains("| v4* |") && md.contains("upsample"), "{md}");
     let per_step = std::fs::read_to_string(dir.path().join("per_step.csv")).unwrap();
     // Model: 2 sequences x 2 trials x (T recon + T - 1 next); baselines: mean (T + T - 1),
-    // previous (T - 1), upsample (T) per sequence.
+    // previous (T - 1), upsample, upsample_detail and nearest (T each) per sequence.
     assert_eq!(
         per_step.lines().count(),
-        1 + 2 * 2 * (2 * T - 1) + 2 * (4 * T - 2)
+        1 + 2 * 2 * (2 * T - 1) + 2 * (6 * T - 2)
     );
     assert!(
         per_step
@@ -459,7 +586,8 @@ fn diverged_trials_are_left_out_and_reported() {
             .unwrap()
             .n
     };
-    assert_eq!((n(Source::Model), n(Source::Upsample)), (2, 1));
+    // One sequence left, its two trials averaged into one value.
+    assert_eq!((n(Source::Model), n(Source::Upsample)), (1, 1));
     let md = report_md(&eval, &meta, dir.path(), true);
     assert!(
         md.contains("in 2 of 4 trials") && md.contains("`r_test0` had no trial that finished"),

@@ -71,6 +71,7 @@ pub fn run(a: Args) -> Result<()> {
         trials: a.trials,
         change_threshold: a.change_threshold,
         image_columns: 8,
+        nearest_neighbour: true,
     };
     let steps: usize = dataset.select(&selection)?.iter().map(|s| s.len()).sum();
     let bar = util::progress((steps * a.trials) as u64, "evaluate");
@@ -100,7 +101,7 @@ pub fn run(a: Args) -> Result<()> {
     let values = report::trial_values(&evaluation);
     let figures = report::figures(&evaluation, &values);
     let top = format!("v{}", evaluation.resolutions.last().copied().unwrap_or(0));
-    for c in report::comparisons(&evaluation, &figures)
+    for c in report::comparisons(&evaluation, &values, &figures)
         .iter()
         .filter(|c| c.group == top && c.pixels == Pixels::All && !c.scope.starts_with("sequence:"))
     {

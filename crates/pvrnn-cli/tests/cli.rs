@@ -1031,6 +1031,65 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     let best = pvrnn_eval::validation::best(&rows).unwrap().iteration;
     let kept = TensorFile::open(&x.path("early.best.safetensors")).unwrap();
     assert_eq!(io::checkpoint_iteration(&kept), Some(best));
+    assert!(
+        rows.iter()
+            .all(|r| r.upsample.is_some() && r.mean.is_some())
+    );
+    // --patience 1: the run stops at the first validation that does not beat the best,
+    // with its checkpoint at that iteration, or runs to the end if every one did.
+    let err = logged(
+        &[
+            "train",
+            "--inputs",
+            &ds,
+            "--out",
+            &early,
+            "--iterations",
+            "12",
+            "--validate",
+            &ds,
+            "--validate-every",
+            "1",
+            "--patience",
+            "1",
+            "--resume",
+        ],
+        "0",
+    );
+    let rows = pvrnn_eval::validation::read_log(&x.path("early.validation.csv")).unwrap();
+    let best = pvrnn_eval::validation::best(&rows).unwrap().iteration;
+    let last = rows.last().unwrap().iteration;
+    let reached = io::checkpoint_iteration(&TensorFile::open(Path::new(&early)).unwrap());
+    assert_eq!(reached, Some(last));
+    if last < 12 {
+        assert_eq!(
+            last,
+            rows.iter().find(|r| r.iteration > best).unwrap().iteration
+        );
+        assert!(
+            err.contains("stopped early at iteration") && err.contains("did not beat it"),
+            "{err}"
+        );
+    } else {
+        assert!(rows.windows(2).all(|w| w[1].better_than(&w[0])), "{rows:?}");
+    }
+    // Plotted beside another run's log, with the baselines.
+    ok(&[
+        "report",
+        "validation",
+        &format!("paper={}", x.s("early.validation.csv")),
+        &format!("again={}", x.s("early.validation.csv")),
+        "--out",
+        &x.s("validation.png"),
+    ]);
+    let png = std::fs::read(x.path("validation.png")).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 10_000,
+        "{} bytes",
+        png.len()
+    );
+    let e = fails(&["report", "validation", "paper", "--out", &x.s("v.png")]);
+    assert!(e.contains("NAME=FILE"), "{e}");
     let missing = x.s("no-such-dataset");
     let e = fails(&[
         "train",
@@ -1131,10 +1190,9 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
         .filter(|c| c["group"] == "v64" && c["scope"] == "all" && c["pixels"] == "all")
         .map(|c| c["baseline"].as_str().unwrap())
         .collect();
-    assert!(
-        sources.contains(&"upsample") && sources.contains(&"previous") && sources.contains(&"mean"),
-        "{sources:?}"
-    );
+    for baseline in ["upsample", "upsample_detail", "nearest", "previous", "mean"] {
+        assert!(sources.contains(&baseline), "{baseline}: {sources:?}");
+    }
     let table = x.s("progress.md");
     ok(&["report", "table", &eval, "--out", &table]);
     let md = std::fs::read_to_string(&table).unwrap();

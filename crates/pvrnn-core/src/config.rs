@@ -319,6 +319,10 @@ pub struct ModelConfig {
     pub xavier_gain: f64,
     /// \[decided\] Initial adaptive variables.
     pub posterior_init: PosteriorInit,
+    /// Not in the paper (off by default): bound every log sigma, prior's and posterior's,
+    /// softly to (-B, B) as B tanh(pre-activation / B), so that a prior's sigma cannot
+    /// explode on states learning never visited. A departure; results say when it is on.
+    pub log_sigma_bound: Option<f64>,
     /// Learning.
     pub train: TrainConfig,
     /// Online inference (error regression).
@@ -362,6 +366,7 @@ impl Default for ModelConfig {
             recurrent_bias_variance: 10.0,
             xavier_gain: 1.0,
             posterior_init: PosteriorInit::Prior,
+            log_sigma_bound: None,
             train: TrainConfig {
                 optimizer: RAdamConfig {
                     lr: 0.001,
@@ -476,6 +481,11 @@ impl ModelConfig {
                 self.kl_weight
             ));
         }
+        if let Some(b) = self.log_sigma_bound
+            && !(b > 0.0 && b.is_finite())
+        {
+            return bad(format!("log_sigma_bound must be finite and > 0 (got {b})"));
+        }
         if !(self.recurrent_bias_variance >= 0.0 && self.recurrent_bias_variance.is_finite()) {
             return bad("recurrent_bias_variance must be finite and >= 0".into());
         }
@@ -506,6 +516,57 @@ impl ModelConfig {
             }
         }
         Ok(())
+    }
+
+    /// Every setting that differs from the paper's configuration (`ModelConfig::default()`),
+    /// as `path: value (paper: value)`, e.g. `kl_weight: 0.01 (paper: 0.005)`. What is
+    /// fitted to a dataset (its cameras and resolutions, proprioceptive channels and ranges)
+    /// and the planned iteration count are not departures. A model card lists these, so a
+    /// recipe is stated where the model is.
+    pub fn departures_from_paper(&self) -> Vec<String> {
+        fn flatten(prefix: &str, v: &serde_json::Value, out: &mut Vec<(String, String)>) {
+            match v {
+                serde_json::Value::Object(map) => {
+                    for (k, v) in map {
+                        let path = if prefix.is_empty() {
+                            k.clone()
+                        } else {
+                            format!("{prefix}.{k}")
+                        };
+                        flatten(&path, v, out);
+                    }
+                }
+                other => out.push((prefix.to_string(), other.to_string())),
+            }
+        }
+        let fitted = [
+            "vision",
+            "proprio_dims",
+            "normalisation",
+            "train.iterations",
+        ];
+        let values = |c: &ModelConfig| {
+            let mut out = Vec::new();
+            flatten("", &serde_json::to_value(c).expect("serialises"), &mut out);
+            out.retain(|(path, _)| {
+                !fitted
+                    .iter()
+                    .any(|f| path == f || path.starts_with(&format!("{f}.")))
+            });
+            out
+        };
+        let paper: std::collections::BTreeMap<String, String> =
+            values(&ModelConfig::default()).into_iter().collect();
+        let mut out: Vec<String> = values(self)
+            .into_iter()
+            .filter(|(path, v)| paper.get(path) != Some(v))
+            .map(|(path, v)| match paper.get(&path) {
+                Some(p) => format!("{path}: {v} (paper: {p})"),
+                None => format!("{path}: {v}"),
+            })
+            .collect();
+        out.sort();
+        out
     }
 
     /// The configuration as the JSON stored in model files.
@@ -561,6 +622,33 @@ mod tests {
     fn json_round_trip() {
         let c = ModelConfig::default();
         assert_eq!(ModelConfig::from_json(&c.to_json()).unwrap(), c);
+    }
+
+    #[test]
+    fn departures_name_what_differs_from_the_paper_but_not_what_a_dataset_fits() {
+        let mut c = ModelConfig::default();
+        assert!(c.departures_from_paper().is_empty());
+        c.vision.resolutions = vec![8, 16];
+        c.proprio_dims = 9;
+        c.train.iterations = 40_000;
+        c.normalisation = Some(Normalisation {
+            proprio_min: vec![0.0; 9],
+            proprio_max: vec![1.0; 9],
+        });
+        assert!(c.departures_from_paper().is_empty());
+        c.kl_weight = 0.01;
+        c.log_sigma_bound = Some(5.0);
+        c.exteroceptive_readout.hidden = vec![40, 200];
+        c.inference.optimizer.lr = 0.5;
+        assert_eq!(
+            c.departures_from_paper(),
+            [
+                "exteroceptive_readout.hidden: [40,200] (paper: [40,50])",
+                "inference.optimizer.lr: 0.5 (paper: 1.0)",
+                "kl_weight: 0.01 (paper: 0.005)",
+                "log_sigma_bound: 5.0 (paper: null)",
+            ]
+        );
     }
 
     #[test]

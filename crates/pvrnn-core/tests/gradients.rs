@@ -159,6 +159,33 @@ fn gradients_with_optional_biases_and_slow_first_taus() {
 }
 
 #[test]
+fn gradients_with_a_log_sigma_bound() {
+    common::for_each_backend(|backend: &dyn Backend<f64>| {
+        let mut config = tiny_config();
+        // Small enough that many log sigmas sit on the tanh's curve, not its linear middle.
+        config.log_sigma_bound = Some(0.4);
+        let mut model = tiny_model(config.clone(), 2, 5, 13);
+        for (name, t) in model.adaptive.named_mut() {
+            if name.ends_with("a_sigma") {
+                let v = uniform(t.len(), name.len() as u64, -1.5, 1.5);
+                t.data_mut().copy_from_slice(&v);
+            }
+        }
+        let data = random_observations(&config, 2, 5, 14);
+        let noise = NoiseDraw::training(NoiseMode::Sampled { seed: 3 }, 1);
+        // The bound changes F: it is in the arithmetic, not only in the configuration.
+        let mut unbounded = model.clone();
+        unbounded.config.log_sigma_bound = None;
+        let (f, f_free) = (
+            value(backend, &model, &data, noise),
+            value(backend, &unbounded, &data, noise),
+        );
+        assert!((f - f_free).abs() > 1e-3 * f.abs(), "{f} vs {f_free}");
+        check_all(backend, model, &data, noise, 3);
+    });
+}
+
+#[test]
 fn gradients_with_unequal_sequence_lengths_and_zero_noise() {
     common::for_each_backend(|backend: &dyn Backend<f64>| {
         let config = tiny_config();

@@ -20,6 +20,10 @@ pub struct ModelCard {
     pub free_energy: Option<f64>,
     /// How the weights are stored and what that costs, as measured.
     pub weights: String,
+    /// The model's settings that depart from the paper's configuration
+    /// (`ModelConfig::departures_from_paper`); empty: the paper's configuration.
+    #[serde(default)]
+    pub departures: Vec<String>,
     /// Evaluations of these weights, one per condition.
     #[serde(default)]
     pub evaluations: Vec<CardEvaluation>,
@@ -76,6 +80,19 @@ impl ModelCard {
         let _ = writeln!(md, "- **Data**: {}.", self.training_data);
         if let Some(f) = self.free_energy {
             let _ = writeln!(md, "- **Free energy** at that iteration: {f:.1}.");
+        }
+        if self.departures.is_empty() {
+            let _ = writeln!(md, "- **Configuration**: the paper's.");
+        } else {
+            let _ = writeln!(
+                md,
+                "- **Configuration**: the paper's except (departures from the paper): {}.",
+                self.departures
+                    .iter()
+                    .map(|d| format!("`{d}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
         }
         let _ = writeln!(md, "- **Weights**: {}.", self.weights);
         for e in &self.evaluations {
@@ -154,6 +171,7 @@ mod tests {
             training_data: "caresim seed 0".into(),
             free_energy: Some(1234.5),
             weights: "f16".into(),
+            departures: vec!["kl_weight: 0.01 (paper: 0.005)".into()],
             evaluations: vec![CardEvaluation {
                 condition: "vision 16, proprioception on".into(),
                 sequences: 6,
@@ -178,6 +196,14 @@ mod tests {
             md.contains("| recon | v64* | all | 0.01235 ± 0.0001200 | upsample 0.009500 |"),
             "{md}"
         );
+        assert!(
+            md.contains(
+                "the paper's except (departures from the paper): `kl_weight: 0.01 (paper: 0.005)`"
+            ),
+            "{md}"
+        );
+        let paper = ModelCard::default().markdown("m");
+        assert!(paper.contains("**Configuration**: the paper's."), "{paper}");
         let back: ModelCard = serde_json::from_str(&serde_json::to_string(&card).unwrap()).unwrap();
         assert_eq!(back, card);
     }

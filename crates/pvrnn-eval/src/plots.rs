@@ -520,6 +520,90 @@ pub fn training_curves(log: &str, title: &str, path: &Path) -> Result<()> {
     })
 }
 
+/// Validation curves (`pvrnn train --validate`'s logs): each run's held-out error of the
+/// unobserved top resolution against the iteration, its best point marked in the legend,
+/// and the first run's baselines as dashed levels.
+pub fn validation_curves(
+    runs: &[(String, Vec<crate::validation::ValidationRow>)],
+    title: &str,
+    path: &Path,
+) -> Result<()> {
+    const RUNS: [RGBColor; 6] = [
+        MODEL,
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        RGBColor(227, 119, 194),
+        RGBColor(23, 190, 207),
+    ];
+    let x_max = runs
+        .iter()
+        .flat_map(|(_, rows)| rows.iter().map(|r| r.iteration as f64))
+        .fold(1.0, f64::max);
+    let mut lines: Vec<Line> = runs
+        .iter()
+        .enumerate()
+        .map(|(k, (name, rows))| {
+            let best = crate::validation::best(rows);
+            Line {
+                label: match best {
+                    Some(b) => format!(
+                        "{name} (best {} at {}{})",
+                        sig(b.recon_vision_top),
+                        b.iteration,
+                        if b.failed_trials > 0 {
+                            format!(", {} diverged", b.failed_trials)
+                        } else {
+                            String::new()
+                        }
+                    ),
+                    None => name.clone(),
+                },
+                colour: RUNS[k % RUNS.len()],
+                dashed: false,
+                // A validation whose every trial diverged has no error to draw.
+                points: rows
+                    .iter()
+                    .filter(|r| r.recon_vision_top.is_finite())
+                    .map(|r| (r.iteration as f64, r.recon_vision_top))
+                    .collect(),
+            }
+        })
+        .collect();
+    if let Some((_, rows)) = runs.first() {
+        let level =
+            |get: fn(&crate::validation::ValidationRow) -> Option<f64>| rows.iter().find_map(get);
+        for (name, value, colour) in [
+            ("upsampling", level(|r| r.upsample), UPSAMPLE),
+            (
+                "upsampling + mean detail",
+                level(|r| r.upsample_detail),
+                PREVIOUS,
+            ),
+            ("mean image", level(|r| r.mean), MEAN),
+        ] {
+            if let Some(v) = value {
+                lines.push(Line {
+                    label: format!("{name} ({})", sig(v)),
+                    colour,
+                    dashed: true,
+                    points: vec![(0.0, v), (x_max, v)],
+                });
+            }
+        }
+    }
+    draw_png(path, (1100, 600), |root| {
+        line_chart(
+            root,
+            title,
+            "iteration",
+            "mean squared error (model units)",
+            x_max,
+            &lines,
+        )
+    })
+}
+
 /// One bar of [`bar_chart`]: a mean and its standard error (whiskers), if known.
 #[derive(Clone, Debug)]
 pub struct Bar {

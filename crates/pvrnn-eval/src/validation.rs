@@ -37,6 +37,15 @@ pub struct ValidationRow {
     pub recon_torques: Option<f64>,
     /// Wall-clock seconds the validation took.
     pub seconds: f64,
+    /// The baselines' errors on the same finished sequences (the same for every row while
+    /// no trial diverges): bilinear upsampling, upsampling plus the mean image's detail,
+    /// the mean learning image. Absent in logs written before they were recorded.
+    #[serde(default)]
+    pub upsample: Option<f64>,
+    #[serde(default)]
+    pub upsample_detail: Option<f64>,
+    #[serde(default)]
+    pub mean: Option<f64>,
 }
 
 impl ValidationRow {
@@ -53,6 +62,14 @@ pub fn best(rows: &[ValidationRow]) -> Option<&ValidationRow> {
             Some(b) if !row.better_than(b) => Some(b),
             _ => Some(row),
         })
+}
+
+/// Early stopping's rule: the best row, when `patience` validations have come after it
+/// without beating it (the run has turned; training on only overfits further).
+pub fn stalled(rows: &[ValidationRow], patience: usize) -> Option<&ValidationRow> {
+    let best = best(rows)?;
+    let after = rows.iter().filter(|r| r.iteration > best.iteration).count();
+    (patience > 0 && after >= patience).then_some(best)
 }
 
 /// Scores `model` (at training `iteration`) on every sequence of `dataset`.
@@ -78,18 +95,19 @@ pub fn validate(
     };
     let eval = evaluate(model, backend, dataset, &Selection::All, &settings, &|| {})?;
     let figures = figures(&eval, &trial_values(&eval));
-    let recon = |group: &str| {
+    let figure = |source: Source, group: &str| {
         figures
             .iter()
             .find(|f| {
                 f.scope == "all"
                     && f.target == Target::Recon
-                    && f.source == Source::Model
+                    && f.source == source
                     && f.group == group
                     && f.pixels == Pixels::All
             })
             .map(|f| f.mean)
     };
+    let recon = |group: &str| figure(Source::Model, group);
     let top = format!("v{}", eval.resolutions.last().copied().unwrap_or(0));
     Ok(ValidationRow {
         iteration,
@@ -99,6 +117,9 @@ pub fn validate(
         recon_joints: recon("joints"),
         recon_torques: recon("torques"),
         seconds: started.elapsed().as_secs_f64(),
+        upsample: figure(Source::Upsample, &top),
+        upsample_detail: figure(Source::UpsampleDetail, &top),
+        mean: figure(Source::Mean, &top),
     })
 }
 
@@ -144,6 +165,9 @@ mod tests {
             recon_joints: (failed_trials < 4).then_some(0.5),
             recon_torques: None,
             seconds: 1.5,
+            upsample: Some(0.009),
+            upsample_detail: None,
+            mean: Some(0.015),
         }
     }
 
@@ -160,6 +184,11 @@ mod tests {
         assert!(row(1, 0, 0.5).better_than(&row(2, 1, 0.1)));
         assert!(!row(1, 4, f64::INFINITY).better_than(&row(2, 3, 0.1)));
         assert!(best(&[]).is_none());
+        // Patience 2: stop once two validations after the best (30) did not beat it.
+        assert!(stalled(&rows[..4], 2).is_none());
+        assert_eq!(stalled(&rows, 2).map(|r| r.iteration), Some(30));
+        assert!(stalled(&rows, 3).is_none() && stalled(&rows, 0).is_none());
+        assert!(stalled(&[], 1).is_none());
     }
 
     #[test]
@@ -170,6 +199,15 @@ mod tests {
         let rows = vec![row(10, 0, 0.004), row(20, 4, f64::INFINITY)];
         write_log(&path, &rows).unwrap();
         assert_eq!(read_log(&path).unwrap(), rows);
+        // A log written before the baselines were recorded still reads.
+        std::fs::write(
+            &path,
+            "iteration,failed_trials,trials,recon_vision_top,recon_joints,recon_torques,seconds\n\
+             2000,0,24,0.0068,0.017,0.024,110.2\n",
+        )
+        .unwrap();
+        let old = read_log(&path).unwrap();
+        assert_eq!((old[0].iteration, old[0].upsample), (2000, None));
         std::fs::write(&path, "iteration,failed_trials\nten,0\n").unwrap();
         let e = read_log(&path).unwrap_err().to_string();
         assert!(

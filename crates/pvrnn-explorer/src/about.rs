@@ -27,6 +27,16 @@ pub fn about_ui(ui: &mut egui::Ui, description: &str, card: Option<&ModelCard>) 
                 ui.label(format!("{f:.1} at the last iteration"));
                 ui.end_row();
             }
+            ui.label("Configuration");
+            if card.departures.is_empty() {
+                ui.label("the paper's");
+            } else {
+                ui.label(format!(
+                    "the paper's except (departures): {}",
+                    card.departures.join("; ")
+                ));
+            }
+            ui.end_row();
             ui.label("Weights");
             ui.label(&card.weights);
             ui.end_row();

@@ -90,6 +90,9 @@ pub(crate) struct RecurrenceLayout {
     strides: Strides,
     weight_floats: usize,
     kl_scale: [f32; 4],
+    /// The model bounds its log sigmas (`log_sigma_bound`), which the kernels do not
+    /// implement: every call then stays on the CPU.
+    bounded_log_sigma: bool,
 }
 
 impl RecurrenceLayout {
@@ -164,6 +167,7 @@ impl RecurrenceLayout {
             strides,
             weight_floats: weights.len(),
             kl_scale,
+            bounded_log_sigma: config.log_sigma_bound.is_some(),
         };
         (layout, weights)
     }
@@ -304,9 +308,11 @@ impl RecurrenceLayout {
         let s = self.strides;
         let largest = (steps * s.record.max(s.back).max(s.input) + windows * s.init)
             .max(TABLE_WINDOWS + WINDOW_WORDS * windows);
-        self.modules
-            .iter()
-            .all(|m| m.d <= MAX_UNITS && m.z <= MAX_UNITS)
+        !self.bounded_log_sigma
+            && self
+                .modules
+                .iter()
+                .all(|m| m.d <= MAX_UNITS && m.z <= MAX_UNITS)
             && windows > 0
             && windows <= limits.max_compute_workgroups_per_dimension as usize
             && 4 * largest <= binding

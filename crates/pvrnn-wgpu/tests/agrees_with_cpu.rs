@@ -869,15 +869,24 @@ fn a_diverging_step_restarts_on_the_gpu_as_on_the_cpu() {
     assert_eq!(on_gpu.split(" (").next(), on_cpu.split(" (").next());
 }
 
-/// A window the device does not hold (here a module wider than the recurrence kernels'
-/// 128 units) is declined once per step and its updates run one at a time, as without the
-/// recurrence on the GPU: the same results as the CPU's.
+/// A window the device does not hold (a module wider than the recurrence kernels' 128
+/// units; a model with bounded log sigmas, which the kernels do not implement) is declined
+/// once per step and its updates run one at a time, as without the recurrence on the GPU:
+/// the same results as the CPU's.
 #[test]
 fn online_inference_runs_declined_windows_one_update_at_a_time() {
     let Some(gpu) = gpu() else { return };
     let gpu = gpu.with_recurrence_on_gpu(true);
-    let mut config = config();
-    config.executive.d = 129;
+    let mut wide = config();
+    wide.executive.d = 129;
+    let mut bounded = config();
+    bounded.log_sigma_bound = Some(0.5);
+    for config in [wide, bounded] {
+        declined_windows_give_the_cpus_results(&gpu, config);
+    }
+}
+
+fn declined_windows_give_the_cpus_results(gpu: &WgpuBackend, config: ModelConfig) {
     let data = observations(&config, 1, 4);
     let model = Arc::new(Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 3).unwrap());
     let mut settings = InferenceSettings::from_config(&config, 2);
@@ -886,7 +895,7 @@ fn online_inference_runs_declined_windows_one_update_at_a_time() {
     let open = |backend: &dyn Backend<f32>| {
         OnlineInference::with_backend(model.clone(), settings.clone(), backend).unwrap()
     };
-    let (mut cpu, mut on_gpu) = (open(&CpuBackend), open(&gpu));
+    let (mut cpu, mut on_gpu) = (open(&CpuBackend), open(gpu));
     for t in 0..4 {
         let x = Modality::ALL.map(|modality| data.step(modality, 0, t));
         let a = cpu.step(x[0], x[1]).unwrap();

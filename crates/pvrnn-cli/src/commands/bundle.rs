@@ -311,6 +311,7 @@ pub fn run(a: Args) -> Result<()> {
         }),
         free_energy: trained.map(|t| t.0),
         weights: format!("{weights}; {states}"),
+        departures: model.config.departures_from_paper(),
         evaluations,
     };
     let title = if a.description.is_empty() {

@@ -68,6 +68,10 @@ pub struct Args {
     /// Validate every this many iterations (with --validate).
     #[arg(long, default_value_t = 5000, requires = "validate")]
     validate_every: u64,
+    /// Stop early once this many validations in a row have not beaten the best one (with
+    /// --validate; the best checkpoint is kept, the run's checkpoint stays resumable).
+    #[arg(long, requires = "validate")]
+    patience: Option<usize>,
     #[command(flatten)]
     backend: util::BackendArgs,
 }
@@ -101,14 +105,22 @@ pub fn validation_paths(out: &Path) -> (PathBuf, PathBuf) {
 struct Validation {
     dataset: pvrnn_dataset::Dataset,
     every: u64,
+    patience: Option<usize>,
     rows: Vec<validation::ValidationRow>,
     log: PathBuf,
     best: PathBuf,
 }
 
 impl Validation {
-    fn open(dir: &Path, every: u64, out: &Path, trainer: &Trainer<f32>) -> Result<Self> {
+    fn open(
+        dir: &Path,
+        every: u64,
+        patience: Option<usize>,
+        out: &Path,
+        trainer: &Trainer<f32>,
+    ) -> Result<Self> {
         anyhow::ensure!(every >= 1, "--validate-every must be at least 1");
+        anyhow::ensure!(patience != Some(0), "--patience must be at least 1");
         let dataset = pvrnn_dataset::Dataset::open(dir)
             .with_context(|| format!("--validate {}", dir.display()))?;
         // Now rather than at the first validation, hours into the run.
@@ -123,10 +135,16 @@ impl Validation {
         Ok(Self {
             dataset,
             every,
+            patience,
             rows,
             log,
             best,
         })
+    }
+
+    /// The best row, when --patience validations since have not beaten it.
+    fn stalled(&self) -> Option<&validation::ValidationRow> {
+        validation::stalled(&self.rows, self.patience?)
     }
 
     /// Whether the checkpoint's own iteration is due a validation that is not in the log
@@ -224,7 +242,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut validation = a
         .validate
         .as_deref()
-        .map(|dir| Validation::open(dir, a.validate_every, &a.out, &trainer))
+        .map(|dir| Validation::open(dir, a.validate_every, a.patience, &a.out, &trainer))
         .transpose()?;
     if let Some(dir) = &a.validate
         && std::fs::canonicalize(dir).ok() == std::fs::canonicalize(&a.inputs).ok()
@@ -251,6 +269,22 @@ pub fn run(a: Args) -> Result<()> {
         v.run(&mut trainer, None, &bar)?;
     }
     while trainer.iteration < total {
+        if let Some(best) = validation.as_ref().and_then(Validation::stalled) {
+            bar.abandon();
+            if last.is_some() {
+                log_file.flush()?;
+                io::save_checkpoint(&a.out, &mut trainer, last)?;
+            }
+            eprintln!(
+                "stopped early at iteration {}: {} validations since iteration {} (error {:.5}, kept as {}) did not beat it",
+                trainer.iteration,
+                a.patience.unwrap_or(0),
+                best.iteration,
+                best.recon_vision_top,
+                validation_paths(&a.out).1.display()
+            );
+            return Ok(());
+        }
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
         let resident = last.is_none().then(|| trainer.resident_tensors().len());

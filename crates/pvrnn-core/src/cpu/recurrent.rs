@@ -49,6 +49,8 @@ pub(crate) struct Prepared<T> {
     pub(crate) modules: [PreparedModule<T>; 4],
     /// W / z per module: the weight of a unit's KL in F.
     pub(crate) kl_scale: [T; 4],
+    /// B of `log_sigma_bound` (log sigma = B tanh(pre-activation / B)), if the model has one.
+    pub(crate) log_sigma_bound: Option<T>,
 }
 
 impl<T: Real> Prepared<T> {
@@ -105,7 +107,11 @@ impl<T: Real> Prepared<T> {
         });
         let kl_scale =
             ModuleId::ALL.map(|id| T::from_f64(config.kl_weight / config.module(id).z as f64));
-        Self { modules, kl_scale }
+        Self {
+            modules,
+            kl_scale,
+            log_sigma_bound: config.log_sigma_bound.map(T::from_f64),
+        }
     }
 }
 
@@ -129,6 +135,19 @@ fn empty_trace<T: Real>(p: &PreparedModule<T>, len: usize, h0: Option<&[T]>) -> 
     }
 }
 
+/// `out` = the log sigmas of `pre` (pre-activations): themselves, or B tanh(pre / B) under
+/// a bound B (a departure from the paper: sigma stays within [e^-B, e^B]).
+fn bounded_log_sigma<T: Real>(out: &mut Vec<T>, pre: &[T], bound: Option<T>) {
+    out.clear();
+    match bound {
+        None => out.extend_from_slice(pre),
+        Some(b) => {
+            let inv = T::ONE / b;
+            out.extend(pre.iter().map(|&x| b * (x * inv).tanh()));
+        }
+    }
+}
+
 /// Runs a window forward; returns every state.
 pub(crate) fn forward<T: Real>(
     p: &Prepared<T>,
@@ -148,6 +167,9 @@ fn forward_impl<T: Real>(p: &Prepared<T>, w: &Window<'_, T>, ablation: &Ablation
         std::array::from_fn(|m| empty_trace(&p.modules[m], len, w.h0.map(|h| h[m])));
     let mut prior = Vec::new();
     let mut kl_terms = Vec::new();
+    // The log sigmas the step uses: the pre-activations, or bounded (`log_sigma_bound`).
+    let mut ls_p_buf = Vec::new();
+    let mut ls_q_buf = Vec::new();
     let mut u = Vec::new();
     let half = T::from_f64(0.5);
     let two = T::from_f64(2.0);
@@ -185,9 +207,11 @@ fn forward_impl<T: Real>(p: &Prepared<T>, w: &Window<'_, T>, ablation: &Ablation
             let ablated = ablation.0[m];
             kl_terms.clear();
             kl_terms.resize(z, T::ZERO);
+            bounded_log_sigma(&mut ls_p_buf, &prior[pz..pz + z], p.log_sigma_bound);
+            bounded_log_sigma(&mut ls_q_buf, &a_sigma[..z], p.log_sigma_bound);
             // Every slice is exactly z long, so the loop has no bounds checks and vectorises.
-            let (pre, ls_p) = (&prior[..z], &prior[pz..pz + z]);
-            let (a_mu, a_sigma, eps) = (&a_mu[..z], &a_sigma[..z], &eps[..z]);
+            let (pre, ls_p) = (&prior[..z], &ls_p_buf[..z]);
+            let (a_mu, a_sigma, eps) = (&a_mu[..z], &ls_q_buf[..z], &eps[..z]);
             let pre_out = &mut tr.pre_mu_p[row.clone()];
             let mu_p_out = &mut tr.mu_p[row.clone()];
             let ls_p_out = &mut tr.log_sigma_p[row.clone()];
@@ -362,6 +386,8 @@ fn backward_impl<T: Real>(
             let zz = &mt.z[row.clone()];
             let (ga_mu, ga_sigma) = (&mut ga_mu[m][row.clone()], &mut ga_sigma[m][row.clone()]);
             let two = T::from_f64(2.0);
+            // d log sigma / d pre-activation: 1, or 1 - (log sigma / B)^2 under a bound.
+            let inv_bound = p.log_sigma_bound.map_or(T::ZERO, |b| T::ONE / b);
             for j in 0..z {
                 // sigma_q^2 / sigma_p^2, from the logs as in the forward pass.
                 let var_ratio = (two * (ls_q[j] - ls_p[j])).exp();
@@ -369,10 +395,11 @@ fn backward_impl<T: Real>(
                 let g_mu_q = gz[j] + c * diff * ivp[j];
                 // z - mu_q = sigma_q * eps is d z / d log sigma_q.
                 let g_ls_q = gz[j] * (zz[j] - mu_q[j]) + c * (var_ratio - T::ONE);
+                let (bq, bp) = (ls_q[j] * inv_bound, ls_p[j] * inv_bound);
                 ga_mu[j] = g_mu_q * (T::ONE - mu_q[j] * mu_q[j]);
-                ga_sigma[j] = g_ls_q;
+                ga_sigma[j] = g_ls_q * (T::ONE - bq * bq);
                 g_mu_p[j] = -c * diff * ivp[j] * (T::ONE - mu_p[j] * mu_p[j]);
-                g_ls_p[j] = c * (T::ONE - diff * diff * ivp[j] - var_ratio);
+                g_ls_p[j] = c * (T::ONE - diff * diff * ivp[j] - var_ratio) * (T::ONE - bp * bp);
             }
             gemv_padded(&mut gd_prev[m], &pm.w_prior, &gprior, pm.pd);
             if weight_grads {

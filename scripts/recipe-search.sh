@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# One training of the recipe search (docs/results/README.md, "Recipe search"): the paper's
+# configuration or a named departure from it, trained on caresim seed 0 and scored on the
+# held-out caresim seed 1 every VALIDATE_EVERY iterations; stops at ITERATIONS or when
+# PATIENCE validations in a row did not beat the best. Run it again to resume.
+#
+#   scripts/recipe-search.sh WORKDIR RECIPE [ITERATIONS]
+#
+# RECIPE: paper | data-x3 (3x the learning sequences: 9 per task and bed height, new
+# seeds; the paper's 18 among them) | any training/recipes/NAME.toml (w-half, w-double,
+# log-sigma-bound, ...). Writes WORKDIR/RECIPE/run.safetensors (resumable), its log,
+# run.validation.csv, run.best.safetensors (the validation-best checkpoint) and
+# run.iter<N>.safetensors every VALIDATE_EVERY iterations. Environment: THREADS (default
+# 1: two recipes train side by side on two cores), VALIDATE_EVERY (2000), PATIENCE (none),
+# BACKEND (cpu; `wgpu` on a GPU machine), PVRNN (the binary; default target/release/pvrnn).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+usage="usage: scripts/recipe-search.sh WORKDIR RECIPE [ITERATIONS]"
+work=${1:?$usage}
+recipe=${2:?$usage}
+iterations=${3:-40000}
+pvrnn=${PVRNN:-target/release/pvrnn}
+[ -x "$pvrnn" ] || cargo build --release -p pvrnn-cli
+every=${VALIDATE_EVERY:-2000}
+
+data=$work/data/caresim
+config=()
+case "$recipe" in
+paper) ;;
+data-x3) data=$work/data/caresim-x3 ;;
+*)
+    toml=training/recipes/$recipe.toml
+    [ -f "$toml" ] || { echo "no recipe $recipe (no $toml)" >&2; exit 2; }
+    config=(--config "$toml")
+    ;;
+esac
+
+simulate() { # folder, extra flags
+    [ -f "$1/dataset.json" ] || "$pvrnn" simulate --out "$1" --no-previews "${@:2}"
+}
+simulate "$work/data/caresim" --seed 0
+simulate "$work/data/caresim-seed1" --seed 1
+[ "$recipe" = data-x3 ] && simulate "$data" --seed 0 --learn-per-height 9
+
+run=$work/$recipe
+mkdir -p "$run"
+flags=(--inputs "$data" --out "$run/run.safetensors" --iterations "$iterations"
+    --checkpoint-every 500 --keep-every "$every"
+    --validate "$work/data/caresim-seed1" --validate-every "$every")
+[ -n "${PATIENCE:-}" ] && flags+=(--patience "$PATIENCE")
+[ -n "${BACKEND:-}" ] && flags+=(--backend "$BACKEND")
+if [ -f "$run/run.safetensors" ]; then
+    exec "$pvrnn" --threads "${THREADS:-1}" train --resume "${flags[@]}"
+fi
+"$pvrnn" init --dataset "$data" --seed 0 "${config[@]}" --out "$run/init.safetensors"
+exec "$pvrnn" --threads "${THREADS:-1}" train --model "$run/init.safetensors" "${flags[@]}"

@@ -100,7 +100,7 @@ fn items(source: &str) -> BTreeMap<String, Item> {
 /// A default value as TOML writes it.
 fn show(v: &Value) -> String {
     match v {
-        Value::Null => "(none: set from the data)".into(),
+        Value::Null => "(none)".into(),
         Value::String(s) => format!("`\"{s}\"`"),
         other => format!("`{other}`"),
     }

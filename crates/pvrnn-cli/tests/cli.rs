@@ -892,6 +892,50 @@ fn config_prints_toml_that_init_accepts() {
     assert_eq!(from_model, text);
 }
 
+/// Every named recipe in `training/recipes/` is a configuration `init` accepts, and departs
+/// from the paper in exactly what its README row says it does.
+#[test]
+fn every_recipe_is_a_valid_named_departure() {
+    let x = Scratch::new();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../training/recipes");
+    let readme = std::fs::read_to_string(dir.join("README.md")).unwrap();
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let out = x.s(&format!("{name}.safetensors"));
+        let path = path.display().to_string();
+        ok(&[
+            "init",
+            "--config",
+            &path,
+            "--sequences",
+            "1",
+            "--steps",
+            "3",
+            "--out",
+            &out,
+        ]);
+        let departures = io::load_model(Path::new(&out))
+            .unwrap()
+            .config
+            .departures_from_paper();
+        assert!(
+            !departures.is_empty(),
+            "{name} is the paper's configuration"
+        );
+        assert!(
+            readme.contains(&format!("| `{name}` |")),
+            "{name} is not in the README"
+        );
+        names.push(name);
+    }
+    assert!(names.len() >= 5, "{names:?}");
+}
+
 #[test]
 fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     let x = Scratch::new();
@@ -1193,6 +1237,37 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     for baseline in ["upsample", "upsample_detail", "nearest", "previous", "mean"] {
         assert!(sources.contains(&baseline), "{baseline}: {sources:?}");
     }
+    // The recipe table from a run's validation log and time, and an evaluation.
+    let recipe = x.path("recipes/early");
+    std::fs::create_dir_all(recipe.join("val-all")).unwrap();
+    std::fs::copy(
+        x.path("early.validation.csv"),
+        recipe.join("run.validation.csv"),
+    )
+    .unwrap();
+    std::fs::copy(x.path("early.log.csv"), recipe.join("run.log.csv")).unwrap();
+    std::fs::copy(
+        x.path("eval/summary.json"),
+        recipe.join("val-all/summary.json"),
+    )
+    .unwrap();
+    let md = ok(&["report", "recipes", &format!("early={}", recipe.display())]);
+    let best = pvrnn_eval::validation::best(
+        &pvrnn_eval::validation::read_log(&recipe.join("run.validation.csv")).unwrap(),
+    )
+    .unwrap()
+    .clone();
+    assert!(
+        md.contains(&format!("| early | {} (", best.iteration))
+            && md.contains(&format!(
+                "**{}",
+                pvrnn_eval::report::sig(best.recon_vision_top)
+            ))
+            && md.contains(" h |"),
+        "{md}"
+    );
+    let e = fails(&["report", "recipes", &format!("none={}", x.s("recipes"))]);
+    assert!(e.contains("no run.validation.csv"), "{e}");
     let table = x.s("progress.md");
     ok(&["report", "table", &eval, "--out", &table]);
     let md = std::fs::read_to_string(&table).unwrap();

@@ -13,6 +13,7 @@
 //! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
 //!   images), and training curves from a training log.
 //! - [`progress`]: error against training iterations, from several evaluations.
+//! - [`recipes`]: the recipe search's table, from each recipe's validation files.
 //! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
 //! - [`validation`]: early stopping, a training run scored on held-out sequences as it goes.
 
@@ -22,6 +23,7 @@ pub mod groups;
 pub mod metrics;
 pub mod plots;
 pub mod progress;
+pub mod recipes;
 pub mod report;
 pub mod training_log;
 pub mod validation;

@@ -44,13 +44,13 @@ fn field<'a>(v: &'a Value, path: &[&str]) -> Option<&'a Value> {
 }
 
 /// A parsed `summary.json` and a way to name it in errors.
-struct Summary<'a> {
+pub(crate) struct Summary<'a> {
     v: Value,
     what: &'a str,
 }
 
 impl<'a> Summary<'a> {
-    fn parse(text: &str, what: &'a str) -> Result<Self> {
+    pub(crate) fn parse(text: &str, what: &'a str) -> Result<Self> {
         let s = Summary {
             v: Value::Null,
             what,
@@ -62,7 +62,7 @@ impl<'a> Summary<'a> {
         Ok(Summary { v, what })
     }
 
-    fn bad(&self, detail: &str) -> Error {
+    pub(crate) fn bad(&self, detail: &str) -> Error {
         Error::File {
             path: self.what.to_string(),
             detail: detail.to_string(),
@@ -70,7 +70,7 @@ impl<'a> Summary<'a> {
     }
 
     /// The mean (and SE) of one figure over all sequences.
-    fn figure(
+    pub(crate) fn figure(
         &self,
         target: &str,
         group: &str,
@@ -94,8 +94,20 @@ impl<'a> Summary<'a> {
         })
     }
 
+    /// The highest-resolution vision group (both cameras), e.g. `v64`.
+    pub(crate) fn top_group(&self) -> Option<String> {
+        self.v
+            .get("groups")?
+            .as_array()?
+            .iter()
+            .filter_map(|g| g.get("name")?.as_str())
+            .filter_map(|n| Some((n.strip_prefix('v')?.parse::<u32>().ok()?, n)))
+            .max()
+            .map(|(_, n)| n.to_string())
+    }
+
     /// E.g. "vision 16, proprioception on".
-    fn condition(&self) -> Result<String> {
+    pub(crate) fn condition(&self) -> Result<String> {
         let c = self
             .v
             .get("condition")

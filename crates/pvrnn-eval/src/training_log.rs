@@ -126,6 +126,18 @@ pub fn seconds(path: &Path) -> Option<f64> {
         .and_then(|l| l.rsplit(',').next()?.parse().ok())
 }
 
+/// The wall time (s) a run had taken when it reached `iteration` (the row of iteration
+/// `iteration - 1`, the last one before that checkpoint), if the log has it.
+pub fn seconds_at(path: &Path, iteration: u64) -> Option<f64> {
+    let text = std::fs::read_to_string(path).ok()?;
+    text.lines().skip(1).find_map(|line| {
+        let it: u64 = line.split(',').next()?.parse().ok()?;
+        (it + 1 == iteration)
+            .then(|| line.rsplit(',').next()?.parse().ok())
+            .flatten()
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -167,6 +179,9 @@ mod tests {
         assert_eq!(totals(&path, 10), vec![2.5, 2.5, 2.5]);
         assert_eq!(totals(&path, 1), vec![2.5]);
         assert!(seconds(&path).unwrap() >= 20.0);
+        // Iteration 2 was reached after row 1 (20 s); nothing logged reaches 5.
+        assert_eq!(seconds_at(&path, 2), Some(20.0));
+        assert_eq!(seconds_at(&path, 5), None);
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text.starts_with(HEADER));
         assert_eq!(text.lines().count(), 4);

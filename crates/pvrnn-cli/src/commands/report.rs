@@ -42,6 +42,21 @@ pub enum Command {
         )]
         title: String,
     },
+    /// The recipe search's table: per recipe, the checkpoint chosen on validation data and
+    /// its validation errors (16x16 + proprioception; everything observed), diverged
+    /// trials, training time and machine, from the files in each recipe's folder
+    /// (run.validation.csv, run.log.csv, val-16/ and val-all/ evaluations, machine.txt).
+    #[command(
+        after_help = "Example:\n  pvrnn report recipes paper=docs/results/recipes/paper w-double=docs/results/recipes/w-double --out docs/results/recipes.md"
+    )]
+    Recipes {
+        /// Recipes as NAME=FOLDER.
+        #[arg(required = true)]
+        recipes: Vec<String>,
+        /// Write the table here instead of printing it.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Error against training iterations: one Markdown table per condition from the
     /// `summary.json` of several `pvrnn evaluate` runs on checkpoints of one training run.
     #[command(
@@ -70,15 +85,24 @@ pub fn run(command: Command) -> Result<()> {
         Command::Validation { runs, out, title } => {
             let mut read = Vec::new();
             for run in &runs {
-                let (name, file) = run.split_once('=').with_context(|| {
-                    format!("`{run}`: name each run as NAME=FILE (e.g. paper=run.validation.csv)")
-                })?;
+                let (name, file) = named(run)?;
                 let rows = validation::read_log(std::path::Path::new(file))?;
                 anyhow::ensure!(!rows.is_empty(), "{file}: no validations in it");
                 read.push((name.to_string(), rows));
             }
             plots::validation_curves(&read, &title, &out)?;
             eprintln!("wrote {}", out.display());
+        }
+        Command::Recipes { recipes, out } => {
+            let mut rows = Vec::new();
+            for recipe in &recipes {
+                let (name, dir) = named(recipe)?;
+                rows.push(pvrnn_eval::recipes::read_recipe(
+                    name,
+                    std::path::Path::new(dir),
+                )?);
+            }
+            write_or_print(out, &pvrnn_eval::recipes::markdown(&rows))?;
         }
         Command::Table { evaluations, out } => {
             let mut read = Vec::new();
@@ -92,15 +116,30 @@ pub fn run(command: Command) -> Result<()> {
                     .with_context(|| format!("{}: cannot read", file.display()))?;
                 read.push(progress::read_summary(&text, &file.display().to_string())?);
             }
-            let md = progress::markdown(&read);
-            match out {
-                Some(path) => {
-                    pvrnn_core::io::write_atomic(&path, md.as_bytes())?;
-                    eprintln!("wrote {}", path.display());
-                }
-                None => print!("{md}"),
-            }
+            write_or_print(out, &progress::markdown(&read))?;
         }
+    }
+    Ok(())
+}
+
+/// `NAME=PATH` -> (NAME, PATH).
+fn named(arg: &str) -> Result<(&str, &str)> {
+    arg.split_once('=')
+        .filter(|(name, path)| !name.is_empty() && !path.is_empty())
+        .with_context(|| {
+            format!(
+                "`{arg}`: name each run as NAME=FILE or NAME=FOLDER (e.g. paper=run.validation.csv)"
+            )
+        })
+}
+
+fn write_or_print(out: Option<PathBuf>, md: &str) -> Result<()> {
+    match out {
+        Some(path) => {
+            pvrnn_core::io::write_atomic(&path, md.as_bytes())?;
+            eprintln!("wrote {}", path.display());
+        }
+        None => print!("{md}"),
     }
     Ok(())
 }

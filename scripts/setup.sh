@@ -52,6 +52,16 @@ if [ "$mode" = serve ]; then
     exit 0
 fi
 
+if ! command -v qemu-aarch64 >/dev/null 2>&1 || ! command -v aarch64-linux-gnu-gcc >/dev/null 2>&1; then
+    step "installing QEMU's user-mode aarch64 emulator and an aarch64 linker (caresim's bytes are checked on aarch64)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+        qemu-user gcc-aarch64-linux-gnu libc6-dev-arm64-cross
+fi
+if ! rustup target list --installed | grep -q '^aarch64-unknown-linux-gnu$'; then
+    step "adding the aarch64-unknown-linux-gnu target"
+    rustup target add aarch64-unknown-linux-gnu
+fi
+
 if ! command -v node >/dev/null 2>&1; then
     step "installing Node.js (runs the wasm tests)"
     apt-get update -qq && apt-get install -y -qq nodejs

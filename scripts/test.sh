@@ -36,6 +36,12 @@ PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
 step "an experiment's Slurm job arrays on a real one-node Slurm (munge, slurmctld, slurmd)"
 timeout 900 tests/slurm/run.sh target/debug/pvrnn
 
+step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
+CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
+CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \
+    cargo test --release --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
+    the_default_output_is_the_one_the_shipped_model_learned
+
 step "core tests as WebAssembly under Node"
 cargo test -p pvrnn-core --target wasm32-unknown-unknown
 

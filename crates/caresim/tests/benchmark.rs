@@ -126,7 +126,7 @@ fn shapes_ranges_and_labels() {
         let mean = first.iter().map(|&v| v as f64).sum::<f64>() / first.len() as f64;
         let var = first
             .iter()
-            .map(|&v| (v as f64 - mean).powi(2))
+            .map(|&v| (v as f64 - mean) * (v as f64 - mean))
             .sum::<f64>()
             / first.len() as f64;
         assert!(var.sqrt() > 20.0, "image std {}", var.sqrt());

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Evaluates one training checkpoint of the campaign (docs/results/README.md) on the test
+# Evaluates one training checkpoint of the campaign (docs/results/campaign-100k.md) on the test
 # split under the three standard conditions, keeps each report's summary in
 # docs/results/evals/iter<N>/<condition>/ and rebuilds the error-vs-iterations table
 # docs/results/progress.md from every evaluation kept there.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Scores checkpoints of one training run on held-out validation sequences, to choose the
-# one to ship without looking at the test split (docs/results/README.md, "Choosing the
+# one to ship without looking at the test split (docs/results/campaign-100k.md, "Choosing the
 # shipped checkpoint"). Validation data: another caresim seed, whose every sequence (both
 # splits) is new to the network:
 #

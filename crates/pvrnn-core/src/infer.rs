@@ -218,7 +218,7 @@ pub const UPDATES_PER_REGRESSION: usize = 64;
 /// up with an error. `lr / 2^30` is in effect no update: the step then keeps the prior it
 /// started from. Restarts are cheap (a diverging rate fails within a few updates); a
 /// trained network needed 24 on a test step whose prior sigma had grown to 6,000
-/// (docs/results/README.md, 80,000 iterations).
+/// (docs/results/campaign-100k.md, 80,000 iterations).
 pub const MAX_RATE_HALVINGS: u32 = 30;
 
 #[derive(Debug)]

@@ -12,6 +12,7 @@
 //! - [`report`]: aggregation (per trial, then mean ± SE) and the JSON, Markdown and CSV files.
 //! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
 //!   images), and training curves from a training log.
+//! - [`machine`]: where a result was computed, in words.
 //! - [`progress`]: error against training iterations, from several evaluations.
 //! - [`recipes`]: the recipe search's table, from each recipe's validation files.
 //! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
@@ -20,6 +21,7 @@
 pub mod baselines;
 pub mod evaluate;
 pub mod groups;
+pub mod machine;
 pub mod metrics;
 pub mod plots;
 pub mod progress;

@@ -10,7 +10,7 @@
 //!   sequences with 16x16 + proprioception observed (replaces the log's figures: a recipe
 //!   that only changes inference, e.g. its learning rate, has no training of its own);
 //! - `val-all/summary.json`: the same with everything observed;
-//! - `machine.txt`: where it ran, one line.
+//! - `machine.txt`: where it ran, one line (otherwise the machines the validation log names).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -104,7 +104,10 @@ pub fn read_recipe(name: &str, dir: &Path) -> Result<RecipeRow> {
         }),
         all: None,
         seconds: None,
-        machine: read(&dir.join("machine.txt"))?.map(|m| m.trim().to_string()),
+        machine: match read(&dir.join("machine.txt"))? {
+            Some(m) => Some(m.trim().to_string()),
+            None => machines(&rows, best.map(|b| b.iteration)),
+        },
     };
     if let Some((scored, iteration)) = scored_summary(&dir.join("val-16/summary.json"))? {
         row.vision16 = Some(scored);
@@ -125,6 +128,23 @@ pub fn read_recipe(name: &str, dir: &Path) -> Result<RecipeRow> {
         });
     }
     Ok(row)
+}
+
+/// The machines the validation log names up to the chosen iteration, in order of first
+/// appearance (a run resumed elsewhere names several).
+fn machines(rows: &[ValidationRow], upto: Option<u64>) -> Option<String> {
+    let mut seen: Vec<&str> = Vec::new();
+    for r in rows
+        .iter()
+        .filter(|r| upto.is_none_or(|u| r.iteration <= u))
+    {
+        if let Some(m) = r.machine.as_deref()
+            && !seen.contains(&m)
+        {
+            seen.push(m);
+        }
+    }
+    (!seen.is_empty()).then(|| seen.join("; "))
 }
 
 fn thousands(n: u64) -> String {
@@ -201,6 +221,7 @@ mod tests {
             upsample: Some(0.0094),
             upsample_detail: None,
             mean: None,
+            machine: Some("AMD EPYC (AVX2), 2 cores, 1 thread".into()),
         }
     }
 
@@ -223,6 +244,12 @@ mod tests {
             let _ = write!(log, "\n{it},1,1,1,1,1,1,1,{}", (it + 1) as f64 * 0.5);
         }
         std::fs::write(run.join("run.log.csv"), log).unwrap();
+        // Where it ran comes from the validation log, unless machine.txt says otherwise.
+        let row = read_recipe("paper", &run).unwrap();
+        assert_eq!(
+            row.machine.as_deref(),
+            Some("AMD EPYC (AVX2), 2 cores, 1 thread")
+        );
         std::fs::write(run.join("machine.txt"), "AMD EPYC, 1 thread\n").unwrap();
         let row = read_recipe("paper", &run).unwrap();
         assert_eq!(row.iteration, Some(4000));

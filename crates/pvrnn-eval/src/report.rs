@@ -45,6 +45,8 @@ pub struct ReportMeta {
     pub threads: usize,
     /// Where the arithmetic ran: `cpu`, or `wgpu on` and the adapter (`--backend`).
     pub backend: String,
+    /// The machine (`machine::describe`), e.g. `AMD EPYC (AVX2), 2 cores, 2 threads`.
+    pub machine: String,
 }
 
 /// One trial's (or one deterministic baseline's) error on one sequence.
@@ -525,8 +527,8 @@ fn markdown(
     );
     let _ = writeln!(
         md,
-        "- **Compute**: {:.0} s of online inference on {} worker threads, backend {}.",
-        meta.seconds, meta.threads, meta.backend
+        "- **Compute**: {:.0} s of online inference on {} worker threads, backend {}; {}.",
+        meta.seconds, meta.threads, meta.backend, meta.machine
     );
     let _ = writeln!(
         md,

@@ -46,6 +46,10 @@ pub struct ValidationRow {
     pub upsample_detail: Option<f64>,
     #[serde(default)]
     pub mean: Option<f64>,
+    /// Where it ran (`machine::describe`): the training between two validations ran there
+    /// too. Absent in older logs.
+    #[serde(default)]
+    pub machine: Option<String>,
 }
 
 impl ValidationRow {
@@ -120,6 +124,7 @@ pub fn validate(
         upsample: figure(Source::Upsample, &top),
         upsample_detail: figure(Source::UpsampleDetail, &top),
         mean: figure(Source::Mean, &top),
+        machine: Some(crate::machine::describe(rayon::current_num_threads())),
     })
 }
 
@@ -168,6 +173,7 @@ mod tests {
             upsample: Some(0.009),
             upsample_detail: None,
             mean: Some(0.015),
+            machine: Some("AMD EPYC (AVX2), 2 cores, 1 thread".into()),
         }
     }
 

@@ -122,6 +122,7 @@ fn meta(iteration: u64) -> ReportMeta {
         seconds: 1.0,
         threads: 1,
         backend: "cpu".into(),
+        machine: "a test machine".into(),
     }
 }
 
@@ -437,6 +438,7 @@ fn reports_plots_and_the_progress_table_are_written() {
         seconds: 1.5,
         threads: 2,
         backend: "cpu".into(),
+        machine: "a test machine".into(),
     };
     let md = report_md(&eval, &meta, dir.path(), true);
     assert!(

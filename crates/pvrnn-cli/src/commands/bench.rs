@@ -53,6 +53,8 @@ struct Report {
     /// `cpu`, or `wgpu on` and the adapter: name (driver, API).
     backend: String,
     threads: usize,
+    /// The CPU, its cores and the threads used (`pvrnn_eval::machine::describe`).
+    machine: String,
     sequences: usize,
     steps: usize,
     /// Mean seconds per full-batch training iteration.
@@ -243,6 +245,7 @@ pub fn run(a: Args) -> Result<()> {
     let report = Report {
         backend: backend_name,
         threads: rayon::current_num_threads(),
+        machine: pvrnn_eval::machine::describe(rayon::current_num_threads()),
         sequences: s,
         steps: t,
         train_iter_s: mean,
@@ -259,6 +262,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         println!("backend                          {}", report.backend);
         println!("threads                          {}", report.threads);
+        println!("machine                          {}", report.machine);
         if let (Some(mean), Some(min)) = (mean, min) {
             println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
             let terms: Vec<String> = report

@@ -93,6 +93,7 @@ pub fn run(a: Args) -> Result<()> {
         seconds: started.elapsed().as_secs_f64(),
         threads: rayon::current_num_threads(),
         backend: backend_name,
+        machine: pvrnn_eval::machine::describe(rayon::current_num_threads()),
     };
     pvrnn_eval::write_report(&evaluation, &meta, &a.out)?;
     plots::write_plots(&evaluation, &a.out.join("plots"))?;

@@ -11,7 +11,7 @@ use pvrnn_dataset::{Dataset, Selection};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::baselines::{NearestFrames, mean_detail, upsampled_with_detail};
+use crate::baselines::{NearestFrames, learning_mean, mean_detail, upsampled_with_detail};
 use crate::groups::{Group, groups};
 use crate::metrics::{StepErrors, change_mask, score, upsampled_vision};
 use crate::{Error, Result};
@@ -195,8 +195,6 @@ pub struct Evaluation {
     pub resolutions: Vec<usize>,
     pub cameras: Vec<String>,
 }
-
-pub use crate::baselines::learning_mean;
 
 /// Per step, the vision dimensions that changed from the previous step (none at t = 0).
 type ChangeMasks = Vec<Option<Vec<bool>>>;

@@ -220,7 +220,7 @@ fn errors_match_the_core_and_baselines_match_their_definitions() {
     assert!((e.changing[4].mse().unwrap() - e.all[4].sum / 6.0).abs() < 1e-9);
 
     // The mean baseline: the mean learning input.
-    let mean = pvrnn_eval::evaluate::learning_mean(&ds, &model).unwrap();
+    let mean = pvrnn_eval::baselines::learning_mean(&ds, &model).unwrap();
     let mean_recon = seq
         .series
         .iter()

@@ -603,7 +603,7 @@ fn infer(
     let mut occlusion = match seq.without_robot().filter(|_| *maps) {
         Some(hidden) => {
             let truth = dataset.observations(&[&hidden], &config)?;
-            let mean = pvrnn_eval::evaluate::learning_mean(&dataset, &model)?;
+            let mean = pvrnn_eval::baselines::learning_mean(&dataset, &model)?;
             Some((truth, OcclusionScorer::new(mean[0][top.0..top.1].to_vec())))
         }
         None => None,

@@ -527,8 +527,12 @@ fn markdown(
     );
     let _ = writeln!(
         md,
-        "- **Compute**: {:.0} s of online inference on {} worker threads, backend {}; {}.",
-        meta.seconds, meta.threads, meta.backend, meta.machine
+        "- **Compute**: {:.0} s of online inference on {} worker thread{}, backend {}; {}.",
+        meta.seconds,
+        meta.threads,
+        if meta.threads == 1 { "" } else { "s" },
+        meta.backend,
+        meta.machine
     );
     let _ = writeln!(
         md,

@@ -83,6 +83,8 @@ struct Line {
     label: String,
     colour: RGBColor,
     dashed: bool,
+    /// A dot at every point: sparse measurements (one validation is otherwise invisible).
+    markers: bool,
     points: Vec<(f64, f64)>,
 }
 
@@ -125,6 +127,13 @@ fn line_chart(
         .map_err(plot_err)?;
     for line in lines {
         let colour = line.colour;
+        if line.markers {
+            let dots = line
+                .points
+                .iter()
+                .map(|&(x, y)| Circle::new((x, y.max(lo)), 4, colour.filled()));
+            chart.draw_series(dots).map_err(plot_err)?;
+        }
         let points = line.points.iter().map(|&(x, y)| (x, y.max(lo)));
         let series = if line.dashed {
             chart.draw_series(DashedLineSeries::new(points, 6, 4, colour.stroke_width(2)))
@@ -220,6 +229,7 @@ pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
             label: label.to_string(),
             colour,
             dashed,
+            markers: false,
             points: step_curve(seq, source, target, g),
         };
         let top_observed = eval.groups[top_g].observed;
@@ -505,6 +515,7 @@ pub fn training_curves(log: &str, title: &str, path: &Path) -> Result<()> {
             label: name.to_string(),
             colour: *colour,
             dashed: name.starts_with("complexity"),
+            markers: false,
             points: binned.iter().map(|(it, v)| (*it, v[k])).collect(),
         })
         .collect();
@@ -561,6 +572,7 @@ pub fn validation_curves(
                 },
                 colour: RUNS[k % RUNS.len()],
                 dashed: false,
+                markers: true,
                 // A validation whose every trial diverged has no error to draw.
                 points: rows
                     .iter()
@@ -587,6 +599,7 @@ pub fn validation_curves(
                     label: format!("{name} ({})", sig(v)),
                     colour,
                     dashed: true,
+                    markers: false,
                     points: vec![(0.0, v), (x_max, v)],
                 });
             }

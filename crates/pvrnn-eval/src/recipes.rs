@@ -46,6 +46,8 @@ pub struct RecipeRow {
     /// Training wall time to the chosen checkpoint, seconds.
     pub seconds: Option<f64>,
     pub machine: Option<String>,
+    /// Every validation of the run: (iteration, error, diverged trials).
+    pub curve: Vec<(u64, f64, usize)>,
 }
 
 fn read(path: &Path) -> Result<Option<String>> {
@@ -104,6 +106,10 @@ pub fn read_recipe(name: &str, dir: &Path) -> Result<RecipeRow> {
         }),
         all: None,
         seconds: None,
+        curve: rows
+            .iter()
+            .map(|r| (r.iteration, r.recon_vision_top, r.failed_trials))
+            .collect(),
         machine: match read(&dir.join("machine.txt"))? {
             Some(m) => Some(m.trim().to_string()),
             None => machines(&rows, best.map(|b| b.iteration)),
@@ -159,8 +165,43 @@ fn thousands(n: u64) -> String {
     out
 }
 
-/// The table: a row per recipe, the best 16x16 + proprioception error in bold.
+/// The table: a row per recipe, the best 16x16 + proprioception error in bold; then, where
+/// runs were validated, their errors at equal iterations (a recipe that is ahead only
+/// because it trained longer shows here).
 pub fn markdown(rows: &[RecipeRow]) -> String {
+    let mut md = chosen_table(rows);
+    let mut iterations: Vec<u64> = rows
+        .iter()
+        .flat_map(|r| r.curve.iter().map(|c| c.0))
+        .collect();
+    iterations.sort_unstable();
+    iterations.dedup();
+    let curves: Vec<&RecipeRow> = rows.iter().filter(|r| !r.curve.is_empty()).collect();
+    if curves.is_empty() {
+        return md;
+    }
+    md.push_str("\nThe 64x64 error from 16x16 + proprioception at every validated iteration:\n\n| iteration |");
+    for r in &curves {
+        let _ = write!(md, " {} |", r.name);
+    }
+    md.push_str("\n|---|");
+    md.push_str(&"---|".repeat(curves.len()));
+    for it in iterations {
+        let _ = write!(md, "\n| {} |", thousands(it));
+        for r in &curves {
+            let cell = match r.curve.iter().find(|c| c.0 == it) {
+                Some((_, e, 0)) => sig(*e),
+                Some((_, e, failed)) => format!("{} ({failed} diverged)", sig(*e)),
+                None => String::new(),
+            };
+            let _ = write!(md, " {cell} |");
+        }
+    }
+    md.push('\n');
+    md
+}
+
+fn chosen_table(rows: &[RecipeRow]) -> String {
     let best = rows
         .iter()
         .filter_map(|r| r.vision16.as_ref())
@@ -260,6 +301,10 @@ mod tests {
         let md = markdown(&[row]);
         assert!(
             md.contains("| paper | 4,000 (6,000) | **0.006300 (x0.67)** | — | 0 of 24 / — | 0.6 h | AMD EPYC, 1 thread |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| iteration | paper |\n|---|---|\n| 2,000 | 0.006800 |\n| 4,000 | 0.006300 |\n| 6,000 | 0.006500 |\n"),
             "{md}"
         );
         let e = read_recipe("empty", dir.path()).unwrap_err().to_string();

@@ -146,7 +146,9 @@ fn sig4(v: f64) -> String {
     format!("{v:.digits$}")
 }
 
-fn thousands(n: u64) -> String {
+/// An integer with thousands separators (`12000` -> `12,000`), as the cards and tables print
+/// iterations.
+pub fn thousands(n: u64) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {

@@ -15,6 +15,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use pvrnn_dataset::card::thousands;
+
 use crate::progress::Summary;
 use crate::report::sig;
 use crate::training_log;
@@ -153,33 +155,21 @@ fn machines(rows: &[ValidationRow], upto: Option<u64>) -> Option<String> {
     (!seen.is_empty()).then(|| seen.join("; "))
 }
 
-fn thousands(n: u64) -> String {
-    let s = n.to_string();
-    let mut out = String::new();
-    for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i).is_multiple_of(3) {
-            out.push(',');
-        }
-        out.push(c);
-    }
-    out
-}
-
 /// The table: a row per recipe, the best 16x16 + proprioception error in bold; then, where
 /// runs were validated, their errors at equal iterations (a recipe that is ahead only
 /// because it trained longer shows here).
 pub fn markdown(rows: &[RecipeRow]) -> String {
     let mut md = chosen_table(rows);
-    let mut iterations: Vec<u64> = rows
+    let curves: Vec<&RecipeRow> = rows.iter().filter(|r| !r.curve.is_empty()).collect();
+    if curves.is_empty() {
+        return md;
+    }
+    let mut iterations: Vec<u64> = curves
         .iter()
         .flat_map(|r| r.curve.iter().map(|c| c.0))
         .collect();
     iterations.sort_unstable();
     iterations.dedup();
-    let curves: Vec<&RecipeRow> = rows.iter().filter(|r| !r.curve.is_empty()).collect();
-    if curves.is_empty() {
-        return md;
-    }
     md.push_str("\nThe 64x64 error from 16x16 + proprioception at every validated iteration:\n\n| iteration |");
     for r in &curves {
         let _ = write!(md, " {} |", r.name);

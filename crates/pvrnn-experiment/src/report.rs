@@ -16,7 +16,7 @@ use serde_json::{Value, json};
 
 use crate::occlusion::OcclusionScores;
 use crate::plan::{Experiment, JobKind, Plan, VISION_CONDITIONS};
-use crate::run::{InferResult, TrainResult, read_infer_result, read_train_result};
+use crate::run::{InferResult, Stop, TrainResult, read_infer_result, read_train_result};
 use crate::stats::{self, Blocked2, Contrast, Effect, mean_se};
 
 /// Steps on either side of a subtask boundary that count as "near" it.
@@ -215,26 +215,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
             listed.join("; ")
         );
     }
-    md.push_str("## Learning curves\n\nHow flat each network's learning curve ended: the relative change of the mean free energy from the second-to-last to the last tenth of its iterations (negative = still falling).\n\n| network | training | iterations | final F | last-tenth change | time |\n|---|---|---|---|---|---|\n");
-    for t in &results.trains {
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} |",
-            t.network,
-            t.condition,
-            t.iterations,
-            t.final_free_energy.map_or("–".into(), sig),
-            t.last_tenth_change
-                .map_or("–".into(), |c| format!("{:+.2}%", c * 100.0)),
-            match &t.reused {
-                Some(p) => format!("reused `{p}`"),
-                None => match &t.backend {
-                    Some(b) => format!("{:.0} s ({b})", t.seconds),
-                    None => format!("{:.0} s", t.seconds),
-                },
-            }
-        );
-    }
+    learning_curves(&plan, &results.trains, &mut md);
     md.push('\n');
     let mut summary = json!({
         "format": "pvrnn-experiment-report/1",
@@ -283,7 +264,12 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
     )?;
     pvrnn_core::io::write_atomic(
         &out_dir.join("trainings.csv"),
-        trainings_csv(scale, &results.trains).as_bytes(),
+        trainings_csv(
+            scale,
+            &results.trains,
+            plan.design.flat_change.unwrap_or(FLAT_CHANGE),
+        )
+        .as_bytes(),
     )?;
     md.push_str("## Data
 
@@ -295,6 +281,71 @@ Every inference run (one row per network, test sequence, condition and trial; er
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(out_dir)
+}
+
+/// The convergence criterion applied to every network: the relative change of the mean
+/// free energy over the last tenth of its iterations must be under 1% (or, under a design
+/// with a validation rule, the rule stopped it).
+pub const FLAT_CHANGE: f64 = 0.01;
+
+/// The learning-curves table: per network the iterations reached, the last-tenth change,
+/// why it stopped, the iteration of the network used, and whether it converged.
+fn learning_curves(plan: &Plan, trains: &[TrainResult], md: &mut String) {
+    let flat = plan.design.flat_change.unwrap_or(FLAT_CHANGE);
+    let rule = match plan.design.validate_every {
+        Some(every) => format!(
+            "trained until {} validations in a row (every {every} iterations, on `{}`) did not beat the best one, or the free energy changed by less than {:.0}% over the last tenth of the iterations; at most {} iterations",
+            plan.design.patience.unwrap_or(0),
+            plan.validation_dataset.as_deref().map_or("?".into(), |p| p.display().to_string()),
+            flat * 100.0,
+            plan.design.train_iterations
+        ),
+        None => format!(
+            "a fixed {} iterations; a network counts as converged when its free energy changed by less than {:.0}% over the last tenth",
+            plan.design.train_iterations,
+            flat * 100.0
+        ),
+    };
+    let _ = writeln!(
+        md,
+        "## Learning curves\n\nConvergence: {rule}. *Last-tenth change*: the relative change of the mean free energy from the second-to-last to the last tenth of the iterations (negative = still falling).\n\n| network | training | iterations | network used | final F | last-tenth change | stopped | converged | time |\n|---|---|---|---|---|---|---|---|---|"
+    );
+    for t in trains {
+        let stopped = match t.stop {
+            Some(Stop::ValidationBest) => "validation best".to_string(),
+            Some(Stop::Flat) => "flat".to_string(),
+            Some(Stop::Cap) => "cap".to_string(),
+            None => "fixed iterations".to_string(),
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {stopped} | {} | {} |",
+            t.network,
+            t.condition,
+            t.iterations,
+            t.network_iteration.unwrap_or(t.iterations),
+            t.final_free_energy.map_or("–".into(), sig),
+            t.last_tenth_change
+                .map_or("–".into(), |c| format!("{:+.2}%", c * 100.0)),
+            if t.converged(flat) { "yes" } else { "**no**" },
+            match &t.reused {
+                Some(p) => format!("reused `{p}`"),
+                None => match &t.backend {
+                    Some(b) => format!("{:.0} s ({b})", t.seconds),
+                    None => format!("{:.0} s", t.seconds),
+                },
+            }
+        );
+    }
+    let unconverged = trains.iter().filter(|t| !t.converged(flat)).count();
+    if unconverged > 0 {
+        let _ = writeln!(
+            md,
+            "\n**Not converged**: {unconverged} of {} networks; their results stand at the iterations reached.",
+            trains.len()
+        );
+    }
+    md.push('\n');
 }
 
 /// A CSV field: quoted when it holds a comma, a quote or a line break.
@@ -381,9 +432,9 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
 }
 
 /// One row per training.
-fn trainings_csv(scale: &str, trains: &[TrainResult]) -> String {
+fn trainings_csv(scale: &str, trains: &[TrainResult], flat: f64) -> String {
     let mut out = String::from(
-        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend\n",
+        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend,stop,network_iteration,converged\n",
     );
     for t in trains {
         let row = [
@@ -398,6 +449,14 @@ fn trainings_csv(scale: &str, trains: &[TrainResult]) -> String {
             csv_number(t.last_tenth_change),
             csv_field(t.reused.as_deref().unwrap_or("")),
             csv_field(t.backend.as_deref().unwrap_or("")),
+            t.stop.map_or(String::new(), |s| {
+                serde_json::to_value(s)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_string))
+                    .unwrap_or_default()
+            }),
+            t.network_iteration.map_or(String::new(), |n| n.to_string()),
+            t.converged(flat).to_string(),
         ];
         out += &(row.join(",") + "\n");
     }

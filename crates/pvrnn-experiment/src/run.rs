@@ -20,6 +20,7 @@ use pvrnn_dataset::{Dataset, Sequence, proprio_ranges};
 use serde::{Deserialize, Serialize};
 
 use pvrnn_eval::training_log::{self, TrainingLog};
+use pvrnn_eval::validation::{self, ValidationRow};
 
 use crate::occlusion::{OcclusionScorer, OcclusionScores};
 use crate::plan::{Design, JobKind, Plan};
@@ -87,6 +88,69 @@ pub struct TrainResult {
     /// (Vulkan), 2 threads`); absent in results written before it was recorded (all cpu).
     #[serde(default)]
     pub backend: Option<String>,
+    /// Why training stopped, under a design with a convergence rule (absent: it trained
+    /// the design's fixed iterations).
+    #[serde(default)]
+    pub stop: Option<Stop>,
+    /// The iteration of the network the inference runs read (the best-validated
+    /// checkpoint's, or `iterations`).
+    #[serde(default)]
+    pub network_iteration: Option<u64>,
+    /// The validations of the convergence rule, in order.
+    #[serde(default)]
+    pub validations: Vec<ValidationRow>,
+}
+
+/// Why a training under a convergence rule stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stop {
+    /// `patience` validations in a row did not beat the best: the best checkpoint is the
+    /// network.
+    ValidationBest,
+    /// The free energy changed by less than `flat_change` over the last tenth.
+    Flat,
+    /// The cap was reached first: not converged (the best checkpoint is the network).
+    Cap,
+}
+
+impl Stop {
+    pub fn converged(self) -> bool {
+        self != Stop::Cap
+    }
+}
+
+impl TrainResult {
+    /// Whether the network counts as converged: it stopped by the convergence rule, or
+    /// (trained a fixed number of iterations) its free energy ended flat by `flat_change`.
+    pub fn converged(&self, flat_change: f64) -> bool {
+        match self.stop {
+            Some(stop) => stop.converged(),
+            None => self.last_tenth_change.is_some_and(|c| c.abs() < flat_change),
+        }
+    }
+}
+
+/// The convergence rule of `design`, checked at a validation (or the cap): `totals` is
+/// the free energy per iteration so far, `rows` the validations so far.
+pub fn convergence(
+    design: &Design,
+    totals: &[f64],
+    rows: &[ValidationRow],
+    iteration: u64,
+) -> Option<Stop> {
+    if design
+        .patience
+        .is_some_and(|p| validation::stalled(rows, p).is_some())
+    {
+        return Some(Stop::ValidationBest);
+    }
+    if let Some(flat) = design.flat_change
+        && last_tenth_change(totals).is_some_and(|c| c.abs() < flat)
+    {
+        return Some(Stop::Flat);
+    }
+    (iteration >= design.train_iterations).then_some(Stop::Cap)
 }
 
 /// The result of an inference job (metadata `result` of its safetensors file; contribution
@@ -437,6 +501,9 @@ fn train(
                 last_tenth_change: last_tenth_change(&totals),
                 reused: Some(source.display().to_string()),
                 backend: None,
+                stop: None,
+                network_iteration: Some(*iterations),
+                validations: Vec::new(),
             },
         );
     }
@@ -462,7 +529,20 @@ fn train(
     let data = dataset.observations(&chosen_refs, trainer.config())?;
     pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
+    let mut rule = ConvergenceRule::open(plan, dir, id, trainer.iteration)?;
+    let mut stop_reason = None;
+    if let Some(rule) = rule.as_mut()
+        && rule.missed(trainer.iteration)
+    {
+        rule.validate(backend, &mut trainer, None)?;
+    }
     while trainer.iteration < *iterations {
+        if let Some(rule) = &rule {
+            stop_reason = rule.check(&plan.design, &log, trainer.iteration);
+            if stop_reason.is_some() {
+                break;
+            }
+        }
         let it = trainer.iteration;
         let report = trainer.step(&data)?;
         log_file.append(it, &report)?;
@@ -473,9 +553,11 @@ fn train(
             free_energy: report.total,
         });
         let stopping = stop.load(Ordering::SeqCst);
+        let validating = rule.as_ref().is_some_and(|r| r.due(trainer.iteration)) && !stopping;
         if trainer.iteration % plan.design.checkpoint_every.max(1) == 0
             || trainer.iteration == *iterations
             || stopping
+            || validating
         {
             log_file.flush()?;
             io::save_checkpoint(&checkpoint, &mut trainer, Some(report))?;
@@ -483,9 +565,26 @@ fn train(
         if stopping {
             return Err(Interrupted.into());
         }
+        if validating && let Some(rule) = rule.as_mut() {
+            rule.validate(backend, &mut trainer, Some(report))?;
+        }
     }
-    let totals = training_log::totals(&log, *iterations);
+    if let Some(rule) = &rule
+        && stop_reason.is_none()
+    {
+        // The job's iterations are the cap (the design's, when the plan was made).
+        stop_reason = rule
+            .check(&plan.design, &log, trainer.iteration)
+            .or(Some(Stop::Cap));
+    }
+    let totals = training_log::totals(&log, trainer.iteration);
     let seconds = training_log::seconds(&log).unwrap_or(0.0);
+    let validations = rule.map(|r| r.rows).unwrap_or_default();
+    // The network: the best-validated checkpoint unless the free energy went flat first.
+    let network_iteration = match (stop_reason, validation::best(&validations)) {
+        (Some(Stop::ValidationBest | Stop::Cap), Some(best)) => best.iteration,
+        _ => trainer.iteration,
+    };
     write_train_result(
         plan,
         dir,
@@ -501,8 +600,90 @@ fn train(
             last_tenth_change: last_tenth_change(&totals),
             reused: None,
             backend: Some(backend_name.to_string()),
+            stop: stop_reason,
+            network_iteration: Some(network_iteration),
+            validations,
         },
     )
+}
+
+/// The convergence rule's state during one training: the held-out data, the validations
+/// so far (up to the checkpoint's iteration: a resumed run forgets later ones) and where
+/// the log and the best checkpoint go.
+struct ConvergenceRule {
+    dataset: Dataset,
+    every: u64,
+    rows: Vec<ValidationRow>,
+    log: std::path::PathBuf,
+    best: std::path::PathBuf,
+}
+
+impl ConvergenceRule {
+    fn open(plan: &Plan, dir: &Path, id: usize, iteration: u64) -> Result<Option<Self>> {
+        let Some(every) = plan.design.validate_every else {
+            return Ok(None);
+        };
+        let data = plan.validation_dataset.as_ref().with_context(|| {
+            format!("the {} design validates its networks, but the plan names no validation dataset", plan.scale.name())
+        })?;
+        let dataset = Dataset::open(data).with_context(|| format!("validation dataset {}", data.display()))?;
+        let log = plan.validation_log_path(dir, id);
+        let mut rows = validation::read_log(&log)?;
+        rows.retain(|r| r.iteration <= iteration);
+        Ok(Some(Self {
+            dataset,
+            every: every.max(1),
+            rows,
+            log,
+            best: plan.best_path(dir, id),
+        }))
+    }
+
+    fn due(&self, iteration: u64) -> bool {
+        iteration > 0 && iteration.is_multiple_of(self.every)
+    }
+
+    /// The checkpoint's own iteration is due a validation the log lacks (stopped during it).
+    fn missed(&self, iteration: u64) -> bool {
+        self.due(iteration) && self.rows.last().map(|r| r.iteration) != Some(iteration)
+    }
+
+    fn check(&self, design: &Design, log: &Path, iteration: u64) -> Option<Stop> {
+        if !self.due(iteration) && iteration < design.train_iterations {
+            return None;
+        }
+        convergence(design, &training_log::totals(log, iteration), &self.rows, iteration)
+    }
+
+    fn validate(
+        &mut self,
+        backend: &Arc<dyn Backend<f32>>,
+        trainer: &mut Trainer<f32>,
+        last: Option<pvrnn_core::FreeEnergy>,
+    ) -> Result<()> {
+        let row = validation::validate(
+            Arc::new(trainer.model().clone()),
+            backend.as_ref(),
+            &self.dataset,
+            trainer.iteration,
+        )?;
+        if validation::best(&self.rows).is_none_or(|b| row.better_than(b)) {
+            io::save_checkpoint(&self.best, trainer, last)?;
+        }
+        self.rows.push(row);
+        validation::write_log(&self.log, &self.rows)?;
+        Ok(())
+    }
+}
+
+/// The trained network a training job's inference runs read: its best-validated
+/// checkpoint when the convergence rule chose it, else the final checkpoint.
+pub fn network_path(plan: &Plan, dir: &Path, train_job: usize) -> Result<std::path::PathBuf> {
+    let trained = read_train_result(&plan.result_path(dir, train_job))?;
+    Ok(match trained.network_iteration {
+        Some(n) if n != trained.iterations => plan.best_path(dir, train_job),
+        _ => plan.checkpoint_path(dir, train_job),
+    })
 }
 
 fn write_train_result(plan: &Plan, dir: &Path, id: usize, result: TrainResult) -> Result<()> {
@@ -575,7 +756,7 @@ fn infer(
         result.occlusion = None;
         return write_infer_result(plan, dir, id, &result, None, shared.as_ref());
     }
-    let model = Arc::new(io::load_model(&plan.checkpoint_path(dir, *train_job))?);
+    let model = Arc::new(io::load_model(&network_path(plan, dir, *train_job)?)?);
     let config = model.config.clone();
     let dataset = cache.dataset(&plan.dataset)?;
     let seq = truncated(
@@ -805,10 +986,16 @@ impl SharedRun {
         );
         Ok(Some(Self {
             path: networks.join("runs").join(stem).join(name),
-            network: format!(
-                "{} iterations, final free energy {:?}",
-                trained.iterations, trained.final_free_energy
-            ),
+            network: match trained.network_iteration {
+                Some(n) if n != trained.iterations => format!(
+                    "{} iterations (network of iteration {n}), final free energy {:?}",
+                    trained.iterations, trained.final_free_energy
+                ),
+                _ => format!(
+                    "{} iterations, final free energy {:?}",
+                    trained.iterations, trained.final_free_energy
+                ),
+            },
         }))
     }
 

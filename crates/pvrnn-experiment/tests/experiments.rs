@@ -26,7 +26,7 @@ fn robustness_runs_resumes_after_interruption_and_reports() {
     let data = tmp.path().join("data");
     dataset(&data);
     let out = tmp.path().join("robustness");
-    let plan = Plan::new(Experiment::Robustness, Scale::Smoke, &data, None).unwrap();
+    let plan = Plan::new(Experiment::Robustness, Scale::Smoke, &data, None, None).unwrap();
     plan.save(&out).unwrap();
     // 2 networks; 2 tasks x 1 test sequence x 6 conditions x 2 trials each.
     assert_eq!(plan.jobs.len(), 2 + 2 * 2 * 6 * 2);
@@ -185,7 +185,7 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
     dataset(&data);
     for experiment in [Experiment::Hierarchy, Experiment::Uncertainty] {
         let out = tmp.path().join(experiment.name());
-        Plan::new(experiment, Scale::Smoke, &data, None)
+        Plan::new(experiment, Scale::Smoke, &data, None, None)
             .unwrap()
             .save(&out)
             .unwrap();
@@ -251,7 +251,7 @@ fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     dataset(&data);
-    let plan = Plan::new(Experiment::Interference, Scale::Paper, &data, None).unwrap();
+    let plan = Plan::new(Experiment::Interference, Scale::Paper, &data, None, None).unwrap();
     let trains: Vec<(&str, &Vec<String>)> = plan
         .jobs
         .iter()
@@ -296,7 +296,8 @@ fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
             Experiment::Interference,
             Scale::Reduced,
             &data,
-            Some(Path::new("x"))
+            Some(Path::new("x")),
+            None
         )
         .is_err()
     );
@@ -319,7 +320,7 @@ fn shared_networks_compute_each_run_once() {
         (Experiment::Uncertainty, "uncertainty-alone", false),
     ] {
         let out = tmp.path().join(name);
-        let mut plan = Plan::new(experiment, Scale::Smoke, &data, None).unwrap();
+        let mut plan = Plan::new(experiment, Scale::Smoke, &data, None, None).unwrap();
         if shared {
             plan.claim_networks_dir(&networks).unwrap();
         }
@@ -358,4 +359,107 @@ fn shared_networks_compute_each_run_once() {
         );
     }
     assert!(networks.join("runs").is_dir());
+}
+
+/// The convergence rule: validation-best first, then a flat free energy, then the cap.
+#[test]
+fn convergence_rule_stops_at_the_validation_best_a_flat_curve_or_the_cap() {
+    use pvrnn_eval::validation::ValidationRow;
+    use pvrnn_experiment::run::{Stop, convergence};
+    let mut design = pvrnn_experiment::Design::of(Experiment::Hierarchy, Scale::Converged);
+    assert_eq!(
+        (design.validate_every, design.patience, design.flat_change),
+        (Some(2_000), Some(2), Some(0.01))
+    );
+    design.train_iterations = 100;
+    let row = |iteration, error| ValidationRow {
+        iteration,
+        failed_trials: 0,
+        trials: 4,
+        recon_vision_top: error,
+        recon_joints: None,
+        recon_torques: None,
+        seconds: 1.0,
+        upsample: None,
+        upsample_detail: None,
+        mean: None,
+        machine: None,
+    };
+    let falling: Vec<f64> = (0..60).map(|i| 100.0 - i as f64).collect();
+    let flat = vec![50.0; 60];
+    let improving = [row(20, 0.3), row(40, 0.2), row(60, 0.1)];
+    let turned = [row(20, 0.3), row(40, 0.1), row(60, 0.2), row(80, 0.15)];
+    assert_eq!(convergence(&design, &falling, &improving, 60), None);
+    assert_eq!(convergence(&design, &falling, &turned[..3], 60), None);
+    assert_eq!(
+        convergence(&design, &falling, &turned, 80),
+        Some(Stop::ValidationBest)
+    );
+    assert_eq!(
+        convergence(&design, &flat, &improving, 60),
+        Some(Stop::Flat)
+    );
+    assert_eq!(
+        convergence(&design, &falling, &improving, 100),
+        Some(Stop::Cap)
+    );
+}
+
+/// A training under a validation rule validates, keeps its best checkpoint, stops by the
+/// rule, and its inference runs read the network the rule chose.
+#[test]
+fn a_converged_design_validates_and_reads_the_network_it_chose() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let held_out = tmp.path().join("held-out");
+    pvrnn_dataset::synthetic::caresim_like(&[650], 1, 0, 6)
+        .unwrap()
+        .write(&held_out)
+        .unwrap();
+    assert!(
+        Plan::new(Experiment::Hierarchy, Scale::Converged, &data, None, None)
+            .unwrap_err()
+            .to_string()
+            .contains("--validate")
+    );
+    assert!(Plan::new(Experiment::Hierarchy, Scale::Smoke, &data, None, Some(&data)).is_err());
+    let mut plan =
+        Plan::new(Experiment::Hierarchy, Scale::Smoke, &data, None, Some(&held_out)).unwrap();
+    plan.design.validate_every = Some(4);
+    plan.design.patience = Some(1);
+    plan.design.flat_change = Some(1e-12);
+    // The cap: the smoke design's 20 iterations.
+    let out = tmp.path().join("hierarchy");
+    plan.save(&out).unwrap();
+    let go = AtomicBool::new(false);
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(0), &go, &|_| {}).unwrap();
+    let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
+    let iterations: Vec<u64> = trained.validations.iter().map(|r| r.iteration).collect();
+    assert_eq!(
+        iterations,
+        (1..=iterations.len() as u64).map(|k| 4 * k).collect::<Vec<_>>()
+    );
+    let best = pvrnn_eval::validation::best(&trained.validations).unwrap();
+    let path = pvrnn_experiment::run::network_path(&plan, &out, 0).unwrap();
+    match trained.stop {
+        Some(pvrnn_experiment::run::Stop::ValidationBest) => {
+            // One validation after the best did not beat it.
+            assert_eq!(trained.iterations, best.iteration + 4);
+            assert_eq!(trained.network_iteration, Some(best.iteration));
+            assert_eq!(path, plan.best_path(&out, 0));
+        }
+        Some(pvrnn_experiment::run::Stop::Cap) => {
+            assert_eq!(trained.iterations, 20);
+            assert_eq!(trained.network_iteration, Some(best.iteration));
+            assert!(iterations.iter().all(|&i| i <= 20));
+        }
+        other => panic!("stopped by {other:?}"),
+    }
+    let file = pvrnn_core::io::TensorFile::open(&path).unwrap();
+    assert_eq!(
+        pvrnn_core::io::checkpoint_iteration(&file),
+        trained.network_iteration
+    );
+    assert!(plan.validation_log_path(&out, 0).is_file());
 }

@@ -20,9 +20,10 @@ pub struct Args {
     /// hierarchy (Figs 2-3), uncertainty (Fig 4), robustness (Fig 5) or interference (Fig 6).
     #[arg(value_parser = ["hierarchy", "uncertainty", "robustness", "interference"])]
     experiment: String,
-    /// smoke (minutes; tests the machinery), reduced (about 12 h of 2-core training) or
-    /// paper (5 networks x 100,000 iterations, 5 trials).
-    #[arg(long, default_value = "smoke", value_parser = ["smoke", "reduced", "paper"])]
+    /// smoke (minutes; tests the machinery), reduced (3 networks, fixed iterations: about
+    /// 12 h of 2-core training), converged (5 networks, each trained until it converges;
+    /// needs --validate) or paper (5 networks x 100,000 iterations, 5 trials).
+    #[arg(long, default_value = "smoke", value_parser = ["smoke", "reduced", "converged", "paper"])]
     scale: String,
     /// The experiment's folder: plan.json, networks/, results/, report/.
     #[arg(long)]
@@ -52,6 +53,10 @@ pub struct Args {
     /// all 18 learning sequences).
     #[arg(long)]
     reuse: Option<PathBuf>,
+    /// The held-out dataset of the convergence rule (converged scale; e.g. `pvrnn simulate
+    /// --seed 1`): each network is validated on it every 2,000 iterations.
+    #[arg(long)]
+    validate: Option<PathBuf>,
     /// A folder for the trained networks shared by experiments at the same scale
     /// (hierarchy, uncertainty and robustness train the same networks; default DIR/networks).
     #[arg(long)]
@@ -82,9 +87,9 @@ pub fn run(a: Args) -> Result<()> {
     let plan = if Plan::path(&a.out).is_file() {
         let plan = Plan::load(&a.out)?;
         plan.check_matches(experiment, scale)?;
-        if a.reuse.is_some() || a.networks.is_some() {
+        if a.reuse.is_some() || a.networks.is_some() || a.validate.is_some() {
             bail!(
-                "--reuse and --networks apply when the plan is created; {} already has one",
+                "--reuse, --networks and --validate apply when the plan is created; {} already has one",
                 a.out.display()
             );
         }
@@ -96,7 +101,13 @@ pub fn run(a: Args) -> Result<()> {
                 a.out.display()
             );
         };
-        let mut plan = Plan::new(experiment, scale, dataset, a.reuse.as_deref())?;
+        let mut plan = Plan::new(
+            experiment,
+            scale,
+            dataset,
+            a.reuse.as_deref(),
+            a.validate.as_deref(),
+        )?;
         if let Some(dir) = &a.networks {
             plan.claim_networks_dir(dir)?;
         }

@@ -3,6 +3,10 @@
 //! observed image and the robot-free one differ there; on hidden pixels the model's
 //! reconstruction is scored against the robot-free truth, beside two baselines that use only
 //! what was observed: the mean learning image, and each pixel's last unhidden observation.
+//! The model is scored *relative to the observed frame* (its error minus the observed
+//! frame's: below 0 when it shows more of the body than the camera did), so that a
+//! reconstruction that faithfully copies the arm it sees scores 0, not a failure; and on
+//! the one-step prior prediction, which no observation of its step has shaped.
 
 use serde::{Deserialize, Serialize};
 
@@ -26,6 +30,27 @@ pub struct OcclusionScores {
     /// The model's reconstruction against what was observed (the robot itself): small when
     /// the model draws the arm rather than the body behind it.
     pub model_vs_observed: f64,
+    /// The observed frame (the arm) against the robot-free truth: the reference of the
+    /// relative scores. Absent in results written before it was recorded.
+    #[serde(default)]
+    pub observed: Option<f64>,
+    /// The one-step prior prediction (made at the step before, before this step's
+    /// observation) against the robot-free truth, on the pixels hidden at its step.
+    #[serde(default)]
+    pub prior: Option<f64>,
+}
+
+impl OcclusionScores {
+    /// d(model, body) - d(observed, body): negative when the reconstruction shows more of
+    /// the hidden body than the camera did.
+    pub fn model_relative(&self) -> Option<f64> {
+        self.observed.map(|o| self.model - o)
+    }
+
+    /// The same for the prior prediction.
+    pub fn prior_relative(&self) -> Option<f64> {
+        Some(self.prior? - self.observed?)
+    }
 }
 
 /// Accumulates [`OcclusionScores`] step by step.
@@ -33,9 +58,11 @@ pub struct OcclusionScores {
 pub struct OcclusionScorer {
     mean_image: Vec<f32>,
     last_seen: Vec<f32>,
-    /// Squared errors: model, mean image, last seen, model vs observed.
-    sums: [f64; 4],
+    /// Squared errors: model, mean image, last seen, model vs observed, observed, prior.
+    sums: [f64; 6],
     hidden: usize,
+    /// Hidden values the prior prediction was scored on (all but the first step's).
+    prior_scored: usize,
     total: usize,
 }
 
@@ -45,15 +72,18 @@ impl OcclusionScorer {
         Self {
             last_seen: mean_image.clone(),
             mean_image,
-            sums: [0.0; 4],
+            sums: [0.0; 6],
             hidden: 0,
+            prior_scored: 0,
             total: 0,
         }
     }
 
-    /// One step's top-resolution images: observed, robot-free, and the model's
-    /// reconstruction.
-    pub fn step(&mut self, observed: &[f32], truth: &[f32], recon: &[f32]) {
+    /// One step's top-resolution images: observed, robot-free, the model's reconstruction,
+    /// and the prior prediction of this step made at the step before (None at the first).
+    pub fn step(&mut self, observed: &[f32], truth: &[f32], recon: &[f32], prior: Option<&[f32]>) {
+        let prior_chunks = prior.map(|p| p.chunks(3));
+        let mut prior_chunks = prior_chunks.into_iter().flatten();
         let pixels = observed
             .chunks(3)
             .zip(truth.chunks(3))
@@ -61,6 +91,7 @@ impl OcclusionScorer {
             .zip(self.mean_image.chunks(3))
             .zip(self.last_seen.chunks_mut(3));
         for ((((obs, truth), recon), mean), last) in pixels {
+            let prior = prior_chunks.next();
             self.total += obs.len();
             let hidden = obs
                 .iter()
@@ -77,6 +108,13 @@ impl OcclusionScorer {
                 self.sums[1] += sq(mean[c], truth[c]);
                 self.sums[2] += sq(last[c], truth[c]);
                 self.sums[3] += sq(recon[c], obs[c]);
+                self.sums[4] += sq(obs[c], truth[c]);
+                if let Some(prior) = prior {
+                    self.sums[5] += sq(prior[c], truth[c]);
+                }
+            }
+            if prior.is_some() {
+                self.prior_scored += obs.len();
             }
         }
     }
@@ -93,6 +131,8 @@ impl OcclusionScorer {
             mean_image: self.sums[1] / n,
             last_seen: self.sums[2] / n,
             model_vs_observed: self.sums[3] / n,
+            observed: Some(self.sums[4] / n),
+            prior: (self.prior_scored > 0).then(|| self.sums[5] / self.prior_scored as f64),
         })
     }
 }
@@ -106,19 +146,31 @@ mod tests {
         // Two pixels of one channel triple each; the body is 0.2 then 0.3 everywhere.
         let mut scorer = OcclusionScorer::new(vec![0.0; 6]);
         // Step 0: nothing hidden; the model is perfect.
-        scorer.step(&[0.2; 6], &[0.2; 6], &[0.2; 6]);
+        scorer.step(&[0.2; 6], &[0.2; 6], &[0.2; 6], None);
         // Step 1: the arm (0.9) hides pixel 1, whose body moved to 0.3 behind it; the model
         // draws the arm there.
         let observed = [0.2, 0.2, 0.2, 0.9, 0.9, 0.9];
         let truth = [0.2, 0.2, 0.2, 0.3, 0.3, 0.3];
-        scorer.step(&observed, &truth, &observed);
+        // The prior (made before the step) half-expected the body: 0.25 there.
+        let prior = [0.2, 0.2, 0.2, 0.25, 0.25, 0.25];
+        scorer.step(&observed, &truth, &observed, Some(&prior));
         // A difference under the threshold is not hidden.
-        scorer.step(&[0.2; 6], &[0.2 + HIDDEN_THRESHOLD * 0.5; 6], &[0.2; 6]);
+        scorer.step(
+            &[0.2; 6],
+            &[0.2 + HIDDEN_THRESHOLD * 0.5; 6],
+            &[0.2; 6],
+            Some(&[0.2; 6]),
+        );
         let s = scorer.finish().expect("something was hidden");
         let close = |a: f64, b: f64| (a - b).abs() < 1e-6;
         assert!(close(s.hidden_share, 3.0 / 18.0), "{s:?}");
         assert!(close(s.model, 0.36), "arm drawn over the body: {s:?}");
         assert!(close(s.model_vs_observed, 0.0), "{s:?}");
+        // Relative to the observed frame, copying the arm scores 0, not a failure.
+        assert!(close(s.observed.unwrap(), 0.36), "{s:?}");
+        assert!(close(s.model_relative().unwrap(), 0.0), "{s:?}");
+        assert!(close(s.prior.unwrap(), 0.0025), "{s:?}");
+        assert!(close(s.prior_relative().unwrap(), 0.0025 - 0.36), "{s:?}");
         assert!(close(s.mean_image, 0.09), "{s:?}");
         assert!(close(s.last_seen, 0.01), "last seen 0.2, truth 0.3: {s:?}");
         assert!(OcclusionScorer::new(vec![0.0; 3]).finish().is_none());

@@ -4,8 +4,10 @@
 //!
 //! "Agrees" means the same direction and the same verdict at p < 0.05 (a difference the
 //! paper found significant is significant here too, one it found not significant is not).
-//! With fewer networks than the paper's 5 a test has less power, so a miss on significance
-//! alone is marked as such rather than as a contradiction.
+//! A same-direction result that is not significant is not blamed on power by default:
+//! every finding states its effect with the 95% confidence interval and the smallest
+//! effect the design could detect (80% power, from the observed variance), so the reader
+//! sees whether the interval excludes the paper's effect or the design was too small.
 
 use serde::Serialize;
 use serde_json::Value;
@@ -18,6 +20,8 @@ pub struct Finding {
     pub finding: String,
     pub paper: String,
     pub ours: String,
+    /// Our effect: the difference with its 95% CI, Cohen's d and the detectable difference.
+    pub effect: String,
     pub agrees: Option<bool>,
     /// Why they disagree or cannot be compared, when they do not simply agree.
     pub note: String,
@@ -69,7 +73,7 @@ fn verdict(p: Option<f64>, significant: bool, direction_ok: bool) -> (Option<boo
         (true, true, true) | (false, false, true) => (Some(true), String::new()),
         (true, false, true) => (
             Some(false),
-            "same direction, not significant here (fewer networks than the paper's 5: less power)"
+            "same direction, not significant here (see the effect's interval and the detectable effect)"
                 .into(),
         ),
         (false, true, true) => (Some(false), "significant here, not in the paper".into()),
@@ -86,9 +90,53 @@ fn finding(
         finding: finding.into(),
         paper: paper.into(),
         ours,
+        effect: "–".into(),
         agrees,
         note,
     }
+}
+
+/// A [`crate::stats::Difference`] (as JSON) as "Δ = m [lo, hi], d = x; detectable ±y".
+fn effect_text(d: &Value) -> String {
+    match (
+        num(&d["mean"]),
+        num(&d["ci95"][0]),
+        num(&d["ci95"][1]),
+        num(&d["detectable"]),
+    ) {
+        (Some(m), Some(lo), Some(hi), Some(det)) => format!(
+            "Δ = {m:.3e} [{lo:.3e}, {hi:.3e}], d = {:.2}; detectable ±{det:.3e}",
+            num(&d["cohen_d"]).unwrap_or(f64::NAN)
+        ),
+        _ => "– (too few networks)".into(),
+    }
+}
+
+impl Finding {
+    fn with_effect(mut self, effect: String) -> Self {
+        self.effect = effect;
+        self
+    }
+}
+
+/// Per-network values of a JSON map {network: value}, in network order.
+fn by_network(v: &Value) -> std::collections::BTreeMap<String, f64> {
+    v.as_object()
+        .map(|m| {
+            m.iter()
+                .filter_map(|(k, v)| Some((k.clone(), num(v)?)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The paired difference a − b over the networks both maps hold, as JSON.
+fn paired_difference(a: &Value, b: &Value) -> Value {
+    let (a, b) = (by_network(a), by_network(b));
+    let keys: Vec<&String> = a.keys().filter(|k| b.contains_key(*k)).collect();
+    let av: Vec<f64> = keys.iter().map(|k| a[*k]).collect();
+    let bv: Vec<f64> = keys.iter().map(|k| b[*k]).collect();
+    serde_json::to_value(crate::stats::difference(&av, &bv, true)).unwrap_or(Value::Null)
 }
 
 /// Mean of a JSON map's (or array's) numbers.
@@ -121,36 +169,62 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
         match difference {
             Some(d) => format!(
                 // No `|` in the text: it would split the Markdown table's cell.
-                "mean absolute Δμ_q near − elsewhere = {d:.3e}, permutation {}",
+                "mean absolute Δμ_q near − elsewhere (steps t ≥ H) = {d:.3e}, two-sided permutation {}",
                 p_text(p)
             ),
             None => "no run with a subtask boundary".into(),
         },
         verdict(p, true, difference.is_none_or(|d| d > 0.0)),
-    )];
-    let tests = &r["occlusion"]["paired_t"];
-    for (baseline, key) in [
-        ("the mean learning image", "mean image"),
-        ("each pixel's last unhidden observation", "last seen"),
-    ] {
-        let t = &tests[key];
-        let lower = num(&t["mean_difference"]).is_none_or(|d| d < 0.0);
+    )
+    .with_effect(effect_text(&boundary["difference"]))];
+    if r["occlusion"].is_null() {
         out.push(finding(
-            &format!(
-                "Body parts hidden by the arms are inferred (Fig 3B): the model's reconstruction of hidden pixels beats {baseline}"
-            ),
+            "Body parts hidden by the arms are inferred (Fig 3B)",
             "shown in pictures, not measured",
-            if r["occlusion"].is_null() {
-                "no robot-free renders in the data".into()
-            } else {
-                format!(
-                    "model − baseline MSE = {}, {}",
-                    num(&t["mean_difference"]).map_or("–".into(), |d| format!("{d:.3e}")),
-                    t_text(t)
-                )
-            },
-            verdict(num(&t["p"]), true, lower),
+            "no robot-free renders in the data".into(),
+            (None, "not testable here".into()),
         ));
+        return out;
+    }
+    for (label, what) in [
+        (
+            "reconstruction, everything observed",
+            "the reconstruction (everything observed)",
+        ),
+        (
+            "reconstruction, 16x16 + proprioception observed",
+            "the reconstruction from the 16x16 input",
+        ),
+        (
+            "prior prediction, everything observed",
+            "the one-step prior prediction",
+        ),
+    ] {
+        let test = &r["occlusion"]["relative"][label];
+        let d = &test["difference"];
+        let p = num(&d["p"]);
+        let closer = num(&d["mean"]).is_none_or(|m| m < 0.0);
+        out.push(
+            finding(
+                &format!(
+                    "Body parts hidden by the arms are inferred (Fig 3B): {what} is closer to the hidden body than the observed frame"
+                ),
+                "shown in pictures, not measured",
+                match num(&d["mean"]) {
+                    Some(m) => format!(
+                        "d(model, body) − d(observed, body) = {m:.3e}, one-sample t, {}",
+                        p_text(p)
+                    ),
+                    None => "–".into(),
+                },
+                if test["per_network"].as_array().is_none_or(Vec::is_empty) {
+                    (None, "not recorded in these runs (written before relative scores were kept)".into())
+                } else {
+                    verdict(p, true, closer)
+                },
+            )
+            .with_effect(effect_text(d)),
+        );
     }
     out
 }
@@ -163,28 +237,50 @@ fn uncertainty(r: &Value) -> Vec<Finding> {
                 c.iter()
                     .find(|x| x["module"] == "all modules" && x["measure"] == measure)
             })
-            .map(|x| x["paired_t"].clone())
+            .cloned()
             .unwrap_or(Value::Null)
     };
     let level = pick("prior sigma");
     let change = pick("mean absolute change of prior sigma");
+    let tost = &level["equivalence"];
+    let (agrees, note) = match (tost["equivalent"].as_bool(), num(&level["paired_t"]["p"])) {
+        (Some(true), _) => (Some(true), String::new()),
+        (Some(false), Some(p)) if p < ALPHA => (
+            Some(false),
+            "the tasks differ (paired t significant)".into(),
+        ),
+        (Some(false), _) => (
+            None,
+            "undecided: neither a difference nor equivalence within the margin is shown".into(),
+        ),
+        (None, _) => (None, "no test: too few complete networks".into()),
+    };
     vec![
         finding(
-            "Mean prior σ (all modules) does not differ between repositioning and wiping (Fig 4A)",
-            "t(4) = 1.67, p = 0.17 (n.s.)",
-            t_text(&level),
-            verdict(num(&level["p"]), false, true),
-        ),
+            "Mean prior σ (all modules) does not differ between repositioning and wiping (Fig 4A): tested as equivalence",
+            "t(4) = 1.67, p = 0.17 (n.s., read as no difference)",
+            match (num(&tost["mean"]), num(&tost["ci90"][0]), num(&tost["ci90"][1]), num(&tost["margin"])) {
+                (Some(m), Some(lo), Some(hi), Some(margin)) => format!(
+                    "TOST: difference {m:.3e}, 90% CI [{lo:.3e}, {hi:.3e}] vs margin ±{margin:.3e}, {}; paired {}",
+                    p_text(num(&tost["p"])),
+                    t_text(&level["paired_t"])
+                ),
+                _ => t_text(&level["paired_t"]),
+            },
+            (agrees, note),
+        )
+        .with_effect(effect_text(&level["difference"])),
         finding(
             "Prior σ changes less over time in repositioning than in wiping (Fig 4B)",
             "t(4) = −8.15, p = 0.0012",
-            t_text(&change),
+            t_text(&change["paired_t"]),
             verdict(
-                num(&change["p"]),
+                num(&change["paired_t"]["p"]),
                 true,
-                num(&change["t"]).is_none_or(|t| t < 0.0),
+                num(&change["paired_t"]["t"]).is_none_or(|t| t < 0.0),
             ),
-        ),
+        )
+        .with_effect(effect_text(&change["difference"])),
     ]
 }
 
@@ -221,6 +317,17 @@ fn robustness(r: &Value) -> Vec<Finding> {
         })
     });
     let simple_p = simple.and_then(|x| num(&x["p_holm"]));
+    // Paired differences over networks: 16 vs 64 (vision, proprio on), off vs on (16x16),
+    // and the interaction (saving at 16 − saving at 64).
+    let cells = &r["cells"];
+    let saving_by_network = |v: usize| -> Value {
+        let (on, off) = (by_network(&cells[v][0]), by_network(&cells[v][1]));
+        Value::Object(
+            on.iter()
+                .filter_map(|(k, a)| Some((k.clone(), serde_json::json!(off.get(k)? - a))))
+                .collect(),
+        )
+    };
     let simple_helps = match (cell(2, 0), cell(2, 1)) {
         (Some(a), Some(b)) => a < b,
         _ => true,
@@ -239,7 +346,8 @@ fn robustness(r: &Value) -> Vec<Finding> {
                     .join(" / ")
             ),
             verdict(num(&effects[0]["p"]), true, rising),
-        ),
+        )
+        .with_effect(format!("16 − 64 (proprio on): {}", effect_text(&paired_difference(&cells[2][0], &cells[0][0])))),
         finding(
             "Proprioception lowers the error (Fig 5B)",
             "F(1, 20) = 46.09, p < 0.001",
@@ -250,7 +358,8 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 fmt(off.map(|v| v / 3.0))
             ),
             verdict(num(&effects[1]["p"]), true, helps),
-        ),
+        )
+        .with_effect(format!("off − on at 64: {}", effect_text(&paired_difference(&cells[0][1], &cells[0][0])))),
         finding(
             "Resolution and proprioception interact: proprioception helps most at low resolution (Fig 5B)",
             "F(2, 20) = 13.57, p < 0.001",
@@ -261,7 +370,11 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 fmt(saving_16)
             ),
             verdict(num(&effects[2]["p"]), true, more_at_low),
-        ),
+        )
+        .with_effect(format!(
+            "saving at 16 − saving at 64: {}",
+            effect_text(&paired_difference(&saving_by_network(2), &saving_by_network(0)))
+        )),
         finding(
             "With 16x16 vision only, proprioception still lowers the error (simple effect)",
             "p = 0.034",
@@ -270,7 +383,8 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 p_text(simple_p)
             ),
             verdict(simple_p, true, simple_helps),
-        ),
+        )
+        .with_effect(format!("off − on at 16: {}", effect_text(&paired_difference(&cells[2][1], &cells[2][0])))),
     ]
 }
 
@@ -282,17 +396,21 @@ fn interference(r: &Value) -> Vec<Finding> {
     for (primary, v) in primaries {
         let art = &v["art"]["pooled"];
         let effect = &art["effect"];
+        let most_minus_none = effect_text(&v["most_minus_none"]["pooled"]);
         if primary == "repositioning" {
-            out.push(finding(
-                "Adding wiping data does not change repositioning's error (Fig 6A)",
-                "F(3, 16) = 0.62, p = 0.61 (n.s.)",
-                f_text(effect),
-                verdict(num(&effect["p"]), false, true),
-            ));
+            out.push(
+                finding(
+                    "Adding wiping data does not change repositioning's error (Fig 6A)",
+                    "F(3, 16) = 0.62, p = 0.61 (n.s.)",
+                    f_text(effect),
+                    verdict(num(&effect["p"]), false, true),
+                )
+                .with_effect(format!("9 added − none, pooled: {most_minus_none}")),
+            );
             continue;
         }
         // Wiping: errors rise with added repositioning data.
-        let means: Vec<Option<f64>> = v["per_network"][2]
+        let means: Vec<Option<f64>> = v["per_network"][0]
             .as_array()
             .map(|c| c.iter().map(mean_of).collect())
             .unwrap_or_default();
@@ -301,24 +419,27 @@ fn interference(r: &Value) -> Vec<Finding> {
             .copied()
             .flatten()
             .zip(means.last().copied().flatten());
-        out.push(finding(
-            "Adding repositioning data raises wiping's error (Fig 6B)",
-            "F(3, 16) = 19.16, p < 0.001",
-            format!(
-                "{}; pooled error with 0 / 3 / 6 / 9 added: {}",
-                f_text(effect),
-                means
-                    .iter()
-                    .map(|m| m.map_or("–".into(), |m| format!("{m:.3e}")))
-                    .collect::<Vec<_>>()
-                    .join(" / ")
-            ),
-            verdict(
-                num(&effect["p"]),
-                true,
-                rising.is_none_or(|(first, last)| first < last),
-            ),
-        ));
+        out.push(
+            finding(
+                "Adding repositioning data raises wiping's error (Fig 6B)",
+                "F(3, 16) = 19.16, p < 0.001",
+                format!(
+                    "{}; pooled error with 0 / 3 / 6 / 9 added: {}",
+                    f_text(effect),
+                    means
+                        .iter()
+                        .map(|m| m.map_or("–".into(), |m| format!("{m:.3e}")))
+                        .collect::<Vec<_>>()
+                        .join(" / ")
+                ),
+                verdict(
+                    num(&effect["p"]),
+                    true,
+                    rising.is_none_or(|(first, last)| first < last),
+                ),
+            )
+            .with_effect(format!("9 added − none, pooled: {most_minus_none}")),
+        );
         let added = |label: &str| label.rsplit(' ').next().unwrap_or("").to_string();
         for (few, many, paper_p) in [
             ("0", "6", "p < 0.001"),
@@ -365,7 +486,7 @@ pub fn markdown(
     design_networks: usize,
 ) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} of the design's {design_networks} networks). Agrees = same direction and same verdict at p < 0.05.\n\n| finding | paper | ours | agrees |\n|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} of the design's {design_networks} networks). Agrees = same direction and same verdict at p < 0.05 (Fig 4A's \"no difference\": equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d, and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -375,8 +496,8 @@ pub fn markdown(
             None => format!("–: {}", f.note),
         };
         md.push_str(&format!(
-            "| {} | {} | {} | {agrees} |\n",
-            f.finding, f.paper, f.ours
+            "| {} | {} | {} | {} | {agrees} |\n",
+            f.finding, f.paper, f.ours, f.effect
         ));
     }
     md.push('\n');
@@ -393,23 +514,52 @@ mod tests {
         assert_eq!(verdict(Some(0.01), true, true).0, Some(true));
         assert_eq!(verdict(Some(0.20), false, true).0, Some(true));
         assert_eq!(verdict(Some(0.20), true, true).0, Some(false));
-        assert!(verdict(Some(0.20), true, true).1.contains("less power"));
+        // Not blamed on power by default: the effect's interval says what was shown.
+        let note = verdict(Some(0.20), true, true).1;
+        assert!(
+            !note.contains("power") && note.contains("interval"),
+            "{note}"
+        );
         assert_eq!(verdict(Some(0.01), true, false).0, Some(false));
         assert_eq!(verdict(None, true, true).0, None);
     }
 
     #[test]
     fn uncertainty_reads_the_all_modules_tests() {
-        let r = json!({"comparisons": [
-            {"module": "all modules", "measure": "prior sigma",
-             "paired_t": {"t": 0.5, "df": 2.0, "p": 0.66}},
-            {"module": "all modules", "measure": "mean absolute change of prior sigma",
-             "paired_t": {"t": 5.0, "df": 2.0, "p": 0.04}},
-        ]});
-        let f = findings(Experiment::Uncertainty, &r);
+        let tost = |equivalent: bool| {
+            json!({"mean": 0.01, "ci90": [-0.02, 0.04], "margin": 0.05,
+            "p": if equivalent { 0.01 } else { 0.2 }, "equivalent": equivalent})
+        };
+        let r = |equivalent: bool, p: f64| {
+            json!({"comparisons": [
+                {"module": "all modules", "measure": "prior sigma",
+                 "paired_t": {"t": 0.5, "df": 2.0, "p": p}, "equivalence": tost(equivalent),
+                 "difference": {"mean": 0.01, "ci95": [-0.03, 0.05], "cohen_d": 0.3, "detectable": 0.08}},
+                {"module": "all modules", "measure": "mean absolute change of prior sigma",
+                 "paired_t": {"t": 5.0, "df": 2.0, "p": 0.04}},
+            ]})
+        };
+        let f = findings(Experiment::Uncertainty, &r(true, 0.66));
         assert_eq!(f.len(), 2);
+        // "No difference" holds only as equivalence within the margin.
         assert_eq!(f[0].agrees, Some(true));
-        assert_eq!(f[0].ours, "t(2) = 0.50, p = 0.660");
+        assert!(
+            f[0].ours.contains("TOST") && f[0].ours.contains("t(2) = 0.50, p = 0.660"),
+            "{}",
+            f[0].ours
+        );
+        assert!(
+            f[0].effect.contains("detectable ±8.000e-2"),
+            "{}",
+            f[0].effect
+        );
+        let undecided = findings(Experiment::Uncertainty, &r(false, 0.66));
+        assert_eq!(undecided[0].agrees, None, "{:?}", undecided[0]);
+        assert!(undecided[0].note.contains("undecided"));
+        assert_eq!(
+            findings(Experiment::Uncertainty, &r(false, 0.01))[0].agrees,
+            Some(false)
+        );
         // Significant, but wiping's change is the smaller: the opposite of the paper.
         assert_eq!(f[1].agrees, Some(false));
         assert!(f[1].note.contains("opposite"));
@@ -443,7 +593,7 @@ mod tests {
                    "rank_difference": d, "p_holm": p})
         };
         let r = json!({"wiping": {
-            "per_network": [[], [], [[1.0, 1.0], [2.0], [3.0], [4.0]]],
+            "per_network": [[[1.0, 1.0], [2.0], [3.0], [4.0]], [], [], []],
             "art": {"pooled": {
                 "effect": {"f": 9.0, "df1": 3.0, "df2": 8.0, "p": 0.006},
                 "contrasts": [

@@ -376,12 +376,14 @@ impl Plan {
 
     /// A training job's best-validated checkpoint (designs with a convergence rule).
     pub fn best_path(&self, dir: &Path, id: usize) -> PathBuf {
-        self.checkpoint_path(dir, id).with_extension("best.safetensors")
+        self.checkpoint_path(dir, id)
+            .with_extension("best.safetensors")
     }
 
     /// A training job's validation log (designs with a convergence rule).
     pub fn validation_log_path(&self, dir: &Path, id: usize) -> PathBuf {
-        self.checkpoint_path(dir, id).with_extension("validation.csv")
+        self.checkpoint_path(dir, id)
+            .with_extension("validation.csv")
     }
 
     pub fn is_done(&self, dir: &Path, id: usize) -> bool {
@@ -585,9 +587,17 @@ impl Plan {
                     })
                 })
                 .collect(),
+            // Occlusion (Fig. 3B) is scored also where the top resolution is not observed,
+            // so the reconstruction cannot copy the arm it sees: the 16x16 input
+            // (robustness's "vision 16, proprio on" run, shared with it).
+            Experiment::Hierarchy => vec![
+                ("everything observed".to_string(), 3, true),
+                ("vision 16, proprio on".to_string(), 1, true),
+            ],
             _ => vec![("everything observed".to_string(), 3, true)],
         };
-        let maps = experiment == Experiment::Hierarchy;
+        // Contribution maps: hierarchy's everything-observed runs.
+        let maps_of = |c: usize| experiment == Experiment::Hierarchy && c == 0;
         for (train_id, network, training, primary, train_name) in &trainings {
             let test_tasks: Vec<&str> = match primary {
                 Some(p) => vec![p.as_str()],
@@ -612,7 +622,7 @@ impl Plan {
                                     trial,
                                     vision_levels: *levels,
                                     proprio: *proprio,
-                                    maps,
+                                    maps: maps_of(c),
                                 },
                                 vec![*train_id],
                             );

@@ -28,6 +28,8 @@ struct Results {
     trains: Vec<TrainResult>,
     /// The inference runs every analysis uses.
     infers: Vec<(InferResult, Option<Vec<Vec<f32>>>)>,
+    /// Each inference result's file, by job name.
+    paths: BTreeMap<String, PathBuf>,
     /// Inference runs that diverged beyond repair: left out of every analysis, listed.
     diverged: Vec<InferResult>,
     done: usize,
@@ -38,6 +40,7 @@ fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
     let mut r = Results {
         trains: Vec::new(),
         infers: Vec::new(),
+        paths: BTreeMap::new(),
         diverged: Vec::new(),
         done: 0,
         total: plan.jobs.len(),
@@ -52,6 +55,7 @@ fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
             JobKind::Train { .. } => r.trains.push(read_train_result(&path)?),
             JobKind::Infer { .. } => {
                 let (result, maps) = read_infer_result(&path)?;
+                r.paths.insert(result.job.clone(), path.clone());
                 if result.diverged.is_some() {
                     r.diverged.push(result);
                 } else {
@@ -228,7 +232,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         "diverged": results.diverged,
     });
     let body = match plan.experiment {
-        Experiment::Hierarchy => hierarchy(&results, &out_dir, &stamp, &mut md)?,
+        Experiment::Hierarchy => hierarchy(&plan, &results, &out_dir, &stamp, &mut md)?,
         Experiment::Uncertainty => uncertainty(&results, &out_dir, &stamp, &mut md)?,
         Experiment::Robustness => robustness(&results, &out_dir, &stamp, &mut md)?,
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
@@ -296,7 +300,9 @@ fn learning_curves(plan: &Plan, trains: &[TrainResult], md: &mut String) {
         Some(every) => format!(
             "trained until {} validations in a row (every {every} iterations, on `{}`) did not beat the best one, or the free energy changed by less than {:.0}% over the last tenth of the iterations; at most {} iterations",
             plan.design.patience.unwrap_or(0),
-            plan.validation_dataset.as_deref().map_or("?".into(), |p| p.display().to_string()),
+            plan.validation_dataset
+                .as_deref()
+                .map_or("?".into(), |p| p.display().to_string()),
             flat * 100.0,
             plan.design.train_iterations
         ),
@@ -467,8 +473,42 @@ fn module_names() -> Vec<String> {
     ModuleId::ALL.iter().map(|m| m.name().to_string()).collect()
 }
 
-fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
+/// The everything-observed runs (the hierarchy's maps and boundary analyses use only them).
+fn everything_observed(x: &InferResult) -> bool {
+    x.condition == Plan::condition_label(VISION_CONDITIONS[0].1, true)
+}
+
+/// The subtask names of `task` in the plan's dataset (when it is there to read), else
+/// "subtask k".
+fn subtask_names(plan: &Plan, task: &str, count: usize) -> Vec<String> {
+    let names: Option<Vec<String>> =
+        pvrnn_dataset::Dataset::open(&plan.dataset)
+            .ok()
+            .and_then(|d| {
+                d.manifest
+                    .sequences
+                    .iter()
+                    .find(|s| s.task == task)
+                    .map(|s| s.subtasks.clone())
+            });
+    (0..count)
+        .map(|k| {
+            names
+                .as_ref()
+                .and_then(|n| n.get(k).cloned())
+                .unwrap_or_else(|| format!("subtask {}", k + 1))
+        })
+        .collect()
+}
+
+fn hierarchy(plan: &Plan, r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
     let mode = AblationMode::Readout;
+    let observed: Vec<(InferResult, Option<Vec<Vec<f32>>>)> = r
+        .infers
+        .iter()
+        .filter(|(x, _)| everything_observed(x))
+        .cloned()
+        .collect();
     let _ = writeln!(
         md,
         "## Contribution maps ({stamp})\n\nPer module: the mean |standard − ablated| reconstruction of the top-resolution images, with the module's z = 0 (`{}` ablation: inference runs as standard, then each step is read out again). Everything observed. Mean ± SE over networks (each the mean over test sequences of the mean over trials).\n",
@@ -477,14 +517,14 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
     md.push_str("| module | mean contribution |\n|---|---|\n");
     let mut contributions = BTreeMap::new();
     for (m, name) in module_names().iter().enumerate() {
-        let nets: Vec<f64> = per_network(&r.infers, &|_| true, &|x| x.map_means.map(|v| v[m]))
+        let nets: Vec<f64> = per_network(&observed, &|_| true, &|x| x.map_means.map(|v| v[m]))
             .into_values()
             .collect();
         let _ = writeln!(md, "| {name} | {} |", mean_se_text(&nets));
         contributions.insert(name.clone(), nets);
     }
     // The maps: averaged over every result (a balanced design weighs networks equally).
-    let maps: Vec<&Vec<Vec<f32>>> = r.infers.iter().filter_map(|(_, m)| m.as_ref()).collect();
+    let maps: Vec<&Vec<Vec<f32>>> = observed.iter().filter_map(|(_, m)| m.as_ref()).collect();
     if let Some(first) = maps.first() {
         let width = first[0].len();
         let mut mean = vec![vec![0f64; width]; 4];
@@ -504,14 +544,19 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
                 .map_or(String::new(), |f| f.to_string_lossy().into_owned())
         );
     }
+    let over_time = time_resolved(plan, r, out, stamp, md)?;
     // The executive module near subtask boundaries.
-    let (per_net, observed, p) = boundary_test(&r.infers);
+    let window = plan
+        .design
+        .inference_window
+        .unwrap_or(ModelConfig::default().inference.window);
+    let (per_net, observed_difference, p) = boundary_test(&observed, window);
     let _ = writeln!(
         md,
-        "## Executive latent change near subtask boundaries ({stamp})\n\nMean |Δμ_q| of the executive module per step, within ±{BOUNDARY_HALF_WIDTH} steps of a subtask boundary minus elsewhere; per network, then over networks. Permutation test: each run's series circularly shifted against its subtask labels, {PERMUTATIONS} permutations, one-sided (larger near boundaries).\n"
+        "## Executive latent change near subtask boundaries ({stamp})\n\nMean |Δμ_q| of the executive module per step, within ±{BOUNDARY_HALF_WIDTH} steps of a subtask boundary minus elsewhere; per network, then over networks. Boundaries: the onset of the first subtask (step 0, as the paper counts it) and every change of subtask. Only steps t ≥ H = {window} count: before the inference window is full online inference warms up and the posterior moves more everywhere, which would confound the comparison (so the onset's own neighbourhood, inside the warm-up, drops out at H = {window}). Permutation test: each run's analysed series circularly shifted against its labels, {PERMUTATIONS} permutations, two-sided.\n"
     );
     let nets: Vec<f64> = per_net.values().copied().collect();
-    match observed {
+    match observed_difference {
         Some(_) => {
             let _ = writeln!(
                 md,
@@ -528,18 +573,163 @@ fn hierarchy(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Va
     Ok(json!({
         "ablation_mode": mode.name(),
         "contribution_per_network": contributions,
+        "contribution_over_time": over_time,
         "occlusion": occlusion,
         "executive_boundary": {
             "half_width": BOUNDARY_HALF_WIDTH,
+            "from_step": window,
+            "two_sided": true,
             "near_minus_elsewhere_per_network": per_net,
+            "difference": stats::difference(&nets, &vec![0.0; nets.len()], true),
             "permutations": PERMUTATIONS,
             "p": p,
         },
     }))
 }
 
-/// Body parts the arms hide, scored against the robot-free renders: the model beside the
-/// mean-image and last-seen baselines, per network, with paired t-tests across networks.
+/// Contribution per module and subtask phase (per task): a table of means ± SE over
+/// networks and a labelled picture of the maps, averaged over trials and test sequences.
+fn time_resolved(
+    plan: &Plan,
+    r: &Results,
+    out: &Path,
+    stamp: &str,
+    md: &mut String,
+) -> Result<Value> {
+    let _ = writeln!(
+        md,
+        "## Contributions over time ({stamp})\n\nThe paper's claim is *when* each module contributes. Per subtask phase, the mean |standard − ablated| of the module's read-out (as above), averaged over the phase's steps, then trials and test sequences; mean ± SE over networks.\n"
+    );
+    let with_phases: Vec<&(InferResult, Option<Vec<Vec<f32>>>)> = r
+        .infers
+        .iter()
+        .filter(|(x, _)| everything_observed(x) && x.phase_map_means.is_some())
+        .collect();
+    if with_phases.is_empty() {
+        md.push_str(
+            "Not recorded in these runs (results written before per-phase maps were kept).\n\n",
+        );
+        return Ok(Value::Null);
+    }
+    let mut summary = serde_json::Map::new();
+    let tasks: std::collections::BTreeSet<&str> =
+        with_phases.iter().map(|(x, _)| x.task.as_str()).collect();
+    for task in tasks {
+        let phases = with_phases
+            .iter()
+            .filter(|(x, _)| x.task == task)
+            .filter_map(|(x, _)| x.phase_map_means.as_ref().map(Vec::len))
+            .max()
+            .unwrap_or(0);
+        let names = subtask_names(plan, task, phases);
+        let _ = writeln!(
+            md,
+            "**{task}** ({} networks)\n\n| module | {} |\n|---|{}",
+            per_network(
+                &r.infers,
+                &|x| x.task == task && x.phase_map_means.is_some(),
+                &|_| Some(0.0)
+            )
+            .len(),
+            names.join(" | "),
+            "---|".repeat(phases)
+        );
+        let mut rows = serde_json::Map::new();
+        for (m, module) in module_names().iter().enumerate() {
+            let mut cells = Vec::new();
+            let mut values = Vec::new();
+            for k in 0..phases {
+                let nets: Vec<f64> = per_network(
+                    &r.infers,
+                    &|x| everything_observed(x) && x.task == task,
+                    &|x| {
+                        x.phase_map_means
+                            .as_ref()
+                            .and_then(|p| p.get(k))
+                            .map(|v| v[m])
+                    },
+                )
+                .into_values()
+                .collect();
+                cells.push(mean_se_text(&nets));
+                values.push(nets);
+            }
+            let _ = writeln!(md, "| {module} | {} |", cells.join(" | "));
+            rows.insert(module.clone(), json!(values));
+        }
+        summary.insert(
+            task.to_string(),
+            json!({"phases": names, "per_network": rows}),
+        );
+        // The picture: per module (rows) and phase (columns), the maps of the first camera
+        // averaged over runs.
+        let mut sums: Vec<Vec<Vec<f64>>> = Vec::new();
+        let mut count = 0usize;
+        for (x, _) in with_phases.iter().filter(|(x, _)| x.task == task) {
+            let path = r.paths.get(&x.job);
+            let Some(maps) = path.and_then(|p| crate::run::read_phase_maps(p).ok().flatten())
+            else {
+                continue;
+            };
+            if sums.is_empty() {
+                sums = vec![vec![Vec::new(); phases]; 4];
+            }
+            for (k, phase) in maps.iter().enumerate().take(phases) {
+                for (m, map) in phase.iter().enumerate() {
+                    let acc = &mut sums[m][k];
+                    if acc.is_empty() {
+                        *acc = vec![0.0; map.len()];
+                    }
+                    for (a, v) in acc.iter_mut().zip(map) {
+                        *a += *v as f64;
+                    }
+                }
+            }
+            count += 1;
+        }
+        if count > 0 {
+            let pixels = sums.iter().flatten().map(Vec::len).max().unwrap_or(0);
+            // The first camera: the map holds the cameras one after the other.
+            let side = ((pixels / 2) as f64).sqrt() as usize;
+            let cells: Vec<Vec<Vec<f64>>> = sums
+                .iter()
+                .map(|phases| {
+                    phases
+                        .iter()
+                        .map(|m| {
+                            m.iter()
+                                .take(side * side)
+                                .map(|v| v / count as f64)
+                                .collect()
+                        })
+                        .collect()
+                })
+                .collect();
+            let file = format!("contributions_over_time_{task}.png");
+            pvrnn_eval::plots::labelled_maps(
+                &out.join(&file),
+                &format!(
+                    "{task}: contribution per module and subtask, camera 0 ({stamp}, {count} runs)"
+                ),
+                &module_names(),
+                &names,
+                &cells,
+                side,
+            )?;
+            let _ = writeln!(
+                md,
+                "\n![{task}: contributions over time]({file}): rows = modules, columns = subtask phases; brightness = mean |standard − ablated| per pixel, one scale for the picture.\n"
+            );
+        } else {
+            md.push('\n');
+        }
+    }
+    Ok(Value::Object(summary))
+}
+
+/// Body parts the arms hide, scored against the robot-free renders relative to the
+/// observed frame, for the reconstruction with everything observed, the reconstruction
+/// from the 16x16 input, and the one-step prior prediction.
 fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
     let _ = writeln!(
         md,
@@ -553,59 +743,98 @@ fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
     }
     let _ = writeln!(
         md,
-        "On top-resolution pixels the arms hide (observed and robot-free image differ by more than {} in a channel, model units), MSE against the robot-free image; everything observed. Baselines from the observations alone: the mean learning image, and each pixel's last unhidden observation. Per network (mean over trials, then test sequences), then mean ± SE over networks; paired t-tests across networks.\n",
+        "On top-resolution pixels the arms hide (observed and robot-free image differ by more than {} in a channel, model units). The score is relative to the observed frame: d(model, body) − d(observed, body), MSE against the robot-free image; 0 = as far from the body as the camera's image (e.g. drawing the arm it sees), negative = more of the hidden body than the camera showed. Per network (mean over trials, then test sequences), then mean ± SE over networks; two-sided one-sample t-tests of the relative score against 0, with the 95% CI and the smallest difference the design detects (80% power).\n",
         crate::occlusion::HIDDEN_THRESHOLD
     );
-    type Pick = fn(&OcclusionScores) -> f64;
-    let rows: [(&str, Pick); 5] = [
-        ("model vs hidden body", |o| o.model),
-        ("mean image vs hidden body", |o| o.mean_image),
-        ("last seen vs hidden body", |o| o.last_seen),
-        ("model vs observed (the arm)", |o| o.model_vs_observed),
-        ("share of values hidden", |o| o.hidden_share),
+    type Pick = fn(&OcclusionScores) -> Option<f64>;
+    let sixteen = Plan::condition_label(VISION_CONDITIONS[2].1, true);
+    let rows: [(&str, bool, Pick); 4] = [
+        ("reconstruction, everything observed", true, |o| {
+            o.model_relative()
+        }),
+        ("prior prediction, everything observed", true, |o| {
+            o.prior_relative()
+        }),
+        (
+            "reconstruction, 16x16 + proprioception observed",
+            false,
+            |o| o.model_relative(),
+        ),
+        (
+            "prior prediction, 16x16 + proprioception observed",
+            false,
+            |o| o.prior_relative(),
+        ),
     ];
-    let per_net: Vec<BTreeMap<usize, f64>> = rows
-        .iter()
-        .map(|(_, pick)| per_network(&r.infers, &|_| true, &|x| x.occlusion.as_ref().map(pick)))
+    md.push_str("| scored | relative score (model − observed) | 95% CI | d_z | p | detectable |\n|---|---|---|---|---|---|\n");
+    let mut tests = serde_json::Map::new();
+    for (label, all, pick) in rows {
+        let nets: Vec<f64> = per_network(
+            &r.infers,
+            &|x| {
+                if all {
+                    everything_observed(x)
+                } else {
+                    x.condition == sixteen
+                }
+            },
+            &|x| x.occlusion.as_ref().and_then(pick),
+        )
+        .into_values()
         .collect();
-    md.push_str("| measure | mean ± SE |\n|---|---|\n");
-    for ((label, _), nets) in rows.iter().zip(&per_net) {
-        let values: Vec<f64> = nets.values().copied().collect();
-        let _ = writeln!(md, "| {label} | {} |", mean_se_text(&values));
-    }
-    let mut tests = BTreeMap::new();
-    md.push_str("\n| model vs | mean difference (model − baseline) | t | df | p | d_z |\n|---|---|---|---|---|---|\n");
-    for (name, b) in [("mean image", 1), ("last seen", 2)] {
-        let nets: Vec<usize> = per_net[0].keys().copied().collect();
-        let a: Vec<f64> = nets.iter().map(|n| per_net[0][n]).collect();
-        let base: Vec<f64> = nets
-            .iter()
-            .filter_map(|n| per_net[b].get(n).copied())
-            .collect();
-        let t = stats::paired_t(&a, &base);
-        match &t {
-            Some(t) => {
+        let diff = stats::difference(&nets, &vec![0.0; nets.len()], true);
+        match &diff {
+            Some(d) => {
                 let _ = writeln!(
                     md,
-                    "| {name} | {} | {} | {} | {} | {} |",
-                    sig(t.mean_difference),
-                    sig(t.t),
-                    t.df,
-                    p_text(t.p),
-                    sig(t.cohen_dz)
+                    "| {label} | {} | [{}, {}] | {} | {} | ±{} |",
+                    mean_se_text(&nets),
+                    sig(d.ci95[0]),
+                    sig(d.ci95[1]),
+                    sig(d.cohen_d),
+                    p_text(d.p),
+                    sig(d.detectable)
                 );
             }
             None => {
-                let _ = writeln!(md, "| {name} | – (fewer than 2 networks) | | | | |");
+                let _ = writeln!(
+                    md,
+                    "| {label} | {} | – (fewer than 2 networks) | | | |",
+                    mean_se_text(&nets)
+                );
             }
         }
-        tests.insert(name, t);
+        tests.insert(
+            label.to_string(),
+            json!({"per_network": nets, "difference": diff}),
+        );
+    }
+    // The observation-only baselines, for scale.
+    type Abs = fn(&OcclusionScores) -> f64;
+    let absolute: [(&str, Abs); 5] = [
+        ("model vs hidden body", |o| o.model),
+        ("observed frame vs hidden body", |o| {
+            o.observed.unwrap_or(f64::NAN)
+        }),
+        ("mean image vs hidden body", |o| o.mean_image),
+        ("last seen vs hidden body", |o| o.last_seen),
+        ("share of values hidden", |o| o.hidden_share),
+    ];
+    md.push_str("\nAbsolute errors on the hidden pixels, everything observed (mean ± SE over networks):\n\n| measure | mean ± SE |\n|---|---|\n");
+    let mut absolute_json = serde_json::Map::new();
+    for (label, pick) in absolute {
+        let nets = per_network(&r.infers, &everything_observed, &|x| {
+            x.occlusion.as_ref().map(pick)
+        });
+        let values: Vec<f64> = nets.values().copied().collect();
+        let _ = writeln!(md, "| {label} | {} |", mean_se_text(&values));
+        absolute_json.insert(label.to_string(), json!(nets));
     }
     md.push('\n');
     json!({
         "threshold": crate::occlusion::HIDDEN_THRESHOLD,
-        "per_network": rows.iter().zip(&per_net).map(|((l, _), n)| (l.to_string(), n.clone())).collect::<BTreeMap<_, _>>(),
-        "paired_t": tests,
+        "relative": tests,
+        "absolute": absolute_json,
     })
 }
 
@@ -653,31 +882,40 @@ fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
 }
 
 /// Near-minus-elsewhere executive change per network, its mean over networks, and the
-/// permutation p-value.
+/// two-sided permutation p-value. Boundaries: the onset of the first subtask (step 0) and
+/// every change of subtask label. Only steps `t >= window` count: before the inference
+/// window is full, online inference is still warming up and the posterior moves more
+/// everywhere (the onset's neighbourhood then lies in the warm-up and drops out).
 fn boundary_test(
     infers: &[(InferResult, Option<Vec<Vec<f32>>>)],
+    window: usize,
 ) -> (BTreeMap<usize, f64>, Option<f64>, Option<f64>) {
-    // Per run: the change series (index t-1 = step t) and its near-boundary mask.
-    let runs: Vec<(&InferResult, Vec<bool>)> = infers
+    // Per run: the analysed changes (step t >= max(window, 1); index t-1 of the series) and
+    // their near-boundary mask.
+    let runs: Vec<(&InferResult, Vec<f64>, Vec<bool>)> = infers
         .iter()
         .map(|(r, _)| {
             let steps = r.subtask.len();
-            let boundaries: Vec<usize> = (1..steps)
-                .filter(|&t| r.subtask[t] != r.subtask[t - 1])
+            let boundaries: Vec<usize> = std::iter::once(0)
+                .chain((1..steps).filter(|&t| r.subtask[t] != r.subtask[t - 1]))
                 .collect();
-            let mask: Vec<bool> = (1..steps)
-                .map(|t| {
-                    boundaries
-                        .iter()
-                        .any(|&b| t.abs_diff(b) <= BOUNDARY_HALF_WIDTH)
-                })
+            let first = window.max(1);
+            let near = |t: usize| {
+                boundaries
+                    .iter()
+                    .any(|&b| t.abs_diff(b) <= BOUNDARY_HALF_WIDTH)
+            };
+            let values: Vec<f64> = (first..steps)
+                .filter_map(|t| r.executive_change.get(t - 1).copied())
                 .collect();
-            (r, mask)
+            let mask: Vec<bool> = (first..first + values.len()).map(near).collect();
+            (r, values, mask)
         })
-        .filter(|(r, mask)| {
-            mask.len() == r.executive_change.len()
+        .filter(|(r, values, mask)| {
+            r.executive_change.len() + 1 == r.subtask.len()
                 && mask.iter().any(|&m| m)
                 && mask.iter().any(|&m| !m)
+                && !values.is_empty()
         })
         .collect();
     if runs.is_empty() {
@@ -685,11 +923,11 @@ fn boundary_test(
     }
     let statistic = |shift: &dyn Fn(usize) -> usize| -> (BTreeMap<usize, f64>, f64) {
         let mut by_seq: BTreeMap<(usize, String), Vec<f64>> = BTreeMap::new();
-        for (i, (r, mask)) in runs.iter().enumerate() {
+        for (i, (r, values, mask)) in runs.iter().enumerate() {
             let n = mask.len();
             let s = shift(i) % n;
             let (mut near, mut far) = (Vec::new(), Vec::new());
-            for (t, v) in r.executive_change.iter().enumerate() {
+            for (t, v) in values.iter().enumerate() {
                 if mask[(t + s) % n] {
                     near.push(*v)
                 } else {
@@ -718,9 +956,10 @@ fn boundary_test(
     for _ in 0..PERMUTATIONS {
         let shifts: Vec<usize> = runs
             .iter()
-            .map(|(_, m)| rng.random_range(1..m.len().max(2)))
+            .map(|(_, _, m)| rng.random_range(1..m.len().max(2)))
             .collect();
-        if statistic(&|i| shifts[i]).1 >= observed {
+        // Two-sided: as extreme in either direction.
+        if statistic(&|i| shifts[i]).1.abs() >= observed.abs() {
             at_least += 1;
         }
     }
@@ -735,7 +974,15 @@ struct TaskComparison {
     repositioning: Vec<f64>,
     wiping: Vec<f64>,
     paired_t: Option<stats::PairedT>,
+    /// Repositioning − wiping with its 95% CI and the detectable difference.
+    difference: Option<stats::Difference>,
+    /// Prior sigma only: the equivalence test of "no difference between tasks".
+    equivalence: Option<stats::Equivalence>,
 }
+
+/// The equivalence margin of the uncertainty experiment's "no difference" (Fig 4A):
+/// ±10% of the mean prior sigma of the two tasks, fixed before the runs.
+pub const EQUIVALENCE_MARGIN: f64 = 0.10;
 
 fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
     let _ = writeln!(
@@ -776,6 +1023,10 @@ fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<
             let av: Vec<f64> = paired.iter().map(|k| a[k]).collect();
             let bv: Vec<f64> = paired.iter().map(|k| b[k]).collect();
             let t = stats::paired_t(&av, &bv);
+            let level = (mean_se(&av).0 + mean_se(&bv).0) / 2.0;
+            let equivalence = (measure == 0)
+                .then(|| stats::equivalence(&av, &bv, EQUIVALENCE_MARGIN * level.abs()))
+                .flatten();
             let _ = writeln!(
                 md,
                 "| {name} | {label} | {} | {} | {} | {} | {} | {} |",
@@ -790,12 +1041,15 @@ fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<
                 name.clone(),
                 vec![bar("repositioning", &av), bar("wiping", &bv)],
             ));
+            let difference = stats::difference(&av, &bv, true);
             comparisons.push(TaskComparison {
                 module: name.clone(),
                 measure: label.into(),
                 repositioning: av,
+                difference,
                 wiping: bv,
                 paired_t: t,
+                equivalence,
             });
         }
         let file = if measure == 0 {
@@ -815,7 +1069,33 @@ fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<
             md.push_str("| module | measure | repositioning | wiping | t | df | p | d_z |\n|---|---|---|---|---|---|---|---|\n");
         }
     }
-    Ok(json!({ "comparisons": comparisons }))
+    let _ = writeln!(
+        md,
+        "### Is there no difference between the tasks? (Fig 4A, equivalence)\n\nThe paper reads a non-significant t-test as \"no difference\"; here that claim is tested as an equivalence: two one-sided tests (TOST) of repositioning − wiping against a margin of ±{:.0}% of the two tasks' mean prior σ, fixed before the runs. Equivalent when the 90% CI lies inside the margin (p < 0.05).\n\n| module | difference | 90% CI | margin | TOST p | equivalent |\n|---|---|---|---|---|---|",
+        EQUIVALENCE_MARGIN * 100.0
+    );
+    for c in comparisons.iter().filter(|c| c.measure == "prior sigma") {
+        match &c.equivalence {
+            Some(e) => {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | [{}, {}] | ±{} | {} | {} |",
+                    c.module,
+                    sig(e.mean),
+                    sig(e.ci90[0]),
+                    sig(e.ci90[1]),
+                    sig(e.margin),
+                    p_text(e.p),
+                    if e.equivalent { "yes" } else { "not shown" }
+                );
+            }
+            None => {
+                let _ = writeln!(md, "| {} | – (fewer than 2 networks) | | | | |", c.module);
+            }
+        }
+    }
+    md.push('\n');
+    Ok(json!({ "comparisons": comparisons, "equivalence_margin": EQUIVALENCE_MARGIN }))
 }
 
 fn robustness(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
@@ -934,20 +1214,44 @@ fn interference(
     stamp: &str,
     md: &mut String,
 ) -> Result<Value> {
-    let top = 64;
+    let config = ModelConfig::default();
+    let layout = &config.vision;
+    let top = layout.resolutions.last().copied().unwrap_or(64);
+    // Dimensions per vision resolution and of proprioception: the paper's pooled error is
+    // the mean over all sensory dimensions.
+    let vision_dims: Vec<(String, f64)> = (0..layout.resolutions.len())
+        .map(|l| {
+            (
+                format!("vision{}", layout.resolutions[l]),
+                (layout.level_offset(l + 1) - layout.level_offset(l)) as f64,
+            )
+        })
+        .collect();
+    let proprio_dims = config.proprio_dims as f64;
+    let all_dims = vision_dims.iter().map(|(_, d)| d).sum::<f64>() + proprio_dims;
+    let pooled = move |x: &InferResult| -> Option<f64> {
+        let mut sum = x.errors.get("proprio")? * proprio_dims;
+        for (key, dims) in &vision_dims {
+            sum += x.errors.get(key)? * dims;
+        }
+        Some(sum / all_dims)
+    };
     type Measure<'a> = (&'a str, &'a dyn Fn(&InferResult) -> Option<f64>);
-    let measures: [Measure<'_>; 3] = [
+    // Pre-specified: the paper's pooled error first (the test the findings read), then
+    // each modality and the equal-weight mean beside it.
+    let measures: [Measure<'_>; 4] = [
+        ("pooled", &pooled),
         ("vision", &|x| {
             x.errors.get(&format!("vision{top}")).copied()
         }),
         ("proprioception", &|x| x.errors.get("proprio").copied()),
-        ("pooled", &|x| {
+        ("equal weight", &|x| {
             Some((x.errors.get(&format!("vision{top}"))? + x.errors.get("proprio")?) / 2.0)
         }),
     ];
     let _ = writeln!(
         md,
-        "## Multitask interference ({stamp})\n\nEach primary task's 9 learning sequences plus 0 / 3 / 6 / 9 of the other task's (3 = one per bed height, 6 = two), one normalisation for all; errors of the primary task's test sequences (reconstruction MSE, everything observed; vision = the {top}x{top} images; pooled = mean of vision and proprioception). Per network, mean ± SE over networks; one-way ART ANOVA over the conditions (independent networks), Holm-corrected ART-C contrasts, Cohen's d of the raw errors.\n"
+        "## Multitask interference ({stamp})\n\nEach primary task's 9 learning sequences plus 0 / 3 / 6 / 9 of the other task's (3 = one per bed height, 6 = two), one normalisation for all; errors of the primary task's test sequences (reconstruction MSE, everything observed). Pre-specified measures: **pooled** = the paper's, the mean squared error over all {all_dims} sensory dimensions (every vision resolution and proprioception; vision dominates by dimension count); beside it vision (the {top}x{top} images), proprioception, and the equal-weight mean of the two. Per network, mean ± SE over networks; one-way ART ANOVA over the conditions (independent networks), Holm-corrected ART-C contrasts, Cohen's d of the raw errors; and the difference most added − none with its 95% CI and the smallest difference the design detects (80% power, two-sided t-test from the observed variance).\n"
     );
     let mut json_out = serde_json::Map::new();
     for primary in &plan.design.primary_tasks {
@@ -962,7 +1266,7 @@ fn interference(
             c
         };
         let _ = writeln!(md, "### Primary task: {primary}\n");
-        md.push_str("| training | vision | proprioception | pooled |\n|---|---|---|---|\n");
+        md.push_str("| training | pooled | vision | proprioception | equal weight |\n|---|---|---|---|---|\n");
         let mut per_measure: Vec<Vec<Vec<f64>>> = vec![Vec::new(); measures.len()];
         for c in &conditions {
             let mut row = format!("| {c} |");
@@ -1000,6 +1304,36 @@ fn interference(
         )?;
         let _ = writeln!(md, "\n![{primary}]({file})\n");
         let mut tests = serde_json::Map::new();
+        let mut differences = serde_json::Map::new();
+        md.push_str(
+            "| measure | most added − none | 95% CI | d | detectable |\n|---|---|---|---|---|\n",
+        );
+        for (k, (name, _)) in measures.iter().enumerate() {
+            let d = match (per_measure[k].first(), per_measure[k].last()) {
+                (Some(none), Some(most)) if per_measure[k].len() > 1 => {
+                    stats::difference(most, none, false)
+                }
+                _ => None,
+            };
+            match &d {
+                Some(d) => {
+                    let _ = writeln!(
+                        md,
+                        "| {name} | {} | [{}, {}] | {} | ±{} |",
+                        sig(d.mean),
+                        sig(d.ci95[0]),
+                        sig(d.ci95[1]),
+                        sig(d.cohen_d),
+                        sig(d.detectable)
+                    );
+                }
+                None => {
+                    let _ = writeln!(md, "| {name} | – | | | |");
+                }
+            }
+            differences.insert(name.to_string(), json!(d));
+        }
+        md.push('\n');
         for (k, (name, _)) in measures.iter().enumerate() {
             match stats::art_one_way(&conditions, &per_measure[k]) {
                 Some(a) => {
@@ -1020,7 +1354,13 @@ fn interference(
         }
         json_out.insert(
             primary.clone(),
-            json!({ "conditions": conditions, "per_network": per_measure, "art": tests }),
+            json!({
+                "conditions": conditions,
+                "measures": measures.iter().map(|(n, _)| *n).collect::<Vec<_>>(),
+                "per_network": per_measure,
+                "art": tests,
+                "most_minus_none": differences,
+            }),
         );
     }
     Ok(Value::Object(json_out))
@@ -1061,6 +1401,8 @@ mod tests {
                 executive_change,
                 subtask,
                 map_means: None,
+                phase_steps: Vec::new(),
+                phase_map_means: None,
                 occlusion: None,
                 diverged: None,
                 backend: None,
@@ -1074,14 +1416,35 @@ mod tests {
         let bumped: Vec<_> = (0..3)
             .flat_map(|n| [run_with(n, "a", 0.2), run_with(n, "b", 0.2)])
             .collect();
-        let (per_net, observed, p) = boundary_test(&bumped);
+        let (per_net, observed, p) = boundary_test(&bumped, 10);
         assert_eq!(per_net.len(), 3);
         assert!((observed.unwrap() - 0.2).abs() < 0.05, "{observed:?}");
         assert!(p.unwrap() < 0.01, "{p:?}");
         let flat: Vec<_> = (0..3)
             .flat_map(|n| [run_with(n, "a", 0.0), run_with(n, "b", 0.0)])
             .collect();
-        let (_, _, p) = boundary_test(&flat);
+        let (_, _, p) = boundary_test(&flat, 10);
         assert!(p.unwrap() > 0.05, "{p:?}");
+        // A warm-up (large changes before the window is full) is left out; counted, it
+        // moves the statistic (the old test's confound).
+        let warm: Vec<_> = flat
+            .iter()
+            .map(|(r, m)| {
+                let mut r = r.clone();
+                for v in &mut r.executive_change[..9] {
+                    *v += 1.0;
+                }
+                (r, m.clone())
+            })
+            .collect();
+        let (_, with_warm_up, _) = boundary_test(&warm, 10);
+        let (_, without, _) = boundary_test(&flat, 10);
+        assert_eq!(with_warm_up, without);
+        let (_, counted, _) = boundary_test(&warm, 0);
+        let (_, flat_all, _) = boundary_test(&flat, 0);
+        assert!(
+            (counted.unwrap() - flat_all.unwrap()).abs() > 0.01,
+            "{counted:?}"
+        );
     }
 }

@@ -126,7 +126,9 @@ impl TrainResult {
     pub fn converged(&self, flat_change: f64) -> bool {
         match self.stop {
             Some(stop) => stop.converged(),
-            None => self.last_tenth_change.is_some_and(|c| c.abs() < flat_change),
+            None => self
+                .last_tenth_change
+                .is_some_and(|c| c.abs() < flat_change),
         }
     }
 }
@@ -179,7 +181,14 @@ pub struct InferResult {
     /// Per module: the mean |standard - ablated| of the top-resolution images (readout
     /// ablation), when maps were asked for.
     pub map_means: Option<[f64; 4]>,
-    /// Hidden body parts scored against the robot-free renders (maps runs on data that has
+    /// Steps per subtask phase, and per phase each module's mean contribution (maps runs;
+    /// the per-phase maps, averaged over colour channels, are the f16 tensor `phase_maps`
+    /// [phases, 4 modules, cameras x r x r]). Absent in results written before.
+    #[serde(default)]
+    pub phase_steps: Vec<usize>,
+    #[serde(default)]
+    pub phase_map_means: Option<Vec<[f64; 4]>>,
+    /// Hidden body parts scored against the robot-free renders (runs on data that has
     /// them).
     #[serde(default)]
     pub occlusion: Option<OcclusionScores>,
@@ -624,9 +633,13 @@ impl ConvergenceRule {
             return Ok(None);
         };
         let data = plan.validation_dataset.as_ref().with_context(|| {
-            format!("the {} design validates its networks, but the plan names no validation dataset", plan.scale.name())
+            format!(
+                "the {} design validates its networks, but the plan names no validation dataset",
+                plan.scale.name()
+            )
         })?;
-        let dataset = Dataset::open(data).with_context(|| format!("validation dataset {}", data.display()))?;
+        let dataset = Dataset::open(data)
+            .with_context(|| format!("validation dataset {}", data.display()))?;
         let log = plan.validation_log_path(dir, id);
         let mut rows = validation::read_log(&log)?;
         rows.retain(|r| r.iteration <= iteration);
@@ -652,7 +665,12 @@ impl ConvergenceRule {
         if !self.due(iteration) && iteration < design.train_iterations {
             return None;
         }
-        convergence(design, &training_log::totals(log, iteration), &self.rows, iteration)
+        convergence(
+            design,
+            &training_log::totals(log, iteration),
+            &self.rows,
+            iteration,
+        )
     }
 
     fn validate(
@@ -753,7 +771,7 @@ fn infer(
         // The same run, done by another experiment: its scores, under this job's name.
         result.job = job.name.clone();
         result.map_means = None;
-        result.occlusion = None;
+        result.phase_map_means = None;
         return write_infer_result(plan, dir, id, &result, None, shared.as_ref());
     }
     let model = Arc::new(io::load_model(&network_path(plan, dir, *train_job)?)?);
@@ -776,12 +794,15 @@ fn infer(
     let joints = config.proprio_dims / 2;
     let mut sums: BTreeMap<String, f64> = BTreeMap::new();
     let mut map_sums = vec![vec![0f64; top.1 - top.0]; if *maps { 4 } else { 0 }];
+    // Per subtask phase: each module's map averaged over the colour channels, and steps.
+    let mut phase_sums: Vec<(usize, Vec<Vec<f64>>)> = Vec::new();
+    let mut prior_top: Option<Vec<f32>> = None;
     let mut sigma = [0.0; 4];
     let mut sigma_change = [0.0; 4];
     let mut previous: Option<([Vec<f32>; 4], Vec<f32>)> = None;
     let mut executive_change = Vec::new();
     // Occlusion: the run's robot-free inputs and the scorer, where the data has them.
-    let mut occlusion = match seq.without_robot().filter(|_| *maps) {
+    let mut occlusion = match seq.without_robot() {
         Some(hidden) => {
             let truth = dataset.observations(&[&hidden], &config)?;
             let mean = pvrnn_eval::baselines::learning_mean(&dataset, &model)?;
@@ -815,8 +836,10 @@ fn infer(
                 &x[top.0..top.1],
                 &truth[top.0..top.1],
                 &out.recon[0][top.0..top.1],
+                prior_top.as_deref(),
             );
         }
+        prior_top = Some(out.prior_next[0][top.0..top.1].to_vec());
         for level in 0..levels {
             let (a, b) = (layout.level_offset(level), layout.level_offset(level + 1));
             *sums
@@ -849,6 +872,26 @@ fn infer(
                     / exec.len().max(1) as f64,
             );
         }
+        let phase = seq.subtask.get(t).copied().unwrap_or(0) as usize;
+        if *maps && phase_sums.len() <= phase {
+            phase_sums.resize_with(phase + 1, || (0, vec![vec![0f64; (top.1 - top.0) / 3]; 4]));
+        }
+        if let Some((steps_in_phase, sums)) = phase_sums.get_mut(phase) {
+            *steps_in_phase += 1;
+            for (m, ablated) in out.ablated_recon.iter().enumerate() {
+                let pairs = ablated[0][top.0..top.1]
+                    .chunks(3)
+                    .zip(out.recon[0][top.0..top.1].chunks(3));
+                for (sum, (a, b)) in sums[m].iter_mut().zip(pairs) {
+                    *sum += a
+                        .iter()
+                        .zip(b)
+                        .map(|(a, b)| (a - b).abs() as f64)
+                        .sum::<f64>()
+                        / 3.0;
+                }
+            }
+        }
         for (m, ablated) in out.ablated_recon.iter().enumerate() {
             for ((sum, a), b) in map_sums[m]
                 .iter_mut()
@@ -874,6 +917,14 @@ fn infer(
         .iter()
         .map(|m| m.iter().map(|v| (v / n) as f32).collect())
         .collect();
+    let phase_maps: Vec<Vec<Vec<f32>>> = phase_sums
+        .iter()
+        .map(|(k, sums)| {
+            sums.iter()
+                .map(|m| m.iter().map(|v| (v / (*k).max(1) as f64) as f32).collect())
+                .collect()
+        })
+        .collect();
     let result = InferResult {
         job: job.name.clone(),
         network: *network,
@@ -894,13 +945,28 @@ fn infer(
                     / maps_mean[m].len().max(1) as f64
             })
         }),
+        phase_steps: phase_sums.iter().map(|(k, _)| *k).collect(),
+        phase_map_means: maps.then(|| {
+            phase_maps
+                .iter()
+                .map(|p| {
+                    std::array::from_fn(|m| {
+                        p[m].iter().map(|v| *v as f64).sum::<f64>() / p[m].len().max(1) as f64
+                    })
+                })
+                .collect()
+        }),
         occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
         diverged,
         backend: Some(backend_name.to_string()),
     };
-    let maps = maps.then_some(maps_mean.as_slice());
+    let maps = maps.then_some((maps_mean.as_slice(), phase_maps.as_slice()));
     write_infer_result(plan, dir, id, &result, maps, shared.as_ref())
 }
+
+/// An inference run's contribution maps: time-averaged [module][value], and per phase
+/// [phase][module][pixel].
+type MapsToWrite<'a> = (&'a [Vec<f32>], &'a [Vec<Vec<f32>>]);
 
 /// Writes an inference job's result file (and, when the run is shared, the shared copy).
 fn write_infer_result(
@@ -908,15 +974,26 @@ fn write_infer_result(
     dir: &Path,
     id: usize,
     result: &InferResult,
-    maps: Option<&[Vec<f32>]>,
+    maps: Option<MapsToWrite<'_>>,
     shared: Option<&SharedRun>,
 ) -> Result<()> {
     let mut tensors = BTreeMap::new();
-    if let Some(maps) = maps {
+    // f16: pictures need no more, and it halves the results a run commits.
+    let f16 = |v: Vec<f32>| -> Vec<half::f16> { v.into_iter().map(half::f16::from_f32).collect() };
+    if let Some((maps, phases)) = maps {
         let width = maps.first().map_or(0, Vec::len);
-        // f16: pictures need no more, and it halves the results a run commits.
-        let maps: Vec<half::f16> = maps.concat().into_iter().map(half::f16::from_f32).collect();
-        tensors.insert("maps".to_string(), OutTensor::F16(vec![4, width], maps));
+        tensors.insert(
+            "maps".to_string(),
+            OutTensor::F16(vec![4, width], f16(maps.concat())),
+        );
+        if !phases.is_empty() {
+            let width = phases[0].first().map_or(0, Vec::len);
+            let rows = phases.iter().flatten().cloned().collect::<Vec<_>>();
+            tensors.insert(
+                "phase_maps".to_string(),
+                OutTensor::F16(vec![phases.len(), 4, width], f16(rows.concat())),
+            );
+        }
     }
     let mut metadata = HashMap::from([
         (
@@ -1035,6 +1112,29 @@ pub fn read_infer_result(path: &Path) -> Result<(InferResult, Option<Vec<Vec<f32
         None
     };
     Ok((result, maps))
+}
+
+/// Reads an inference result's per-phase contribution maps ([phase][module][pixel],
+/// averaged over colour channels), if it has them.
+pub fn read_phase_maps(path: &Path) -> Result<Option<Vec<Vec<Vec<f32>>>>> {
+    let file = TensorFile::open(path)?;
+    if !file.contains("phase_maps") {
+        return Ok(None);
+    }
+    let t = file.f32("phase_maps", None)?;
+    let shape = t.shape().to_vec();
+    if shape.len() != 3 || shape[1] != 4 {
+        bail!(
+            "{}: `phase_maps` has shape {shape:?}, expected [phases, 4, n]",
+            path.display()
+        );
+    }
+    Ok(Some(
+        t.data()
+            .chunks(4 * shape[2])
+            .map(|p| p.chunks(shape[2]).map(<[f32]>::to_vec).collect())
+            .collect(),
+    ))
 }
 
 /// Reads a training job's result.

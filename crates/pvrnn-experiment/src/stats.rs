@@ -81,6 +81,127 @@ pub fn paired_t(a: &[f64], b: &[f64]) -> Option<PairedT> {
     })
 }
 
+/// Two-sided significance level of every test, and the power the detectable effect is
+/// computed for.
+pub const ALPHA: f64 = 0.05;
+pub const POWER: f64 = 0.8;
+
+/// A difference of means (a − b), with its 95% confidence interval, Cohen's d, and the
+/// smallest difference this design detects with 80% power in a two-sided test at 0.05,
+/// computed from the observed variance: (t_{0.975} + t_{0.8}) x SE, df as the t-test's.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Difference {
+    pub paired: bool,
+    pub n: [usize; 2],
+    pub mean: f64,
+    pub ci95: [f64; 2],
+    /// d_z (paired: mean / SD of the differences) or d (independent: pooled SD).
+    pub cohen_d: f64,
+    pub detectable: f64,
+    pub p: Option<f64>,
+}
+
+fn t_quantile(q: f64, df: f64) -> Option<f64> {
+    Some(StudentsT::new(0.0, 1.0, df).ok()?.inverse_cdf(q))
+}
+
+/// `a` − `b`: paired (same networks, same order) or independent groups.
+pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let var = |v: &[f64]| {
+        let m = mean(v);
+        v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() as f64 - 1.0)
+    };
+    let (diff, sd, se, df) = if paired {
+        if a.len() != b.len() || a.len() < 2 {
+            return None;
+        }
+        let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+        let n = d.len() as f64;
+        let sd = var(&d).sqrt();
+        (mean(&d), sd, sd / n.sqrt(), n - 1.0)
+    } else {
+        if a.len() < 2 || b.len() < 2 {
+            return None;
+        }
+        let (na, nb) = (a.len() as f64, b.len() as f64);
+        let pooled = (((na - 1.0) * var(a) + (nb - 1.0) * var(b)) / (na + nb - 2.0)).sqrt();
+        (
+            mean(a) - mean(b),
+            pooled,
+            pooled * (1.0 / na + 1.0 / nb).sqrt(),
+            na + nb - 2.0,
+        )
+    };
+    let t975 = t_quantile(1.0 - ALPHA / 2.0, df)?;
+    let t80 = t_quantile(POWER, df)?;
+    let t = if se > 0.0 {
+        diff / se
+    } else if diff == 0.0 {
+        0.0
+    } else {
+        f64::INFINITY.copysign(diff)
+    };
+    Some(Difference {
+        paired,
+        n: [a.len(), b.len()],
+        mean: diff,
+        ci95: [diff - t975 * se, diff + t975 * se],
+        cohen_d: if sd > 0.0 { diff / sd } else { 0.0 },
+        detectable: (t975 + t80) * se,
+        p: t_p_value(t, df),
+    })
+}
+
+/// Two one-sided tests (TOST) of the paired difference a − b against the equivalence
+/// margin ±`margin`: equivalent when both one-sided tests reject at 0.05, i.e. the 90%
+/// confidence interval lies inside the margin.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Equivalence {
+    pub n: usize,
+    pub margin: f64,
+    pub mean: f64,
+    pub ci90: [f64; 2],
+    /// The larger of the two one-sided p-values.
+    pub p: Option<f64>,
+    pub equivalent: bool,
+}
+
+pub fn equivalence(a: &[f64], b: &[f64], margin: f64) -> Option<Equivalence> {
+    if a.len() != b.len() || a.len() < 2 || margin.is_nan() || margin <= 0.0 {
+        return None;
+    }
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let se = sd / n.sqrt();
+    let df = n - 1.0;
+    let dist = StudentsT::new(0.0, 1.0, df).ok()?;
+    let t95 = dist.inverse_cdf(1.0 - ALPHA);
+    let (p_lower, p_upper) = if se > 0.0 {
+        (
+            dist.sf((mean + margin) / se),
+            dist.cdf((mean - margin) / se),
+        )
+    } else {
+        let inside = mean.abs() < margin;
+        (
+            if inside { 0.0 } else { 1.0 },
+            if inside { 0.0 } else { 1.0 },
+        )
+    };
+    let p = p_lower.max(p_upper);
+    Some(Equivalence {
+        n: d.len(),
+        margin,
+        mean,
+        ci90: [mean - t95 * se, mean + t95 * se],
+        p: Some(p),
+        equivalent: p < ALPHA,
+    })
+}
+
 /// Holm's step-down adjustment of a family of p-values (same order as given).
 pub fn holm(p: &[f64]) -> Vec<f64> {
     let m = p.len();
@@ -578,6 +699,31 @@ mod tests {
         assert!((t.t - 3.872983).abs() < 1e-5, "{t:?}");
         assert!((t.p.unwrap() - 0.030466).abs() < 1e-4, "{t:?}");
         assert_eq!(t.df, 3.0);
+    }
+
+    #[test]
+    fn differences_and_equivalence_match_hand_computations() {
+        // Paired: differences 1, 2, 3: mean 2, SD 1, SE 1/sqrt(3), df 2, t_0.975 = 4.3027.
+        let d = difference(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], true).unwrap();
+        assert!((d.mean - 2.0).abs() < 1e-12 && (d.cohen_d - 2.0).abs() < 1e-12);
+        let half = 4.302_652_7 / 3f64.sqrt();
+        assert!((d.ci95[0] - (2.0 - half)).abs() < 1e-5, "{d:?}");
+        // t_0.8 with 2 df = 1.060660.
+        assert!((d.detectable - (4.302_652_7 + 1.060_660_2) / 3f64.sqrt()).abs() < 1e-5);
+        // Independent: means 2 and 5, both SD 1: pooled SD 1, SE sqrt(2/3), df 4.
+        let i = difference(&[1.0, 2.0, 3.0], &[4.0, 5.0, 6.0], false).unwrap();
+        assert!((i.mean + 3.0).abs() < 1e-12 && (i.cohen_d + 3.0).abs() < 1e-12);
+        assert!((i.ci95[1] - (-3.0 + 2.776_445 * (2.0f64 / 3.0).sqrt())).abs() < 1e-5);
+        // TOST: mean difference 2, SE 1/sqrt(3), t_0.95(2) = 2.919986.
+        let e = equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 5.0).unwrap();
+        assert!((e.ci90[1] - (2.0 + 2.919_986 / 3f64.sqrt())).abs() < 1e-5);
+        assert!(e.equivalent, "CI90 [1.3, 3.7] inside ±5: {e:?}");
+        assert!(
+            !equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 2.5)
+                .unwrap()
+                .equivalent
+        );
+        assert!(equivalence(&[1.0], &[1.0], 1.0).is_none());
     }
 
     #[test]

@@ -235,6 +235,49 @@ fn hierarchy_and_uncertainty_report_maps_and_task_tests() {
                         .iter()
                         .all(|v| v.as_f64().unwrap() > 0.0)
                 );
+                // When each module contributes: per task and subtask phase, with a labelled
+                // picture; the exteroceptive module contributes in every phase.
+                let over_time = &summary["results"]["contribution_over_time"];
+                for task in ["repositioning", "wiping"] {
+                    // Smoke scale runs the first 10 steps: the first subtask, named from the data.
+                    assert_eq!(
+                        over_time[task]["phases"],
+                        serde_json::json!(["reaching"]),
+                        "{over_time}"
+                    );
+                    let ext = over_time[task]["per_network"]["exteroceptive"]
+                        .as_array()
+                        .unwrap();
+                    assert!(ext.iter().all(|phase| {
+                        phase
+                            .as_array()
+                            .unwrap()
+                            .iter()
+                            .all(|v| v.as_f64().unwrap() > 0.0)
+                    }));
+                    assert!(
+                        dir.join(format!("contributions_over_time_{task}.png"))
+                            .is_file()
+                    );
+                }
+                // Occlusion relative to the observed frame, also from the 16x16 input and the
+                // prior prediction (the synthetic test sequences have robot-free renders).
+                let relative = &summary["results"]["occlusion"]["relative"];
+                for row in [
+                    "reconstruction, everything observed",
+                    "prior prediction, everything observed",
+                    "reconstruction, 16x16 + proprioception observed",
+                ] {
+                    assert_eq!(
+                        relative[row]["per_network"].as_array().unwrap().len(),
+                        2,
+                        "{row}: {relative}"
+                    );
+                }
+                // The boundary test leaves out the warm-up (steps t < H) and is two-sided.
+                let boundary = &summary["results"]["executive_boundary"];
+                assert_eq!(boundary["from_step"], 4);
+                assert_eq!(boundary["two_sided"], true);
             }
             _ => {
                 let comparisons = summary["results"]["comparisons"].as_array().unwrap();
@@ -423,9 +466,24 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
             .to_string()
             .contains("--validate")
     );
-    assert!(Plan::new(Experiment::Hierarchy, Scale::Smoke, &data, None, Some(&data)).is_err());
-    let mut plan =
-        Plan::new(Experiment::Hierarchy, Scale::Smoke, &data, None, Some(&held_out)).unwrap();
+    assert!(
+        Plan::new(
+            Experiment::Hierarchy,
+            Scale::Smoke,
+            &data,
+            None,
+            Some(&data)
+        )
+        .is_err()
+    );
+    let mut plan = Plan::new(
+        Experiment::Hierarchy,
+        Scale::Smoke,
+        &data,
+        None,
+        Some(&held_out),
+    )
+    .unwrap();
     plan.design.validate_every = Some(4);
     plan.design.patience = Some(1);
     plan.design.flat_change = Some(1e-12);
@@ -438,7 +496,9 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
     let iterations: Vec<u64> = trained.validations.iter().map(|r| r.iteration).collect();
     assert_eq!(
         iterations,
-        (1..=iterations.len() as u64).map(|k| 4 * k).collect::<Vec<_>>()
+        (1..=iterations.len() as u64)
+            .map(|k| 4 * k)
+            .collect::<Vec<_>>()
     );
     let best = pvrnn_eval::validation::best(&trained.validations).unwrap();
     let path = pvrnn_experiment::run::network_path(&plan, &out, 0).unwrap();

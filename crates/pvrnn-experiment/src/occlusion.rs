@@ -38,6 +38,10 @@ pub struct OcclusionScores {
     /// observation) against the robot-free truth, on the pixels hidden at its step.
     #[serde(default)]
     pub prior: Option<f64>,
+    /// The observed frame against the truth on the pixels the prior is scored on: the
+    /// prior's reference.
+    #[serde(default)]
+    pub observed_where_prior: Option<f64>,
 }
 
 impl OcclusionScores {
@@ -49,7 +53,7 @@ impl OcclusionScores {
 
     /// The same for the prior prediction.
     pub fn prior_relative(&self) -> Option<f64> {
-        Some(self.prior? - self.observed?)
+        Some(self.prior? - self.observed_where_prior?)
     }
 }
 
@@ -58,8 +62,9 @@ impl OcclusionScores {
 pub struct OcclusionScorer {
     mean_image: Vec<f32>,
     last_seen: Vec<f32>,
-    /// Squared errors: model, mean image, last seen, model vs observed, observed, prior.
-    sums: [f64; 6],
+    /// Squared errors: model, mean image, last seen, model vs observed, observed, prior,
+    /// and observed on the pixels the prior is scored on.
+    sums: [f64; 7],
     hidden: usize,
     /// Hidden values the prior prediction was scored on (all but the first step's).
     prior_scored: usize,
@@ -72,7 +77,7 @@ impl OcclusionScorer {
         Self {
             last_seen: mean_image.clone(),
             mean_image,
-            sums: [0.0; 6],
+            sums: [0.0; 7],
             hidden: 0,
             prior_scored: 0,
             total: 0,
@@ -111,6 +116,7 @@ impl OcclusionScorer {
                 self.sums[4] += sq(obs[c], truth[c]);
                 if let Some(prior) = prior {
                     self.sums[5] += sq(prior[c], truth[c]);
+                    self.sums[6] += sq(obs[c], truth[c]);
                 }
             }
             if prior.is_some() {
@@ -133,6 +139,8 @@ impl OcclusionScorer {
             model_vs_observed: self.sums[3] / n,
             observed: Some(self.sums[4] / n),
             prior: (self.prior_scored > 0).then(|| self.sums[5] / self.prior_scored as f64),
+            observed_where_prior: (self.prior_scored > 0)
+                .then(|| self.sums[6] / self.prior_scored as f64),
         })
     }
 }
@@ -170,7 +178,17 @@ mod tests {
         assert!(close(s.observed.unwrap(), 0.36), "{s:?}");
         assert!(close(s.model_relative().unwrap(), 0.0), "{s:?}");
         assert!(close(s.prior.unwrap(), 0.0025), "{s:?}");
+        // The prior's reference: the observed frame on the pixels the prior is scored on.
+        assert!(close(s.observed_where_prior.unwrap(), 0.36), "{s:?}");
         assert!(close(s.prior_relative().unwrap(), 0.0025 - 0.36), "{s:?}");
+        // Hidden at the first step (no prior yet) and later: each score keeps its pixels.
+        let mut two = OcclusionScorer::new(vec![0.0; 3]);
+        two.step(&[0.9; 3], &[0.2; 3], &[0.9; 3], None);
+        two.step(&[0.5; 3], &[0.2; 3], &[0.5; 3], Some(&[0.2; 3]));
+        let t = two.finish().unwrap();
+        assert!(close(t.observed.unwrap(), (0.49 + 0.09) / 2.0), "{t:?}");
+        assert!(close(t.observed_where_prior.unwrap(), 0.09), "{t:?}");
+        assert!(close(t.prior_relative().unwrap(), -0.09), "{t:?}");
         assert!(close(s.mean_image, 0.09), "{s:?}");
         assert!(close(s.last_seen, 0.01), "last seen 0.2, truth 0.3: {s:?}");
         assert!(OcclusionScorer::new(vec![0.0; 3]).finish().is_none());

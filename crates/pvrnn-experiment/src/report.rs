@@ -314,7 +314,7 @@ fn learning_curves(plan: &Plan, trains: &[TrainResult], md: &mut String) {
     };
     let _ = writeln!(
         md,
-        "## Learning curves\n\nConvergence: {rule}. *Last-tenth change*: the relative change of the mean free energy from the second-to-last to the last tenth of the iterations (negative = still falling).\n\n| network | training | iterations | network used | final F | last-tenth change | stopped | converged | time |\n|---|---|---|---|---|---|---|---|---|"
+        "## Learning curves\n\nConvergence: {rule}. *Final F*: the free energy at the last iteration trained (not at the network used). *Last-tenth change*: the relative change of the mean free energy from the second-to-last to the last tenth of the iterations (negative = still falling).\n\n| network | training | iterations | network used | final F | last-tenth change | stopped | converged | time |\n|---|---|---|---|---|---|---|---|---|"
     );
     for t in trains {
         let stopped = match t.stop {
@@ -664,6 +664,8 @@ fn time_resolved(
         // The picture: per module (rows) and phase (columns), the maps of the first camera
         // averaged over runs.
         let mut sums: Vec<Vec<Vec<f64>>> = Vec::new();
+        // Runs that have each phase (a run that ends early lacks the later ones).
+        let mut per_phase = vec![0usize; phases];
         let mut count = 0usize;
         for (x, _) in with_phases.iter().filter(|(x, _)| x.task == task) {
             let path = r.paths.get(&x.job);
@@ -675,6 +677,10 @@ fn time_resolved(
                 sums = vec![vec![Vec::new(); phases]; 4];
             }
             for (k, phase) in maps.iter().enumerate().take(phases) {
+                if x.phase_steps.get(k).copied().unwrap_or(0) == 0 {
+                    continue;
+                }
+                per_phase[k] += 1;
                 for (m, map) in phase.iter().enumerate() {
                     let acc = &mut sums[m][k];
                     if acc.is_empty() {
@@ -696,10 +702,11 @@ fn time_resolved(
                 .map(|phases| {
                     phases
                         .iter()
-                        .map(|m| {
+                        .zip(&per_phase)
+                        .map(|(m, &runs)| {
                             m.iter()
                                 .take(side * side)
-                                .map(|v| v / count as f64)
+                                .map(|v| v / runs.max(1) as f64)
                                 .collect()
                         })
                         .collect()
@@ -868,11 +875,12 @@ fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
             for y in 0..r * scale {
                 for x in 0..r * scale {
                     let v = map[c * r * r + (y / scale) * r + x / scale] / max;
-                    let level = (255.0 * (1.0 - v.clamp(0.0, 1.0))) as u8;
+                    // Brighter = more influence, as the paper's Figs 2B and 3B.
+                    let level = (255.0 * v.clamp(0.0, 1.0)) as u8;
                     let px = c * (r * scale + gap) + x;
                     let py = m * (r * scale + gap) + y;
                     let i = (py * width + px) * 3;
-                    rgb[i..i + 3].copy_from_slice(&[level, level, 255]);
+                    rgb[i..i + 3].copy_from_slice(&[level, level, level]);
                 }
             }
         }
@@ -952,18 +960,19 @@ fn boundary_test(
     };
     let (per_net, observed) = statistic(&|_| 0);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed);
-    let mut at_least = 0usize;
+    let (mut above, mut below) = (0usize, 0usize);
     for _ in 0..PERMUTATIONS {
         let shifts: Vec<usize> = runs
             .iter()
             .map(|(_, _, m)| rng.random_range(1..m.len().max(2)))
             .collect();
-        // Two-sided: as extreme in either direction.
-        if statistic(&|i| shifts[i]).1.abs() >= observed.abs() {
-            at_least += 1;
-        }
+        let permuted = statistic(&|i| shifts[i]).1;
+        above += usize::from(permuted >= observed);
+        below += usize::from(permuted <= observed);
     }
-    let p = (1 + at_least) as f64 / (1 + PERMUTATIONS) as f64;
+    // Two-sided: twice the smaller one-sided p (the shift null need not be symmetric).
+    let one_sided = |k: usize| (1 + k) as f64 / (1 + PERMUTATIONS) as f64;
+    let p = (2.0 * one_sided(above).min(one_sided(below))).min(1.0);
     (per_net, Some(observed), Some(p))
 }
 

@@ -538,7 +538,9 @@ fn train(
     let data = dataset.observations(&chosen_refs, trainer.config())?;
     pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
-    let mut rule = ConvergenceRule::open(plan, dir, id, trainer.iteration)?;
+    let learned_tasks: std::collections::BTreeSet<&str> =
+        chosen.iter().map(|s| s.info.task.as_str()).collect();
+    let mut rule = ConvergenceRule::open(plan, dir, id, trainer.iteration, &learned_tasks)?;
     let mut stop_reason = None;
     if let Some(rule) = rule.as_mut()
         && rule.missed(trainer.iteration)
@@ -628,7 +630,15 @@ struct ConvergenceRule {
 }
 
 impl ConvergenceRule {
-    fn open(plan: &Plan, dir: &Path, id: usize, iteration: u64) -> Result<Option<Self>> {
+    /// `tasks`: the tasks the network learns; it is validated on those only (an
+    /// interference network that learns one task is not stopped by its error on the other).
+    fn open(
+        plan: &Plan,
+        dir: &Path,
+        id: usize,
+        iteration: u64,
+        tasks: &std::collections::BTreeSet<&str>,
+    ) -> Result<Option<Self>> {
         let Some(every) = plan.design.validate_every else {
             return Ok(None);
         };
@@ -638,8 +648,21 @@ impl ConvergenceRule {
                 plan.scale.name()
             )
         })?;
-        let dataset = Dataset::open(data)
+        let mut dataset = Dataset::open(data)
             .with_context(|| format!("validation dataset {}", data.display()))?;
+        dataset
+            .manifest
+            .sequences
+            .retain(|s| tasks.contains(s.task.as_str()));
+        dataset
+            .sequences
+            .retain(|s| tasks.contains(s.info.task.as_str()));
+        ensure!(
+            !dataset.sequences.is_empty(),
+            "validation dataset {}: no sequence of the tasks the network learns ({})",
+            data.display(),
+            tasks.iter().copied().collect::<Vec<_>>().join(", ")
+        );
         let log = plan.validation_log_path(dir, id);
         let mut rows = validation::read_log(&log)?;
         rows.retain(|r| r.iteration <= iteration);
@@ -949,9 +972,15 @@ fn infer(
         phase_map_means: maps.then(|| {
             phase_maps
                 .iter()
-                .map(|p| {
+                .zip(&phase_sums)
+                .map(|(p, (steps_in_phase, _))| {
+                    // A label that never occurs: no steps, no contribution (not 0).
                     std::array::from_fn(|m| {
-                        p[m].iter().map(|v| *v as f64).sum::<f64>() / p[m].len().max(1) as f64
+                        if *steps_in_phase == 0 {
+                            f64::NAN
+                        } else {
+                            p[m].iter().map(|v| *v as f64).sum::<f64>() / p[m].len().max(1) as f64
+                        }
                     })
                 })
                 .collect()
@@ -1018,6 +1047,10 @@ fn write_infer_result(
     Ok(())
 }
 
+/// Part of a kept run's identity: runs kept before occlusion was scored relative to the
+/// observed frame (and on the prior) in every run are not reused.
+const SCORES_VERSION: &str = "; scores 2";
+
 /// An inference run as experiments sharing a networks folder see it. The same network,
 /// test sequence, trial (noise seed), observed modalities and inference settings give the
 /// same run in every experiment (hierarchy's runs with everything observed are
@@ -1072,7 +1105,7 @@ impl SharedRun {
                     "{} iterations, final free energy {:?}",
                     trained.iterations, trained.final_free_energy
                 ),
-            },
+            } + SCORES_VERSION,
         }))
     }
 

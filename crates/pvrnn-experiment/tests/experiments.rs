@@ -522,4 +522,30 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         trained.network_iteration
     );
     assert!(plan.validation_log_path(&out, 0).is_file());
+    // Learning all 18 sequences, the network is validated on both tasks' held-out ones;
+    // an interference network that learns one task only, on that task's.
+    assert_eq!(trained.validations[0].trials, 2);
+    let mut single = Plan::new(
+        Experiment::Interference,
+        Scale::Smoke,
+        &data,
+        None,
+        Some(&held_out),
+    )
+    .unwrap();
+    single.design.validate_every = Some(10);
+    single.design.patience = Some(1);
+    let out = tmp.path().join("interference");
+    single.save(&out).unwrap();
+    let JobKind::Train { condition, .. } = &single.jobs[0].kind else {
+        panic!("a training first")
+    };
+    assert!(condition.ends_with(" 0"), "{condition}");
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(0), &go, &|_| {}).unwrap();
+    let trained = read_train_result(&single.result_path(&out, 0)).unwrap();
+    assert_eq!(
+        trained.validations[0].trials, 1,
+        "{:?}",
+        trained.validations
+    );
 }

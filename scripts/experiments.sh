@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# Runs the paper's four experiments at one scale (SCALE: reduced, the default, or
+# converged), network by network, so that a run cut short (a session's end, a reboot)
+# leaves complete networks and resumes where it stopped (docs/experiments.md):
+#
+#   scripts/experiments.sh                              # reduced: everything not done yet
+#   scripts/experiments.sh shared 1                     # network 1 of the shared experiments
+#   scripts/experiments.sh interference 2               # network 2 of interference
+#   SCALE=converged scripts/experiments.sh shared 0     # converged scale, network 0
+#
+# Reduced results go to docs/results/<experiment>/, converged ones to
+# docs/results/converged/<experiment>/. hierarchy, uncertainty and robustness share their
+# networks (training/<scale>-networks/, trained once, by whichever experiment comes first);
+# interference trains its own (reduced: in the same folder; converged:
+# training/converged-interference/). The data is caresim seed 0 with robot-free renders
+# (data/caresim-robotfree, made here if missing: its learning sequences are byte for byte
+# those of `pvrnn simulate`); the converged scale validates on caresim seed 1
+# (data/caresim-seed1, made here if missing). Each step
+# ends with the experiment's report rebuilt from what is done. THREADS (default 2) sets the
+# worker threads, JOBS (default 1) the jobs run at once, BACKEND (cpu or wgpu; default cpu)
+# what computes, PVRNN the executable (default target/release/pvrnn). On a GPU machine:
+#
+#   BACKEND=wgpu JOBS=4 THREADS=16 scripts/experiments.sh interference 1
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+threads=${THREADS:-2}
+jobs=${JOBS:-1}
+backend=${BACKEND:-cpu}
+scale=${SCALE:-reduced}
+data=data/caresim-robotfree
+validation=data/caresim-seed1
+case "$scale" in
+reduced) results=docs/results count=3 ;;
+converged) results=docs/results/converged count=5 ;;
+*) echo "SCALE must be reduced or converged, not $scale" >&2; exit 2 ;;
+esac
+if [ -z "${PVRNN:-}" ]; then
+    # Always from the current sources: a stale binary could plan another design.
+    cargo build --release --bin pvrnn
+fi
+pvrnn=${PVRNN:-target/release/pvrnn}
+[ -f "$data/dataset.json" ] ||
+    "$pvrnn" --threads "$threads" simulate --robot-free --no-previews --out "$data"
+[ "$scale" != converged ] || [ -f "$validation/dataset.json" ] ||
+    "$pvrnn" --threads "$threads" simulate --seed 1 --no-previews --out "$validation"
+
+# One network of one experiment: its trainings (or the shared ones, already trained), then
+# its inference runs, then the report.
+run() {
+    local experiment=$1 network=$2 out=$results/$1
+    local networks=training/$scale-networks
+    [ "$scale/$experiment" != converged/interference ] || networks=training/converged-interference
+    local args=(--scale "$scale" --out "$out" --network "$network" --jobs "$jobs" --backend "$backend")
+    [ -f "$out/plan.json" ] || args+=(--dataset "$data" --networks "$networks")
+    [ -f "$out/plan.json" ] || [ "$scale" != converged ] || args+=(--validate "$validation")
+    echo "== $experiment, network $network ($(date -u +%H:%M:%S))" >&2
+    local start
+    start=$(date +%s)
+    "$pvrnn" --threads "$threads" experiment "$experiment" "${args[@]}"
+    echo "   $experiment network $network took $(( $(date +%s) - start )) s" >&2
+}
+
+which=${1:-all}
+only=${2:-}
+networks_of() { if [ -n "$only" ]; then echo "$only"; else seq 0 $((count - 1)); fi; }
+if [ "$which" = all ] || [ "$which" = shared ]; then
+    for network in $(networks_of); do
+        for experiment in hierarchy uncertainty robustness; do
+            run "$experiment" "$network"
+        done
+    done
+fi
+if [ "$which" = all ] || [ "$which" = interference ]; then
+    for network in $(networks_of); do
+        run interference "$network"
+    done
+fi

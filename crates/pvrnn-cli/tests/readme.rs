@@ -97,16 +97,94 @@ fn every_command_the_documents_show_exists() {
 }
 
 #[test]
-fn the_training_log_is_where_the_readme_says() {
-    let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
+fn the_training_log_is_where_the_docs_say() {
+    let cli = std::fs::read_to_string(repo().join("docs/cli.md")).unwrap();
     assert!(
-        readme.contains("`<out stem>.log.csv` (`run.safetensors` -> `run.log.csv`)"),
-        "the README's training-log sentence changed: update this test with it"
+        cli.contains("`<out stem>.log.csv` (`run.safetensors` -> `run.log.csv`)"),
+        "docs/cli.md's training-log sentence changed: update this test with it"
     );
     // What `pvrnn train` writes (its help says the same).
     let text = help(&["train"]);
     assert!(
         text.contains("`run.safetensors` -> `run.log.csv`"),
         "{text}"
+    );
+}
+
+/// The workspace crates a cell of the dependency table names (`–` = none; words after the
+/// names, in parentheses, are comments).
+fn crate_names(cell: &str) -> std::collections::BTreeSet<String> {
+    cell.split('(')
+        .next()
+        .unwrap_or("")
+        .split(',')
+        .map(str::trim)
+        .filter(|w| !w.is_empty() && *w != "–")
+        .map(str::to_string)
+        .collect()
+}
+
+#[test]
+fn architecture_dependency_table_matches_the_manifests() {
+    use std::collections::BTreeSet;
+    let doc = std::fs::read_to_string(repo().join("ARCHITECTURE.md")).unwrap();
+    let table = doc
+        .split("<!-- dependencies: begin -->")
+        .nth(1)
+        .and_then(|rest| rest.split("<!-- dependencies: end -->").next())
+        .expect("ARCHITECTURE.md has its dependency table between the markers");
+    type Deps = BTreeMap<String, (BTreeSet<String>, BTreeSet<String>)>;
+    let mut documented: Deps = BTreeMap::new();
+    for line in table
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| crate"))
+    {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        documented.insert(
+            cells[1].to_string(),
+            (crate_names(cells[2]), crate_names(cells[3])),
+        );
+    }
+    let out = Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let metadata: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let packages = metadata["packages"].as_array().unwrap();
+    let workspace: BTreeSet<String> = packages
+        .iter()
+        .map(|p| p["name"].as_str().unwrap().to_string())
+        .collect();
+    let mut actual: Deps = BTreeMap::new();
+    for p in packages {
+        let (mut normal, mut dev) = (BTreeSet::new(), BTreeSet::new());
+        for d in p["dependencies"].as_array().unwrap() {
+            let name = d["name"].as_str().unwrap().to_string();
+            if !workspace.contains(&name) {
+                continue;
+            }
+            if d["kind"].is_null() {
+                normal.insert(name);
+            } else if d["kind"] == "dev" {
+                dev.insert(name);
+            }
+        }
+        actual.insert(p["name"].as_str().unwrap().to_string(), (normal, dev));
+    }
+    assert_eq!(
+        documented, actual,
+        "ARCHITECTURE.md's dependency table (left) differs from the Cargo.toml files (right)"
     );
 }

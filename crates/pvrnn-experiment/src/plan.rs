@@ -431,217 +431,39 @@ impl Plan {
     ) -> Result<Self> {
         let dataset = Dataset::open(dataset_dir)?;
         let design = Design::of(experiment, scale);
-        let validation_dataset = match (design.validate_every, validation) {
-            (Some(_), None) => bail!(
-                "the {} scale trains each network until its validation error stops improving: pass --validate with a held-out caresim dataset (`pvrnn simulate --seed 1`)",
-                scale.name()
-            ),
-            (_, Some(dir)) => {
-                Dataset::open(dir).with_context(|| format!("--validate {}", dir.display()))?;
-                let dir = std::fs::canonicalize(dir)?;
-                ensure!(
-                    dir != std::fs::canonicalize(dataset_dir)?,
-                    "--validate {}: the learning data itself; the convergence rule needs sequences the networks do not learn from",
-                    dir.display()
-                );
-                Some(dir)
-            }
-            (None, None) => None,
-        };
+        let validation_dataset = resolve_validation(&design, scale, validation, dataset_dir)?;
         let dataset_dir = std::fs::canonicalize(dataset_dir)
             .with_context(|| format!("cannot resolve {}", dataset_dir.display()))?;
-        let learn: Vec<&pvrnn_dataset::SequenceInfo> = dataset
-            .manifest
-            .sequences
-            .iter()
-            .filter(|s| s.split == Split::Learn)
-            .collect();
-        let of_task = |task: &str, split: Split| -> Vec<String> {
-            dataset
-                .manifest
-                .sequences
-                .iter()
-                .filter(|s| s.task == task && s.split == split)
-                .map(|s| s.name.clone())
-                .collect()
-        };
-        let tasks = ["repositioning", "wiping"];
-        for task in tasks {
+        for task in TASKS {
             ensure!(
-                !of_task(task, Split::Learn).is_empty() && !of_task(task, Split::Test).is_empty(),
+                !names_of(&dataset, task, Split::Learn).is_empty()
+                    && !names_of(&dataset, task, Split::Test).is_empty(),
                 "{}: the experiments need learning and test sequences of the task `{task}` (a caresim dataset)",
                 dataset_dir.display()
             );
         }
         if let Some(path) = reuse {
-            ensure!(
-                experiment != Experiment::Interference,
-                "--reuse: the interference experiment trains on subsets; there is nothing to reuse"
-            );
-            let file = pvrnn_core::io::TensorFile::open(path)?;
-            let iteration = pvrnn_core::io::checkpoint_iteration(&file);
-            ensure!(
-                iteration == Some(design.train_iterations),
-                "--reuse {}: a checkpoint at iteration {:?}, the {} design trains {} iterations",
-                path.display(),
-                iteration,
-                scale.name(),
-                design.train_iterations
-            );
+            check_reuse(experiment, scale, &design, path)?;
         }
-        let mut jobs: Vec<Job> = Vec::new();
-        let mut push = |name: String, kind: JobKind, after: Vec<usize>| -> usize {
-            let id = jobs.len();
-            jobs.push(Job {
-                id,
-                name,
-                kind,
-                after,
-            });
-            id
-        };
-        // Trainings: (job id, network, training condition, primary task if any).
-        let mut trainings: Vec<(usize, usize, String, Option<String>, String)> = Vec::new();
-        if experiment == Experiment::Interference {
-            for primary in &design.primary_tasks {
-                let other = tasks
-                    .iter()
-                    .find(|t| *t != primary)
-                    .expect("two tasks")
-                    .to_string();
-                let kept = of_task(primary, Split::Learn);
-                let extra = added_sequences(&dataset, &other, &design.added)?;
-                for (&k, added) in design.added.iter().zip(extra) {
-                    let condition = format!("{primary} {} + {other} {k}", kept.len());
-                    for network in 0..design.networks {
-                        let mut sequences = kept.clone();
-                        sequences.extend(added.iter().cloned());
-                        let name = format!("{primary}-plus{k}-net{network}");
-                        let id = push(
-                            format!("train-{name}"),
-                            JobKind::Train {
-                                network,
-                                condition: condition.clone(),
-                                sequences,
-                                seed: network as u64,
-                                iterations: design.train_iterations,
-                                reuse: None,
-                            },
-                            Vec::new(),
-                        );
-                        trainings.push((
-                            id,
-                            network,
-                            condition.clone(),
-                            Some(primary.clone()),
-                            name,
-                        ));
-                    }
-                }
-            }
+        let mut jobs = Jobs(Vec::new());
+        let trainings = if experiment == Experiment::Interference {
+            interference_trainings(&mut jobs, &design, &dataset)?
         } else {
-            let all: Vec<String> = learn.iter().map(|s| s.name.clone()).collect();
-            let condition = format!("all {}", all.len());
-            for network in 0..design.networks {
-                let reuse = (network == 0)
-                    .then(|| reuse.map(Path::to_path_buf))
-                    .flatten();
-                let reuse = match reuse {
-                    Some(p) => Some(
-                        std::fs::canonicalize(&p)
-                            .with_context(|| format!("cannot resolve {}", p.display()))?,
-                    ),
-                    None => None,
-                };
-                let id = push(
-                    format!("train-net{network}"),
-                    JobKind::Train {
-                        network,
-                        condition: condition.clone(),
-                        sequences: all.clone(),
-                        seed: network as u64,
-                        iterations: design.train_iterations,
-                        reuse,
-                    },
-                    Vec::new(),
-                );
-                trainings.push((
-                    id,
-                    network,
-                    condition.clone(),
-                    None,
-                    format!("net{network}"),
-                ));
-            }
-        }
-        let conditions: Vec<(String, usize, bool)> = match experiment {
-            Experiment::Robustness => VISION_CONDITIONS
-                .iter()
-                .flat_map(|&(label, levels)| {
-                    [true, false].map(|p| {
-                        (
-                            format!("vision {label}, proprio {}", if p { "on" } else { "off" }),
-                            levels,
-                            p,
-                        )
-                    })
-                })
-                .collect(),
-            // Occlusion (Fig. 3B) is scored also where the top resolution is not observed,
-            // so the reconstruction cannot copy the arm it sees: the 16x16 input
-            // (robustness's "vision 16, proprio on" run, shared with it).
-            Experiment::Hierarchy => vec![
-                ("everything observed".to_string(), 3, true),
-                ("vision 16, proprio on".to_string(), 1, true),
-            ],
-            _ => vec![("everything observed".to_string(), 3, true)],
+            shared_trainings(&mut jobs, &design, &dataset, reuse)?
         };
-        // Contribution maps: hierarchy's everything-observed runs.
-        let maps_of = |c: usize| experiment == Experiment::Hierarchy && c == 0;
-        for (train_id, network, training, primary, train_name) in &trainings {
-            let test_tasks: Vec<&str> = match primary {
-                Some(p) => vec![p.as_str()],
-                None => tasks.to_vec(),
-            };
-            for task in test_tasks {
-                let mut tests = of_task(task, Split::Test);
-                if let Some(k) = design.test_sequences_per_task {
-                    tests.truncate(k);
-                }
-                for sequence in tests {
-                    for (c, (_, levels, proprio)) in conditions.iter().enumerate() {
-                        for trial in 0..design.trials {
-                            push(
-                                format!("infer-{train_name}-{sequence}-c{c}-trial{trial}"),
-                                JobKind::Infer {
-                                    network: *network,
-                                    train_job: *train_id,
-                                    training: training.clone(),
-                                    sequence: sequence.clone(),
-                                    task: task.to_string(),
-                                    trial,
-                                    vision_levels: *levels,
-                                    proprio: *proprio,
-                                    maps: maps_of(c),
-                                },
-                                vec![*train_id],
-                            );
-                        }
-                    }
-                }
-            }
-        }
+        inference_jobs(&mut jobs, &design, experiment, &trainings, &dataset);
+        let learned = names_of_split(&dataset, Split::Learn).len();
         Ok(Plan {
             format: FORMAT.into(),
             experiment,
             scale,
             design,
             dataset: dataset_dir,
-            ranges_from: format!("all {} learning sequences of the dataset", learn.len()),
+            ranges_from: format!("all {learned} learning sequences of the dataset"),
             dataset_source: dataset.manifest.source.clone(),
             networks_dir: None,
             validation_dataset,
-            jobs,
+            jobs: jobs.0,
         })
     }
 
@@ -670,6 +492,265 @@ impl Plan {
             );
         }
         Ok(())
+    }
+}
+
+/// The two tasks of a caresim-style dataset.
+const TASKS: [&str; 2] = ["repositioning", "wiping"];
+
+/// The names of `task`'s sequences in `split`, in the dataset's order.
+fn names_of(dataset: &Dataset, task: &str, split: Split) -> Vec<String> {
+    dataset
+        .manifest
+        .sequences
+        .iter()
+        .filter(|s| s.task == task && s.split == split)
+        .map(|s| s.name.clone())
+        .collect()
+}
+
+/// The names of every sequence in `split`, in the dataset's order.
+fn names_of_split(dataset: &Dataset, split: Split) -> Vec<String> {
+    dataset
+        .manifest
+        .sequences
+        .iter()
+        .filter(|s| s.split == split)
+        .map(|s| s.name.clone())
+        .collect()
+}
+
+/// The held-out dataset of a design with a convergence rule (required there, never the
+/// learning data).
+fn resolve_validation(
+    design: &Design,
+    scale: Scale,
+    validation: Option<&Path>,
+    dataset_dir: &Path,
+) -> Result<Option<PathBuf>> {
+    match (design.validate_every, validation) {
+        (Some(_), None) => bail!(
+            "the {} scale trains each network until its validation error stops improving: pass --validate with a held-out caresim dataset (`pvrnn simulate --seed 1`)",
+            scale.name()
+        ),
+        (_, Some(dir)) => {
+            Dataset::open(dir).with_context(|| format!("--validate {}", dir.display()))?;
+            let dir = std::fs::canonicalize(dir)?;
+            ensure!(
+                dir != std::fs::canonicalize(dataset_dir)?,
+                "--validate {}: the learning data itself; the convergence rule needs sequences the networks do not learn from",
+                dir.display()
+            );
+            Ok(Some(dir))
+        }
+        (None, None) => Ok(None),
+    }
+}
+
+/// A checkpoint reused as network 0 must be of the design's training.
+fn check_reuse(experiment: Experiment, scale: Scale, design: &Design, path: &Path) -> Result<()> {
+    ensure!(
+        experiment != Experiment::Interference,
+        "--reuse: the interference experiment trains on subsets; there is nothing to reuse"
+    );
+    let file = pvrnn_core::io::TensorFile::open(path)?;
+    let iteration = pvrnn_core::io::checkpoint_iteration(&file);
+    ensure!(
+        iteration == Some(design.train_iterations),
+        "--reuse {}: a checkpoint at iteration {:?}, the {} design trains {} iterations",
+        path.display(),
+        iteration,
+        scale.name(),
+        design.train_iterations
+    );
+    Ok(())
+}
+
+/// The plan's jobs as they are added (a job's id is its index).
+struct Jobs(Vec<Job>);
+
+impl Jobs {
+    fn push(&mut self, name: String, kind: JobKind, after: Vec<usize>) -> usize {
+        let id = self.0.len();
+        self.0.push(Job {
+            id,
+            name,
+            kind,
+            after,
+        });
+        id
+    }
+}
+
+/// A planned training: its job, network, condition, primary task (interference) and the
+/// name its inference jobs carry.
+struct Training {
+    job: usize,
+    network: usize,
+    condition: String,
+    primary: Option<String>,
+    name: String,
+}
+
+/// Interference: per primary task and number of the other task's sequences added, one
+/// training per network.
+fn interference_trainings(
+    jobs: &mut Jobs,
+    design: &Design,
+    dataset: &Dataset,
+) -> Result<Vec<Training>> {
+    let mut trainings = Vec::new();
+    for primary in &design.primary_tasks {
+        let other = TASKS
+            .iter()
+            .find(|t| *t != primary)
+            .expect("two tasks")
+            .to_string();
+        let kept = names_of(dataset, primary, Split::Learn);
+        let extra = added_sequences(dataset, &other, &design.added)?;
+        for (&k, added) in design.added.iter().zip(extra) {
+            let condition = format!("{primary} {} + {other} {k}", kept.len());
+            for network in 0..design.networks {
+                let mut sequences = kept.clone();
+                sequences.extend(added.iter().cloned());
+                let name = format!("{primary}-plus{k}-net{network}");
+                let job = jobs.push(
+                    format!("train-{name}"),
+                    JobKind::Train {
+                        network,
+                        condition: condition.clone(),
+                        sequences,
+                        seed: network as u64,
+                        iterations: design.train_iterations,
+                        reuse: None,
+                    },
+                    Vec::new(),
+                );
+                trainings.push(Training {
+                    job,
+                    network,
+                    condition: condition.clone(),
+                    primary: Some(primary.clone()),
+                    name,
+                });
+            }
+        }
+    }
+    Ok(trainings)
+}
+
+/// Hierarchy, uncertainty and robustness: one training per network on every learning
+/// sequence (network 0 may reuse a checkpoint).
+fn shared_trainings(
+    jobs: &mut Jobs,
+    design: &Design,
+    dataset: &Dataset,
+    reuse: Option<&Path>,
+) -> Result<Vec<Training>> {
+    let all = names_of_split(dataset, Split::Learn);
+    let condition = format!("all {}", all.len());
+    let mut trainings = Vec::new();
+    for network in 0..design.networks {
+        let reuse = match reuse.filter(|_| network == 0) {
+            Some(p) => Some(
+                std::fs::canonicalize(p)
+                    .with_context(|| format!("cannot resolve {}", p.display()))?,
+            ),
+            None => None,
+        };
+        let job = jobs.push(
+            format!("train-net{network}"),
+            JobKind::Train {
+                network,
+                condition: condition.clone(),
+                sequences: all.clone(),
+                seed: network as u64,
+                iterations: design.train_iterations,
+                reuse,
+            },
+            Vec::new(),
+        );
+        trainings.push(Training {
+            job,
+            network,
+            condition: condition.clone(),
+            primary: None,
+            name: format!("net{network}"),
+        });
+    }
+    Ok(trainings)
+}
+
+/// The observation conditions an experiment's inference runs: (label, vision levels
+/// observed, proprioception).
+fn observed_conditions(experiment: Experiment) -> Vec<(String, usize, bool)> {
+    match experiment {
+        Experiment::Robustness => VISION_CONDITIONS
+            .iter()
+            .flat_map(|&(label, levels)| {
+                [true, false].map(|p| {
+                    (
+                        format!("vision {label}, proprio {}", if p { "on" } else { "off" }),
+                        levels,
+                        p,
+                    )
+                })
+            })
+            .collect(),
+        // Occlusion (Fig. 3B) is scored also where the top resolution is not observed,
+        // so the reconstruction cannot copy the arm it sees: the 16x16 input
+        // (robustness's "vision 16, proprio on" run, shared with it).
+        Experiment::Hierarchy => vec![
+            ("everything observed".to_string(), 3, true),
+            ("vision 16, proprio on".to_string(), 1, true),
+        ],
+        _ => vec![("everything observed".to_string(), 3, true)],
+    }
+}
+
+/// One inference job per training, test sequence of its tasks, condition and trial.
+fn inference_jobs(
+    jobs: &mut Jobs,
+    design: &Design,
+    experiment: Experiment,
+    trainings: &[Training],
+    dataset: &Dataset,
+) {
+    let conditions = observed_conditions(experiment);
+    // Contribution maps: hierarchy's everything-observed runs.
+    let maps_of = |c: usize| experiment == Experiment::Hierarchy && c == 0;
+    for t in trainings {
+        let test_tasks: Vec<&str> = match &t.primary {
+            Some(p) => vec![p.as_str()],
+            None => TASKS.to_vec(),
+        };
+        for task in test_tasks {
+            let mut tests = names_of(dataset, task, Split::Test);
+            if let Some(k) = design.test_sequences_per_task {
+                tests.truncate(k);
+            }
+            for sequence in tests {
+                for (c, (_, levels, proprio)) in conditions.iter().enumerate() {
+                    for trial in 0..design.trials {
+                        jobs.push(
+                            format!("infer-{}-{sequence}-c{c}-trial{trial}", t.name),
+                            JobKind::Infer {
+                                network: t.network,
+                                train_job: t.job,
+                                training: t.condition.clone(),
+                                sequence: sequence.clone(),
+                                task: task.to_string(),
+                                trial,
+                                vision_levels: *levels,
+                                proprio: *proprio,
+                                maps: maps_of(c),
+                            },
+                            vec![t.job],
+                        );
+                    }
+                }
+            }
+        }
     }
 }
 

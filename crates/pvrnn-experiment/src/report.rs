@@ -165,60 +165,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
     let stamp = format!("{} scale", plan.scale.name());
     let mut md = String::new();
     let _ = writeln!(md, "# Experiment: {} ({stamp})\n", plan.experiment.name());
-    let d = &plan.design;
-    let _ = writeln!(
-        md,
-        "Scale **{}**: {}. Networks: {}, learning iterations: {}, trials per test sequence: {}, inference window: {}, updates per step: {}, test steps: {}. Estimated training time: {:.1} h on 2 cores. Proprioception ranges: {}. Dataset: `{}` ({}).\n",
-        plan.scale.name(),
-        d.note,
-        d.networks,
-        d.train_iterations,
-        d.trials,
-        d.inference_window
-            .map_or("model's (30)".into(), |v| v.to_string()),
-        d.inference_iterations
-            .map_or("model's (50)".into(), |v| v.to_string()),
-        d.test_steps
-            .map_or("whole sequences".into(), |v| format!("first {v}")),
-        d.estimated_training_hours,
-        plan.ranges_from,
-        plan.dataset.display(),
-        if plan.dataset_source.is_empty() {
-            "source not recorded"
-        } else {
-            &plan.dataset_source
-        }
-    );
-    if results.done < results.total {
-        let _ = writeln!(
-            md,
-            "**Partial**: {} of {} jobs done; the numbers below use the finished ones.\n",
-            results.done, results.total
-        );
-    }
-    if !results.diverged.is_empty() {
-        let listed: Vec<String> = results
-            .diverged
-            .iter()
-            .map(|x| {
-                format!(
-                    "network {} on `{}` ({}, trial {}) at step {}",
-                    x.network,
-                    x.sequence,
-                    x.condition,
-                    x.trial,
-                    x.diverged.as_ref().map_or(0, |d| d.step)
-                )
-            })
-            .collect();
-        let _ = writeln!(
-            md,
-            "**Diverged**: online inference diverged beyond repair in {} of {} inference runs, which every analysis below leaves out: {}.\n",
-            results.diverged.len(),
-            results.diverged.len() + results.infers.len(),
-            listed.join("; ")
-        );
-    }
+    design_header(&plan, &results, &mut md);
     learning_curves(&plan, &results.trains, &mut md);
     md.push('\n');
     let mut summary = json!({
@@ -285,6 +232,64 @@ Every inference run (one row per network, test sequence, condition and trial; er
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(out_dir)
+}
+
+/// The report's opening: the design at its scale, and what is missing or diverged.
+fn design_header(plan: &Plan, results: &Results, md: &mut String) {
+    let d = &plan.design;
+    let _ = writeln!(
+        md,
+        "Scale **{}**: {}. Networks: {}, learning iterations: {}, trials per test sequence: {}, inference window: {}, updates per step: {}, test steps: {}. Estimated training time: {:.1} h on 2 cores. Proprioception ranges: {}. Dataset: `{}` ({}).\n",
+        plan.scale.name(),
+        d.note,
+        d.networks,
+        d.train_iterations,
+        d.trials,
+        d.inference_window
+            .map_or("model's (30)".into(), |v| v.to_string()),
+        d.inference_iterations
+            .map_or("model's (50)".into(), |v| v.to_string()),
+        d.test_steps
+            .map_or("whole sequences".into(), |v| format!("first {v}")),
+        d.estimated_training_hours,
+        plan.ranges_from,
+        plan.dataset.display(),
+        if plan.dataset_source.is_empty() {
+            "source not recorded"
+        } else {
+            &plan.dataset_source
+        }
+    );
+    if results.done < results.total {
+        let _ = writeln!(
+            md,
+            "**Partial**: {} of {} jobs done; the numbers below use the finished ones.\n",
+            results.done, results.total
+        );
+    }
+    if !results.diverged.is_empty() {
+        let listed: Vec<String> = results
+            .diverged
+            .iter()
+            .map(|x| {
+                format!(
+                    "network {} on `{}` ({}, trial {}) at step {}",
+                    x.network,
+                    x.sequence,
+                    x.condition,
+                    x.trial,
+                    x.diverged.as_ref().map_or(0, |d| d.step)
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "**Diverged**: online inference diverged beyond repair in {} of {} inference runs, which every analysis below leaves out: {}.\n",
+            results.diverged.len(),
+            results.diverged.len() + results.infers.len(),
+            listed.join("; ")
+        );
+    }
 }
 
 /// The convergence criterion applied to every network: the relative change of the mean
@@ -645,7 +650,7 @@ fn time_resolved(
                     &|x| {
                         x.phase_map_means
                             .as_ref()
-                            .and_then(|p| p.get(k))
+                            .and_then(|p| p.get(k).copied().flatten())
                             .map(|v| v[m])
                     },
                 )
@@ -661,77 +666,90 @@ fn time_resolved(
             task.to_string(),
             json!({"phases": names, "per_network": rows}),
         );
-        // The picture: per module (rows) and phase (columns), the maps of the first camera
-        // averaged over runs.
-        let mut sums: Vec<Vec<Vec<f64>>> = Vec::new();
-        // Runs that have each phase (a run that ends early lacks the later ones).
-        let mut per_phase = vec![0usize; phases];
-        let mut count = 0usize;
-        for (x, _) in with_phases.iter().filter(|(x, _)| x.task == task) {
-            let path = r.paths.get(&x.job);
-            let Some(maps) = path.and_then(|p| crate::run::read_phase_maps(p).ok().flatten())
-            else {
-                continue;
-            };
-            if sums.is_empty() {
-                sums = vec![vec![Vec::new(); phases]; 4];
-            }
-            for (k, phase) in maps.iter().enumerate().take(phases) {
-                if x.phase_steps.get(k).copied().unwrap_or(0) == 0 {
-                    continue;
-                }
-                per_phase[k] += 1;
-                for (m, map) in phase.iter().enumerate() {
-                    let acc = &mut sums[m][k];
-                    if acc.is_empty() {
-                        *acc = vec![0.0; map.len()];
-                    }
-                    for (a, v) in acc.iter_mut().zip(map) {
-                        *a += *v as f64;
-                    }
-                }
-            }
-            count += 1;
-        }
-        if count > 0 {
-            let pixels = sums.iter().flatten().map(Vec::len).max().unwrap_or(0);
-            // The first camera: the map holds the cameras one after the other.
-            let side = ((pixels / 2) as f64).sqrt() as usize;
-            let cells: Vec<Vec<Vec<f64>>> = sums
-                .iter()
-                .map(|phases| {
-                    phases
-                        .iter()
-                        .zip(&per_phase)
-                        .map(|(m, &runs)| {
-                            m.iter()
-                                .take(side * side)
-                                .map(|v| v / runs.max(1) as f64)
-                                .collect()
-                        })
-                        .collect()
-                })
-                .collect();
-            let file = format!("contributions_over_time_{task}.png");
-            pvrnn_eval::plots::labelled_maps(
-                &out.join(&file),
-                &format!(
-                    "{task}: contribution per module and subtask, camera 0 ({stamp}, {count} runs)"
-                ),
-                &module_names(),
-                &names,
-                &cells,
-                side,
-            )?;
-            let _ = writeln!(
-                md,
-                "\n![{task}: contributions over time]({file}): rows = modules, columns = subtask phases; brightness = mean |standard − ablated| per pixel, one scale for the picture.\n"
-            );
-        } else {
-            md.push('\n');
-        }
+        phase_picture(r, &with_phases, task, &names, out, stamp, md)?;
     }
     Ok(Value::Object(summary))
+}
+
+/// The per-phase picture of one task: per module (rows) and phase (columns), the maps of
+/// the first camera averaged over the runs that have the phase.
+fn phase_picture(
+    r: &Results,
+    with_phases: &[&(InferResult, Option<Vec<Vec<f32>>>)],
+    task: &str,
+    names: &[String],
+    out: &Path,
+    stamp: &str,
+    md: &mut String,
+) -> Result<()> {
+    let phases = names.len();
+    let mut sums: Vec<Vec<Vec<f64>>> = Vec::new();
+    // Runs that have each phase (a run that ends early lacks the later ones).
+    let mut per_phase = vec![0usize; phases];
+    let mut count = 0usize;
+    for (x, _) in with_phases.iter().filter(|(x, _)| x.task == task) {
+        let path = r.paths.get(&x.job);
+        let Some(maps) = path.and_then(|p| crate::run::read_phase_maps(p).ok().flatten()) else {
+            continue;
+        };
+        if sums.is_empty() {
+            sums = vec![vec![Vec::new(); phases]; 4];
+        }
+        for (k, phase) in maps.iter().enumerate().take(phases) {
+            if x.phase_steps.get(k).copied().unwrap_or(0) == 0 {
+                continue;
+            }
+            per_phase[k] += 1;
+            for (m, map) in phase.iter().enumerate() {
+                let acc = &mut sums[m][k];
+                if acc.is_empty() {
+                    *acc = vec![0.0; map.len()];
+                }
+                for (a, v) in acc.iter_mut().zip(map) {
+                    *a += *v as f64;
+                }
+            }
+        }
+        count += 1;
+    }
+    if count > 0 {
+        let pixels = sums.iter().flatten().map(Vec::len).max().unwrap_or(0);
+        // The first camera: the map holds the cameras one after the other.
+        let side = ((pixels / 2) as f64).sqrt() as usize;
+        let cells: Vec<Vec<Vec<f64>>> = sums
+            .iter()
+            .map(|phases| {
+                phases
+                    .iter()
+                    .zip(&per_phase)
+                    .map(|(m, &runs)| {
+                        m.iter()
+                            .take(side * side)
+                            .map(|v| v / runs.max(1) as f64)
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect();
+        let file = format!("contributions_over_time_{task}.png");
+        pvrnn_eval::plots::labelled_maps(
+            &out.join(&file),
+            &format!(
+                "{task}: contribution per module and subtask, camera 0 ({stamp}, {count} runs)"
+            ),
+            &module_names(),
+            names,
+            &cells,
+            side,
+        )?;
+        let _ = writeln!(
+            md,
+            "\n![{task}: contributions over time]({file}): rows = modules, columns = subtask phases; brightness = mean |standard − ablated| per pixel, one scale for the picture.\n"
+        );
+    } else {
+        md.push('\n');
+    }
+    Ok(())
 }
 
 /// Body parts the arms hide, scored against the robot-free renders relative to the
@@ -1216,19 +1234,12 @@ fn robustness(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<V
     }))
 }
 
-fn interference(
-    plan: &Plan,
-    r: &Results,
-    out: &Path,
-    stamp: &str,
-    md: &mut String,
-) -> Result<Value> {
+/// Dimensions per vision resolution (keyed as the run's errors are) and in all, with
+/// proprioception: the paper's pooled error is the mean over all sensory dimensions.
+fn sensory_dimensions() -> (Vec<(String, f64)>, f64) {
     let config = ModelConfig::default();
     let layout = &config.vision;
-    let top = layout.resolutions.last().copied().unwrap_or(64);
-    // Dimensions per vision resolution and of proprioception: the paper's pooled error is
-    // the mean over all sensory dimensions.
-    let vision_dims: Vec<(String, f64)> = (0..layout.resolutions.len())
+    let vision: Vec<(String, f64)> = (0..layout.resolutions.len())
         .map(|l| {
             (
                 format!("vision{}", layout.resolutions[l]),
@@ -1236,15 +1247,74 @@ fn interference(
             )
         })
         .collect();
-    let proprio_dims = config.proprio_dims as f64;
-    let all_dims = vision_dims.iter().map(|(_, d)| d).sum::<f64>() + proprio_dims;
-    let pooled = move |x: &InferResult| -> Option<f64> {
-        let mut sum = x.errors.get("proprio")? * proprio_dims;
-        for (key, dims) in &vision_dims {
-            sum += x.errors.get(key)? * dims;
+    let all = vision.iter().map(|(_, d)| d).sum::<f64>() + config.proprio_dims as f64;
+    (vision, all)
+}
+
+/// The paper's pooled error of a run: its squared errors averaged over every sensory
+/// dimension (every vision resolution and proprioception).
+fn pooled_error(x: &InferResult) -> Option<f64> {
+    let (vision, all) = sensory_dimensions();
+    let proprio_dims = ModelConfig::default().proprio_dims as f64;
+    let mut sum = x.errors.get("proprio")? * proprio_dims;
+    for (key, dims) in &vision {
+        sum += x.errors.get(key)? * dims;
+    }
+    Some(sum / all)
+}
+
+/// The table of the difference most added − none per measure (independent networks),
+/// with its 95% CI and the detectable difference; the same as JSON.
+fn most_minus_none(
+    names: &[&str],
+    per_measure: &[Vec<Vec<f64>>],
+    md: &mut String,
+) -> serde_json::Map<String, Value> {
+    let mut differences = serde_json::Map::new();
+    md.push_str(
+        "| measure | most added − none | 95% CI | d | detectable |\n|---|---|---|---|---|\n",
+    );
+    for (name, groups) in names.iter().zip(per_measure) {
+        let d = match (groups.first(), groups.last()) {
+            (Some(none), Some(most)) if groups.len() > 1 => stats::difference(most, none, false),
+            _ => None,
+        };
+        match &d {
+            Some(d) => {
+                let _ = writeln!(
+                    md,
+                    "| {name} | {} | [{}, {}] | {} | ±{} |",
+                    sig(d.mean),
+                    sig(d.ci95[0]),
+                    sig(d.ci95[1]),
+                    sig(d.cohen_d),
+                    sig(d.detectable)
+                );
+            }
+            None => {
+                let _ = writeln!(md, "| {name} | – | | | |");
+            }
         }
-        Some(sum / all_dims)
-    };
+        differences.insert(name.to_string(), json!(d));
+    }
+    differences
+}
+
+fn interference(
+    plan: &Plan,
+    r: &Results,
+    out: &Path,
+    stamp: &str,
+    md: &mut String,
+) -> Result<Value> {
+    let top = ModelConfig::default()
+        .vision
+        .resolutions
+        .last()
+        .copied()
+        .unwrap_or(64);
+    let all_dims = sensory_dimensions().1;
+    let pooled = pooled_error;
     type Measure<'a> = (&'a str, &'a dyn Fn(&InferResult) -> Option<f64>);
     // Pre-specified: the paper's pooled error first (the test the findings read), then
     // each modality and the equal-weight mean beside it.
@@ -1313,35 +1383,8 @@ fn interference(
         )?;
         let _ = writeln!(md, "\n![{primary}]({file})\n");
         let mut tests = serde_json::Map::new();
-        let mut differences = serde_json::Map::new();
-        md.push_str(
-            "| measure | most added − none | 95% CI | d | detectable |\n|---|---|---|---|---|\n",
-        );
-        for (k, (name, _)) in measures.iter().enumerate() {
-            let d = match (per_measure[k].first(), per_measure[k].last()) {
-                (Some(none), Some(most)) if per_measure[k].len() > 1 => {
-                    stats::difference(most, none, false)
-                }
-                _ => None,
-            };
-            match &d {
-                Some(d) => {
-                    let _ = writeln!(
-                        md,
-                        "| {name} | {} | [{}, {}] | {} | ±{} |",
-                        sig(d.mean),
-                        sig(d.ci95[0]),
-                        sig(d.ci95[1]),
-                        sig(d.cohen_d),
-                        sig(d.detectable)
-                    );
-                }
-                None => {
-                    let _ = writeln!(md, "| {name} | – | | | |");
-                }
-            }
-            differences.insert(name.to_string(), json!(d));
-        }
+        let names: Vec<&str> = measures.iter().map(|(n, _)| *n).collect();
+        let differences = most_minus_none(&names, &per_measure, md);
         md.push('\n');
         for (k, (name, _)) in measures.iter().enumerate() {
             match stats::art_one_way(&conditions, &per_measure[k]) {

@@ -187,7 +187,7 @@ pub struct InferResult {
     #[serde(default)]
     pub phase_steps: Vec<usize>,
     #[serde(default)]
-    pub phase_map_means: Option<Vec<[f64; 4]>>,
+    pub phase_map_means: Option<Vec<Option<[f64; 4]>>>,
     /// Hidden body parts scored against the robot-free renders (runs on data that has
     /// them).
     #[serde(default)]
@@ -473,48 +473,7 @@ fn train(
     std::fs::create_dir_all(checkpoint.parent().expect("a folder"))
         .with_context(|| format!("cannot create {}", checkpoint.display()))?;
     if let Some(source) = reuse {
-        let bytes = std::fs::read(source)
-            .with_context(|| format!("{}: cannot read the reused checkpoint", source.display()))?;
-        let file = TensorFile::from_bytes(bytes.clone(), source.display().to_string())?;
-        ensure!(
-            io::checkpoint_iteration(&file) == Some(*iterations),
-            "{}: not a checkpoint at iteration {iterations}",
-            source.display()
-        );
-        io::write_atomic(&checkpoint, &bytes)?;
-        // The campaign's log: beside the checkpoint, or of the run a kept copy came from.
-        let stem = source
-            .file_stem()
-            .map_or(String::new(), |s| s.to_string_lossy().into_owned());
-        let run_stem = stem.split(".iter").next().unwrap_or(&stem).to_string();
-        let totals = [
-            log_path(source),
-            source.with_file_name(format!("{run_stem}.log.csv")),
-        ]
-        .iter()
-        .map(|p| training_log::totals(p, *iterations))
-        .find(|t| !t.is_empty())
-        .unwrap_or_default();
-        return write_train_result(
-            plan,
-            dir,
-            id,
-            TrainResult {
-                job: job.name.clone(),
-                network: *network,
-                condition: condition.clone(),
-                sequences: names.len(),
-                iterations: *iterations,
-                final_free_energy: totals.last().copied(),
-                seconds: 0.0,
-                last_tenth_change: last_tenth_change(&totals),
-                reused: Some(source.display().to_string()),
-                backend: None,
-                stop: None,
-                network_iteration: Some(*iterations),
-                validations: Vec::new(),
-            },
-        );
+        return train_reused(plan, dir, id, source);
     }
     let dataset = cache.dataset(&plan.dataset)?;
     let chosen: Vec<Sequence> = sequences(&dataset, names)?
@@ -522,19 +481,8 @@ fn train(
         .map(|s| truncated(s, plan.design.train_steps))
         .collect();
     let chosen_refs: Vec<&Sequence> = chosen.iter().collect();
-    let trainer = if checkpoint.is_file() {
-        io::load_checkpoint(&checkpoint)
-            .with_context(|| format!("{}: cannot resume", checkpoint.display()))?
-    } else {
-        let mut config = ModelConfig::default();
-        // One normalisation for every training condition: all learning sequences.
-        let all_learn = dataset.split(Some(pvrnn_dataset::Split::Learn));
-        config.normalisation = Some(proprio_ranges(&all_learn));
-        let steps = chosen.iter().map(Sequence::len).max().unwrap_or(0);
-        let model = Model::<f32>::init(config, chosen.len(), steps, *seed)?;
-        Trainer::new(model, NoiseMode::Sampled { seed: *seed })
-    };
-    let mut trainer = trainer.with_backend(Box::new(backend.clone()));
+    let mut trainer = open_trainer(&checkpoint, &dataset, &chosen, *seed)?
+        .with_backend(Box::new(backend.clone()));
     let data = dataset.observations(&chosen_refs, trainer.config())?;
     pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
@@ -717,6 +665,86 @@ impl ConvergenceRule {
     }
 }
 
+/// The training's checkpoint to resume, or a new network for `chosen` (the paper's
+/// configuration, normalised by all learning sequences of the dataset).
+fn open_trainer(
+    checkpoint: &Path,
+    dataset: &Dataset,
+    chosen: &[Sequence],
+    seed: u64,
+) -> Result<Trainer<f32>> {
+    if checkpoint.is_file() {
+        return io::load_checkpoint(checkpoint)
+            .with_context(|| format!("{}: cannot resume", checkpoint.display()));
+    }
+    let mut config = ModelConfig::default();
+    // One normalisation for every training condition: all learning sequences.
+    let all_learn = dataset.split(Some(pvrnn_dataset::Split::Learn));
+    config.normalisation = Some(proprio_ranges(&all_learn));
+    let steps = chosen.iter().map(Sequence::len).max().unwrap_or(0);
+    let model = Model::<f32>::init(config, chosen.len(), steps, seed)?;
+    Ok(Trainer::new(model, NoiseMode::Sampled { seed }))
+}
+
+/// A training job whose network is a kept checkpoint of the same training: copied in, its
+/// result read from the log it came with.
+fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()> {
+    let job = &plan.jobs[id];
+    let JobKind::Train {
+        network,
+        condition,
+        sequences: names,
+        iterations,
+        ..
+    } = &job.kind
+    else {
+        unreachable!("a training job")
+    };
+    let checkpoint = plan.checkpoint_path(dir, id);
+    let bytes = std::fs::read(source)
+        .with_context(|| format!("{}: cannot read the reused checkpoint", source.display()))?;
+    let file = TensorFile::from_bytes(bytes.clone(), source.display().to_string())?;
+    ensure!(
+        io::checkpoint_iteration(&file) == Some(*iterations),
+        "{}: not a checkpoint at iteration {iterations}",
+        source.display()
+    );
+    io::write_atomic(&checkpoint, &bytes)?;
+    // The campaign's log: beside the checkpoint, or of the run a kept copy came from.
+    let stem = source
+        .file_stem()
+        .map_or(String::new(), |s| s.to_string_lossy().into_owned());
+    let run_stem = stem.split(".iter").next().unwrap_or(&stem).to_string();
+    let totals = [
+        log_path(source),
+        source.with_file_name(format!("{run_stem}.log.csv")),
+    ]
+    .iter()
+    .map(|p| training_log::totals(p, *iterations))
+    .find(|t| !t.is_empty())
+    .unwrap_or_default();
+    write_train_result(
+        plan,
+        dir,
+        id,
+        TrainResult {
+            job: job.name.clone(),
+            network: *network,
+            condition: condition.clone(),
+            sequences: names.len(),
+            iterations: *iterations,
+            final_free_energy: totals.last().copied(),
+            seconds: 0.0,
+            last_tenth_change: last_tenth_change(&totals),
+            reused: Some(source.display().to_string()),
+            backend: None,
+            stop: None,
+            network_iteration: Some(*iterations),
+            validations: Vec::new(),
+        },
+    )
+}
+
 /// The trained network a training job's inference runs read: its best-validated
 /// checkpoint when the convergence rule chose it, else the final checkpoint.
 pub fn network_path(plan: &Plan, dir: &Path, train_job: usize) -> Result<std::path::PathBuf> {
@@ -811,28 +839,10 @@ fn infer(
         inference
             .set_readout_ablations(ModuleId::ALL.iter().map(|m| Ablation::of(&[*m])).collect());
     }
-    let layout = &config.vision;
-    let levels = layout.resolutions.len();
-    let top = (layout.level_offset(levels - 1), layout.level_offset(levels));
-    let joints = config.proprio_dims / 2;
-    let mut sums: BTreeMap<String, f64> = BTreeMap::new();
-    let mut map_sums = vec![vec![0f64; top.1 - top.0]; if *maps { 4 } else { 0 }];
-    // Per subtask phase: each module's map averaged over the colour channels, and steps.
-    let mut phase_sums: Vec<(usize, Vec<Vec<f64>>)> = Vec::new();
+    let mut scores = RunScores::new(&config, *maps);
+    let top = scores.top;
+    let mut occlusion = occlusion_scorer(&seq, &dataset, &model, top)?;
     let mut prior_top: Option<Vec<f32>> = None;
-    let mut sigma = [0.0; 4];
-    let mut sigma_change = [0.0; 4];
-    let mut previous: Option<([Vec<f32>; 4], Vec<f32>)> = None;
-    let mut executive_change = Vec::new();
-    // Occlusion: the run's robot-free inputs and the scorer, where the data has them.
-    let mut occlusion = match seq.without_robot() {
-        Some(hidden) => {
-            let truth = dataset.observations(&[&hidden], &config)?;
-            let mean = pvrnn_eval::baselines::learning_mean(&dataset, &model)?;
-            Some((truth, OcclusionScorer::new(mean[0][top.0..top.1].to_vec())))
-        }
-        None => None,
-    };
     let mut steps = seq.len();
     let mut diverged = None;
     for t in 0..seq.len() {
@@ -863,91 +873,15 @@ fn infer(
             );
         }
         prior_top = Some(out.prior_next[0][top.0..top.1].to_vec());
-        for level in 0..levels {
-            let (a, b) = (layout.level_offset(level), layout.level_offset(level + 1));
-            *sums
-                .entry(format!("vision{}", layout.resolutions[level]))
-                .or_default() += mse(&out.recon[0][a..b], &x[a..b]);
-        }
-        *sums.entry("joints".into()).or_default() += mse(&out.recon[1][..joints], &p[..joints]);
-        *sums.entry("torques".into()).or_default() += mse(&out.recon[1][joints..], &p[joints..]);
-        *sums.entry("proprio".into()).or_default() += mse(&out.recon[1], p);
-        for (m, module) in out.modules.iter().enumerate() {
-            let n = module.sigma_p.len().max(1) as f64;
-            sigma[m] += module.sigma_p.iter().map(|v| *v as f64).sum::<f64>() / n;
-            if let Some((prev_sigma, _)) = &previous {
-                sigma_change[m] += module
-                    .sigma_p
-                    .iter()
-                    .zip(&prev_sigma[m])
-                    .map(|(a, b)| (a - b).abs() as f64)
-                    .sum::<f64>()
-                    / n;
-            }
-        }
-        let exec = &out.modules[ModuleId::Executive.index()].mu_q;
-        if let Some((_, prev_exec)) = &previous {
-            executive_change.push(
-                exec.iter()
-                    .zip(prev_exec)
-                    .map(|(a, b)| (a - b).abs() as f64)
-                    .sum::<f64>()
-                    / exec.len().max(1) as f64,
-            );
-        }
         let phase = seq.subtask.get(t).copied().unwrap_or(0) as usize;
-        if *maps && phase_sums.len() <= phase {
-            phase_sums.resize_with(phase + 1, || (0, vec![vec![0f64; (top.1 - top.0) / 3]; 4]));
-        }
-        if let Some((steps_in_phase, sums)) = phase_sums.get_mut(phase) {
-            *steps_in_phase += 1;
-            for (m, ablated) in out.ablated_recon.iter().enumerate() {
-                let pairs = ablated[0][top.0..top.1]
-                    .chunks(3)
-                    .zip(out.recon[0][top.0..top.1].chunks(3));
-                for (sum, (a, b)) in sums[m].iter_mut().zip(pairs) {
-                    *sum += a
-                        .iter()
-                        .zip(b)
-                        .map(|(a, b)| (a - b).abs() as f64)
-                        .sum::<f64>()
-                        / 3.0;
-                }
-            }
-        }
-        for (m, ablated) in out.ablated_recon.iter().enumerate() {
-            for ((sum, a), b) in map_sums[m]
-                .iter_mut()
-                .zip(&ablated[0][top.0..top.1])
-                .zip(&out.recon[0][top.0..top.1])
-            {
-                *sum += (a - b).abs() as f64;
-            }
-        }
-        previous = Some((
-            std::array::from_fn(|m| out.modules[m].sigma_p.clone()),
-            exec.clone(),
-        ));
+        scores.step(&config, &out, x, p, phase);
         events(Event::Inferring {
             id,
             done: t + 1,
             total: steps,
         });
     }
-    let n = steps.max(1) as f64;
-    let changes = steps.saturating_sub(1).max(1) as f64;
-    let maps_mean: Vec<Vec<f32>> = map_sums
-        .iter()
-        .map(|m| m.iter().map(|v| (v / n) as f32).collect())
-        .collect();
-    let phase_maps: Vec<Vec<Vec<f32>>> = phase_sums
-        .iter()
-        .map(|(k, sums)| {
-            sums.iter()
-                .map(|m| m.iter().map(|v| (v / (*k).max(1) as f64) as f32).collect())
-                .collect()
-        })
-        .collect();
+    let finished = scores.finish(steps);
     let result = InferResult {
         job: job.name.clone(),
         network: *network,
@@ -957,40 +891,204 @@ fn infer(
         trial: *trial,
         condition: Plan::condition_label(*vision_levels, *proprio),
         steps,
-        errors: sums.into_iter().map(|(k, v)| (k, v / n)).collect(),
-        sigma_p: sigma.map(|v| v / n),
-        sigma_p_change: sigma_change.map(|v| v / changes),
-        executive_change,
+        errors: finished.errors,
+        sigma_p: finished.sigma_p,
+        sigma_p_change: finished.sigma_p_change,
+        executive_change: finished.executive_change,
         subtask: seq.subtask[..steps].to_vec(),
-        map_means: maps.then(|| {
-            std::array::from_fn(|m| {
-                maps_mean[m].iter().map(|v| *v as f64).sum::<f64>()
-                    / maps_mean[m].len().max(1) as f64
-            })
-        }),
-        phase_steps: phase_sums.iter().map(|(k, _)| *k).collect(),
-        phase_map_means: maps.then(|| {
-            phase_maps
-                .iter()
-                .zip(&phase_sums)
-                .map(|(p, (steps_in_phase, _))| {
-                    // A label that never occurs: no steps, no contribution (not 0).
-                    std::array::from_fn(|m| {
-                        if *steps_in_phase == 0 {
-                            f64::NAN
-                        } else {
-                            p[m].iter().map(|v| *v as f64).sum::<f64>() / p[m].len().max(1) as f64
-                        }
-                    })
-                })
-                .collect()
-        }),
+        map_means: finished.map_means,
+        phase_steps: finished.phase_steps,
+        phase_map_means: finished.phase_map_means,
         occlusion: occlusion.and_then(|(_, scorer)| scorer.finish()),
         diverged,
         backend: Some(backend_name.to_string()),
     };
-    let maps = maps.then_some((maps_mean.as_slice(), phase_maps.as_slice()));
+    let maps = maps.then_some((finished.maps.as_slice(), finished.phase_maps.as_slice()));
     write_infer_result(plan, dir, id, &result, maps, shared.as_ref())
+}
+
+/// Occlusion: the run's robot-free inputs and the scorer, where the data has them.
+fn occlusion_scorer(
+    seq: &Sequence,
+    dataset: &Dataset,
+    model: &Model<f32>,
+    top: (usize, usize),
+) -> Result<Option<(pvrnn_core::Observations<f32>, OcclusionScorer)>> {
+    let Some(hidden) = seq.without_robot() else {
+        return Ok(None);
+    };
+    let truth = dataset.observations(&[&hidden], &model.config)?;
+    let mean = pvrnn_eval::baselines::learning_mean(dataset, model)?;
+    Ok(Some((
+        truth,
+        OcclusionScorer::new(mean[0][top.0..top.1].to_vec()),
+    )))
+}
+
+/// What an inference run accumulates step by step, apart from occlusion: the
+/// reconstruction errors, prior sigma and its change, the executive module's latent
+/// change, and (runs with maps) each module's contribution, over the run and per phase.
+struct RunScores {
+    /// The top resolution's range of the vision dimensions.
+    top: (usize, usize),
+    maps: bool,
+    errors: BTreeMap<String, f64>,
+    sigma: [f64; 4],
+    sigma_change: [f64; 4],
+    executive_change: Vec<f64>,
+    /// The previous step's prior sigma per module and executive mu_q.
+    previous: Option<([Vec<f32>; 4], Vec<f32>)>,
+    map_sums: Vec<Vec<f64>>,
+    /// Per subtask phase: its steps, and each module's map averaged over colour channels.
+    phase_sums: Vec<(usize, Vec<Vec<f64>>)>,
+}
+
+/// A run's scores, averaged over its steps.
+struct FinishedScores {
+    errors: BTreeMap<String, f64>,
+    sigma_p: [f64; 4],
+    sigma_p_change: [f64; 4],
+    executive_change: Vec<f64>,
+    map_means: Option<[f64; 4]>,
+    phase_steps: Vec<usize>,
+    phase_map_means: Option<Vec<Option<[f64; 4]>>>,
+    /// The maps themselves: [module][value] and [phase][module][pixel].
+    maps: Vec<Vec<f32>>,
+    phase_maps: Vec<Vec<Vec<f32>>>,
+}
+
+fn mean_abs_difference(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).abs() as f64)
+        .sum::<f64>()
+        / a.len().max(1) as f64
+}
+
+impl RunScores {
+    fn new(config: &ModelConfig, maps: bool) -> Self {
+        let layout = &config.vision;
+        let levels = layout.resolutions.len();
+        let top = (layout.level_offset(levels - 1), layout.level_offset(levels));
+        Self {
+            top,
+            maps,
+            errors: BTreeMap::new(),
+            sigma: [0.0; 4],
+            sigma_change: [0.0; 4],
+            executive_change: Vec::new(),
+            previous: None,
+            map_sums: vec![vec![0f64; top.1 - top.0]; if maps { 4 } else { 0 }],
+            phase_sums: Vec::new(),
+        }
+    }
+
+    fn step(
+        &mut self,
+        config: &ModelConfig,
+        out: &pvrnn_core::infer::StepOutput<f32>,
+        x: &[f32],
+        p: &[f32],
+        phase: usize,
+    ) {
+        let layout = &config.vision;
+        let joints = config.proprio_dims / 2;
+        for level in 0..layout.resolutions.len() {
+            let (a, b) = (layout.level_offset(level), layout.level_offset(level + 1));
+            *self
+                .errors
+                .entry(format!("vision{}", layout.resolutions[level]))
+                .or_default() += mse(&out.recon[0][a..b], &x[a..b]);
+        }
+        let errors = &mut self.errors;
+        *errors.entry("joints".into()).or_default() += mse(&out.recon[1][..joints], &p[..joints]);
+        *errors.entry("torques".into()).or_default() += mse(&out.recon[1][joints..], &p[joints..]);
+        *errors.entry("proprio".into()).or_default() += mse(&out.recon[1], p);
+        for (m, module) in out.modules.iter().enumerate() {
+            let n = module.sigma_p.len().max(1) as f64;
+            self.sigma[m] += module.sigma_p.iter().map(|v| *v as f64).sum::<f64>() / n;
+            if let Some((prev_sigma, _)) = &self.previous {
+                self.sigma_change[m] += mean_abs_difference(&module.sigma_p, &prev_sigma[m]);
+            }
+        }
+        let exec = &out.modules[ModuleId::Executive.index()].mu_q;
+        if let Some((_, prev_exec)) = &self.previous {
+            self.executive_change
+                .push(mean_abs_difference(exec, prev_exec));
+        }
+        self.previous = Some((
+            std::array::from_fn(|m| out.modules[m].sigma_p.clone()),
+            exec.clone(),
+        ));
+        self.add_maps(out, phase);
+    }
+
+    /// Each module's |standard - ablated| top-resolution read-out, over the run and in the
+    /// step's subtask phase.
+    fn add_maps(&mut self, out: &pvrnn_core::infer::StepOutput<f32>, phase: usize) {
+        if !self.maps {
+            return;
+        }
+        let (a0, a1) = self.top;
+        if self.phase_sums.len() <= phase {
+            let pixels = (a1 - a0) / 3;
+            self.phase_sums
+                .resize_with(phase + 1, || (0, vec![vec![0f64; pixels]; 4]));
+        }
+        let (steps_in_phase, phase_sums) = &mut self.phase_sums[phase];
+        *steps_in_phase += 1;
+        let standard = &out.recon[0][a0..a1];
+        for (m, ablated) in out.ablated_recon.iter().enumerate() {
+            let ablated = &ablated[0][a0..a1];
+            for ((sum, a), b) in self.map_sums[m].iter_mut().zip(ablated).zip(standard) {
+                *sum += (a - b).abs() as f64;
+            }
+            for (sum, (a, b)) in phase_sums[m]
+                .iter_mut()
+                .zip(ablated.chunks(3).zip(standard.chunks(3)))
+            {
+                *sum += mean_abs_difference(a, b);
+            }
+        }
+    }
+
+    fn finish(self, steps: usize) -> FinishedScores {
+        let n = steps.max(1) as f64;
+        let changes = steps.saturating_sub(1).max(1) as f64;
+        let maps: Vec<Vec<f32>> = self
+            .map_sums
+            .iter()
+            .map(|m| m.iter().map(|v| (v / n) as f32).collect())
+            .collect();
+        let phase_maps: Vec<Vec<Vec<f32>>> = self
+            .phase_sums
+            .iter()
+            .map(|(k, sums)| {
+                sums.iter()
+                    .map(|m| m.iter().map(|v| (v / (*k).max(1) as f64) as f32).collect())
+                    .collect()
+            })
+            .collect();
+        let mean = |v: &[f32]| v.iter().map(|v| *v as f64).sum::<f64>() / v.len().max(1) as f64;
+        FinishedScores {
+            errors: self.errors.into_iter().map(|(k, v)| (k, v / n)).collect(),
+            sigma_p: self.sigma.map(|v| v / n),
+            sigma_p_change: self.sigma_change.map(|v| v / changes),
+            executive_change: self.executive_change,
+            map_means: self.maps.then(|| std::array::from_fn(|m| mean(&maps[m]))),
+            phase_steps: self.phase_sums.iter().map(|(k, _)| *k).collect(),
+            // A label that never occurs: no steps, no contribution (not 0).
+            phase_map_means: self.maps.then(|| {
+                phase_maps
+                    .iter()
+                    .zip(&self.phase_sums)
+                    .map(|(p, (k, _))| (*k > 0).then(|| std::array::from_fn(|m| mean(&p[m]))))
+                    .collect()
+            }),
+            maps,
+            phase_maps,
+        }
+    }
 }
 
 /// An inference run's contribution maps: time-averaged [module][value], and per phase

@@ -199,6 +199,111 @@ pub struct Evaluation {
 /// Per step, the vision dimensions that changed from the previous step (none at t = 0).
 type ChangeMasks = Vec<Option<Vec<bool>>>;
 
+/// What the baselines need: the model's layout, the groups scored, the mean learning
+/// input, the change threshold, the observed vision levels and the mean image's detail.
+struct Baselines<'a> {
+    config: &'a pvrnn_core::ModelConfig,
+    groups: &'a [Group],
+    mean: [&'a [f32]; 2],
+    threshold: f32,
+    vision_levels: usize,
+    detail: Option<&'a [f32]>,
+}
+
+impl Baselines<'_> {
+    /// Sequence `s`'s change masks (masks[t]: from t-1 to t) and the baselines' series.
+    fn of_sequence(&self, data: &Observations<f32>, s: usize) -> (ChangeMasks, Vec<Series>) {
+        let len = data.lengths()[s];
+        let x = |t: usize| {
+            [
+                data.step(Modality::Exteroceptive, s, t),
+                data.step(Modality::Proprioceptive, s, t),
+            ]
+        };
+        let masks: ChangeMasks = (0..len)
+            .map(|t| {
+                (t > 0)
+                    .then(|| change_mask(&self.config.vision, x(t - 1)[0], x(t)[0], self.threshold))
+            })
+            .collect();
+        let mut series = Vec::new();
+        series.push(Series {
+            source: Source::Mean,
+            target: Target::Recon,
+            trial: None,
+            steps: (0..len)
+                .map(|t| Some(score(self.groups, self.mean, x(t), masks[t].as_deref())))
+                .collect(),
+        });
+        series.push(Series {
+            source: Source::Mean,
+            target: Target::Next,
+            trial: None,
+            steps: (0..len)
+                .map(|t| {
+                    (t + 1 < len)
+                        .then(|| score(self.groups, self.mean, x(t + 1), masks[t + 1].as_deref()))
+                })
+                .collect(),
+        });
+        series.push(Series {
+            source: Source::Previous,
+            target: Target::Next,
+            trial: None,
+            steps: (0..len)
+                .map(|t| {
+                    (t + 1 < len)
+                        .then(|| score(self.groups, x(t), x(t + 1), masks[t + 1].as_deref()))
+                })
+                .collect(),
+        });
+        if self.vision_levels > 0 && self.vision_levels < self.config.vision.resolutions.len() {
+            series.push(Series {
+                source: Source::Upsample,
+                target: Target::Recon,
+                trial: None,
+                steps: (0..len)
+                    .map(|t| {
+                        let up = upsampled_vision(&self.config.vision, x(t)[0], self.vision_levels)
+                            .expect("some levels observed, some not");
+                        Some(score(
+                            self.groups,
+                            [&up, x(t)[1]],
+                            x(t),
+                            masks[t].as_deref(),
+                        ))
+                    })
+                    .collect(),
+            });
+        }
+        if let Some(detail) = self.detail {
+            series.push(Series {
+                source: Source::UpsampleDetail,
+                target: Target::Recon,
+                trial: None,
+                steps: (0..len)
+                    .map(|t| {
+                        let up = upsampled_with_detail(
+                            &self.config.vision,
+                            x(t)[0],
+                            self.vision_levels,
+                            detail,
+                        )
+                        .expect("some levels observed, some not");
+                        Some(score(
+                            self.groups,
+                            [&up, x(t)[1]],
+                            x(t),
+                            masks[t].as_deref(),
+                        ))
+                    })
+                    .collect(),
+            });
+        }
+        (masks, series)
+    }
+}
+
 /// Evaluates `model` on `selection` of `dataset`, running inference on `backend`.
 /// `progress` is called with each finished inference step.
 pub fn evaluate(
@@ -231,88 +336,17 @@ pub fn evaluate(
     let detail = mean_detail(&config.vision, &mean[0], vision_levels);
 
     // Per sequence: change masks (masks[t]: from t-1 to t) and the baselines' series.
+    let baselines = Baselines {
+        config,
+        groups: &groups,
+        mean: [mean[0].as_slice(), mean[1].as_slice()],
+        threshold,
+        vision_levels,
+        detail: detail.as_deref(),
+    };
     let mut prepared: Vec<(ChangeMasks, Vec<Series>)> = (0..sequences.len())
         .into_par_iter()
-        .map(|s| {
-            let len = data.lengths()[s];
-            let x = |t: usize| {
-                [
-                    data.step(Modality::Exteroceptive, s, t),
-                    data.step(Modality::Proprioceptive, s, t),
-                ]
-            };
-            let masks: ChangeMasks = (0..len)
-                .map(|t| {
-                    (t > 0).then(|| change_mask(&config.vision, x(t - 1)[0], x(t)[0], threshold))
-                })
-                .collect();
-            let mut series = Vec::new();
-            let mean_ref = [mean[0].as_slice(), mean[1].as_slice()];
-            series.push(Series {
-                source: Source::Mean,
-                target: Target::Recon,
-                trial: None,
-                steps: (0..len)
-                    .map(|t| Some(score(&groups, mean_ref, x(t), masks[t].as_deref())))
-                    .collect(),
-            });
-            series.push(Series {
-                source: Source::Mean,
-                target: Target::Next,
-                trial: None,
-                steps: (0..len)
-                    .map(|t| {
-                        (t + 1 < len)
-                            .then(|| score(&groups, mean_ref, x(t + 1), masks[t + 1].as_deref()))
-                    })
-                    .collect(),
-            });
-            series.push(Series {
-                source: Source::Previous,
-                target: Target::Next,
-                trial: None,
-                steps: (0..len)
-                    .map(|t| {
-                        (t + 1 < len)
-                            .then(|| score(&groups, x(t), x(t + 1), masks[t + 1].as_deref()))
-                    })
-                    .collect(),
-            });
-            if vision_levels > 0 && vision_levels < config.vision.resolutions.len() {
-                series.push(Series {
-                    source: Source::Upsample,
-                    target: Target::Recon,
-                    trial: None,
-                    steps: (0..len)
-                        .map(|t| {
-                            let up = upsampled_vision(&config.vision, x(t)[0], vision_levels)
-                                .expect("some levels observed, some not");
-                            Some(score(&groups, [&up, x(t)[1]], x(t), masks[t].as_deref()))
-                        })
-                        .collect(),
-                });
-            }
-            if let Some(detail) = &detail {
-                series.push(Series {
-                    source: Source::UpsampleDetail,
-                    target: Target::Recon,
-                    trial: None,
-                    steps: (0..len)
-                        .map(|t| {
-                            let up = upsampled_with_detail(
-                                &config.vision,
-                                x(t)[0],
-                                vision_levels,
-                                detail,
-                            )
-                            .expect("some levels observed, some not");
-                            Some(score(&groups, [&up, x(t)[1]], x(t), masks[t].as_deref()))
-                        })
-                        .collect(),
-                });
-            }
-            (masks, series)
-        })
+        .map(|s| baselines.of_sequence(&data, s))
         .collect();
     if settings.nearest_neighbour
         && let Some(nearest) = NearestFrames::search(

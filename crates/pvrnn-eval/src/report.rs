@@ -505,6 +505,74 @@ fn markdown(
     comparisons: &[Comparison],
 ) -> String {
     let mut md = String::new();
+    preamble(&mut md, eval, meta, condition);
+    let top = format!("v{}", eval.resolutions.last().copied().unwrap_or(0));
+    let _ = writeln!(
+        md,
+        "## The model against the baselines ({top}, the highest resolution)\n"
+    );
+    ratio_table(
+        &mut md,
+        comparisons.iter().filter(|c| c.group == top).collect(),
+    );
+    let _ = writeln!(md);
+
+    for (scope, _) in scopes(eval)
+        .into_iter()
+        .filter(|(s, _)| !s.starts_with("sequence:"))
+    {
+        let _ = writeln!(
+            md,
+            "## {}\n",
+            if scope == "all" {
+                "All sequences".to_string()
+            } else {
+                scope.replace("task:", "Task: ")
+            }
+        );
+        for pixels in Pixels::ALL {
+            if pixels == Pixels::Changing {
+                let _ = writeln!(md, "\nChanging pixels only:\n");
+            }
+            comparison_header(&mut md, "group");
+            for group in eval.groups.iter().filter(|g| is_summary_group(g)) {
+                if pixels == Pixels::Changing && !group.is_vision() {
+                    continue;
+                }
+                comparison_row(&mut md, &group_label(group), |t, s| {
+                    find(figures, &scope, t, s, &group.name, pixels)
+                });
+            }
+        }
+        let _ = writeln!(md);
+    }
+
+    let _ = writeln!(md, "## Per sequence ({top}, all pixels)\n");
+    comparison_header(&mut md, "sequence");
+    for s in &eval.sequences {
+        let scope = format!("sequence:{}", s.meta.name);
+        comparison_row(&mut md, &s.meta.name, |t, src| {
+            find(figures, &scope, t, src, &top, Pixels::All)
+        });
+    }
+    let _ = writeln!(md, "\n## Per camera (all sequences, all pixels)\n");
+    comparison_header(&mut md, "group");
+    for group in eval.groups.iter().filter(|g| !is_summary_group(g)) {
+        comparison_row(&mut md, &group_label(group), |t, s| {
+            find(figures, "all", t, s, &group.name, Pixels::All)
+        });
+    }
+    let _ = writeln!(
+        md,
+        "\nFiles: `summary.json` (every figure and comparison), `per_sequence.csv` (every trial value), \
+         `per_step.csv` (every step), `plots/` (error over time, actual vs predicted images)."
+    );
+    md
+}
+
+/// The report's opening: scale, compute, condition, stability, failures, and how the
+/// errors and baselines are defined.
+fn preamble(md: &mut String, eval: &Evaluation, meta: &ReportMeta, condition: &Condition) {
     let iteration = meta
         .model_iteration
         .map_or("unknown".to_string(), |i| i.to_string());
@@ -624,96 +692,35 @@ fn markdown(
         "- **Changing pixels**: a pixel whose channels move by more than {} of 255 levels since the previous frame.\n",
         eval.settings.change_threshold
     );
+}
 
-    let ratio_table = |md: &mut String, rows: Vec<&Comparison>| {
-        let _ = writeln!(
-            md,
-            "| scope | target | group | pixels | baseline | model | baseline value | model / baseline | won |"
-        );
-        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
-        for c in rows {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {} | {} | **{:.3}** {} | {} of {} |",
-                c.scope,
-                c.target.name(),
-                c.group,
-                c.pixels.name(),
-                c.baseline.name(),
-                match c.model_se {
-                    Some(se) => format!("{} ± {}", sig(c.model), sig(se)),
-                    None => sig(c.model),
-                },
-                sig(c.baseline_value),
-                c.ratio,
-                if c.model_better { "better" } else { "worse" },
-                c.wins,
-                c.sequences
-            );
-        }
-    };
-    let top = format!("v{}", eval.resolutions.last().copied().unwrap_or(0));
+/// The model beside each baseline: one row per comparison.
+fn ratio_table(md: &mut String, rows: Vec<&Comparison>) {
     let _ = writeln!(
         md,
-        "## The model against the baselines ({top}, the highest resolution)\n"
+        "| scope | target | group | pixels | baseline | model | baseline value | model / baseline | won |"
     );
-    ratio_table(
-        &mut md,
-        comparisons.iter().filter(|c| c.group == top).collect(),
-    );
-    let _ = writeln!(md);
-
-    for (scope, _) in scopes(eval)
-        .into_iter()
-        .filter(|(s, _)| !s.starts_with("sequence:"))
-    {
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
+    for c in rows {
         let _ = writeln!(
             md,
-            "## {}\n",
-            if scope == "all" {
-                "All sequences".to_string()
-            } else {
-                scope.replace("task:", "Task: ")
-            }
+            "| {} | {} | {} | {} | {} | {} | {} | **{:.3}** {} | {} of {} |",
+            c.scope,
+            c.target.name(),
+            c.group,
+            c.pixels.name(),
+            c.baseline.name(),
+            match c.model_se {
+                Some(se) => format!("{} ± {}", sig(c.model), sig(se)),
+                None => sig(c.model),
+            },
+            sig(c.baseline_value),
+            c.ratio,
+            if c.model_better { "better" } else { "worse" },
+            c.wins,
+            c.sequences
         );
-        for pixels in Pixels::ALL {
-            if pixels == Pixels::Changing {
-                let _ = writeln!(md, "\nChanging pixels only:\n");
-            }
-            comparison_header(&mut md, "group");
-            for group in eval.groups.iter().filter(|g| is_summary_group(g)) {
-                if pixels == Pixels::Changing && !group.is_vision() {
-                    continue;
-                }
-                comparison_row(&mut md, &group_label(group), |t, s| {
-                    find(figures, &scope, t, s, &group.name, pixels)
-                });
-            }
-        }
-        let _ = writeln!(md);
     }
-
-    let _ = writeln!(md, "## Per sequence ({top}, all pixels)\n");
-    comparison_header(&mut md, "sequence");
-    for s in &eval.sequences {
-        let scope = format!("sequence:{}", s.meta.name);
-        comparison_row(&mut md, &s.meta.name, |t, src| {
-            find(figures, &scope, t, src, &top, Pixels::All)
-        });
-    }
-    let _ = writeln!(md, "\n## Per camera (all sequences, all pixels)\n");
-    comparison_header(&mut md, "group");
-    for group in eval.groups.iter().filter(|g| !is_summary_group(g)) {
-        comparison_row(&mut md, &group_label(group), |t, s| {
-            find(figures, "all", t, s, &group.name, Pixels::All)
-        });
-    }
-    let _ = writeln!(
-        md,
-        "\nFiles: `summary.json` (every figure and comparison), `per_sequence.csv` (every trial value), \
-         `per_step.csv` (every step), `plots/` (error over time, actual vs predicted images)."
-    );
-    md
 }
 
 /// The header of a table of the model beside its baselines, one row per `first` column.

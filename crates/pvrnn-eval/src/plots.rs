@@ -215,6 +215,140 @@ fn subtask_bar(area: &DrawingArea<BitMapBackend<'_>, Shift>, seq: &SequenceResul
     Ok(())
 }
 
+/// One sequence's errors over time: the top resolution's reconstruction and prediction,
+/// and proprioception's prediction, each beside its baselines, over the subtask bar.
+fn error_chart(
+    eval: &Evaluation,
+    seq: &SequenceResult,
+    path: &Path,
+    top_g: usize,
+    (joints, torques): (Option<usize>, Option<usize>),
+) -> Result<()> {
+    let top = &eval.groups[top_g].name;
+    let x_max = seq.meta.length as f64;
+    let line = |label: &str, colour, dashed, source, target, g| Line {
+        label: label.to_string(),
+        colour,
+        dashed,
+        markers: false,
+        points: step_curve(seq, source, target, g),
+    };
+    let top_observed = eval.groups[top_g].observed;
+    draw_png(path, (1100, 980), |root| {
+        let (charts, bar) = root.split_vertically(920);
+        let parts = charts.split_evenly((3, 1));
+        let mut recon = vec![
+            line("model", MODEL, false, Source::Model, Target::Recon, top_g),
+            line(
+                "mean learning image",
+                MEAN,
+                true,
+                Source::Mean,
+                Target::Recon,
+                top_g,
+            ),
+        ];
+        if !top_observed {
+            recon.insert(
+                1,
+                line(
+                    "bilinear upsampling",
+                    UPSAMPLE,
+                    false,
+                    Source::Upsample,
+                    Target::Recon,
+                    top_g,
+                ),
+            );
+        }
+        line_chart(
+            &parts[0],
+            &format!(
+                "{}: {top} reconstruction of x_t ({}, mean of {} trials{})",
+                seq.meta.name,
+                if top_observed {
+                    "observed"
+                } else {
+                    "not observed"
+                },
+                eval.settings.trials - seq.failures.len(),
+                match seq.failures.len() {
+                    0 => String::new(),
+                    n => format!("; {n} diverged"),
+                }
+            ),
+            "step",
+            "MSE",
+            x_max,
+            &recon,
+        )?;
+        line_chart(
+            &parts[1],
+            &format!("{top} prediction of x_(t+1)"),
+            "step",
+            "MSE",
+            x_max,
+            &[
+                line(
+                    "model (prior)",
+                    MODEL,
+                    false,
+                    Source::Model,
+                    Target::Next,
+                    top_g,
+                ),
+                line(
+                    "previous frame",
+                    PREVIOUS,
+                    false,
+                    Source::Previous,
+                    Target::Next,
+                    top_g,
+                ),
+                line(
+                    "mean learning image",
+                    MEAN,
+                    true,
+                    Source::Mean,
+                    Target::Next,
+                    top_g,
+                ),
+            ],
+        )?;
+        let mut proprio = Vec::new();
+        for (name, g) in [("joints", joints), ("torques", torques)] {
+            if let Some(g) = g {
+                proprio.push(line(
+                    &format!("{name}: model"),
+                    MODEL,
+                    name == "torques",
+                    Source::Model,
+                    Target::Next,
+                    g,
+                ));
+                proprio.push(line(
+                    &format!("{name}: previous step"),
+                    PREVIOUS,
+                    name == "torques",
+                    Source::Previous,
+                    Target::Next,
+                    g,
+                ));
+            }
+        }
+        line_chart(
+            &parts[2],
+            "proprioception: prediction of x_(t+1)",
+            "step",
+            "MSE",
+            x_max,
+            &proprio,
+        )?;
+        subtask_bar(&bar, seq)
+    })?;
+    Ok(())
+}
+
 /// `plots/error_<sequence>.png` and `plots/images_<sequence>.png` for every sequence.
 pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
     let top_level = eval.resolutions.len() - 1;
@@ -224,130 +358,12 @@ pub fn write_plots(eval: &Evaluation, dir: &Path) -> Result<()> {
     let (joints, torques) = (group_index("joints"), group_index("torques"));
     for seq in &eval.sequences {
         let stem = pvrnn_dataset::file_stem(&seq.meta.name);
-        let x_max = seq.meta.length as f64;
-        let line = |label: &str, colour, dashed, source, target, g| Line {
-            label: label.to_string(),
-            colour,
-            dashed,
-            markers: false,
-            points: step_curve(seq, source, target, g),
-        };
-        let top_observed = eval.groups[top_g].observed;
-        draw_png(
+        error_chart(
+            eval,
+            seq,
             &dir.join(format!("error_{stem}.png")),
-            (1100, 980),
-            |root| {
-                let (charts, bar) = root.split_vertically(920);
-                let parts = charts.split_evenly((3, 1));
-                let mut recon = vec![
-                    line("model", MODEL, false, Source::Model, Target::Recon, top_g),
-                    line(
-                        "mean learning image",
-                        MEAN,
-                        true,
-                        Source::Mean,
-                        Target::Recon,
-                        top_g,
-                    ),
-                ];
-                if !top_observed {
-                    recon.insert(
-                        1,
-                        line(
-                            "bilinear upsampling",
-                            UPSAMPLE,
-                            false,
-                            Source::Upsample,
-                            Target::Recon,
-                            top_g,
-                        ),
-                    );
-                }
-                line_chart(
-                    &parts[0],
-                    &format!(
-                        "{}: {top} reconstruction of x_t ({}, mean of {} trials{})",
-                        seq.meta.name,
-                        if top_observed {
-                            "observed"
-                        } else {
-                            "not observed"
-                        },
-                        eval.settings.trials - seq.failures.len(),
-                        match seq.failures.len() {
-                            0 => String::new(),
-                            n => format!("; {n} diverged"),
-                        }
-                    ),
-                    "step",
-                    "MSE",
-                    x_max,
-                    &recon,
-                )?;
-                line_chart(
-                    &parts[1],
-                    &format!("{top} prediction of x_(t+1)"),
-                    "step",
-                    "MSE",
-                    x_max,
-                    &[
-                        line(
-                            "model (prior)",
-                            MODEL,
-                            false,
-                            Source::Model,
-                            Target::Next,
-                            top_g,
-                        ),
-                        line(
-                            "previous frame",
-                            PREVIOUS,
-                            false,
-                            Source::Previous,
-                            Target::Next,
-                            top_g,
-                        ),
-                        line(
-                            "mean learning image",
-                            MEAN,
-                            true,
-                            Source::Mean,
-                            Target::Next,
-                            top_g,
-                        ),
-                    ],
-                )?;
-                let mut proprio = Vec::new();
-                for (name, g) in [("joints", joints), ("torques", torques)] {
-                    if let Some(g) = g {
-                        proprio.push(line(
-                            &format!("{name}: model"),
-                            MODEL,
-                            name == "torques",
-                            Source::Model,
-                            Target::Next,
-                            g,
-                        ));
-                        proprio.push(line(
-                            &format!("{name}: previous step"),
-                            PREVIOUS,
-                            name == "torques",
-                            Source::Previous,
-                            Target::Next,
-                            g,
-                        ));
-                    }
-                }
-                line_chart(
-                    &parts[2],
-                    "proprioception: prediction of x_(t+1)",
-                    "step",
-                    "MSE",
-                    x_max,
-                    &proprio,
-                )?;
-                subtask_bar(&bar, seq)
-            },
+            top_g,
+            (joints, torques),
         )?;
         // Pictures come from the first trial that finished; none when every one diverged.
         if !seq.images.steps.is_empty() {

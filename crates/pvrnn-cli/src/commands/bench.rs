@@ -260,44 +260,50 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        println!("backend                          {}", report.backend);
-        println!("threads                          {}", report.threads);
-        println!("machine                          {}", report.machine);
-        if let (Some(mean), Some(min)) = (mean, min) {
-            println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
-            let terms: Vec<String> = report
-                .train_free_energy
-                .iter()
-                .map(|f| format!("{f:.9}"))
-                .collect();
-            println!("free energy per iteration        {}", terms.join(" "));
-        }
-        if let (Some(p16), Some(full)) = (p16, full) {
-            println!(
-                "inference, proprio + 16x16       {p16:.1} steps/s (H = {}, {} iterations)",
-                config.inference.window, config.inference.iterations
-            );
-            println!("inference, everything observed   {full:.1} steps/s");
-        }
-        println!(
-            "peak memory after training       {:.0} MB",
-            report.train_peak_rss_mb
-        );
-        println!(
-            "peak memory                      {:.0} MB",
-            report.peak_rss_mb
-        );
-        for part in &report.profile {
-            let unit = if part.part == "train" {
-                "iteration"
-            } else {
-                "step"
-            };
-            println!("where the time goes, {} (ms per {unit}):", part.part);
-            for p in &part.phases {
-                println!("  {:40} {:9.2}", p.phase, p.ms);
-            }
-        }
+        print_report(&report, &config);
     }
     Ok(())
+}
+
+/// The bench's figures as a table on stdout.
+fn print_report(report: &Report, config: &ModelConfig) {
+    println!("backend                          {}", report.backend);
+    println!("threads                          {}", report.threads);
+    println!("machine                          {}", report.machine);
+    if let (Some(mean), Some(min)) = (report.train_iter_s, report.train_iter_min_s) {
+        let (s, t) = (report.sequences, report.steps);
+        println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
+        let terms: Vec<String> = report
+            .train_free_energy
+            .iter()
+            .map(|f| format!("{f:.9}"))
+            .collect();
+        println!("free energy per iteration        {}", terms.join(" "));
+    }
+    if let (Some(p16), Some(full)) = (report.infer_p16_steps_per_s, report.infer_full_steps_per_s) {
+        println!(
+            "inference, proprio + 16x16       {p16:.1} steps/s (H = {}, {} iterations)",
+            config.inference.window, config.inference.iterations
+        );
+        println!("inference, everything observed   {full:.1} steps/s");
+    }
+    println!(
+        "peak memory after training       {:.0} MB",
+        report.train_peak_rss_mb
+    );
+    println!(
+        "peak memory                      {:.0} MB",
+        report.peak_rss_mb
+    );
+    for part in &report.profile {
+        let unit = if part.part == "train" {
+            "iteration"
+        } else {
+            "step"
+        };
+        println!("where the time goes, {} (ms per {unit}):", part.part);
+        for p in &part.phases {
+            println!("  {:40} {:9.2}", p.phase, p.ms);
+        }
+    }
 }

@@ -131,6 +131,23 @@ fn runs_of(
 
 /// Vision reconstruction MSE of a run of `data`'s first sequence, read out from its states
 /// `d` as a reader gets them back from `storage`.
+/// What the rounded states change: the vision read-out of the first run's d, with the
+/// states as stored against exact, as the card states it.
+fn states_note(
+    shipped: &Model<f32>,
+    first: &Run<f32>,
+    one: &Observations<f32>,
+    bits: u32,
+    name: &str,
+) -> String {
+    let exact = stored_state_vision_error(shipped, first, one, StateStorage::F32);
+    let rounded = stored_state_vision_error(shipped, first, one, StateStorage::F16Mantissa(bits));
+    format!(
+        "per-step states as f16 with {bits} of 10 mantissa bits (changes the vision reconstruction error read out of {name}'s states by {:+.3}%)",
+        (rounded / exact - 1.0) * 100.0
+    )
+}
+
 fn stored_state_vision_error(
     model: &Model<f32>,
     run: &Run<f32>,
@@ -266,16 +283,13 @@ pub fn run(a: Args) -> Result<()> {
         weights
     };
     eprintln!("weights: {weights}");
-    // What the rounded states change: the vision read-out of the first run's d.
     let first = &first_runs.as_ref().expect("at least one condition")[0];
-    let one = data.select(&[0])?;
-    let exact = stored_state_vision_error(&shipped, first, &one, StateStorage::F32);
-    let rounded = stored_state_vision_error(&shipped, first, &one, storage);
-    let states = format!(
-        "per-step states as f16 with {} of 10 mantissa bits (changes the vision reconstruction error read out of {}'s states by {:+.3}%)",
+    let states = states_note(
+        &shipped,
+        first,
+        &data.select(&[0])?,
         a.state_bits,
-        names[0],
-        (rounded / exact - 1.0) * 100.0
+        &names[0],
     );
     eprintln!("runs: {states}");
 
@@ -285,20 +299,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         None
     };
-    let mut evaluations = Vec::new();
-    for dir in &a.evaluation {
-        let path = if dir.is_dir() {
-            dir.join("summary.json")
-        } else {
-            dir.clone()
-        };
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("{}: cannot read", path.display()))?;
-        evaluations.push(pvrnn_eval::progress::card_evaluation(
-            &text,
-            &path.display().to_string(),
-        )?);
-    }
+    let evaluations = card_evaluations(&a.evaluation)?;
     let card = ModelCard {
         iteration,
         training_seconds: trained.map(|t| t.1),
@@ -314,19 +315,7 @@ pub fn run(a: Args) -> Result<()> {
         departures: model.config.departures_from_paper(),
         evaluations,
     };
-    let title = if a.description.is_empty() {
-        "PV-RNN model".to_string()
-    } else {
-        a.description.clone()
-    };
-    let mut readme = card.markdown(&title);
-    readme.push_str(&format!(
-        "\nPrecomputed runs (seed {}): {}.\n\nWritten by `pvrnn bundle`; open with `pvrnn-explorer --bundle {}`.\n",
-        a.seed,
-        run_files.join(", "),
-        a.out.display()
-    ));
-    io::write_atomic(&a.out.join("README.md"), readme.as_bytes())?;
+    write_card_readme(&a, &card, &run_files)?;
     let manifest = BundleManifest::new(
         a.description,
         "model.safetensors".into(),
@@ -341,5 +330,42 @@ pub fn run(a: Args) -> Result<()> {
         names.len(),
         conditions.len()
     );
+    Ok(())
+}
+
+/// The evaluations the card cites (`--evaluation`: report folders or summary files).
+fn card_evaluations(paths: &[PathBuf]) -> Result<Vec<pvrnn_dataset::card::CardEvaluation>> {
+    let mut evaluations = Vec::new();
+    for dir in paths {
+        let path = if dir.is_dir() {
+            dir.join("summary.json")
+        } else {
+            dir.clone()
+        };
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        evaluations.push(pvrnn_eval::progress::card_evaluation(
+            &text,
+            &path.display().to_string(),
+        )?);
+    }
+    Ok(evaluations)
+}
+
+/// The bundle's README.md: the model card and how to open the bundle.
+fn write_card_readme(a: &Args, card: &ModelCard, run_files: &[String]) -> Result<()> {
+    let title = if a.description.is_empty() {
+        "PV-RNN model".to_string()
+    } else {
+        a.description.clone()
+    };
+    let mut readme = card.markdown(&title);
+    readme.push_str(&format!(
+        "\nPrecomputed runs (seed {}): {}.\n\nWritten by `pvrnn bundle`; open with `pvrnn-explorer --bundle {}`.\n",
+        a.seed,
+        run_files.join(", "),
+        a.out.display()
+    ));
+    io::write_atomic(&a.out.join("README.md"), readme.as_bytes())?;
     Ok(())
 }

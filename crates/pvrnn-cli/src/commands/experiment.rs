@@ -142,110 +142,117 @@ pub fn run(a: Args) -> Result<()> {
         return Ok(());
     }
     if !a.report {
-        let (backend, backend_name) = a.backend.open()?;
-        let backend: Arc<dyn pvrnn_core::backend::Backend<f32>> = Arc::from(backend);
-        if a.backend.backend != crate::util::BackendKind::Cpu {
-            eprintln!("backend: {backend_name}");
-        }
-        // Recorded in every result: times and f32 rounding depend on it.
-        let computed_by = format!(
-            "{backend_name}, {} threads{}",
-            rayon::current_num_threads(),
-            if a.jobs > 1 {
-                format!(" shared by {} jobs at once", a.jobs)
-            } else {
-                String::new()
-            }
-        );
-        let stop = Arc::new(AtomicBool::new(false));
-        {
-            let flag = stop.clone();
-            ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
-                .context("cannot install the Ctrl-C / SIGTERM handler")?;
-        }
-        let selection = match (a.job, a.network) {
-            (Some(id), _) => Selection::Job(id),
-            (None, Some(k)) => Selection::Network(k),
-            (None, None) => Selection::All,
-        };
-        let selected = selection.jobs(&plan);
-        let total = selected.len();
-        let done_before = selected
-            .iter()
-            .filter(|&&i| plan.is_done(&a.out, i))
-            .count();
-        let bar = crate::util::progress(total as u64, "jobs");
-        bar.set_position(done_before as u64);
-        let tty = std::io::stderr().is_terminal();
-        let last_line = std::sync::Mutex::new(Instant::now());
-        let events = |e: Event<'_>| match e {
-            Event::Started { id, name } => {
-                if !tty {
-                    eprintln!("job {id} ({name}) started");
-                }
-            }
-            Event::Finished { id, name, seconds } => {
-                bar.inc(1);
-                let line = format!("job {id} ({name}) done in {seconds:.1} s");
-                if tty {
-                    bar.println(line)
-                } else {
-                    eprintln!("{line}")
-                }
-            }
-            Event::Training {
-                id,
-                done,
-                total,
-                free_energy,
-            } => {
-                bar.set_message(format!(
-                    "job {id}: iteration {done}/{total}, F {free_energy:.4}"
-                ));
-                if let Ok(mut t) = last_line.lock()
-                    && !tty
-                    && t.elapsed().as_secs() >= 30
-                {
-                    *t = Instant::now();
-                    eprintln!("job {id}: iteration {done}/{total}, F {free_energy:.4}");
-                }
-            }
-            Event::Inferring { id, done, total } => {
-                bar.set_message(format!("job {id}: step {done}/{total}"));
-            }
-            Event::Diverged { id, name, step } => {
-                let line = format!(
-                    "job {id} ({name}): online inference diverged beyond repair at step {step}; recorded, the report leaves it out"
-                );
-                if tty {
-                    bar.println(line)
-                } else {
-                    eprintln!("{line}")
-                }
-            }
-        };
-        let result = pvrnn_experiment::run::run(
-            &a.out,
-            &backend,
-            &computed_by,
-            a.jobs,
-            selection,
-            &stop,
-            &events,
-        );
-        bar.finish_and_clear();
-        if let Err(e) = result {
-            if e.downcast_ref::<Interrupted>().is_some() {
-                eprintln!("interrupted: checkpoints written; run the same command again to resume");
-                std::process::exit(130);
-            }
-            return Err(e);
-        }
+        run_jobs(&a, &plan)?;
         if a.job.is_some() {
             return Ok(());
         }
     }
     let dir = report::write(&a.out)?;
     eprintln!("report: {}", dir.join("report.md").display());
+    Ok(())
+}
+
+/// Runs the selected jobs of `plan` with a progress bar (a line per event when stderr is
+/// not a terminal); exits with 130 when interrupted, its checkpoints written.
+fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
+    let (backend, backend_name) = a.backend.open()?;
+    let backend: Arc<dyn pvrnn_core::backend::Backend<f32>> = Arc::from(backend);
+    if a.backend.backend != crate::util::BackendKind::Cpu {
+        eprintln!("backend: {backend_name}");
+    }
+    // Recorded in every result: times and f32 rounding depend on it.
+    let computed_by = format!(
+        "{backend_name}, {} threads{}",
+        rayon::current_num_threads(),
+        if a.jobs > 1 {
+            format!(" shared by {} jobs at once", a.jobs)
+        } else {
+            String::new()
+        }
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let flag = stop.clone();
+        ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
+            .context("cannot install the Ctrl-C / SIGTERM handler")?;
+    }
+    let selection = match (a.job, a.network) {
+        (Some(id), _) => Selection::Job(id),
+        (None, Some(k)) => Selection::Network(k),
+        (None, None) => Selection::All,
+    };
+    let selected = selection.jobs(plan);
+    let total = selected.len();
+    let done_before = selected
+        .iter()
+        .filter(|&&i| plan.is_done(&a.out, i))
+        .count();
+    let bar = crate::util::progress(total as u64, "jobs");
+    bar.set_position(done_before as u64);
+    let tty = std::io::stderr().is_terminal();
+    let last_line = std::sync::Mutex::new(Instant::now());
+    let events = |e: Event<'_>| match e {
+        Event::Started { id, name } => {
+            if !tty {
+                eprintln!("job {id} ({name}) started");
+            }
+        }
+        Event::Finished { id, name, seconds } => {
+            bar.inc(1);
+            let line = format!("job {id} ({name}) done in {seconds:.1} s");
+            if tty {
+                bar.println(line)
+            } else {
+                eprintln!("{line}")
+            }
+        }
+        Event::Training {
+            id,
+            done,
+            total,
+            free_energy,
+        } => {
+            bar.set_message(format!(
+                "job {id}: iteration {done}/{total}, F {free_energy:.4}"
+            ));
+            if let Ok(mut t) = last_line.lock()
+                && !tty
+                && t.elapsed().as_secs() >= 30
+            {
+                *t = Instant::now();
+                eprintln!("job {id}: iteration {done}/{total}, F {free_energy:.4}");
+            }
+        }
+        Event::Inferring { id, done, total } => {
+            bar.set_message(format!("job {id}: step {done}/{total}"));
+        }
+        Event::Diverged { id, name, step } => {
+            let line = format!(
+                "job {id} ({name}): online inference diverged beyond repair at step {step}; recorded, the report leaves it out"
+            );
+            if tty {
+                bar.println(line)
+            } else {
+                eprintln!("{line}")
+            }
+        }
+    };
+    let result = pvrnn_experiment::run::run(
+        &a.out,
+        &backend,
+        &computed_by,
+        a.jobs,
+        selection,
+        &stop,
+        &events,
+    );
+    bar.finish_and_clear();
+    if let Err(e) = result {
+        if e.downcast_ref::<Interrupted>().is_some() {
+            eprintln!("interrupted: checkpoints written; run the same command again to resume");
+            std::process::exit(130);
+        }
+        return Err(e);
+    }
     Ok(())
 }

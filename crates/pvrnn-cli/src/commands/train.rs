@@ -194,26 +194,7 @@ impl Validation {
 
 pub fn run(a: Args) -> Result<()> {
     let (backend, backend_name) = a.backend.open()?;
-    let trainer = if a.resume {
-        let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
-        eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
-        t
-    } else {
-        if a.out.exists() && !a.overwrite {
-            bail!(
-                "{} exists: pass --resume to continue that run or --overwrite to start over",
-                a.out.display()
-            );
-        }
-        let model = io::load_model(a.model.as_deref().expect("clap requires --model"))?;
-        let noise = if a.zero_noise {
-            NoiseMode::Zero
-        } else {
-            NoiseMode::Sampled { seed: a.seed }
-        };
-        Trainer::new(model, noise)
-    };
-    let mut trainer = trainer.with_backend(backend);
+    let mut trainer = open_trainer(&a)?.with_backend(backend);
     if a.backend.backend != util::BackendKind::Cpu {
         eprintln!("backend: {backend_name}");
     }
@@ -225,10 +206,7 @@ pub fn run(a: Args) -> Result<()> {
     )?
     .observations;
     if let Some(lr) = a.lr {
-        anyhow::ensure!(lr > 0.0 && lr.is_finite(), "--lr must be positive");
-        let (model, optimizer) = trainer.state_mut();
-        model.config.train.optimizer.lr = lr;
-        optimizer.config.lr = lr;
+        set_lr(&mut trainer, lr)?;
     }
     pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
     anyhow::ensure!(
@@ -330,18 +308,49 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     bar.finish();
+    finished(&a.out, &log, trainer.iteration, last)
+}
+
+/// The run to continue (`--resume`), or a new one from `--model`.
+fn open_trainer(a: &Args) -> Result<Trainer<f32>> {
+    if a.resume {
+        let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
+        eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
+        return Ok(t);
+    }
+    if a.out.exists() && !a.overwrite {
+        bail!(
+            "{} exists: pass --resume to continue that run or --overwrite to start over",
+            a.out.display()
+        );
+    }
+    let model = io::load_model(a.model.as_deref().expect("clap requires --model"))?;
+    let noise = if a.zero_noise {
+        NoiseMode::Zero
+    } else {
+        NoiseMode::Sampled { seed: a.seed }
+    };
+    Ok(Trainer::new(model, noise))
+}
+
+/// `--lr`: the learning rate of the model's configuration and of its optimiser.
+fn set_lr(trainer: &mut Trainer<f32>, lr: f64) -> Result<()> {
+    anyhow::ensure!(lr > 0.0 && lr.is_finite(), "--lr must be positive");
+    let (model, optimizer) = trainer.state_mut();
+    model.config.train.optimizer.lr = lr;
+    optimizer.config.lr = lr;
+    Ok(())
+}
+
+/// The end of a run: what was written, and the last iteration's free energy on stdout.
+fn finished(out: &Path, log: &Path, iteration: u64, last: Option<FreeEnergy>) -> Result<()> {
     if last.is_none() {
         // Nothing to do (already at the requested iteration); keep the file as it is.
-        eprintln!(
-            "{} is already at iteration {}",
-            a.out.display(),
-            trainer.iteration
-        );
+        eprintln!("{} is already at iteration {iteration}", out.display());
     } else {
         eprintln!(
-            "wrote {} (iteration {}), log {}",
-            a.out.display(),
-            trainer.iteration,
+            "wrote {} (iteration {iteration}), log {}",
+            out.display(),
             log.display()
         );
     }

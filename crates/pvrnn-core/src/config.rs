@@ -1,4 +1,4 @@
-//! The model configuration. Defaults are the paper's; every point `spec/model.md` marks as
+//! The model configuration. Defaults are the paper's; every point `docs/model.md` marks as
 //! \[decided\] is a field here, so a user can change it in a TOML file.
 //!
 //! The configuration travels inside every model file as JSON (safetensors metadata `config`).

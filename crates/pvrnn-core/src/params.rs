@@ -1,5 +1,5 @@
 //! Model parameters: weights, fixed constants and the adaptive variables of the training
-//! sequences, with the tensor names of `spec/model.md`.
+//! sequences, with the tensor names of `docs/model.md`.
 
 use rand_chacha::ChaCha8Rng;
 

@@ -1,4 +1,4 @@
-//! From a dataset to model inputs, exactly as `spec/model.md` "Data layout" says:
+//! From a dataset to model inputs, exactly as `docs/model.md` "Data layout" says:
 //!
 //! - vision: for each resolution ascending (16, 32, 64), for each camera (left, right), the
 //!   image row-major and pixel-interleaved; the 32x32 and 16x16 images are 2x2 box averages

@@ -792,9 +792,9 @@ pub fn labelled_maps(
     let scale = 2u32;
     let cell = side as u32 * scale;
     let (label_w, head_h, gap) = (150u32, 52u32, 6u32);
-    // Wide enough for the title (about 8.5 px per character at 14 px).
+    // Wide enough for the title (about 7.7 px per character at 14 px).
     let width =
-        (label_w + columns.len() as u32 * (cell + gap)).max(title.chars().count() as u32 * 9 + 12);
+        (label_w + columns.len() as u32 * (cell + gap)).max(title.chars().count() as u32 * 8 + 12);
     let height = head_h + rows.len() as u32 * (cell + gap) + 4;
     let max = cells
         .iter()

@@ -627,15 +627,16 @@ fn time_resolved(
             .max()
             .unwrap_or(0);
         let names = subtask_names(plan, task, phases);
+        let networks = per_network(
+            &r.infers,
+            &|x| x.task == task && x.phase_map_means.is_some(),
+            &|_| Some(0.0),
+        )
+        .len();
         let _ = writeln!(
             md,
-            "**{task}** ({} networks)\n\n| module | {} |\n|---|{}",
-            per_network(
-                &r.infers,
-                &|x| x.task == task && x.phase_map_means.is_some(),
-                &|_| Some(0.0)
-            )
-            .len(),
+            "**{task}** ({networks} network{})\n\n| module | {} |\n|---|{}",
+            if networks == 1 { "" } else { "s" },
             names.join(" | "),
             "---|".repeat(phases)
         );

@@ -20,6 +20,18 @@ pub fn mean_se(values: &[f64]) -> (f64, Option<f64>) {
     pvrnn_eval::report::mean_se(values)
 }
 
+/// A difference over its standard error; with no spread, 0 for no difference and an
+/// infinite t for any other.
+fn t_statistic(difference: f64, se: f64) -> f64 {
+    if se > 0.0 {
+        difference / se
+    } else if difference == 0.0 {
+        0.0
+    } else {
+        f64::INFINITY.copysign(difference)
+    }
+}
+
 /// Two-sided p-value of a t statistic.
 pub fn t_p_value(t: f64, df: f64) -> Option<f64> {
     if df.is_nan() || df <= 0.0 || t.is_nan() {
@@ -64,13 +76,7 @@ pub fn paired_t(a: &[f64], b: &[f64]) -> Option<PairedT> {
     let n = d.len() as f64;
     let mean = d.iter().sum::<f64>() / n;
     let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-    let t = if sd > 0.0 {
-        mean / (sd / n.sqrt())
-    } else if mean == 0.0 {
-        0.0
-    } else {
-        f64::INFINITY.copysign(mean)
-    };
+    let t = t_statistic(mean, sd / n.sqrt());
     Some(PairedT {
         n: d.len(),
         mean_difference: mean,
@@ -135,13 +141,7 @@ pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
     };
     let t975 = t_quantile(1.0 - ALPHA / 2.0, df)?;
     let t80 = t_quantile(POWER, df)?;
-    let t = if se > 0.0 {
-        diff / se
-    } else if diff == 0.0 {
-        0.0
-    } else {
-        f64::INFINITY.copysign(diff)
-    };
+    let t = t_statistic(diff, se);
     Some(Difference {
         paired,
         n: [a.len(), b.len()],
@@ -454,13 +454,7 @@ fn pairwise(
         for j in i + 1..means.len() {
             let diff = means[i] - means[j];
             let se = (ms * (1.0 / count[i] as f64 + 1.0 / count[j] as f64)).sqrt();
-            let t = if se > 0.0 {
-                diff / se
-            } else if diff == 0.0 {
-                0.0
-            } else {
-                f64::INFINITY.copysign(diff)
-            };
+            let t = t_statistic(diff, se);
             out.push(Contrast {
                 a: labels[i].clone(),
                 b: labels[j].clone(),

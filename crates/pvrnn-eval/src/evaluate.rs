@@ -257,48 +257,34 @@ impl Baselines<'_> {
                 })
                 .collect(),
         });
-        if self.vision_levels > 0 && self.vision_levels < self.config.vision.resolutions.len() {
-            series.push(Series {
-                source: Source::Upsample,
-                target: Target::Recon,
-                trial: None,
-                steps: (0..len)
-                    .map(|t| {
-                        let up = upsampled_vision(&self.config.vision, x(t)[0], self.vision_levels)
-                            .expect("some levels observed, some not");
-                        Some(score(
-                            self.groups,
-                            [&up, x(t)[1]],
-                            x(t),
-                            masks[t].as_deref(),
-                        ))
-                    })
-                    .collect(),
-            });
+        // The upsampling baselines: the observed levels' images upsampled to every level
+        // (plus the mean image's detail), proprioception as observed.
+        let upsampled = |source: Source, up: &dyn Fn(&[f32]) -> Option<Vec<f32>>| Series {
+            source,
+            target: Target::Recon,
+            trial: None,
+            steps: (0..len)
+                .map(|t| {
+                    let up = up(x(t)[0]).expect("some levels observed, some not");
+                    Some(score(
+                        self.groups,
+                        [&up, x(t)[1]],
+                        x(t),
+                        masks[t].as_deref(),
+                    ))
+                })
+                .collect(),
+        };
+        let layout = &self.config.vision;
+        if self.vision_levels > 0 && self.vision_levels < layout.resolutions.len() {
+            series.push(upsampled(Source::Upsample, &|v| {
+                upsampled_vision(layout, v, self.vision_levels)
+            }));
         }
         if let Some(detail) = self.detail {
-            series.push(Series {
-                source: Source::UpsampleDetail,
-                target: Target::Recon,
-                trial: None,
-                steps: (0..len)
-                    .map(|t| {
-                        let up = upsampled_with_detail(
-                            &self.config.vision,
-                            x(t)[0],
-                            self.vision_levels,
-                            detail,
-                        )
-                        .expect("some levels observed, some not");
-                        Some(score(
-                            self.groups,
-                            [&up, x(t)[1]],
-                            x(t),
-                            masks[t].as_deref(),
-                        ))
-                    })
-                    .collect(),
-            });
+            series.push(upsampled(Source::UpsampleDetail, &|v| {
+                upsampled_with_detail(layout, v, self.vision_levels, detail)
+            }));
         }
         (masks, series)
     }

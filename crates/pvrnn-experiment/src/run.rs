@@ -1245,7 +1245,7 @@ pub fn read_infer_result(path: &Path) -> Result<(InferResult, Option<Vec<Vec<f32
     Ok((result, maps))
 }
 
-/// Reads an inference result's per-phase contribution maps ([phase][module][pixel],
+/// Reads an inference result's per-phase contribution maps (indexed `[phase][module][pixel]`,
 /// averaged over colour channels), if it has them.
 pub fn read_phase_maps(path: &Path) -> Result<Option<Vec<Vec<Vec<f32>>>>> {
     let file = TensorFile::open(path)?;

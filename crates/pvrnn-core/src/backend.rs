@@ -2,21 +2,23 @@
 //! and the arithmetic.
 //!
 //! A [`Backend`] turns parameters into a [`LoadedModel`] (the CPU backend lays weights out
-//! for its kernels; a GPU backend would upload them). Everything expensive then happens in
+//! for its kernels; the GPU backend uploads them). Everything expensive then happens in
 //! one call: [`LoadedModel::evaluate`] runs a batch of windows (whole sequences in learning,
 //! the sliding window in inference) forward, computes the free energy on the observed
-//! dimensions, and optionally back-propagates through time. The CPU implementation is
-//! [`crate::cpu::CpuBackend`]; a GPU backend implements the same two traits and nothing
-//! above them changes.
+//! dimensions, and optionally back-propagates through time. Both backends build their
+//! loaded model the same way: [`crate::assembled::AssembledModel`], the backend-neutral
+//! driver, over the pieces each supplies (its recurrence, its read-outs, and optionally
+//! online inference's updates in one go). The CPU's are in [`crate::cpu`], the GPU's in
+//! the `pvrnn-wgpu` crate; nothing above these traits knows which runs.
 
 use crate::Real;
 use crate::config::{Modality, ModelConfig};
 use crate::data::{Ablation, Observations, Observed};
 use crate::deferred::Deferred;
 use crate::error::Result;
-use crate::free_energy::FreeEnergy;
 use crate::optim::{RAdam, RAdamStep};
 use crate::params::{Model, Params};
+use crate::terms::FreeEnergy;
 
 /// Where the adaptive variables of a window come from.
 #[derive(Clone, Copy, Debug)]
@@ -233,7 +235,7 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
 
     /// Several of online inference's updates of one window's adaptive variables at once, on
     /// a device that can run them without coming back to the host in between (see
-    /// [`ErrorRegression`]). `None` (the default): the caller runs them one
+    /// [`crate::assembled::ErrorRegression`]). `None` (the default): the caller runs them one
     /// [`Self::evaluate`] at a time. Whether it runs them is decided at once; the result is
     /// [`Deferred`] (WebGPU hands it over through the browser's event loop).
     fn regress<'a>(
@@ -286,171 +288,4 @@ pub struct RegressionResult<T> {
     /// The first update whose free energy terms or gradient were not finite (the host
     /// then restarts the step as it would have; the values above are meaningless).
     pub first_non_finite: Option<usize>,
-}
-
-/// Online inference's updates computed on other hardware, several at once (see
-/// [`LoadedModel::regress`]). The CPU backend accepts one
-/// ([`crate::cpu::CpuBackend::load_with`]) and hands it its weights.
-pub trait ErrorRegression<T: Real>: Send + Sync + std::fmt::Debug {
-    /// Runs `request`'s updates for a model with these weights; `None` leaves them to the
-    /// caller (shapes the device does not hold, for example). The request is read before
-    /// this returns; the result may come later ([`Deferred`]).
-    fn regress<'a>(
-        &'a self,
-        params: &'a Params<T>,
-        config: &'a ModelConfig,
-        request: &RegressionRequest<'_, T>,
-    ) -> Option<Deferred<'a, RegressionResult<T>>>;
-}
-
-/// The fused output layer's results for `n` rows (see [`OutputLayer::loss`]).
-#[derive(Clone, Debug)]
-pub struct OutputLoss<T> {
-    /// Per row: (1/divisor) * sum over the first k dimensions of 1/2 (x - x^)^2.
-    pub row_loss: Vec<f64>,
-    /// d F / d input (the top hidden activation), `[n, hidden]`.
-    pub grad_in: Vec<T>,
-    /// d F / d W for the first k rows of W, `[k, hidden]` (when weight gradients were asked).
-    pub grad_w: Option<Vec<T>>,
-    /// d F / d b for the first k dimensions (when weight gradients were asked and b exists).
-    pub grad_b: Option<Vec<T>>,
-}
-
-/// A whole read-out's results for `n` rows (see [`OutputLayer::readout_loss`]).
-#[derive(Clone, Debug)]
-pub struct ReadoutLoss<T> {
-    /// Per row, as [`OutputLoss::row_loss`].
-    pub row_loss: Vec<f64>,
-    /// d F / d the module states `d` that feed the read-out, `[n, d]`.
-    pub grad_d: Vec<T>,
-}
-
-/// A read-out's output layer, `x^ = tanh(W h + b)`, computed on other hardware. It carries
-/// about 97% of the model's arithmetic (the vision layer's 50 x 32,256 weights against
-/// every row), so a GPU that runs only this layer already takes most of the work; the CPU
-/// backend accepts one ([`crate::cpu::CpuBackend::load_with`]) and calls it in
-/// place of its own fused kernel, keeping the recurrence, the hidden layers and the KL terms.
-/// The layer's weights are the ones given at load time. Results are [`Deferred`]: a native
-/// GPU waits for its read-back before it returns a ready future, WebGPU's arrive when the
-/// browser's event loop runs. The inputs are read before the call returns.
-pub trait OutputLayer<T: Real>: Send + Sync + std::fmt::Debug {
-    /// The fused loss of the first `k` dimensions: forward, error, and (always) d F / d input,
-    /// plus d F / d W and d F / d b when `weight_grads`. `input` is `[n, hidden]`;
-    /// `targets[r]` holds at least `k` values; each row's squared error is divided by
-    /// `divisor`. `None` leaves the call to the CPU (for example shapes too small to pay
-    /// for a transfer).
-    /// `resident`: [`Request::resident_targets`] (the targets may be kept across calls).
-    fn loss<'a>(
-        &'a self,
-        modality: Modality,
-        input: &[T],
-        n: usize,
-        k: usize,
-        divisor: usize,
-        targets: &[&[T]],
-        resident: Option<u64>,
-        weight_grads: bool,
-    ) -> Option<Deferred<'a, OutputLoss<T>>>;
-
-    /// The whole read-out from the module states `d` (`[n, d]`): its hidden layers forward,
-    /// the output layer's loss as in [`Self::loss`], and back through the hidden layers to
-    /// d F / d d, in one call. For a layer whose hidden weights live with it (a
-    /// [`Learner`]'s, which also keeps every weight gradient of the read-out on its
-    /// device); `None`, the default, has the CPU run the hidden layers and call
-    /// [`Self::loss`].
-    #[allow(clippy::too_many_arguments)]
-    fn readout_loss<'a>(
-        &'a self,
-        modality: Modality,
-        d: &[T],
-        n: usize,
-        k: usize,
-        divisor: usize,
-        targets: &[&[T]],
-        resident: Option<u64>,
-        weight_grads: bool,
-    ) -> Option<Deferred<'a, ReadoutLoss<T>>> {
-        let _ = (modality, d, n, k, divisor, targets, resident, weight_grads);
-        None
-    }
-
-    /// The read-out's top hidden activations (`[n, hidden]`) for the module states `d`
-    /// (`[n, d]`), computed where its hidden weights live: a layer that holds them (a
-    /// [`Learner`]'s; the host's copies are stale) must answer, so that full read-outs and
-    /// [`LoadedModel::readout`] never mix them. `None`, the default: the CPU's hidden layers.
-    fn hidden_top<'a>(
-        &'a self,
-        modality: Modality,
-        d: &[T],
-        n: usize,
-    ) -> Option<Deferred<'a, Vec<T>>> {
-        let _ = (modality, d, n);
-        None
-    }
-
-    /// Predictions of every dimension, `[n, dims]`, for `input` `[n, hidden]`. `None` leaves
-    /// the call to the CPU.
-    fn predict<'a>(
-        &'a self,
-        modality: Modality,
-        input: &[T],
-        n: usize,
-    ) -> Option<Deferred<'a, Vec<T>>>;
-}
-
-/// Gradients of one module's recurrent weights, summed over a batch's windows and steps
-/// (row-major, the parameters' shapes). `w_dh` is empty for the top module.
-#[derive(Clone, Debug)]
-pub struct ModuleWeightGrads<T> {
-    pub w_dd: Vec<T>,
-    pub w_dz: Vec<T>,
-    pub w_dh: Vec<T>,
-    pub w_prior_mu: Vec<T>,
-    pub w_prior_sigma: Vec<T>,
-    pub b_prior_mu: Vec<T>,
-    pub b_prior_sigma: Vec<T>,
-}
-
-/// What back-propagation through the recurrence returns for a batch.
-#[derive(Clone, Debug)]
-pub struct RecurrenceGrads<T> {
-    /// Per window, d F / d a_mu and d F / d a_sigma per module, `[len, z]`.
-    pub a_mu: Vec<[Vec<T>; 4]>,
-    pub a_sigma: Vec<[Vec<T>; 4]>,
-    /// Per module, summed over the windows in their order (when weight gradients were asked).
-    pub weights: Option<[ModuleWeightGrads<T>; 4]>,
-}
-
-/// The recurrence (the modules' MTRNN updates, priors, posteriors and KL terms over a batch
-/// of windows), computed on other hardware. The CPU backend accepts one
-/// ([`crate::cpu::CpuBackend::load_with`]) and calls it in place of its own kernels; the
-/// weights are the ones given at load time.
-pub trait Recurrence<T: Real>: Send + Sync + std::fmt::Debug {
-    /// Runs every window forward. `None` leaves the batch to the CPU (for example shapes
-    /// the kernels do not hold); whether it takes the batch is decided at once, the states
-    /// may come later ([`Deferred`]: WebGPU's arrive through the browser's event loop).
-    fn forward<'a>(
-        &'a self,
-        windows: &[Window<'_, T>],
-        ablation: &Ablation,
-    ) -> Option<Deferred<'a, Box<dyn RecurrencePass<T> + 'a>>>;
-}
-
-/// A batch run forward: its states, and what back-propagation needs of them (a GPU keeps
-/// them on the device, so the backward pass uploads only the read-outs' gradients).
-pub trait RecurrencePass<T: Real>: Send + std::fmt::Debug {
-    /// Every window's states, in the windows' order.
-    fn traces(&self) -> &[Trace<T>];
-
-    /// Back-propagation through time. `grad_d[w][m]` is d F / d d_t of module m from its
-    /// read-out in window w (`[len, d]`), if the module has an observed read-out. `grad_d`
-    /// is read before this returns; the gradients may come later.
-    fn backward<'s>(
-        &'s self,
-        grad_d: &[[Option<&[T]>; 4]],
-        weight_grads: bool,
-    ) -> Deferred<'s, RecurrenceGrads<T>>;
-
-    /// The states, given up.
-    fn into_traces(self: Box<Self>) -> Vec<Trace<T>>;
 }

@@ -1,7 +1,5 @@
 //! The free energy of a model on its training sequences (eq. 17) and its exact gradient.
 
-use serde::{Deserialize, Serialize};
-
 use crate::Real;
 use crate::backend::{Backend, FullOutputs, Grads, Posterior, Request, Window};
 use crate::config::{Modality, ModelConfig, ModuleId};
@@ -9,60 +7,7 @@ use crate::data::{Ablation, Observations, Observed};
 use crate::error::{Error, Result};
 use crate::noise::{NoiseMode, Stream};
 use crate::params::{Adaptive, Model, Params};
-
-/// Accuracy (prediction error) terms per modality, each already divided by the observed
-/// dimensions and summed over sequences and steps.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct AccuracyTerms {
-    pub exteroceptive: f64,
-    pub proprioceptive: f64,
-}
-
-/// Complexity (KL) terms per module, each divided by the module's z and summed over
-/// sequences and steps, *before* multiplying by W.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ComplexityTerms {
-    pub executive: f64,
-    pub associative: f64,
-    pub exteroceptive: f64,
-    pub proprioceptive: f64,
-}
-
-/// F = sum of accuracy terms + W * sum of complexity terms.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct FreeEnergy {
-    pub total: f64,
-    pub accuracy: AccuracyTerms,
-    pub complexity: ComplexityTerms,
-}
-
-impl FreeEnergy {
-    /// Builds the report from per-modality and per-module sums.
-    pub fn from_terms(accuracy: [f64; 2], complexity: [f64; 4], kl_weight: f64) -> Self {
-        Self {
-            total: accuracy.iter().sum::<f64>() + kl_weight * complexity.iter().sum::<f64>(),
-            accuracy: AccuracyTerms {
-                exteroceptive: accuracy[Modality::Exteroceptive.index()],
-                proprioceptive: accuracy[Modality::Proprioceptive.index()],
-            },
-            complexity: ComplexityTerms {
-                executive: complexity[ModuleId::Executive.index()],
-                associative: complexity[ModuleId::Associative.index()],
-                exteroceptive: complexity[ModuleId::Exteroceptive.index()],
-                proprioceptive: complexity[ModuleId::Proprioceptive.index()],
-            },
-        }
-    }
-
-    pub fn complexity_of(&self, id: ModuleId) -> f64 {
-        match id {
-            ModuleId::Executive => self.complexity.executive,
-            ModuleId::Associative => self.complexity.associative,
-            ModuleId::Exteroceptive => self.complexity.exteroceptive,
-            ModuleId::Proprioceptive => self.complexity.proprioceptive,
-        }
-    }
-}
+pub use crate::terms::{AccuracyTerms, ComplexityTerms, FreeEnergy};
 
 /// d F / d every trainable tensor (fixed tensors hold zeros).
 #[derive(Clone, Debug, PartialEq)]

@@ -20,7 +20,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::backend::{Backend, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window};
 use crate::config::{Modality, ModelConfig, ModuleId, RAdamConfig, validate_radam};
-use crate::cpu::CpuBackend;
 use crate::data::{Ablation, AblationMode, Observations, Observed};
 use crate::error::{Error, Result};
 use crate::free_energy::FreeEnergy;
@@ -267,10 +266,6 @@ pub struct OnlineInference<T: Real> {
 }
 
 impl<T: Real> OnlineInference<T> {
-    pub fn new(model: Arc<Model<T>>, settings: InferenceSettings) -> Result<Self> {
-        Self::with_backend(model, settings, &CpuBackend)
-    }
-
     pub fn with_backend(
         model: Arc<Model<T>>,
         settings: InferenceSettings,
@@ -895,29 +890,10 @@ impl<T: Real> Run<T> {
     }
 }
 
-/// Runs online inference over sequence `s` of `data` (all of its steps), calling
-/// `progress(step, length)` after each step with its output (`step.t + 1` steps are done)
-/// and the sequence's length; `keep_outputs` as in [`Run::from_steps`].
-pub fn run_sequence<T: Real>(
-    model: Arc<Model<T>>,
-    settings: InferenceSettings,
-    data: &Observations<T>,
-    s: usize,
-    keep_outputs: bool,
-    progress: &mut dyn FnMut(&StepOutput<T>, usize),
-) -> Result<Run<T>> {
-    run_sequence_on(
-        &CpuBackend,
-        model,
-        settings,
-        data,
-        s,
-        keep_outputs,
-        progress,
-    )
-}
-
-/// [`run_sequence`] on `backend`.
+/// Runs online inference over sequence `s` of `data` (all of its steps) on `backend`,
+/// calling `progress(step, length)` after each step with its output (`step.t + 1` steps
+/// are done) and the sequence's length; `keep_outputs` as in [`Run::from_steps`]
+/// ([`crate::defaults::run_sequence`]: on the CPU).
 pub fn run_sequence_on<T: Real>(
     backend: &dyn Backend<T>,
     model: Arc<Model<T>>,

@@ -8,15 +8,19 @@
 //! - [`train`]: full-batch RAdam learning ([`train::Trainer`]).
 //! - [`infer`]: online inference over a sliding window ([`infer::OnlineInference`]).
 //! - [`io`]: safetensors files for models, checkpoints, gradients, inputs and runs.
-//! - [`backend`]: the arithmetic interface; [`cpu`] implements it.
+//! - [`backend`]: the arithmetic interface; [`assembled`]: the backend-neutral driver over a
+//!   backend's pieces; [`cpu`] supplies the CPU's pieces (the `pvrnn-wgpu` crate the GPU's).
+//! - [`defaults`]: the one place a default backend (the CPU) is chosen.
 //!
 //! The crate has no GUI or OS dependency beyond files in [`io`] and compiles to
 //! `wasm32-unknown-unknown`.
 
+pub mod assembled;
 pub mod backend;
 pub mod config;
 pub mod cpu;
 pub mod data;
+pub mod defaults;
 pub mod deferred;
 pub mod error;
 pub mod free_energy;
@@ -30,10 +34,12 @@ pub mod params;
 pub mod profile;
 pub mod real;
 pub mod tensor;
+pub mod terms;
 pub mod train;
 
 pub use config::{Modality, ModelConfig, ModuleId};
 pub use data::{Ablation, AblationMode, Observations, Observed};
+pub use defaults::run_sequence;
 pub use error::{Error, Result};
 pub use free_energy::FreeEnergy;
 pub use noise::NoiseMode;

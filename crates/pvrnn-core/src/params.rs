@@ -3,7 +3,7 @@
 
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::{Modality, ModelConfig, ModuleId, PosteriorInit};
+use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::noise::{self, Stream};
 use crate::{Real, Tensor};
 
@@ -286,54 +286,6 @@ pub struct Model<T> {
 }
 
 impl<T: Real> Model<T> {
-    /// A fresh model for `sequences` training sequences of `steps` steps (its initial
-    /// adaptive variables computed on the CPU backend).
-    pub fn init(
-        config: ModelConfig,
-        sequences: usize,
-        steps: usize,
-        seed: u64,
-    ) -> crate::Result<Self> {
-        Self::init_on(&crate::cpu::CpuBackend, config, sequences, steps, seed)
-    }
-
-    /// [`Self::init`] with the prior rollout of `posterior_init = "prior"` computed by
-    /// `backend`.
-    pub fn init_on(
-        backend: &dyn crate::backend::Backend<T>,
-        config: ModelConfig,
-        sequences: usize,
-        steps: usize,
-        seed: u64,
-    ) -> crate::Result<Self> {
-        config.validate()?;
-        if sequences == 0 || steps == 0 {
-            return Err(crate::Error::InvalidArgument(format!(
-                "a model needs at least one sequence of at least one step (got {sequences} x {steps})"
-            )));
-        }
-        let params = Params::init(&config, seed);
-        let mut adaptive = Adaptive::zeros(&config, sequences, steps);
-        if config.posterior_init == PosteriorInit::Prior {
-            // The prior rollout does not depend on data, so every sequence starts the same.
-            let (a_mu, a_sigma) = backend.load(&params, &config).prior_rollout(steps);
-            for id in ModuleId::ALL {
-                let i = id.index();
-                for s in 0..sequences {
-                    adaptive.a_mu[i].sub_mut(&[s]).copy_from_slice(&a_mu[i]);
-                    adaptive.a_sigma[i]
-                        .sub_mut(&[s])
-                        .copy_from_slice(&a_sigma[i]);
-                }
-            }
-        }
-        Ok(Self {
-            config,
-            params,
-            adaptive,
-        })
-    }
-
     pub fn cast<U: Real>(&self) -> Model<U> {
         Model {
             config: self.config.clone(),

@@ -4,13 +4,13 @@
 use crate::Real;
 use crate::backend::{Backend, Learner};
 use crate::config::ModelConfig;
-use crate::cpu::CpuBackend;
+use crate::config::{ModuleId, PosteriorInit};
 use crate::data::Observations;
 use crate::error::{Error, Result};
 use crate::free_energy::{FreeEnergy, NoiseDraw, check_model_fits_data, free_energy, window_eps};
 use crate::noise::NoiseMode;
 use crate::optim::RAdam;
-use crate::params::{Model, Role};
+use crate::params::{Adaptive, Model, Params, Role};
 
 /// A learning run: the model, its optimiser state and how far it got.
 ///
@@ -56,9 +56,50 @@ fn trainable_sizes<T: Real>(model: &Model<T>) -> Vec<usize> {
     sizes
 }
 
+impl<T: Real> Model<T> {
+    /// A fresh model for `sequences` training sequences of `steps` steps, the prior rollout
+    /// of `posterior_init = "prior"` computed by `backend` ([`crate::defaults`]'
+    /// `Model::init`: on the CPU).
+    pub fn init_on(
+        backend: &dyn Backend<T>,
+        config: ModelConfig,
+        sequences: usize,
+        steps: usize,
+        seed: u64,
+    ) -> Result<Self> {
+        config.validate()?;
+        if sequences == 0 || steps == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "a model needs at least one sequence of at least one step (got {sequences} x {steps})"
+            )));
+        }
+        let params = Params::init(&config, seed);
+        let mut adaptive = Adaptive::zeros(&config, sequences, steps);
+        if config.posterior_init == PosteriorInit::Prior {
+            // The prior rollout does not depend on data, so every sequence starts the same.
+            let (a_mu, a_sigma) = backend.load(&params, &config).prior_rollout(steps);
+            for id in ModuleId::ALL {
+                let i = id.index();
+                for s in 0..sequences {
+                    adaptive.a_mu[i].sub_mut(&[s]).copy_from_slice(&a_mu[i]);
+                    adaptive.a_sigma[i]
+                        .sub_mut(&[s])
+                        .copy_from_slice(&a_sigma[i]);
+                }
+            }
+        }
+        Ok(Self {
+            config,
+            params,
+            adaptive,
+        })
+    }
+}
+
 impl<T: Real> Trainer<T> {
-    /// A new run with fresh optimiser moments.
-    pub fn new(model: Model<T>, noise: NoiseMode) -> Self {
+    /// A new run with fresh optimiser moments, computing on `backend`
+    /// ([`crate::defaults`]' `Trainer::new`: on the CPU).
+    pub fn new_on(backend: Box<dyn Backend<T>>, model: Model<T>, noise: NoiseMode) -> Self {
         let optimizer = RAdam::new(
             model.config.train.optimizer.clone(),
             &trainable_sizes(&model),
@@ -68,14 +109,16 @@ impl<T: Real> Trainer<T> {
             optimizer,
             iteration: 0,
             noise,
-            backend: Box::new(CpuBackend),
+            backend,
             learner: None,
             host_stale: false,
         }
     }
 
-    /// Continues a run from saved state.
-    pub fn resume(
+    /// Continues a run from saved state, computing on `backend`
+    /// ([`crate::defaults`]' `Trainer::resume`: on the CPU).
+    pub fn resume_on(
+        backend: Box<dyn Backend<T>>,
         model: Model<T>,
         optimizer: RAdam<T>,
         iteration: u64,
@@ -100,7 +143,7 @@ impl<T: Real> Trainer<T> {
             optimizer,
             iteration,
             noise,
-            backend: Box::new(CpuBackend),
+            backend,
             learner: None,
             host_stale: false,
         })

@@ -294,7 +294,8 @@ fn dtype_other_than_f32_is_rejected() {
 #[cfg(not(target_arch = "wasm32"))]
 mod on_disk {
     use super::*;
-    use pvrnn_core::infer::{InferenceSettings, run_sequence};
+    use pvrnn_core::infer::InferenceSettings;
+    use pvrnn_core::run_sequence;
     use pvrnn_core::train::Trainer;
     use std::sync::Arc;
 

@@ -12,7 +12,8 @@ use std::sync::Arc;
 use common::{sine_observations, tiny_config};
 use pvrnn_core::backend::Backend;
 use pvrnn_core::config::ModuleConfig;
-use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence, run_sequence_on};
+use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence_on};
+use pvrnn_core::run_sequence;
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{
     Ablation, AblationMode, Modality, Model, ModelConfig, ModuleId, NoiseMode, Observations,

@@ -7,7 +7,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
-use pvrnn_core::infer::{InferenceSettings, run_sequence};
+use pvrnn_core::infer::InferenceSettings;
+use pvrnn_core::run_sequence;
 use pvrnn_core::{Modality, Model, ModelConfig, Observed};
 use pvrnn_dataset::{Dataset, Selection, Sequence, SequenceInfo, Split, proprio_ranges};
 use pvrnn_eval::report::{self, Pixels};

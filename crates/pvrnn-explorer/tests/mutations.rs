@@ -14,8 +14,9 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use pvrnn_core::infer::{InferenceSettings, run_sequence};
+use pvrnn_core::infer::InferenceSettings;
 use pvrnn_core::io::{self, TensorFile};
+use pvrnn_core::run_sequence;
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{Modality, NoiseMode};
 use pvrnn_dataset::{Dataset, Split};

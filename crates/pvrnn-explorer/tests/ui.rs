@@ -8,8 +8,9 @@ use std::collections::HashMap;
 
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use pvrnn_core::infer::{InferenceSettings, run_sequence};
+use pvrnn_core::infer::InferenceSettings;
 use pvrnn_core::io;
+use pvrnn_core::run_sequence;
 use pvrnn_explorer::bundle::BUNDLE_MANIFEST;
 use pvrnn_explorer::runs::Condition;
 use pvrnn_explorer::{Bundle, ExplorerApp, ViewState};

@@ -16,7 +16,6 @@
 
 use std::time::Instant;
 
-use pvrnn_core::backend::OutputLayer;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 use pvrnn_wgpu::{GpuOutputLayer, Tiling, WgpuBackend};

@@ -3,8 +3,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use crate::encode::{Recorder, bind, dispatch, grid};
 use crate::gpu::Gpu;
-use crate::output::{Recorder, bind, dispatch, grid};
 use crate::pool::PooledBuffer;
 
 /// Where values sit in a buffer: the first one, and the steps between blocks and rows.

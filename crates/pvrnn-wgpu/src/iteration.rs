@@ -17,12 +17,13 @@ use pvrnn_core::params::Model;
 use pvrnn_core::{Error, Modality, ModelConfig, Result};
 
 use crate::copy::{Strided, encode_copy};
+use crate::encode::{DispatchList, row_losses, vec4s};
 use crate::gpu::{Gpu, RecurrenceKernels};
-use crate::learner::{Part, ResidentLayer, ResidentTensor, resident_buffer};
-use crate::output::{DispatchList, EncodedReadout, GpuOutputLayer, Tiling, row_losses, vec4s};
+use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::RecurrenceLayout;
+use crate::resident::{Part, ResidentLayer, ResidentTensor, resident_buffer};
 
 /// The recurrence and the adaptive variables of a learning run, resident (see the module
 /// docs), and the read-outs it feeds.

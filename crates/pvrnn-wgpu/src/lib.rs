@@ -1,46 +1,50 @@
 //! GPU compute for the scalable PV-RNN through wgpu (Vulkan, Metal, DX12, and WebGPU in the
 //! browser).
 //!
-//! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32`. What runs on the GPU:
-//! the read-outs' output layer (`tanh(W h + b)` into every dimension, fused with its loss
-//! and both backward products: `shaders/loss_rows.wgsl` and `shaders/loss_columns.wgsl`),
-//! about 97% of a learning iteration's arithmetic (docs/gpu.md), through
-//! [`pvrnn_core::backend::OutputLayer`]; and, when asked for
-//! ([`WgpuBackend::with_recurrence_on_gpu`]), the recurrence forward and backward with its
-//! weight gradients (`shaders/recurrence_*.wgsl`, one workgroup per window), through
-//! [`pvrnn_core::backend::Recurrence`]. In learning, [`GpuLearner`] (pvrnn-core's
-//! [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments on the GPU for
-//! the whole run, runs their hidden layers there too (`shaders/dense_*.wgsl`) and updates
-//! them there (`shaders/radam.wgsl`). The KL sums and the rest of the optimiser stay on
-//! the CPU backend, which calls this crate through those seams, unless the recurrence is on
-//! the GPU: then the learner keeps everything and runs a whole learning iteration in one
-//! submission (`iteration.rs`), reading back only the free-energy terms; and online
-//! inference runs all the updates of an `iterate` call in one submission (`regression.rs`,
-//! pvrnn-core's [`pvrnn_core::backend::ErrorRegression`]). In the browser (wasm32, wgpu's
-//! `webgpu` feature) the output layers run on WebGPU and their read-backs are awaited
-//! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]); with the recurrence on the GPU, it runs
-//! there too, online inference's updates in one submission per call as natively.
+//! [`WgpuBackend`] implements pvrnn-core's [`Backend`] for `f32` the way the CPU backend
+//! does: it assembles a loaded model ([`pvrnn_core::assembled::AssembledModel`], the
+//! backend-neutral driver) from its own pieces. [`GpuReadout`] runs both read-outs' output
+//! layers on the GPU (`tanh(W h + b)` into every dimension, fused with its loss and both
+//! backward products: `shaders/loss_rows.wgsl` and `shaders/loss_columns.wgsl`; most of a
+//! learning iteration's arithmetic, docs/gpu.md), and their hidden layers on the CPU's
+//! read-out. With [`WgpuBackend::with_recurrence_on_gpu`], [`GpuRecurrence`] runs the
+//! recurrence forward and backward with its weight gradients (`shaders/recurrence_*.wgsl`,
+//! one workgroup per window), and online inference runs all the updates of an `iterate`
+//! call in one submission (`regression.rs`). What a GPU piece does not take (shapes its
+//! kernels do not hold, calls too small to pay for a transfer) it hands to the CPU's piece
+//! with the same weights, through that piece's public methods. In learning, [`GpuLearner`]
+//! (pvrnn-core's [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments
+//! on the GPU for the whole run, runs their hidden layers there too (`shaders/dense_*.wgsl`)
+//! and updates them there (`shaders/radam.wgsl`); with the recurrence on the GPU it keeps
+//! everything and runs a whole learning iteration in one submission (`iteration.rs`),
+//! reading back only the free-energy terms. In the browser (wasm32, wgpu's `webgpu`
+//! feature) the same pieces run on WebGPU and their read-backs are awaited
+//! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]).
 //!
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device, and in headless
 //! Chromium on SwiftShader's WebGPU adapter).
 
 mod copy;
+mod encode;
 mod gpu;
 mod iteration;
 mod learner;
 mod output;
 mod pool;
 mod readback;
+mod readout;
 mod recurrence;
 mod regression;
+mod resident;
 mod template;
 
 use std::sync::Arc;
 
 use pvrnn_core::ModelConfig;
-use pvrnn_core::backend::{Backend, Learner, LoadedModel, Recurrence};
-use pvrnn_core::cpu::{CpuBackend, Offload};
+use pvrnn_core::assembled::{AssembledModel, ErrorRegression, Parts, Recurrence};
+use pvrnn_core::backend::{Backend, Learner, LoadedModel};
+use pvrnn_core::cpu::CpuRecurrence;
 use pvrnn_core::optim::RAdam;
 use pvrnn_core::params::{Model, Params};
 
@@ -49,6 +53,7 @@ pub use gpu::probe_now;
 pub use gpu::{Gpu, GpuError, probe};
 pub use learner::GpuLearner;
 pub use output::{GpuOutputLayer, Tiling};
+pub use readout::GpuReadout;
 pub use recurrence::GpuRecurrence;
 
 /// The model's arithmetic with the output layers on a GPU (see the crate docs).
@@ -130,7 +135,7 @@ impl WgpuBackend {
         &self,
         params: &Params<f32>,
         config: &ModelConfig,
-        resident: &[Option<Arc<learner::ResidentLayer>>; 2],
+        resident: &[Option<Arc<resident::ResidentLayer>>; 2],
     ) -> Box<dyn LoadedModel<f32>> {
         let layer = GpuOutputLayer::with_resident(self.gpu.clone(), self.tiling, params, resident);
         // Online inference's updates in one submission per call, where the recurrence is on
@@ -140,21 +145,20 @@ impl WgpuBackend {
                 Box::new(regression::GpuRegression::new(
                     self.gpu.clone(),
                     self.tiling,
-                )) as Box<dyn pvrnn_core::backend::ErrorRegression<f32>>
+                )) as Box<dyn ErrorRegression<f32>>
             });
-        let recurrence = self.recurrence_on_gpu.then(|| {
+        let recurrence: Box<dyn Recurrence<f32>> = if self.recurrence_on_gpu {
             Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
-                as Box<dyn Recurrence<f32>>
-        });
-        CpuBackend::load_with(
-            params,
-            config,
-            Offload {
-                output_layer: Some(Box::new(layer)),
-                recurrence,
-                regression,
-            },
-        )
+        } else {
+            Box::new(CpuRecurrence::new(params, config))
+        };
+        let params = Arc::new(params.clone());
+        let parts = Parts {
+            recurrence,
+            readout: Box::new(GpuReadout::new(layer, params.clone())),
+            regression,
+        };
+        Box::new(AssembledModel::new(params, config, parts))
     }
 
     /// How the work is cut (tiles, chunks, the small-call threshold).

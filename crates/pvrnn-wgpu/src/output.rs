@@ -5,19 +5,19 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::Modality;
-use pvrnn_core::backend::{OutputLayer, OutputLoss, ReadoutLoss};
+use pvrnn_core::assembled::{OutputLoss, ReadoutLoss};
 use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
 use wgpu::util::DeviceExt;
 
+use crate::encode::{
+    Recorder, WORKGROUP, bind, dispatch, fits, grid, pad_rows, row_losses, unpad_rows, vec4s,
+};
 use crate::gpu::{Gpu, Kernels, ResidentKey};
-use crate::learner::ResidentLayer;
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
+use crate::resident::ResidentLayer;
 
-/// Threads per workgroup of every kernel; rows per workgroup of `loss_rows.wgsl`, columns
-/// per workgroup of `loss_columns.wgsl`.
-const WORKGROUP: usize = 64;
 /// Columns per tile of `loss_rows.wgsl` (its splits are whole tiles).
 const TILE_COLUMNS: usize = 32;
 /// Rows per workgroup of `predict.wgsl`.
@@ -68,14 +68,6 @@ impl Default for Tiling {
             min_work: 4 << 20,
         }
     }
-}
-/// Hidden widths whose registers (two rows of width/4 vec4s per thread) the kernels are
-/// written for.
-const MAX_HIDDEN: usize = 64;
-
-/// Hidden width in vec4s: rows of weights and activations are zero-padded to it.
-pub(crate) fn vec4s(hidden: usize) -> usize {
-    hidden.div_ceil(4)
 }
 
 #[repr(C)]
@@ -315,11 +307,6 @@ impl GpuOutputLayer {
     }
 }
 
-/// Whether the kernels hold an output layer of this shape.
-pub(crate) fn fits(dims: usize, hidden: usize) -> bool {
-    hidden > 0 && hidden <= MAX_HIDDEN && dims > 0
-}
-
 /// The first `k` values of each row, contiguous.
 fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(rows.len() * k);
@@ -327,109 +314,6 @@ fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
         out.extend_from_slice(&row[..k]);
     }
     out
-}
-
-/// Rows of `width` values zero-padded to whole vec4s (the kernels' layout).
-pub(crate) fn pad_rows(data: &[f32], width: usize) -> Vec<f32> {
-    let padded = 4 * vec4s(width);
-    let mut out = vec![0f32; data.len() / width.max(1) * padded];
-    for (src, dst) in data.chunks_exact(width).zip(out.chunks_exact_mut(padded)) {
-        dst[..width].copy_from_slice(src);
-    }
-    out
-}
-
-/// The inverse of [`pad_rows`].
-pub(crate) fn unpad_rows(data: &[f32], width: usize) -> Vec<f32> {
-    let padded = 4 * vec4s(width);
-    let mut out = Vec::with_capacity(data.len() / padded * width);
-    for row in data.chunks_exact(padded) {
-        out.extend_from_slice(&row[..width]);
-    }
-    out
-}
-
-pub(crate) fn bind(
-    gpu: &Gpu,
-    pipeline: &wgpu::ComputePipeline,
-    buffers: &[&wgpu::Buffer],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-        .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: b.as_entire_binding(),
-        })
-        .collect();
-    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &entries,
-    })
-}
-
-/// Where kernels' dispatches go: straight into a command encoder (a compute pass each), or
-/// into a [`DispatchList`] to replay, the same dispatches many times over (online
-/// inference's updates: bind groups and passes cost the host more than the small kernels).
-pub(crate) trait Recorder {
-    fn record(&mut self, pipeline: &wgpu::ComputePipeline, group: &wgpu::BindGroup, x: u32, y: u32);
-}
-
-impl Recorder for wgpu::CommandEncoder {
-    fn record(
-        &mut self,
-        pipeline: &wgpu::ComputePipeline,
-        group: &wgpu::BindGroup,
-        x: u32,
-        y: u32,
-    ) {
-        let mut pass = self.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-        pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, group, &[]);
-        pass.dispatch_workgroups(x, y, 1);
-    }
-}
-
-/// Dispatches recorded once and replayed into compute passes (see [`Recorder`]).
-#[derive(Debug, Default)]
-pub(crate) struct DispatchList {
-    dispatches: Vec<(wgpu::ComputePipeline, wgpu::BindGroup, u32, u32)>,
-}
-
-impl Recorder for DispatchList {
-    fn record(
-        &mut self,
-        pipeline: &wgpu::ComputePipeline,
-        group: &wgpu::BindGroup,
-        x: u32,
-        y: u32,
-    ) {
-        self.dispatches
-            .push((pipeline.clone(), group.clone(), x, y));
-    }
-}
-
-impl DispatchList {
-    /// Every recorded dispatch, in order, into `pass` (wgpu orders each after the ones
-    /// whose results it reads).
-    pub(crate) fn replay(&self, pass: &mut wgpu::ComputePass<'_>) {
-        for (pipeline, group, x, y) in &self.dispatches {
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, group, &[]);
-            pass.dispatch_workgroups(*x, *y, 1);
-        }
-    }
-}
-
-pub(crate) fn dispatch(
-    recorder: &mut (impl Recorder + ?Sized),
-    pipeline: &wgpu::ComputePipeline,
-    group: &wgpu::BindGroup,
-    x: u32,
-    y: u32,
-) {
-    recorder.record(pipeline, group, x, y);
 }
 
 /// The output layer's loss encoded on the device (see [`GpuOutputLayer::encode_loss`]): the
@@ -841,26 +725,16 @@ impl GpuOutputLayer {
     }
 }
 
-/// The row losses, 1/2 (1 / divisor) sum (x - x^)^2 as [`OutputLoss::row_loss`], from the
-/// kernels' per-row sums of squared errors.
-pub(crate) fn row_losses(sums: Vec<f32>, divisor: usize) -> Vec<f64> {
-    let half_over_divisor = 0.5 / divisor as f64;
-    sums.into_iter()
-        .map(|s| s as f64 * half_over_divisor)
-        .collect()
-}
-
-/// A 2-D grid of 64-thread workgroups covering `threads` (a kernel's flat index is
-/// `(wg.y * groups_x + wg.x) * 64 + t`).
-pub(crate) fn grid(gpu: &Gpu, threads: usize) -> (u32, u32) {
-    let groups = threads.div_ceil(WORKGROUP).max(1);
-    let max = gpu.limits().max_compute_workgroups_per_dimension as usize;
-    let x = groups.min(max);
-    (x as u32, groups.div_ceil(x) as u32)
-}
-
-impl OutputLayer<f32> for GpuOutputLayer {
-    fn loss<'a>(
+/// The output layer's pieces, each declining (`None`) what the GPU does not take; the
+/// results are read back before the futures finish ([`Deferred`]: a native GPU's at once,
+/// WebGPU's through the browser's event loop). Inputs are read before a call returns.
+impl GpuOutputLayer {
+    /// The fused loss of the first `k` dimensions for the top hidden activations `input`
+    /// (`[n, hidden]`): forward, error, d F / d input, and d F / d W and b when
+    /// `weight_grads` (left on the device for a resident layer). `None` for calls too small
+    /// to pay for a transfer.
+    #[allow(clippy::too_many_arguments)]
+    pub fn loss<'a>(
         &'a self,
         modality: Modality,
         input: &[f32],
@@ -924,7 +798,8 @@ impl OutputLayer<f32> for GpuOutputLayer {
     /// Only for a learner's read-outs (their hidden layers' weights are on the device):
     /// the hidden layers, the output layer's loss and the way back to the module states in
     /// one submission, reading back d F / d d and the row losses.
-    fn readout_loss<'a>(
+    #[allow(clippy::too_many_arguments)]
+    pub fn readout_loss<'a>(
         &'a self,
         modality: Modality,
         d: &[f32],
@@ -945,6 +820,7 @@ impl OutputLayer<f32> for GpuOutputLayer {
             return Some(pvrnn_core::deferred::ready(ReadoutLoss {
                 row_loss: Vec::new(),
                 grad_d: Vec::new(),
+                weight_grads: None,
             }));
         }
         let gpu = &*self.gpu;
@@ -979,13 +855,18 @@ impl OutputLayer<f32> for GpuOutputLayer {
             let grad_d = results.next().unwrap_or_default();
             let row_loss = row_losses(results.next().unwrap_or_default(), divisor);
             drop(readout_phase);
-            ReadoutLoss { row_loss, grad_d }
+            // The weight gradients stay on the device for the learner's update.
+            ReadoutLoss {
+                row_loss,
+                grad_d,
+                weight_grads: None,
+            }
         }))
     }
 
     /// For a learner's read-outs, whose hidden weights live on the device (see
     /// [`Self::readout_loss`]): their hidden layers forward, the top activations read back.
-    fn hidden_top<'a>(
+    pub fn hidden_top<'a>(
         &'a self,
         modality: Modality,
         d: &[f32],
@@ -1015,7 +896,9 @@ impl OutputLayer<f32> for GpuOutputLayer {
         }))
     }
 
-    fn predict<'a>(
+    /// Predictions of every dimension, `[n, dims]`, for the top hidden activations
+    /// `input` (`[n, hidden]`); `None` for calls too small to pay for a transfer.
+    pub fn predict<'a>(
         &'a self,
         modality: Modality,
         input: &[f32],

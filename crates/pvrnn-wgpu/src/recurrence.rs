@@ -9,16 +9,15 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::ModelConfig;
-use pvrnn_core::backend::{
-    ModuleTrace, ModuleWeightGrads, Posterior, Recurrence, RecurrenceGrads, RecurrencePass, Trace,
-    Window,
-};
+use pvrnn_core::assembled::{ModuleWeightGrads, Recurrence, RecurrenceGrads, RecurrencePass};
+use pvrnn_core::backend::{ModuleTrace, Posterior, Trace, Window};
 use pvrnn_core::config::ModuleId;
+use pvrnn_core::cpu::CpuRecurrence;
 use pvrnn_core::data::Ablation;
 use pvrnn_core::params::{ModuleParams, Params};
 
+use crate::encode::{Recorder, bind, dispatch};
 use crate::gpu::{Gpu, RecurrenceKernels};
-use crate::output::{Recorder, bind, dispatch};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use pvrnn_core::deferred::Deferred;
@@ -235,6 +234,8 @@ pub struct GpuRecurrence {
     /// The same values with every matrix transposed (same offsets), for the forward
     /// kernel: its threads own output rows, so this layout makes their loads coalesced.
     pub(crate) weights_t: PooledBuffer,
+    /// The CPU's recurrence with the same weights, for the windows the kernels do not hold.
+    cpu: CpuRecurrence<f32>,
 }
 
 impl GpuRecurrence {
@@ -249,6 +250,7 @@ impl GpuRecurrence {
             weights_t: gpu.upload("recurrent weights, transposed", &weights_t),
             gpu,
             layout,
+            cpu: CpuRecurrence::new(params, config),
         }
     }
 }
@@ -484,8 +486,30 @@ impl RecurrenceLayout {
     }
 }
 
+/// On the GPU where its kernels hold the windows, else on the CPU's recurrence.
 impl Recurrence<f32> for GpuRecurrence {
     fn forward<'a>(
+        &'a self,
+        windows: &[Window<'_, f32>],
+        ablation: &Ablation,
+    ) -> Deferred<'a, Box<dyn RecurrencePass<f32> + 'a>> {
+        match self.forward_on_gpu(windows, ablation) {
+            Some(pass) => pass,
+            None => self.cpu.forward(windows, ablation),
+        }
+    }
+
+    /// In the browser on the CPU: this synchronous call (model initialisation) cannot wait
+    /// on the event loop that WebGPU's read-backs need.
+    #[cfg(target_arch = "wasm32")]
+    fn prior_rollout(&self, config: &ModelConfig, steps: usize) -> ([Vec<f32>; 4], [Vec<f32>; 4]) {
+        self.cpu.prior_rollout(config, steps)
+    }
+}
+
+impl GpuRecurrence {
+    /// The windows forward on the GPU; `None` for shapes its kernels do not hold.
+    pub fn forward_on_gpu<'a>(
         &'a self,
         windows: &[Window<'_, f32>],
         ablation: &Ablation,

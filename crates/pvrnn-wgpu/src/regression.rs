@@ -16,18 +16,20 @@
 use std::sync::{Arc, OnceLock};
 
 use bytemuck::{Pod, Zeroable};
-use pvrnn_core::backend::{ErrorRegression, RegressionRequest, RegressionResult, Window};
+use pvrnn_core::assembled::ErrorRegression;
+use pvrnn_core::backend::{RegressionRequest, RegressionResult, Window};
 use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 
+use crate::encode::{DispatchList, bind, grid};
 use crate::gpu::Gpu;
 use crate::iteration::{RecordRows, encode_readout_of_record};
-use crate::learner::ResidentLayer;
-use crate::output::{DispatchList, GpuOutputLayer, Tiling, bind, grid};
+use crate::output::{GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::{GpuRecurrence, ModuleLayout, Strides};
+use crate::resident::ResidentLayer;
 
 /// Where the update kernel's header, module table and per-update scalars start in `meta`
 /// (see `shaders/regression_update.wgsl`).

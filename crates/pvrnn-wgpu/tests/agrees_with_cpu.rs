@@ -14,7 +14,6 @@ use common::{assert_close, assert_same_free_energy_and_gradients, config, observ
 
 use std::sync::Arc;
 
-use pvrnn_core::backend::Recurrence;
 use pvrnn_core::backend::{
     Backend, FullOutputs, Grads, Posterior, Request, Trace, Window, WindowResult,
 };
@@ -165,7 +164,6 @@ fn small_calls_stay_on_the_cpu() {
             &model.params,
         )
     };
-    use pvrnn_core::backend::OutputLayer;
     let work = n * k * hidden;
     for (min_work, on_gpu) in [(work + 1, false), (work, true), (0, true)] {
         let layer = layer(min_work);
@@ -600,7 +598,7 @@ fn the_recurrence_kernels_match_the_cpu_state_by_state() {
     // The kernels take this batch (a `None` would leave it to the CPU, and the comparison
     // below would compare the CPU with itself).
     let direct = GpuRecurrence::upload(gpu.gpu().clone(), &model.params, &config);
-    assert!(direct.forward(&windows, &request.ablation).is_some());
+    assert!(direct.forward_on_gpu(&windows, &request.ablation).is_some());
     let on_cpu = CpuBackend
         .load(&model.params, &config)
         .evaluate(&windows, &request);

@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use pvrnn_core::infer::{InferenceSettings, Run, run_sequence};
+use pvrnn_core::infer::{InferenceSettings, Run};
 use pvrnn_core::io::{self, StateStorage, TensorFile};
+use pvrnn_core::run_sequence;
 use pvrnn_core::{Modality, Model, ModuleId, Observations, Observed};
 use pvrnn_dataset::card::ModelCard;
 use pvrnn_dataset::{Dataset, Split};

@@ -10,7 +10,7 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
-use crate::backend::OutputLoss;
+use crate::assembled::{DenseGrads, OutputLoss};
 use crate::kernels::{LANES, prefetch, simd};
 use crate::parallel;
 use crate::params::{Dense, ReadoutParams};
@@ -67,13 +67,6 @@ pub(crate) fn hidden_forward<T: Real>(r: &ReadoutParams<T>, input: &[T], n: usiz
         acts.push(dense_forward(layer, x, n, true, true));
     }
     acts
-}
-
-/// Gradients of one dense layer.
-#[derive(Debug)]
-pub(crate) struct DenseGrads<T> {
-    pub(crate) weight: Vec<T>,
-    pub(crate) bias: Option<Vec<T>>,
 }
 
 /// Back through the hidden layers. `grad_top` is d F / d (top hidden activation).

@@ -8,7 +8,8 @@
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
-use crate::backend::{ModuleTrace, ModuleWeightGrads, Posterior, Trace, Window};
+use crate::assembled::ModuleWeightGrads;
+use crate::backend::{ModuleTrace, Posterior, Trace, Window};
 use crate::config::{ModelConfig, ModuleId};
 use crate::data::Ablation;
 use crate::kernels::{gemv_padded, pad_rows, padded, simd, transpose_padded};

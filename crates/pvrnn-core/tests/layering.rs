@@ -1,0 +1,161 @@
+//! The core's modules stay layered (ARCHITECTURE.md): no module imports another that imports
+//! it back, and the CPU backend is named only by itself and by `defaults`, the one place a
+//! default backend is chosen. Read from the sources, so that the rule cannot drift.
+
+#![cfg(not(target_arch = "wasm32"))]
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+/// Each top-level module's source without comments and without its unit tests.
+fn modules() -> BTreeMap<String, String> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut modules = BTreeMap::new();
+    let mut stack = vec![src.clone()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).expect("the core's sources") {
+            let path = entry.expect("a source entry").path();
+            if path.is_dir() {
+                stack.push(path);
+                continue;
+            }
+            if path.extension().is_none_or(|e| e != "rs") {
+                continue;
+            }
+            let relative = path.strip_prefix(&src).expect("under src");
+            let top = relative
+                .components()
+                .next()
+                .and_then(|c| c.as_os_str().to_str())
+                .expect("a file name")
+                .trim_end_matches(".rs")
+                .to_string();
+            if top == "lib" {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).expect("a readable source");
+            let text = text.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
+            let code: String = text
+                .lines()
+                .filter(|line| !line.trim_start().starts_with("//"))
+                .map(|line| format!("{line}\n"))
+                .collect();
+            modules
+                .entry(top)
+                .or_insert_with(String::new)
+                .push_str(&code);
+        }
+    }
+    modules
+}
+
+/// The modules each module names through `crate::`.
+fn imports(modules: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<String>> {
+    modules
+        .iter()
+        .map(|(name, code)| {
+            let mut used = BTreeSet::new();
+            for (at, _) in code.match_indices("crate::") {
+                let rest = &code[at + "crate::".len()..];
+                let names: Vec<&str> = match rest.strip_prefix('{') {
+                    Some(group) => group
+                        .split('}')
+                        .next()
+                        .unwrap_or("")
+                        .split(',')
+                        .map(|item| item.trim().split("::").next().unwrap_or(""))
+                        .collect(),
+                    None => vec![
+                        rest.split(|c: char| !c.is_alphanumeric() && c != '_')
+                            .next()
+                            .unwrap_or(""),
+                    ],
+                };
+                for module in names {
+                    if module != name && modules.contains_key(module) {
+                        used.insert(module.to_string());
+                    }
+                }
+            }
+            (name.clone(), used)
+        })
+        .collect()
+}
+
+/// A chain of imports that comes back to its start, if there is one.
+fn find_circle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        node: &str,
+        graph: &BTreeMap<String, BTreeSet<String>>,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(start) = path.iter().position(|p| p == node) {
+            let mut circle = path[start..].to_vec();
+            circle.push(node.to_string());
+            return Some(circle);
+        }
+        if done.contains(node) {
+            return None;
+        }
+        path.push(node.to_string());
+        for next in graph.get(node).into_iter().flatten() {
+            if let Some(circle) = visit(next, graph, path, done) {
+                return Some(circle);
+            }
+        }
+        path.pop();
+        done.insert(node.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    graph
+        .keys()
+        .find_map(|node| visit(node, graph, &mut Vec::new(), &mut done))
+}
+
+#[test]
+fn the_core_s_modules_import_each_other_without_a_circle() {
+    let graph = imports(&modules());
+    assert!(graph.len() > 10, "the sources were not found: {graph:?}");
+    assert!(
+        graph["cpu"].contains("assembled"),
+        "the reading of imports is broken: {graph:?}"
+    );
+    if let Some(circle) = find_circle(&graph) {
+        panic!(
+            "the core's modules import each other in a circle: {}",
+            circle.join(" -> ")
+        );
+    }
+}
+
+#[test]
+fn only_the_cpu_backend_and_the_defaults_name_the_cpu_backend() {
+    let named: Vec<String> = modules()
+        .into_iter()
+        .filter(|(name, code)| name != "cpu" && name != "defaults" && code.contains("CpuBackend"))
+        .map(|(name, _)| name)
+        .collect();
+    assert!(
+        named.is_empty(),
+        "these modules name CpuBackend (choose a default in defaults.rs): {named:?}"
+    );
+}
+
+#[test]
+fn the_circle_finder_finds_a_circle() {
+    let graph: BTreeMap<String, BTreeSet<String>> = [
+        ("a", vec!["b"]),
+        ("b", vec!["c"]),
+        ("c", vec!["a"]),
+        ("d", vec![]),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.into_iter().map(String::from).collect()))
+    .collect();
+    assert_eq!(
+        find_circle(&graph),
+        Some(vec!["a".into(), "b".into(), "c".into(), "a".into()])
+    );
+}

@@ -18,7 +18,7 @@ cargo clippy --workspace --all-targets -- -D warnings
 
 # (also the check that the dataset crate and the simulator compile for WebAssembly)
 step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels, WebGPU)"
-cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-dataset -p caresim \
+cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-backend-tests -p pvrnn-dataset -p caresim \
     --target wasm32-unknown-unknown --all-targets -- -D warnings
 # The GPU crate's library and its browser test (its benchmark and native tests are native).
 cargo clippy -p pvrnn-wgpu --target wasm32-unknown-unknown --lib --tests -- -D warnings
@@ -42,8 +42,8 @@ CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linu
     cargo test --release --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
     the_default_output_is_the_one_the_shipped_model_learned
 
-step "core tests as WebAssembly under Node"
-cargo test -p pvrnn-core --target wasm32-unknown-unknown
+step "core tests and the CPU backend's suite as WebAssembly under Node"
+cargo test -p pvrnn-core -p pvrnn-backend-tests --target wasm32-unknown-unknown
 
 step "WebGPU in a browser worker (SwiftShader's adapter): online inference agrees with the CPU"
 # SwiftShader is slow: the runner's default 20 s for the whole run is not enough.

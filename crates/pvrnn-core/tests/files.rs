@@ -1,7 +1,10 @@
 //! safetensors round trips, and a clear error for every kind of bad file or input.
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
-mod common;
+// The backend suite's fixtures, shared by path (a dev-dependency on it would point up).
+#[allow(dead_code)]
+#[path = "../../pvrnn-backend-tests/src/fixtures.rs"]
+mod fixtures;
 
 #[cfg(target_arch = "wasm32")]
 use wasm_bindgen_test::wasm_bindgen_test as test;
@@ -9,7 +12,7 @@ use wasm_bindgen_test::wasm_bindgen_test as test;
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 
-use common::{random_observations, tiny_config};
+use fixtures::{random_observations, tiny_config};
 use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::io::{self, OutTensor, TensorFile};
 use pvrnn_core::{Model, ModelConfig, NoiseMode, cpu::CpuBackend};

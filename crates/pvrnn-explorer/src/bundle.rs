@@ -16,7 +16,8 @@ use pvrnn_dataset::Dataset;
 use pvrnn_dataset::card::ModelCard;
 use pvrnn_dataset::inputs::{check_layout, ensure_normalisation};
 
-use crate::runs::{Condition, RunKey, RunTrace};
+use crate::condition::{Condition, RunKey};
+use crate::runs::RunTrace;
 
 pub use pvrnn_dataset::bundle::{BUNDLE_FORMAT, BUNDLE_MANIFEST, BundleManifest};
 

@@ -12,7 +12,7 @@ use pvrnn_core::infer::{OnlineInference, StepOutput};
 use pvrnn_core::{Modality, Model, Observations};
 use web_time::{Duration, Instant};
 
-use crate::runs::RunKey;
+use crate::condition::RunKey;
 
 /// One module's states at one step, or (in a `RunTrace`) at every step so far: the core's
 /// type, shared by the engine, the worker's messages and the views.
@@ -337,7 +337,7 @@ async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runs::Condition;
+    use crate::condition::Condition;
     use pvrnn_core::Tensor;
     use pvrnn_core::config::{ModuleConfig, VisionLayout};
 

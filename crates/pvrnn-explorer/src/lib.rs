@@ -6,9 +6,13 @@
 
 pub mod about;
 pub mod app;
+#[cfg(target_arch = "wasm32")]
+pub mod browser;
 pub mod bundle;
+pub mod condition;
 pub mod drop;
 pub mod engine;
+pub mod executor;
 pub mod images;
 pub mod runs;
 pub mod state;
@@ -21,5 +25,5 @@ pub mod worker;
 
 pub use app::ExplorerApp;
 pub use bundle::Bundle;
-pub use runs::Condition;
+pub use condition::Condition;
 pub use state::ViewState;

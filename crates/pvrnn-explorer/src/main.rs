@@ -273,7 +273,7 @@ fn main() {
             // The page's event handlers keep the app running; a panic shows over the page.
             Ok(_handle) => {}
             Err(e) => {
-                pvrnn_explorer::web::log(&e);
+                pvrnn_explorer::browser::log(&e);
                 pvrnn_explorer::web::show_panic(&e, "");
             }
         }

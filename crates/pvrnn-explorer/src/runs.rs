@@ -6,121 +6,14 @@ use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 
 use pvrnn_core::config::{ModelConfig, ModuleId};
-use pvrnn_core::infer::{InferenceSettings, Run};
-use pvrnn_core::{Ablation, AblationMode, Modality, Model, NoiseMode, Observations, Observed};
-
-pub use crate::engine::Finished;
-use crate::engine::{CompactStep, Engine, Event, ModuleStates};
-use serde::{Deserialize, Serialize};
+use pvrnn_core::infer::Run;
+use pvrnn_core::{Modality, Model, Observations};
 use web_time::{Duration, Instant};
 
-/// Everything an inference run depends on besides the model and the sequence.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub struct Condition {
-    /// Lowest vision levels observed (0 = none).
-    pub vision_levels: u8,
-    pub proprio: bool,
-    /// Modules whose z is set to 0.
-    pub ablation: [bool; 4],
-    /// When the ablation applies (readout: re-read the standard inference; inference: z = 0
-    /// throughout). Meaningless without an ablation: [`Condition::canonical`] resets it.
-    #[serde(default)]
-    pub ablation_mode: AblationMode,
-    /// H.
-    pub window: u16,
-    pub iterations: u16,
-    /// The inference learning rate's bits: exact (a rate such as 0.0905 must not round to
-    /// another), and hashable so conditions can be keys. See [`Condition::lr`].
-    pub lr_bits: u64,
-    pub seed: u32,
-}
-
-impl Condition {
-    /// The model's configured inference, everything observed, no ablation, seed 0.
-    pub fn standard(config: &ModelConfig) -> Self {
-        Self {
-            vision_levels: config.vision.resolutions.len() as u8,
-            proprio: true,
-            ablation: [false; 4],
-            ablation_mode: AblationMode::default(),
-            window: config.inference.window as u16,
-            iterations: config.inference.iterations as u16,
-            lr_bits: config.inference.optimizer.lr.to_bits(),
-            seed: 0,
-        }
-    }
-
-    pub fn settings(&self, config: &ModelConfig) -> InferenceSettings {
-        let mut s = InferenceSettings::from_config(config, self.seed as u64);
-        s.observed = Observed {
-            vision_levels: self.vision_levels as usize,
-            proprio: self.proprio,
-        };
-        s.ablation = Ablation(self.ablation);
-        s.ablation_mode = self.ablation_mode;
-        s.window = (self.window as usize).max(1);
-        s.iterations = self.iterations as usize;
-        s.optimizer.lr = self.lr();
-        s.canonical()
-    }
-
-    /// The same condition with the ablation mode reset when nothing is ablated, so one
-    /// run has one key.
-    pub fn canonical(self) -> Self {
-        if self.ablation.iter().any(|&a| a) {
-            self
-        } else {
-            Self {
-                ablation_mode: AblationMode::default(),
-                ..self
-            }
-        }
-    }
-
-    /// The condition a run was computed under, if it is one the explorer can express.
-    pub fn of(settings: &InferenceSettings, config: &ModelConfig) -> Option<Self> {
-        let seed = match settings.noise {
-            NoiseMode::Sampled { seed } => u32::try_from(seed).ok()?,
-            NoiseMode::Zero => return None,
-        };
-        let c = Self {
-            vision_levels: settings.observed.vision_levels as u8,
-            proprio: settings.observed.proprio,
-            ablation: settings.ablation.0,
-            ablation_mode: settings.ablation_mode,
-            window: settings.window as u16,
-            iterations: settings.iterations as u16,
-            lr_bits: settings.optimizer.lr.to_bits(),
-            seed,
-        };
-        (c.settings(config) == settings.clone().canonical()).then_some(c.canonical())
-    }
-
-    /// The inference learning rate.
-    pub fn lr(&self) -> f64 {
-        f64::from_bits(self.lr_bits)
-    }
-
-    pub fn set_lr(&mut self, lr: f64) {
-        self.lr_bits = lr.to_bits();
-    }
-
-    /// The same condition (and ablation mode) with exactly one module ablated.
-    pub fn ablating(&self, module: ModuleId) -> Self {
-        let mut c = *self;
-        c.ablation = [false; 4];
-        c.ablation[module.index()] = true;
-        c
-    }
-
-    pub fn without_ablation(&self) -> Self {
-        Self {
-            ablation: [false; 4],
-            ..*self
-        }
-        .canonical()
-    }
-}
+use crate::condition::RunKey;
+pub use crate::engine::Finished;
+use crate::engine::{CompactStep, Event, ModuleStates};
+use crate::executor::Executor;
 
 /// A run in progress or complete: what the views need, growing step by step.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -206,104 +99,10 @@ pub struct Entry {
     pub error: Option<String>,
 }
 
-/// Which run: a sequence (by name) under a condition.
-#[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub struct RunKey {
-    pub sequence: String,
-    pub condition: Condition,
-}
-
 /// How soon the window redraws after an off-thread result arrives (web worker, desktop
 /// thread): often enough to watch a run grow, rarely enough that drawing does not take the
 /// core the inference needs (measured: `pvrnn-explorer --bench-live`).
 pub const REPAINT_EVERY: Duration = Duration::from_millis(100);
-
-/// Where runs are computed. The store only sends commands and reads [`Event`]s, so it does
-/// not depend on how (or on which thread) a result was computed.
-#[derive(Debug)]
-pub enum Executor {
-    /// In slices between frames, on the calling thread.
-    Inline(Box<Engine>),
-    /// In a Web Worker, beside the page's thread.
-    #[cfg(target_arch = "wasm32")]
-    Worker(crate::worker::WorkerClient),
-    /// On a background thread, beside the window's (desktop).
-    #[cfg(not(target_arch = "wasm32"))]
-    Thread(crate::thread::ThreadClient),
-}
-
-impl Default for Executor {
-    fn default() -> Self {
-        Self::Inline(Box::default())
-    }
-}
-
-impl Executor {
-    fn set_model(&mut self, model: &Arc<Model<f32>>) {
-        match self {
-            Self::Inline(e) => e.set_model(model.clone()),
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.set_model(model),
-            #[cfg(not(target_arch = "wasm32"))]
-            Self::Thread(t) => t.set_model(model),
-        }
-    }
-
-    fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
-        match self {
-            Self::Inline(e) => e.add_observations(name.to_string(), observations),
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.add_observations(name, &observations),
-            #[cfg(not(target_arch = "wasm32"))]
-            Self::Thread(t) => t.add_observations(name, observations),
-        }
-    }
-
-    fn run(&mut self, key: &RunKey) {
-        match self {
-            Self::Inline(e) => e.run(key.clone()),
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.run(key),
-            #[cfg(not(target_arch = "wasm32"))]
-            Self::Thread(t) => t.run(key),
-        }
-    }
-
-    /// Computes for up to `budget` (inline) or collects what arrived (worker, thread).
-    fn poll(&mut self, budget: Duration) -> Vec<Event> {
-        match self {
-            Self::Inline(e) => e.work(budget),
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.take_events(),
-            #[cfg(not(target_arch = "wasm32"))]
-            Self::Thread(t) => t.take_events(),
-        }
-    }
-
-    /// Why the executor cannot go on (a worker that failed), if it cannot.
-    fn broken(&mut self) -> Option<String> {
-        match self {
-            Self::Inline(_) => None,
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.failure(),
-            #[cfg(not(target_arch = "wasm32"))]
-            Self::Thread(t) => t.failure(),
-        }
-    }
-
-    /// Where a worker computes, once it said (`None`: the executor's own default label).
-    fn compute_label(&self) -> Option<String> {
-        match self {
-            #[cfg(target_arch = "wasm32")]
-            Self::Worker(w) => w.compute(),
-            _ => None,
-        }
-    }
-
-    pub fn is_inline(&self) -> bool {
-        matches!(self, Self::Inline(_))
-    }
-}
 
 /// Gives a sequence's inputs by name.
 pub type ObservationSource<'a> = dyn FnMut(&str) -> Result<Arc<Observations<f32>>, String> + 'a;
@@ -317,7 +116,7 @@ pub struct RunStore {
     urgent: Option<RunKey>,
     /// Live runs finished since the last `take_finished`.
     finished: Vec<Finished>,
-    executor: Executor,
+    executor: Box<dyn Executor>,
     /// The model the executor has, the sequences it has, and what it is computing.
     executor_model: Option<Arc<Model<f32>>>,
     provided: HashSet<String>,
@@ -350,12 +149,12 @@ impl RunStore {
     }
 
     /// Computes with `executor` from now on; runs part way through start again there.
-    pub fn set_executor(&mut self, executor: Executor) {
+    pub fn set_executor(&mut self, executor: Box<dyn Executor>) {
         self.executor = executor;
         self.restart_executor();
     }
 
-    pub fn with_executor(executor: Executor) -> Self {
+    pub fn with_executor(executor: Box<dyn Executor>) -> Self {
         Self {
             executor,
             ..Self::default()
@@ -441,7 +240,7 @@ impl RunStore {
         let start = Instant::now();
         if let Some(reason) = self.executor.broken() {
             // Computing in the page is slower, but it works everywhere.
-            self.executor = Executor::default();
+            self.executor = Box::default();
             self.restart_executor();
             note_fallback(&reason);
             self.notes.push(format!(
@@ -578,9 +377,9 @@ impl RunStore {
 /// Says (in the browser console) why runs are computed in the page rather than a worker.
 fn note_fallback(reason: &str) {
     #[cfg(target_arch = "wasm32")]
-    crate::web::log(&format!(
-        "computing in the page instead of a worker: {reason}"
-    ));
+    eframe::web_sys::console::log_1(
+        &format!("computing in the page instead of a worker: {reason}").into(),
+    );
     #[cfg(not(target_arch = "wasm32"))]
     let _ = reason;
 }

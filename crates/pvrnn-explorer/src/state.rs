@@ -3,7 +3,7 @@
 //! `#seq=wiping_650mm_test0&t=120&vision=1&proprio=1&ablate=1000&H=30&iter=50&lr=0.09&seed=0&units=0-14`.
 
 use crate::bundle::Bundle;
-use crate::runs::Condition;
+use crate::condition::Condition;
 
 /// Which conditions the comparison view sets side by side.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -12,8 +12,9 @@ use pvrnn_core::backend::Backend;
 use pvrnn_core::{Model, Observations};
 use web_time::Duration;
 
+use crate::condition::RunKey;
 use crate::engine::{Engine, Event};
-use crate::runs::RunKey;
+use crate::executor::Executor;
 
 /// Computing time between looks at the command channel.
 const TICK: Duration = Duration::from_millis(30);
@@ -68,13 +69,15 @@ impl ThreadClient {
         // A stopped thread shows in `failure`.
         let _ = self.commands.send(command);
     }
+}
 
-    pub fn set_model(&mut self, model: &Arc<Model<f32>>) {
+impl Executor for ThreadClient {
+    fn set_model(&mut self, model: &Arc<Model<f32>>) {
         self.generation += 1;
         self.send(Command::Model(self.generation, model.clone()));
     }
 
-    pub fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
+    fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
         self.send(Command::Observations(
             self.generation,
             name.to_string(),
@@ -82,12 +85,12 @@ impl ThreadClient {
         ));
     }
 
-    pub fn run(&mut self, key: &RunKey) {
+    fn run(&mut self, key: &RunKey) {
         self.send(Command::Run(self.generation, key.clone()));
     }
 
     /// The events of the current model that arrived since the last call.
-    pub fn take_events(&mut self) -> Vec<Event> {
+    fn poll(&mut self, _budget: Duration) -> Vec<Event> {
         let mut out = Vec::new();
         while let Ok((generation, event)) = self.events.try_recv() {
             if generation == self.generation {
@@ -98,7 +101,7 @@ impl ThreadClient {
     }
 
     /// Why the thread cannot be used, once it stopped (a panic in inference).
-    pub fn failure(&mut self) -> Option<String> {
+    fn broken(&mut self) -> Option<String> {
         if !self.thread.as_ref().is_some_and(JoinHandle::is_finished) {
             return None;
         }

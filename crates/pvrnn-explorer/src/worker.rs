@@ -24,8 +24,9 @@ use js_sys::{Array, Float32Array, Object, Reflect, Uint8Array};
 use pvrnn_core::{Modality, Model, Observations, Tensor, io};
 use web_time::Duration;
 
+use crate::condition::RunKey;
 use crate::engine::{CompactStep, Engine, Event, Finished, StepLayout};
-use crate::runs::RunKey;
+use crate::executor::Executor;
 
 /// Computing time per worker tick; messages from the page are handled between ticks.
 const TICK: Duration = Duration::from_millis(30);
@@ -323,7 +324,7 @@ async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, Stri
             ),
         ),
         Err(e) => {
-            crate::web::log(&format!("worker: computing on the CPU: {e}"));
+            crate::browser::log(&format!("worker: computing on the CPU: {e}"));
             (Engine::default(), "CPU (worker; no WebGPU adapter)".into())
         }
     }
@@ -405,10 +406,10 @@ pub fn run_worker(compute: String, recurrence: String) -> Result<(), JsValue> {
 
     wasm_bindgen_futures::spawn_local(async move {
         let (engine, compute) = open_engine(&compute, recurrence == "gpu").await;
-        crate::web::log(&format!("worker: live runs compute on {compute}"));
+        crate::browser::log(&format!("worker: live runs compute on {compute}"));
         side.borrow_mut().engine = Some(engine);
         if let Err(err) = scope.post_message(&Reply::Ready { compute }.encode().0) {
-            crate::web::log(&format!("worker: cannot say it is ready: {err:?}"));
+            crate::browser::log(&format!("worker: cannot say it is ready: {err:?}"));
         }
     });
     Ok(())
@@ -425,7 +426,7 @@ fn apply_queued(s: &mut WorkerSide, scope: &web_sys::DedicatedWorkerGlobalScope)
 
 /// Tells the page the worker cannot go on (and the console, in case that fails too).
 fn report_fatal(scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32, why: &str) {
-    crate::web::log(&format!("worker: {why}"));
+    crate::browser::log(&format!("worker: {why}"));
     let reply = Reply::Fatal {
         generation,
         message: why.to_string(),
@@ -515,7 +516,7 @@ impl WorkerClient {
                 let reply = Reply::decode(&m, s.layout.as_ref());
                 match reply {
                     Ok(Reply::Ready { compute }) => {
-                        crate::web::log(&format!("live runs compute on {compute}"));
+                        crate::browser::log(&format!("live runs compute on {compute}"));
                         s.ready = true;
                         s.compute = Some(compute);
                         for (m, transfer) in std::mem::take(&mut s.pending) {
@@ -574,8 +575,10 @@ impl WorkerClient {
             s.pending.push((m, transfer));
         }
     }
+}
 
-    pub fn set_model(&mut self, model: &Arc<Model<f32>>) {
+impl Executor for WorkerClient {
+    fn set_model(&mut self, model: &Arc<Model<f32>>) {
         let generation = {
             let mut s = self.side.borrow_mut();
             s.generation += 1;
@@ -592,7 +595,7 @@ impl WorkerClient {
         }
     }
 
-    pub fn add_observations(&mut self, name: &str, obs: &Observations<f32>) {
+    fn add_observations(&mut self, name: &str, obs: Arc<Observations<f32>>) {
         let generation = self.side.borrow().generation;
         self.post(&Command::Observations {
             generation,
@@ -603,7 +606,7 @@ impl WorkerClient {
         });
     }
 
-    pub fn run(&mut self, key: &RunKey) {
+    fn run(&mut self, key: &RunKey) {
         let generation = self.side.borrow().generation;
         self.post(&Command::Run {
             generation,
@@ -611,18 +614,18 @@ impl WorkerClient {
         });
     }
 
-    pub fn take_events(&mut self) -> Vec<Event> {
+    fn poll(&mut self, _budget: Duration) -> Vec<Event> {
         std::mem::take(&mut self.side.borrow_mut().events)
     }
 
     /// Where the worker's runs compute ("WebGPU, ... (worker)", "CPU (worker)"), once it
     /// said.
-    pub fn compute(&self) -> Option<String> {
+    fn compute_label(&self) -> Option<String> {
         self.side.borrow().compute.clone()
     }
 
     /// Why the worker cannot be used, once it failed.
-    pub fn failure(&mut self) -> Option<String> {
+    fn broken(&mut self) -> Option<String> {
         let failure = self.side.borrow_mut().failure.take();
         if failure.is_some() {
             self.worker.terminate();

@@ -12,7 +12,7 @@ use pvrnn_core::infer::InferenceSettings;
 use pvrnn_core::io;
 use pvrnn_core::run_sequence;
 use pvrnn_explorer::bundle::BUNDLE_MANIFEST;
-use pvrnn_explorer::runs::Condition;
+use pvrnn_explorer::condition::Condition;
 use pvrnn_explorer::{Bundle, ExplorerApp, ViewState};
 
 fn harness(app: ExplorerApp) -> Harness<'static, ExplorerApp> {
@@ -149,7 +149,7 @@ fn contribution_maps_need_and_get_the_ablation_runs() {
     let key = app.current_key().unwrap();
     let standard = key.condition.without_ablation();
     for module in pvrnn_core::ModuleId::ALL {
-        let k = pvrnn_explorer::runs::RunKey {
+        let k = pvrnn_explorer::condition::RunKey {
             condition: standard.ablating(module),
             ..key.clone()
         };

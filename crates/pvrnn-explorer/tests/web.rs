@@ -11,8 +11,8 @@ use eframe::wasm_bindgen::JsCast;
 use eframe::web_sys;
 use pvrnn_explorer::{ExplorerApp, ViewState};
 
+use pvrnn_explorer::condition::{Condition, RunKey};
 use pvrnn_explorer::engine::{CompactStep, Event, Finished, ModuleStates, StepLayout};
-use pvrnn_explorer::runs::{Condition, RunKey};
 use pvrnn_explorer::worker::{Command, Reply};
 use wasm_bindgen_test::{wasm_bindgen_test, wasm_bindgen_test_configure};
 use web_time::Duration;
@@ -118,8 +118,9 @@ fn a_panic_is_shown_over_the_page() {
 
 /// Waits up to 10 s for a worker's failure.
 async fn failure_of(mut worker: pvrnn_explorer::worker::WorkerClient) -> Option<String> {
+    use pvrnn_explorer::executor::Executor;
     for _ in 0..100 {
-        if let Some(f) = worker.failure() {
+        if let Some(f) = worker.broken() {
             return Some(f);
         }
         sleep_ms(100).await;
@@ -244,7 +245,7 @@ fn worker_messages_round_trip() {
 /// are read like dropped files.
 #[wasm_bindgen_test]
 async fn picked_files_are_read_like_dropped_ones() {
-    let web = pvrnn_explorer::web::WebState::default();
+    let web = pvrnn_explorer::browser::WebState::default();
     let input = web.pick_files(false).expect("a file input");
     assert!(input.multiple() && input.type_() == "file");
     let chosen = web_sys::DataTransfer::new().expect("a DataTransfer");
@@ -275,9 +276,9 @@ async fn picked_files_are_read_like_dropped_ones() {
 
 #[wasm_bindgen_test]
 fn the_url_hash_round_trips() {
-    pvrnn_explorer::web::set_hash("seq=wiping_650mm_test0&t=12&vision=1");
+    pvrnn_explorer::browser::set_hash("seq=wiping_650mm_test0&t=12&vision=1");
     assert_eq!(
-        pvrnn_explorer::web::location_hash(),
+        pvrnn_explorer::browser::location_hash(),
         "#seq=wiping_650mm_test0&t=12&vision=1"
     );
 }

@@ -115,7 +115,7 @@ impl ExplorerApp {
         }
         #[cfg(target_arch = "wasm32")]
         {
-            self.status = match crate::web::download(name, bytes, mime) {
+            self.status = match crate::browser::download(name, bytes, mime) {
                 Ok(()) => Status::Info(format!("downloaded {name}")),
                 Err(e) => Status::Error(format!("cannot download {name}: {e}")),
             };

@@ -11,9 +11,12 @@ use pvrnn_core::config::ModuleId;
 use pvrnn_core::{AblationMode, Modality};
 use web_time::Duration;
 
+#[cfg(target_arch = "wasm32")]
+use crate::browser::DownloadPoll;
 use crate::bundle::Bundle;
+use crate::condition::{Condition, RunKey};
 use crate::images::{self, Rgb};
-use crate::runs::{Condition, Entry, RunKey, RunStore, RunTrace};
+use crate::runs::{Entry, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
 
 mod bench;
@@ -93,7 +96,7 @@ pub struct ExplorerApp {
     #[cfg(not(target_arch = "wasm32"))]
     screenshot: Option<(std::path::PathBuf, bool)>,
     #[cfg(target_arch = "wasm32")]
-    web: crate::web::WebState,
+    web: crate::browser::WebState,
     /// Asks the user for files (or a folder): the system's dialog unless replaced.
     #[cfg(not(target_arch = "wasm32"))]
     file_dialog: FileDialog,
@@ -177,7 +180,7 @@ impl ExplorerApp {
             #[cfg(not(target_arch = "wasm32"))]
             screenshot: None,
             #[cfg(target_arch = "wasm32")]
-            web: crate::web::WebState::default(),
+            web: crate::browser::WebState::default(),
             #[cfg(not(target_arch = "wasm32"))]
             file_dialog: system_file_dialog(),
         };
@@ -194,17 +197,15 @@ impl ExplorerApp {
         // Live inference in a worker beside the page; in the page itself if that fails.
         let worker = format!(
             "./worker.js?compute={}&recurrence={}",
-            crate::web::compute_preference(),
-            crate::web::recurrence_preference()
+            crate::browser::compute_preference(),
+            crate::browser::recurrence_preference()
         );
         match crate::worker::WorkerClient::spawn(&worker, ctx.clone()) {
-            Ok(worker) => {
-                app.store = RunStore::with_executor(crate::runs::Executor::Worker(worker))
-            }
-            Err(e) => crate::web::log(&format!("computing in the page: {e}")),
+            Ok(worker) => app.store = RunStore::with_executor(Box::new(worker)),
+            Err(e) => crate::browser::log(&format!("computing in the page: {e}")),
         }
         app.web.start_download(bundle_url);
-        app.last_hash = crate::web::location_hash();
+        app.last_hash = crate::browser::location_hash();
         app
     }
 
@@ -234,7 +235,7 @@ impl ExplorerApp {
         };
         self.compute_label = format!("compute: {name}");
         match crate::thread::ThreadClient::spawn(repaint, backend) {
-            Ok(t) => self.store.set_executor(crate::runs::Executor::Thread(t)),
+            Ok(t) => self.store.set_executor(Box::new(t)),
             Err(e) => self.status = Status::Error(e),
         }
     }
@@ -462,11 +463,13 @@ impl ExplorerApp {
     /// URL hash, keeping the view valid, keys and playback, and computing runs.
     pub fn logic(&mut self, ctx: &egui::Context) {
         #[cfg(target_arch = "wasm32")]
-        if let Some(result) = self.web.poll(&mut self.status) {
-            match result {
-                Ok(bundle) => self.set_bundle(bundle),
-                Err(e) => self.status = Status::Error(e),
+        match self.web.poll() {
+            Some(DownloadPoll::Progress { what, fraction }) => {
+                self.status = Status::Loading { what, fraction }
             }
+            Some(DownloadPoll::Done(Ok(bundle))) => self.set_bundle(*bundle),
+            Some(DownloadPoll::Done(Err(e))) => self.status = Status::Error(e),
+            None => {}
         }
         // The download's callbacks do not wake egui, so poll it: otherwise one frame the
         // renderer skips (wgpu on WebGPU may, when its surface is not ready) would leave
@@ -501,7 +504,7 @@ impl ExplorerApp {
         for f in self.store.take_finished() {
             let (what, timing) = status::finished_note(&f);
             #[cfg(target_arch = "wasm32")]
-            crate::web::log(&format!("{what} {timing}"));
+            crate::browser::log(&format!("{what} {timing}"));
             self.last_run_note = Some((what, timing));
         }
         if self.view.playing {
@@ -563,7 +566,7 @@ impl ExplorerApp {
     fn sync_hash(&mut self) {
         #[cfg(target_arch = "wasm32")]
         {
-            let current = crate::web::location_hash();
+            let current = crate::browser::location_hash();
             let current = current.trim_start_matches('#').to_string();
             if current != self.last_hash.trim_start_matches('#') && self.bundle.is_some() {
                 // Edited by the user (or the back button): follow it.
@@ -573,7 +576,7 @@ impl ExplorerApp {
             }
             let wanted = self.view.to_hash();
             if wanted != self.last_hash {
-                crate::web::set_hash(&wanted);
+                crate::browser::set_hash(&wanted);
                 self.last_hash = wanted;
             }
         }

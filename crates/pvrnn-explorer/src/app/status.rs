@@ -73,7 +73,7 @@ impl ExplorerApp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runs::{Condition, RunKey};
+    use crate::condition::{Condition, RunKey};
 
     #[test]
     fn a_finished_run_says_its_speed_and_where_the_gpu_declined() {

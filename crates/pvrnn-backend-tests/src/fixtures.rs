@@ -1,7 +1,5 @@
-//! Small models and data shared by the integration tests.
-#![allow(dead_code)]
+//! Small models and data the suite runs on.
 
-use pvrnn_core::backend::Backend;
 use pvrnn_core::config::{ModuleConfig, VisionLayout};
 use pvrnn_core::{Model, ModelConfig, Observations, Real, Tensor};
 
@@ -56,16 +54,18 @@ pub fn random_observations<T: Real>(
     let dp = config.proprio_dims;
     let cast = |v: Vec<f64>| v.into_iter().map(T::from_f64).collect::<Vec<T>>();
     Observations::new(
-        Tensor::from_vec(&[s, t, dv], cast(uniform(s * t * dv, seed, -0.9, 0.9))).unwrap(),
-        Tensor::from_vec(&[s, t, dp], cast(uniform(s * t * dp, seed + 1, -0.9, 0.9))).unwrap(),
+        Tensor::from_vec(&[s, t, dv], cast(uniform(s * t * dv, seed, -0.9, 0.9)))
+            .expect("valid fixture data"),
+        Tensor::from_vec(&[s, t, dp], cast(uniform(s * t * dp, seed + 1, -0.9, 0.9)))
+            .expect("valid fixture data"),
         None,
     )
-    .unwrap()
+    .expect("valid fixture data")
 }
 
 /// A tiny f64 model whose adaptive variables are spread out (not just the prior).
 pub fn tiny_model(config: ModelConfig, s: usize, t: usize, seed: u64) -> Model<f64> {
-    let mut model = Model::<f64>::init(config, s, t, seed).unwrap();
+    let mut model = Model::<f64>::init(config, s, t, seed).expect("valid fixture data");
     for (i, (_, a)) in model.adaptive.named_mut().into_iter().enumerate() {
         let (lo, hi) = if i % 2 == 0 { (-0.8, 0.8) } else { (-1.2, 0.2) };
         let v = uniform(a.len(), seed * 31 + i as u64, lo, hi);
@@ -97,67 +97,29 @@ pub fn sine_observations<T: Real>(config: &ModelConfig, s: usize, t: usize) -> O
             &[s, t, config.vision.dims()],
             make(config.vision.dims(), 0.0),
         )
-        .unwrap(),
-        Tensor::from_vec(&[s, t, config.proprio_dims], make(config.proprio_dims, 1.3)).unwrap(),
+        .expect("valid fixture data"),
+        Tensor::from_vec(&[s, t, config.proprio_dims], make(config.proprio_dims, 1.3))
+            .expect("valid fixture data"),
         None,
     )
-    .unwrap()
+    .expect("valid fixture data")
 }
 
-/// Every backend the shared test suite runs on, by name. A new backend adds itself here and
-/// every gradient check, learning and inference test runs on it too (as candle runs one
-/// suite per device). The wgpu backend computes in f32 only, so it joins the f32 tests
-/// (learning, inference); the f64 finite-difference checks hold it through its agreement
-/// with the CPU backend (pvrnn-wgpu's `tests/agrees_with_cpu.rs`).
-pub fn backends<T: TestReal>() -> Vec<(&'static str, Box<dyn Backend<T>>)> {
-    let mut all: Vec<(&'static str, Box<dyn Backend<T>>)> =
-        vec![("cpu", Box::new(pvrnn_core::cpu::CpuBackend))];
-    all.extend(T::gpu_backends());
-    all
-}
-
-/// The precisions the suite runs in, and the backends each adds beyond the CPU.
-pub trait TestReal: Real {
-    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)>;
-}
-
-impl TestReal for f64 {
-    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)> {
-        Vec::new()
-    }
-}
-
-impl TestReal for f32 {
-    fn gpu_backends() -> Vec<(&'static str, Box<dyn Backend<Self>>)> {
-        #[cfg(not(target_arch = "wasm32"))]
-        match pvrnn_wgpu::WgpuBackend::new() {
-            Ok(b) => {
-                // Every call on the GPU, however small (the suite's shapes are).
-                let b = b.with_tiling(pvrnn_wgpu::Tiling {
-                    min_work: 0,
-                    ..pvrnn_wgpu::Tiling::default()
-                });
-                return vec![
-                    ("wgpu", Box::new(b.clone())),
-                    (
-                        "wgpu, recurrence on the GPU",
-                        Box::new(b.with_recurrence_on_gpu(true)),
-                    ),
-                ];
-            }
-            Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
-                eprintln!("wgpu backend skipped (PVRNN_SKIP_WGPU): {e}");
-            }
-            Err(e) => panic!("{e} (set PVRNN_SKIP_WGPU=1 to skip the GPU backend's tests)"),
-        }
-        Vec::new()
-    }
-}
-
-/// Runs `test` on every backend of [`backends`], naming the backend if it fails.
-pub fn for_each_backend<T: TestReal>(mut test: impl FnMut(&dyn Backend<T>)) {
-    for (name, backend) in backends::<T>() {
-        eprintln!("backend: {name}");
-        test(backend.as_ref());
-    }
+/// A model large enough to learn the sine sequences in a few hundred iterations.
+pub fn learning_config() -> ModelConfig {
+    let mut c = tiny_config();
+    let m = |d, z, fast, slow| ModuleConfig {
+        d,
+        z,
+        tau: [fast, slow],
+    };
+    c.executive = m(10, 4, 6.0, 12.0);
+    c.associative = m(10, 4, 3.0, 6.0);
+    c.exteroceptive = m(12, 5, 1.5, 3.0);
+    c.proprioceptive = m(10, 4, 1.5, 3.0);
+    c.exteroceptive_readout.hidden = vec![12, 16];
+    c.proprioceptive_readout.hidden = vec![12];
+    c.kl_weight = 0.005;
+    c.train.optimizer.lr = 0.01;
+    c
 }

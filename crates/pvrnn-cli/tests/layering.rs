@@ -1,15 +1,19 @@
-//! The core's modules stay layered (ARCHITECTURE.md): no module imports another that imports
-//! it back, and the CPU backend is named only by itself and by `defaults`, the one place a
-//! default backend is chosen. Read from the sources, so that the rule cannot drift.
-
-#![cfg(not(target_arch = "wasm32"))]
+//! Every crate's modules stay layered (ARCHITECTURE.md): no module imports another that
+//! imports it back; and in the core the CPU backend is named only by itself and by
+//! `defaults`, the one place a default backend is chosen. Read from the sources, so that
+//! the rules cannot drift.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Each top-level module's source without comments and without its unit tests.
-fn modules() -> BTreeMap<String, String> {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+fn crates_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// Each top-level module of `krate` (its file, or its folder's files) without comments and
+/// without unit tests.
+fn modules(krate: &str) -> BTreeMap<String, String> {
+    let src = crates_dir().join(krate).join("src");
     let mut modules = BTreeMap::new();
     let mut stack = vec![src.clone()];
     while let Some(dir) = stack.pop() {
@@ -30,7 +34,7 @@ fn modules() -> BTreeMap<String, String> {
                 .expect("a file name")
                 .trim_end_matches(".rs")
                 .to_string();
-            if top == "lib" {
+            if top == "lib" || top == "main" {
                 continue;
             }
             let text = std::fs::read_to_string(&path).expect("a readable source");
@@ -115,24 +119,35 @@ fn find_circle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>
 }
 
 #[test]
-fn the_core_s_modules_import_each_other_without_a_circle() {
-    let graph = imports(&modules());
-    assert!(graph.len() > 10, "the sources were not found: {graph:?}");
+fn no_crate_s_modules_import_each_other_in_a_circle() {
+    let crates: Vec<String> = std::fs::read_dir(crates_dir())
+        .expect("the crates folder")
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().join("src").is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(crates.len() >= 8, "the crates were not found: {crates:?}");
+    let core = imports(&modules("pvrnn-core"));
     assert!(
-        graph["cpu"].contains("assembled"),
-        "the reading of imports is broken: {graph:?}"
+        core["cpu"].contains("assembled"),
+        "the reading of imports is broken: {core:?}"
     );
-    if let Some(circle) = find_circle(&graph) {
-        panic!(
-            "the core's modules import each other in a circle: {}",
-            circle.join(" -> ")
-        );
+    let mut circles = Vec::new();
+    for krate in &crates {
+        if let Some(circle) = find_circle(&imports(&modules(krate))) {
+            circles.push(format!("{krate}: {}", circle.join(" -> ")));
+        }
     }
+    assert!(
+        circles.is_empty(),
+        "modules that import each other in a circle:\n{}",
+        circles.join("\n")
+    );
 }
 
 #[test]
 fn only_the_cpu_backend_and_the_defaults_name_the_cpu_backend() {
-    let named: Vec<String> = modules()
+    let named: Vec<String> = modules("pvrnn-core")
         .into_iter()
         .filter(|(name, code)| name != "cpu" && name != "defaults" && code.contains("CpuBackend"))
         .map(|(name, _)| name)

@@ -1,0 +1,144 @@
+//! Learning on a backend lowers the free energy, and online inference on it with the
+//! learned weights tracks the sequence.
+
+use std::sync::Arc;
+
+use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
+use pvrnn_core::train::Trainer;
+use pvrnn_core::{Modality, Model, NoiseMode, Observations, Observed, Real};
+
+use crate::fixtures::{learning_config, sine_observations};
+use crate::{Shared, SuiteReal};
+
+/// Mean squared error of a modality's predictions against the data, over steps and dims.
+fn mse<T: Real>(pred: &[T], data: &Observations<T>, modality: Modality, s: usize) -> f64 {
+    let dims = data.dims(modality);
+    let mut sum = 0.0;
+    for (t, row) in pred.chunks_exact(dims).enumerate() {
+        for (p, x) in row.iter().zip(data.step(modality, s, t)) {
+            sum += (p.to_f64() - x.to_f64()).powi(2);
+        }
+    }
+    sum / pred.len() as f64
+}
+
+/// `iterations` of learning on `backend`: the trainer, its data, and the first and last
+/// free energy.
+fn trained_on<T: Real>(
+    backend: &Shared<T>,
+    iterations: usize,
+) -> (Trainer<T>, Observations<T>, f64, f64) {
+    let config = learning_config();
+    let data = sine_observations::<T>(&config, 2, 48);
+    let model = Model::<T>::init_on(backend.as_ref(), config, 2, 48, 1).unwrap();
+    let mut trainer = Trainer::new_on(
+        Box::new(backend.clone()),
+        model,
+        NoiseMode::Sampled { seed: 1 },
+    );
+    let first = trainer.step(&data).unwrap().total;
+    let mut last = first;
+    for _ in 1..iterations {
+        last = trainer.step(&data).unwrap().total;
+    }
+    (trainer, data, first, last)
+}
+
+/// Learning on `backend`, then online inference on it.
+pub fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence<T: SuiteReal>(
+    backend: &Shared<T>,
+) {
+    let (trainer, data, first, last) = trained_on(backend, 400);
+    let inference = backend.as_ref();
+    assert!(last < 0.2 * first, "free energy {first} -> {last}");
+
+    let model = Arc::new(trainer.into_model());
+    let mut settings = InferenceSettings::from_config(&model.config, 3);
+    settings.window = 8;
+    settings.iterations = 20;
+    let run = run_sequence_on(
+        inference,
+        model.clone(),
+        settings.clone(),
+        &data,
+        0,
+        true,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let baseline = 0.36 / 2.0; // mean of (0.6 sin)^2: the error of predicting 0
+    let vision = mse(
+        run.recon.as_ref().unwrap()[0].data(),
+        &data,
+        Modality::Exteroceptive,
+        0,
+    );
+    let proprio = mse(
+        run.recon.as_ref().unwrap()[1].data(),
+        &data,
+        Modality::Proprioceptive,
+        0,
+    );
+    assert!(
+        vision < 0.1 * baseline,
+        "vision reconstruction MSE {vision}"
+    );
+    assert!(
+        proprio < 0.1 * baseline,
+        "proprio reconstruction MSE {proprio}"
+    );
+
+    // Vision unobserved above the lowest level: the model still predicts it from 1x1 + proprio.
+    let mut partial = settings.clone();
+    partial.observed = Observed {
+        vision_levels: 1,
+        proprio: true,
+    };
+    let run_partial = run_sequence_on(
+        inference,
+        model.clone(),
+        partial,
+        &data,
+        0,
+        true,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let hidden_part = model.config.vision.observed_dims(1);
+    let dims = model.config.vision.dims();
+    let mut err = 0.0;
+    let mut n = 0;
+    for t in 0..data.lengths()[0] {
+        let pred = &run_partial.recon.as_ref().unwrap()[0].data()[t * dims..(t + 1) * dims];
+        for i in hidden_part..dims {
+            err +=
+                (pred[i].to_f64() - data.step(Modality::Exteroceptive, 0, t)[i].to_f64()).powi(2);
+            n += 1;
+        }
+    }
+    assert!(
+        err / (n as f64) < 0.25 * baseline,
+        "unobserved-resolution MSE {}",
+        err / n as f64
+    );
+
+    // The prior's one-step prediction is also better than chance.
+    let steps = data.lengths()[0];
+    let dv = model.config.vision.dims();
+    let prior = &run.prior_next.as_ref().unwrap()[0].data()[..(steps - 1) * dv];
+    let mut perr = 0.0;
+    for t in 0..steps - 1 {
+        for (p, x) in
+            prior[t * dv..(t + 1) * dv]
+                .iter()
+                .zip(data.step(Modality::Exteroceptive, 0, t + 1))
+        {
+            perr += (p.to_f64() - x.to_f64()).powi(2);
+        }
+    }
+    let perr = perr / prior.len() as f64;
+    assert!(
+        perr < 0.5 * baseline,
+        "one-step prior prediction MSE {perr}"
+    );
+}

@@ -1,0 +1,32 @@
+//! The suite on the wgpu backend: the first adapter the machine offers (a GPU, or Mesa's
+//! lavapipe CPU Vulkan device in CI), every call on the device however small, with the
+//! recurrence on the CPU and on the GPU. Without an adapter the tests fail, naming the
+//! problem, unless `PVRNN_SKIP_WGPU` is set.
+#![cfg(not(target_arch = "wasm32"))]
+
+use std::sync::Arc;
+
+use pvrnn_backend_tests::Shared;
+use pvrnn_wgpu::{Tiling, WgpuBackend};
+
+fn wgpu(recurrence_on_gpu: bool) -> Option<Shared<f32>> {
+    match WgpuBackend::new() {
+        // Every call on the GPU, however small (the suite's shapes are).
+        Ok(backend) => Some(Arc::new(
+            backend
+                .with_tiling(Tiling {
+                    min_work: 0,
+                    ..Tiling::default()
+                })
+                .with_recurrence_on_gpu(recurrence_on_gpu),
+        )),
+        Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
+            eprintln!("wgpu backend skipped (PVRNN_SKIP_WGPU): {e}");
+            None
+        }
+        Err(e) => panic!("{e} (set PVRNN_SKIP_WGPU=1 to skip the GPU backend's tests)"),
+    }
+}
+
+pvrnn_backend_tests::backend_suite!(wgpu_f32, f32, wgpu(false));
+pvrnn_backend_tests::backend_suite!(wgpu_recurrence_on_gpu_f32, f32, wgpu(true));

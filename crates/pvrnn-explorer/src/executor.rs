@@ -1,0 +1,73 @@
+//! Where runs are computed. The run store only sends commands and reads [`Event`]s, so it
+//! does not depend on how (or on which thread) a result was computed: in slices between
+//! frames on the calling thread ([`Inline`]), on a background thread beside the desktop
+//! window (`thread::ThreadClient`), or in a Web Worker beside the page
+//! (`worker::WorkerClient`).
+
+use std::sync::Arc;
+
+use pvrnn_core::{Model, Observations};
+use web_time::Duration;
+
+use crate::condition::RunKey;
+use crate::engine::{Engine, Event};
+
+pub trait Executor: std::fmt::Debug {
+    fn set_model(&mut self, model: &Arc<Model<f32>>);
+
+    fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>);
+
+    /// Starts computing `key` (dropping the run it was computing, which stays paused).
+    fn run(&mut self, key: &RunKey);
+
+    /// Computes for up to `budget` (inline) or collects what arrived (thread, worker).
+    fn poll(&mut self, budget: Duration) -> Vec<Event>;
+
+    /// Why the executor cannot go on (a worker that failed), if it cannot.
+    fn broken(&mut self) -> Option<String> {
+        None
+    }
+
+    /// Where it computes, once it said (`None`: the app's own label).
+    fn compute_label(&self) -> Option<String> {
+        None
+    }
+
+    /// Whether it computes on the calling thread (then only while polled).
+    fn is_inline(&self) -> bool {
+        false
+    }
+}
+
+/// Computes in slices between frames, on the calling thread.
+#[derive(Debug, Default)]
+pub struct Inline(Box<Engine>);
+
+impl Executor for Inline {
+    fn set_model(&mut self, model: &Arc<Model<f32>>) {
+        self.0.set_model(model.clone());
+    }
+
+    fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
+        self.0.add_observations(name.to_string(), observations);
+    }
+
+    fn run(&mut self, key: &RunKey) {
+        self.0.run(key.clone());
+    }
+
+    fn poll(&mut self, budget: Duration) -> Vec<Event> {
+        self.0.work(budget)
+    }
+
+    fn is_inline(&self) -> bool {
+        true
+    }
+}
+
+/// Computing inline until an app hands the store a thread or a worker.
+impl Default for Box<dyn Executor> {
+    fn default() -> Self {
+        Box::<Inline>::default()
+    }
+}

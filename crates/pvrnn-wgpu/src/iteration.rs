@@ -52,6 +52,47 @@ pub(crate) struct DeviceIteration {
     readouts: GpuOutputLayer,
 }
 
+/// A learning iteration's sequences as the kernels see them.
+struct Batch<'l> {
+    lengths: &'l [usize],
+    /// Steps of every sequence together.
+    total: usize,
+    /// Each window's table entry (`RecurrenceLayout::entries`).
+    entries: Vec<[usize; 6]>,
+    /// Steps before each window.
+    before: Vec<usize>,
+    /// (first window, count): windows of one length are copied in one dispatch each way,
+    /// others one by one.
+    groups: Vec<(usize, usize)>,
+}
+
+impl<'l> Batch<'l> {
+    fn of(layout: &RecurrenceLayout, lengths: &'l [usize]) -> Self {
+        let mut before = Vec::with_capacity(lengths.len());
+        let mut total = 0;
+        for &len in lengths {
+            before.push(total);
+            total += len;
+        }
+        let groups = if lengths.iter().all(|&l| l == lengths[0]) {
+            vec![(0, lengths.len())]
+        } else {
+            (0..lengths.len()).map(|w| (w, 1)).collect()
+        };
+        Self {
+            lengths,
+            total,
+            entries: layout.entries(lengths.iter().map(|&len| (len, false))),
+            before,
+            groups,
+        }
+    }
+
+    fn windows(&self) -> usize {
+        self.lengths.len()
+    }
+}
+
 impl DeviceIteration {
     /// Uploads the recurrent weights and the adaptive variables of `model` with their
     /// moments from `optimizer`, adding them to `tensors`; `None` where the kernels do not
@@ -185,6 +226,103 @@ impl DeviceIteration {
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<FreeEnergy> {
+        self.check_fits(data, eps)?;
+        let batch = Batch::of(&self.layout, data.lengths());
+        let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        let (eps_flat, per_module_at) = self.flatten_eps(&batch, eps)?;
+        let layout = &self.layout;
+        let table = layout.upload_table(gpu, &Ablation::none(), &batch.entries);
+        let eps_buffer = gpu.upload("eps", &eps_flat);
+        let s = layout.strides();
+        let record = gpu.scratch(
+            "recurrence record",
+            batch.total * s.record,
+            wgpu::BufferUsages::empty(),
+        );
+        let back = gpu.scratch(
+            "recurrence backward",
+            batch.total * s.back,
+            wgpu::BufferUsages::empty(),
+        );
+        let mut keep: Vec<PooledBuffer> = Vec::new();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        // Buffers that start from zero are cleared first; the dispatches are recorded and
+        // then run in one compute pass (a pass per dispatch costs the host more than the
+        // small kernels).
+        let mut work = DispatchList::default();
+        self.clear(&mut encoder);
+        self.encode_inputs(
+            gpu,
+            &mut work,
+            &batch,
+            &eps_buffer,
+            &per_module_at,
+            &mut keep,
+        );
+        layout.encode_forward(
+            gpu,
+            &self.kernels,
+            &mut work,
+            &table,
+            &self.weights_t,
+            &self.inputs,
+            &record,
+            batch.windows(),
+        );
+        let readouts = self.encode_readouts(
+            gpu,
+            &mut encoder,
+            &mut work,
+            &batch,
+            data,
+            &record,
+            &mut keep,
+        )?;
+        // Back through the recurrence: the weights' gradients, and d F / d a out to the
+        // adaptive variables' layout.
+        keep.push(layout.encode_backward(
+            gpu,
+            &self.kernels,
+            &mut work,
+            &table,
+            &self.weights,
+            &record,
+            &self.grad_d,
+            &back,
+            batch.windows(),
+        ));
+        keep.push(layout.encode_weight_grads(
+            gpu,
+            &self.kernels,
+            &mut work,
+            &table,
+            &self.inputs,
+            &record,
+            &back,
+            &self.grads,
+            batch.windows(),
+        ));
+        self.encode_adaptive_grads(gpu, &mut work, &batch, &back, &mut keep);
+        let kl = self.encode_kl_terms(gpu, &mut work, &batch, &record, &per_module_at, &mut keep);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            work.replay(&mut pass);
+        }
+        let mut sources = vec![(&*kl, eps_flat.len())];
+        sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, batch.total)));
+        drop(encode_phase);
+        let results = {
+            let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
+            pvrnn_core::deferred::now(read_back(gpu, encoder, &sources))
+        };
+        drop((keep, table, eps_buffer, record, back));
+        let divisors = [readouts[0].1, readouts[1].1];
+        drop(readouts);
+        Ok(self.free_energy_of(&batch, &per_module_at, divisors, results))
+    }
+
+    /// Whether `data` and `eps` fit the sequences this learner holds.
+    fn check_fits(&self, data: &Observations<f32>, eps: &[[Vec<f32>; 4]]) -> Result<()> {
         let lengths = data.lengths();
         if data.sequences() != self.sequences || data.steps() > self.steps {
             return Err(Error::Mismatch(format!(
@@ -200,78 +338,65 @@ impl DeviceIteration {
                 "every training sequence needs at least one step and its eps".into(),
             ));
         }
-        let config = &self.config;
-        let layout = &self.layout;
-        let modules = layout.modules();
-        let s = layout.strides();
-        let windows = lengths.len();
-        let total: usize = lengths.iter().sum();
-        let entries = layout.entries(lengths.iter().map(|&len| (len, false)));
-        let mut before = Vec::with_capacity(windows);
-        let mut sum = 0;
-        for &len in lengths {
-            before.push(sum);
-            sum += len;
-        }
-        // Windows of one length are copied in one dispatch each way, others one by one.
-        let groups: Vec<(usize, usize)> = if lengths.iter().all(|&l| l == lengths[0]) {
-            vec![(0, windows)]
-        } else {
-            (0..windows).map(|w| (w, 1)).collect()
-        };
+        Ok(())
+    }
 
-        let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
-        // eps per module, `[steps of every window, z]`; the KL terms come back the same way.
+    /// eps per module, `[steps of every window, z]`, and where each module's block starts
+    /// (the KL terms come back in the same layout).
+    fn flatten_eps(
+        &self,
+        batch: &Batch<'_>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Result<(Vec<f32>, [usize; 4])> {
+        let modules = self.layout.modules();
         let mut per_module_at = [0usize; 4];
-        let mut eps_flat = Vec::with_capacity(total * modules.iter().map(|m| m.z).sum::<usize>());
+        let mut flat = Vec::with_capacity(batch.total * modules.iter().map(|m| m.z).sum::<usize>());
         for (m, ml) in modules.iter().enumerate() {
-            per_module_at[m] = eps_flat.len();
-            for (w, &len) in lengths.iter().enumerate() {
+            per_module_at[m] = flat.len();
+            for (w, &len) in batch.lengths.iter().enumerate() {
                 let e = &eps[w][m];
                 if e.len() < len * ml.z {
                     return Err(Error::Mismatch(format!(
                         "eps of sequence {w} is shorter than its {len} steps"
                     )));
                 }
-                eps_flat.extend_from_slice(&e[..len * ml.z]);
+                flat.extend_from_slice(&e[..len * ml.z]);
             }
         }
-        let table = layout.upload_table(gpu, &Ablation::none(), &entries);
-        let eps_buffer = gpu.upload("eps", &eps_flat);
-        let record = gpu.scratch(
-            "recurrence record",
-            total * s.record,
-            wgpu::BufferUsages::empty(),
-        );
-        let back = gpu.scratch(
-            "recurrence backward",
-            total * s.back,
-            wgpu::BufferUsages::empty(),
-        );
-        let mut keep: Vec<PooledBuffer> = Vec::new();
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        // Buffers that start from zero are cleared first; the dispatches are recorded and
-        // then run in one compute pass (a pass per dispatch costs the host more than the
-        // small kernels).
-        let mut work = DispatchList::default();
+        Ok((flat, per_module_at))
+    }
 
-        // The inputs: per window its initial states (zero), then per step and module
-        // a_mu, a_sigma and eps.
+    /// Clears what starts from zero: the inputs (initial states are zero), the read-outs'
+    /// d F / d d (modules without a read-out get none), the adaptive gradients (steps past
+    /// a sequence's length get none).
+    fn clear(&self, encoder: &mut wgpu::CommandEncoder) {
         encoder.clear_buffer(&self.inputs, 0, None);
-        // Modules without a read-out get no gradient from one.
         encoder.clear_buffer(&self.grad_d, 0, None);
         for pair in &self.adaptive_grads {
             for grads in pair {
-                // Steps past a sequence's length get no gradient.
                 encoder.clear_buffer(grads, 0, None);
             }
         }
-        for &(first, count) in &groups {
-            let len = lengths[first];
-            for (m, ml) in modules.iter().enumerate() {
+    }
+
+    /// The recurrence's inputs: per window its initial states (zero), then per step and
+    /// module a_mu, a_sigma and eps.
+    fn encode_inputs(
+        &self,
+        gpu: &Gpu,
+        work: &mut DispatchList,
+        batch: &Batch<'_>,
+        eps_buffer: &wgpu::Buffer,
+        per_module_at: &[usize; 4],
+        keep: &mut Vec<PooledBuffer>,
+    ) {
+        let s = self.layout.strides();
+        for &(first, count) in &batch.groups {
+            let len = batch.lengths[first];
+            for (m, ml) in self.layout.modules().iter().enumerate() {
                 let z = ml.z;
                 let slot = |k: usize| Strided {
-                    offset: entries[first][1] + s.init + ml.input + k * z,
+                    offset: batch.entries[first][1] + s.init + ml.input + k * z,
                     block: s.init + len * s.input,
                     row: s.input,
                 };
@@ -283,70 +408,72 @@ impl DeviceIteration {
                 for k in 0..2 {
                     encode_copy(
                         gpu,
-                        &mut work,
+                        work,
                         &self.adaptive[m][k],
                         adaptive_at,
                         &self.inputs,
                         slot(k),
                         [count, len, z],
-                        &mut keep,
+                        keep,
                     );
                 }
                 let eps_at = Strided {
-                    offset: per_module_at[m] + before[first] * z,
+                    offset: per_module_at[m] + batch.before[first] * z,
                     block: len * z,
                     row: z,
                 };
                 encode_copy(
                     gpu,
-                    &mut work,
-                    &eps_buffer,
+                    work,
+                    eps_buffer,
                     eps_at,
                     &self.inputs,
                     slot(2),
                     [count, len, z],
-                    &mut keep,
+                    keep,
                 );
             }
         }
-        layout.encode_forward(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.weights_t,
-            &self.inputs,
-            &record,
-            windows,
-        );
+    }
 
-        // Both read-outs from the module states in the record, their d F / d d into the
-        // recurrence's layout.
+    /// Both read-outs from the module states in the record, their d F / d d into the
+    /// recurrence's layout.
+    fn encode_readouts(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        work: &mut DispatchList,
+        batch: &Batch<'_>,
+        data: &Observations<f32>,
+        record: &wgpu::Buffer,
+        keep: &mut Vec<PooledBuffer>,
+    ) -> Result<Vec<(EncodedReadout, usize)>> {
+        let config = &self.config;
         let observed = Observed::all(config);
         let mut readouts = Vec::with_capacity(2);
         for modality in Modality::ALL {
             let k = observed.dims(config, modality);
-            let targets: Vec<&[f32]> = (0..windows)
-                .flat_map(|w| (0..lengths[w]).map(move |t| data.step(modality, w, t)))
+            let targets: Vec<&[f32]> = (0..batch.windows())
+                .flat_map(|w| (0..batch.lengths[w]).map(move |t| data.step(modality, w, t)))
                 .collect();
             let readout = encode_readout_of_record(
                 gpu,
                 &self.readouts,
                 config,
-                layout,
-                &mut encoder,
-                &mut work,
+                &self.layout,
+                encoder,
+                work,
                 RecordRows {
-                    record: &record,
+                    record,
                     grad_d: &self.grad_d,
-                    rows: total,
+                    rows: batch.total,
                 },
                 modality,
                 k,
                 &targets,
                 Some(data.id()),
                 true,
-                &mut keep,
+                keep,
             )
             .ok_or_else(|| {
                 Error::Mismatch(format!(
@@ -356,42 +483,30 @@ impl DeviceIteration {
             })?;
             readouts.push(readout);
         }
+        Ok(readouts)
+    }
 
-        // Back through the recurrence: the weights' gradients, and d F / d a out to the
-        // adaptive variables' layout.
-        keep.push(layout.encode_backward(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.weights,
-            &record,
-            &self.grad_d,
-            &back,
-            windows,
-        ));
-        keep.push(layout.encode_weight_grads(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.inputs,
-            &record,
-            &back,
-            &self.grads,
-            windows,
-        ));
-        for (m, ml) in modules.iter().enumerate() {
+    /// d F / d a from the backward record out to the adaptive variables' layout.
+    fn encode_adaptive_grads(
+        &self,
+        gpu: &Gpu,
+        work: &mut DispatchList,
+        batch: &Batch<'_>,
+        back: &wgpu::Buffer,
+        keep: &mut Vec<PooledBuffer>,
+    ) {
+        let s = self.layout.strides();
+        for (m, ml) in self.layout.modules().iter().enumerate() {
             let z = ml.z;
             for k in 0..2 {
-                for &(first, count) in &groups {
-                    let len = lengths[first];
+                for &(first, count) in &batch.groups {
+                    let len = batch.lengths[first];
                     encode_copy(
                         gpu,
-                        &mut work,
-                        &back,
+                        work,
+                        back,
                         Strided {
-                            offset: entries[first][5] + ml.back + k * z,
+                            offset: batch.entries[first][5] + ml.back + k * z,
                             block: len * s.back,
                             row: s.back,
                         },
@@ -402,45 +517,57 @@ impl DeviceIteration {
                             row: z,
                         },
                         [count, len, z],
-                        &mut keep,
+                        keep,
                     );
                 }
             }
         }
+    }
 
-        // The KL terms per step and unit, the last of the record's rows.
-        let kl = gpu.scratch("KL terms", eps_flat.len(), wgpu::BufferUsages::COPY_SRC);
+    /// The KL terms per step and unit (the last of the record's rows) into one buffer to
+    /// read back, per module at `per_module_at`.
+    fn encode_kl_terms(
+        &self,
+        gpu: &Gpu,
+        work: &mut DispatchList,
+        batch: &Batch<'_>,
+        record: &wgpu::Buffer,
+        per_module_at: &[usize; 4],
+        keep: &mut Vec<PooledBuffer>,
+    ) -> PooledBuffer {
+        let modules = self.layout.modules();
+        let values = batch.total * modules.iter().map(|m| m.z).sum::<usize>();
+        let kl = gpu.scratch("KL terms", values, wgpu::BufferUsages::COPY_SRC);
+        let s = self.layout.strides();
         for (m, ml) in modules.iter().enumerate() {
             encode_copy(
                 gpu,
-                &mut work,
-                &record,
+                work,
+                record,
                 Strided::rows(ml.record + 2 * ml.d + 8 * ml.z, s.record),
                 &kl,
                 Strided::rows(per_module_at[m], ml.z),
-                [1, total, ml.z],
-                &mut keep,
+                [1, batch.total, ml.z],
+                keep,
             );
         }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            work.replay(&mut pass);
-        }
-        let mut sources = vec![(&*kl, eps_flat.len())];
-        sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, total)));
-        drop(encode_phase);
-        let results = {
-            let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
-            pvrnn_core::deferred::now(read_back(gpu, encoder, &sources))
-        };
-        drop((keep, table, eps_buffer, record, back));
+        kl
+    }
 
+    /// F from what came back: the KL terms, then each read-out's row losses.
+    fn free_energy_of(
+        &self,
+        batch: &Batch<'_>,
+        per_module_at: &[usize; 4],
+        divisors: [usize; 2],
+        results: Vec<Vec<f32>>,
+    ) -> FreeEnergy {
         let mut results = results.into_iter();
         let kl = results.next().unwrap_or_default();
         let mut complexity = [0.0; 4];
-        for (m, ml) in modules.iter().enumerate() {
+        for (m, ml) in self.layout.modules().iter().enumerate() {
             let z = ml.z;
-            let terms = &kl[per_module_at[m]..per_module_at[m] + total * z];
+            let terms = &kl[per_module_at[m]..per_module_at[m] + batch.total * z];
             // As the CPU backend: per step the units' terms summed in f64, divided by z.
             complexity[m] = terms
                 .chunks_exact(z.max(1))
@@ -448,15 +575,10 @@ impl DeviceIteration {
                 .sum();
         }
         let mut accuracy = [0.0; 2];
-        for ((sum, (_, divisor)), sums) in accuracy.iter_mut().zip(&readouts).zip(results) {
-            *sum = row_losses(sums, *divisor).into_iter().sum();
+        for ((sum, divisor), sums) in accuracy.iter_mut().zip(divisors).zip(results) {
+            *sum = row_losses(sums, divisor).into_iter().sum();
         }
-        drop(readouts);
-        Ok(FreeEnergy::from_terms(
-            accuracy,
-            complexity,
-            config.kl_weight,
-        ))
+        FreeEnergy::from_terms(accuracy, complexity, self.config.kl_weight)
     }
 
     /// Encodes the refresh of the forward kernel's copy of the weights after an update of

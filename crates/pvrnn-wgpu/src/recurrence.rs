@@ -28,8 +28,72 @@ const MAX_UNITS: usize = 128;
 const WEIGHTS_WORKGROUP: usize = 64;
 /// Where the window table starts, and its words per window (see
 /// `shaders/recurrence_common.wgsl`).
-const TABLE_WINDOWS: usize = 80;
-const WINDOW_WORDS: usize = 8;
+const TABLE_WINDOWS: usize = std::mem::size_of::<Table>() / 4;
+const WINDOW_WORDS: usize = std::mem::size_of::<TableWindow>() / 4;
+
+/// The recurrence kernels' table (`Table` in `shaders/recurrence_common.wgsl`, field for
+/// field), followed by one [`TableWindow`] per window.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Table {
+    windows: u32,
+    /// 1 if module m is ablated.
+    ablated: [u32; 4],
+    strides: Strides32,
+    /// Module m's offset within a step of the read-out gradients.
+    grad_d_at: [u32; 4],
+    pad: [u32; 2],
+    modules: [TableModule; 4],
+}
+
+/// [`Strides`] as the kernels read them.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Strides32 {
+    record: u32,
+    input: u32,
+    init: u32,
+    grad_d: u32,
+    back: u32,
+}
+
+/// A module in the kernels' table (`Module` in the WGSL): sizes, weight offsets, offsets
+/// within a step (see [`ModuleLayout`]).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TableModule {
+    d: u32,
+    z: u32,
+    /// 4 = none.
+    parent: u32,
+    parent_d: u32,
+    w_prior: u32,
+    b_prior: u32,
+    w_dd: u32,
+    w_dz: u32,
+    w_dh: u32,
+    bias: u32,
+    inv_tau: u32,
+    decay: u32,
+    record: u32,
+    input: u32,
+    init: u32,
+    back: u32,
+}
+
+/// A window in the kernels' table (`WindowInfo` in the WGSL).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TableWindow {
+    steps: u32,
+    inputs: u32,
+    record: u32,
+    /// 1 if the window's posterior is the prior.
+    prior: u32,
+    grad_d: u32,
+    back: u32,
+    pad: [u32; 2],
+}
 /// The forward record's z-long rows per module and step.
 const RECORD_ROWS: usize = 9;
 
@@ -256,48 +320,58 @@ impl GpuRecurrence {
 }
 
 impl RecurrenceLayout {
-    /// The table the kernels read (see `shaders/recurrence_common.wgsl`): modules, strides,
-    /// ablation, then `windows` as (steps, inputs, record, prior posterior, read-out
-    /// gradients, backward record) offsets.
+    /// The table the kernels read (`Table` in `shaders/recurrence_common.wgsl`): modules,
+    /// strides, ablation, then `windows` as (steps, inputs, record, prior posterior,
+    /// read-out gradients, backward record) offsets.
     fn table(&self, ablation: &Ablation, windows: &[[usize; 6]]) -> Vec<u32> {
-        let mut t = vec![0u32; TABLE_WINDOWS + WINDOW_WORDS * windows.len()];
-        t[0] = windows.len() as u32;
         let s = &self.strides;
-        for (m, ml) in self.modules.iter().enumerate() {
-            t[1 + m] = ablation.0[m] as u32;
-            t[10 + m] = ml.grad_d as u32;
-            let words = [
-                ml.d,
-                ml.z,
-                ml.parent.unwrap_or(4),
-                ml.parent_d,
-                ml.w_prior,
-                ml.b_prior,
-                ml.w_dd,
-                ml.w_dz,
-                ml.w_dh,
-                ml.bias,
-                ml.inv_tau,
-                ml.decay,
-                ml.record,
-                ml.input,
-                ml.init,
-                ml.back,
-            ];
-            for (k, w) in words.into_iter().enumerate() {
-                t[16 + 16 * m + k] = w as u32;
-            }
-        }
-        for (k, stride) in [s.record, s.input, s.init, s.grad_d, s.back]
-            .into_iter()
-            .enumerate()
-        {
-            t[5 + k] = stride as u32;
-        }
-        for (w, words) in windows.iter().enumerate() {
-            for (k, &v) in words.iter().enumerate() {
-                t[TABLE_WINDOWS + WINDOW_WORDS * w + k] = v as u32;
-            }
+        let word = |v: usize| v as u32;
+        let header = Table {
+            windows: word(windows.len()),
+            ablated: ablation.0.map(u32::from),
+            strides: Strides32 {
+                record: word(s.record),
+                input: word(s.input),
+                init: word(s.init),
+                grad_d: word(s.grad_d),
+                back: word(s.back),
+            },
+            grad_d_at: std::array::from_fn(|m| word(self.modules[m].grad_d)),
+            pad: [0; 2],
+            modules: std::array::from_fn(|m| {
+                let ml = &self.modules[m];
+                TableModule {
+                    d: word(ml.d),
+                    z: word(ml.z),
+                    parent: word(ml.parent.unwrap_or(4)),
+                    parent_d: word(ml.parent_d),
+                    w_prior: word(ml.w_prior),
+                    b_prior: word(ml.b_prior),
+                    w_dd: word(ml.w_dd),
+                    w_dz: word(ml.w_dz),
+                    w_dh: word(ml.w_dh),
+                    bias: word(ml.bias),
+                    inv_tau: word(ml.inv_tau),
+                    decay: word(ml.decay),
+                    record: word(ml.record),
+                    input: word(ml.input),
+                    init: word(ml.init),
+                    back: word(ml.back),
+                }
+            }),
+        };
+        let mut t: Vec<u32> = bytemuck::cast_slice(bytemuck::bytes_of(&header)).to_vec();
+        for w in windows {
+            let entry = TableWindow {
+                steps: word(w[0]),
+                inputs: word(w[1]),
+                record: word(w[2]),
+                prior: word(w[3]),
+                grad_d: word(w[4]),
+                back: word(w[5]),
+                pad: [0; 2],
+            };
+            t.extend_from_slice(bytemuck::cast_slice(bytemuck::bytes_of(&entry)));
         }
         t
     }
@@ -759,6 +833,25 @@ impl GpuPass<'_> {
             a_mu,
             a_sigma,
             weights,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The WGSL structs have no padding of their own (every field a u32 or an array of
+    /// them), so the kernels read these at the same word offsets as the Rust structs give.
+    #[test]
+    fn the_table_s_rust_structs_have_the_wgsl_layout() {
+        assert_eq!(std::mem::size_of::<TableModule>(), 16 * 4);
+        assert_eq!(std::mem::size_of::<TableWindow>(), 8 * 4);
+        // windows count, 4 ablated, 5 strides, 4 offsets, 2 pad, then 4 modules.
+        assert_eq!(std::mem::size_of::<Table>(), (16 + 4 * 16) * 4);
+        let common = include_str!("shaders/recurrence_common.wgsl");
+        for name in ["struct Table {", "struct Module {", "struct WindowInfo {"] {
+            assert!(common.contains(name), "{name} is gone from the WGSL");
         }
     }
 }

@@ -19,6 +19,7 @@ use bytemuck::{Pod, Zeroable};
 use pvrnn_core::assembled::ErrorRegression;
 use pvrnn_core::backend::{RegressionRequest, RegressionResult, Window};
 use pvrnn_core::deferred::Deferred;
+use pvrnn_core::optim::RAdamStep;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 
@@ -28,22 +29,80 @@ use crate::iteration::{RecordRows, encode_readout_of_record};
 use crate::output::{GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use crate::recurrence::{GpuRecurrence, ModuleLayout, Strides};
+use crate::recurrence::{GpuRecurrence, ModuleLayout, RecurrenceLayout, Strides};
 use crate::resident::ResidentLayer;
 
-/// Where the update kernel's header, module table and per-update scalars start in `meta`
-/// (see `shaders/regression_update.wgsl`).
-const MODULES_AT: usize = 16;
-const STEPS_AT: usize = 48;
-const STEP_WORDS: usize = 12;
-
+/// One update's uniform (`Params` in `shaders/regression_update.wgsl`, field for field):
+/// its index, the threads, and its RAdam scalars ([`RAdamStep`]).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct UpdateParams {
     update: u32,
     count: u32,
     groups_x: u32,
-    _pad: u32,
+    /// 1: the rectified step, 0: the plain one.
+    rectified: u32,
+    beta1: f32,
+    beta2: f32,
+    one_minus_beta1: f32,
+    one_minus_beta2: f32,
+    weight_decay: f32,
+    eps: f32,
+    sqrt_bias2: f32,
+    /// The rectified or the plain step size.
+    lr: f32,
+}
+
+impl UpdateParams {
+    fn new(update: usize, count: usize, groups_x: u32, step: &RAdamStep) -> Self {
+        Self {
+            update: update as u32,
+            count: count as u32,
+            groups_x,
+            rectified: step.rectified.is_some() as u32,
+            beta1: step.beta1 as f32,
+            beta2: step.beta2 as f32,
+            one_minus_beta1: (1.0 - step.beta1) as f32,
+            one_minus_beta2: (1.0 - step.beta2) as f32,
+            weight_decay: step.weight_decay as f32,
+            eps: step.eps as f32,
+            sqrt_bias2: step.sqrt_bias2 as f32,
+            lr: step.rectified.unwrap_or(step.plain) as f32,
+        }
+    }
+}
+
+/// The window's layout as the update kernel reads it (`RegressionTable` in the WGSL, field
+/// for field), followed in its buffer by every update's eps, `[updates, len, sum_z]`.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct RegressionTable {
+    len: u32,
+    sum_z: u32,
+    init_stride: u32,
+    input_stride: u32,
+    back_stride: u32,
+    record_stride: u32,
+    updates: u32,
+    /// 1 where the modality is observed (its row losses are bound).
+    extero_rows: u32,
+    proprio_rows: u32,
+    pad: [u32; 7],
+    modules: [UpdateModule; 4],
+}
+
+/// A module in [`RegressionTable`]: its z, its units' offset among a step's, its offsets
+/// within a step of the inputs and of the backward record, the row of its KL terms in the
+/// forward record.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct UpdateModule {
+    z: u32,
+    offset: u32,
+    input: u32,
+    back: u32,
+    kl_row: u32,
+    pad: [u32; 3],
 }
 
 /// A loaded model's error regression on the GPU; its weights go up at the first call.
@@ -117,7 +176,7 @@ impl ErrorRegression<f32> for GpuRegression {
             .collect();
         // The update kernel's table (every update's eps) within one binding.
         let sum_z: usize = layout.modules().iter().map(|m| m.z).sum();
-        let table_bytes = 4 * (STEPS_AT + updates * (STEP_WORDS + w.len * sum_z));
+        let table_bytes = std::mem::size_of::<RegressionTable>() + 4 * updates * w.len * sum_z;
         if !layout.fits(&self.gpu, 1, w.len)
             || table_bytes > self.gpu.limits().max_storage_buffer_binding_size as usize
             || observed
@@ -162,72 +221,9 @@ fn run<'a>(
     let entries = layout.entries(std::iter::once((len, false)));
     let table = layout.upload_table(gpu, &request.ablation, &entries);
     let inputs_buffer = readable(gpu, "regression inputs", &inputs);
-    // The moments in the update kernel's layout: m then v, a_mu then a_sigma, per step the
-    // modules' units side by side.
-    let mut moments = vec![0f32; 4 * count];
-    for (which, tensors) in [request.m, request.v].into_iter().enumerate() {
-        for k in 0..2 {
-            for (m, &z) in zs.iter().enumerate() {
-                let tensor = &tensors[4 * k + m];
-                for t in 0..len {
-                    let at = (2 * which + k) * count + t * sum_z + z_offset[m];
-                    moments[at..at + z].copy_from_slice(&tensor[t * z..(t + 1) * z]);
-                }
-            }
-        }
-    }
+    let moments = pack_moments(request, &zs, &z_offset);
     let moments_buffer = readable(gpu, "regression moments", &moments);
-    let has_rows = |modality: Modality| observed.iter().any(|&(o, _)| o == modality) as u32;
-    let mut meta = vec![0u32; STEPS_AT + STEP_WORDS * updates + updates * count];
-    meta[..9].copy_from_slice(&[
-        len as u32,
-        sum_z as u32,
-        s.init as u32,
-        s.input as u32,
-        s.back as u32,
-        s.record as u32,
-        updates as u32,
-        has_rows(Modality::Exteroceptive),
-        has_rows(Modality::Proprioceptive),
-    ]);
-    for (m, ml) in modules.iter().enumerate() {
-        let at = MODULES_AT + 8 * m;
-        meta[at..at + 5].copy_from_slice(&[
-            ml.z as u32,
-            z_offset[m] as u32,
-            ml.input as u32,
-            ml.back as u32,
-            (ml.record + 2 * ml.d + 8 * ml.z) as u32,
-        ]);
-    }
-    for (u, step) in request.steps.iter().enumerate() {
-        let at = STEPS_AT + STEP_WORDS * u;
-        meta[at] = step.rectified.is_some() as u32;
-        let scalars = [
-            step.beta1,
-            step.beta2,
-            1.0 - step.beta1,
-            1.0 - step.beta2,
-            step.weight_decay,
-            step.eps,
-            step.sqrt_bias2,
-            step.rectified.unwrap_or(step.plain),
-        ];
-        for (k, v) in scalars.into_iter().enumerate() {
-            meta[at + 1 + k] = (v as f32).to_bits();
-        }
-    }
-    let eps_at = STEPS_AT + STEP_WORDS * updates;
-    for (u, eps) in request.eps.iter().enumerate() {
-        for t in 0..len {
-            for (m, &z) in zs.iter().enumerate() {
-                let at = eps_at + u * count + t * sum_z + z_offset[m];
-                for (dst, v) in meta[at..at + z].iter_mut().zip(&eps[m][t * z..(t + 1) * z]) {
-                    *dst = v.to_bits();
-                }
-            }
-        }
-    }
+    let meta = regression_table(layout, request, observed, &zs, &z_offset);
     let meta_buffer = gpu.upload("regression table", &meta);
     let flags = gpu.scratch("regression flags", updates, wgpu::BufferUsages::COPY_SRC);
     let record = gpu.scratch(
@@ -315,12 +311,7 @@ fn run<'a>(
     };
     let groups: Vec<wgpu::BindGroup> = (0..updates)
         .map(|u| {
-            let params = gpu.uniform(&UpdateParams {
-                update: u as u32,
-                count: count as u32,
-                groups_x,
-                _pad: 0,
-            });
+            let params = gpu.uniform(&UpdateParams::new(u, count, groups_x, &request.steps[u]));
             let group = bind(
                 gpu,
                 &kernel,
@@ -384,6 +375,80 @@ fn run<'a>(
     })
 }
 
+/// The moments in the update kernel's layout: m then v, a_mu then a_sigma, per step the
+/// modules' units side by side.
+fn pack_moments(
+    request: &RegressionRequest<'_, f32>,
+    zs: &[usize; 4],
+    z_offset: &[usize; 4],
+) -> Vec<f32> {
+    let len = request.window.len;
+    let sum_z: usize = zs.iter().sum();
+    let count = len * sum_z;
+    let mut moments = vec![0f32; 4 * count];
+    for (which, tensors) in [request.m, request.v].into_iter().enumerate() {
+        for k in 0..2 {
+            for (m, &z) in zs.iter().enumerate() {
+                let tensor = &tensors[4 * k + m];
+                for t in 0..len {
+                    let at = (2 * which + k) * count + t * sum_z + z_offset[m];
+                    moments[at..at + z].copy_from_slice(&tensor[t * z..(t + 1) * z]);
+                }
+            }
+        }
+    }
+    moments
+}
+
+/// The update kernel's table ([`RegressionTable`]) and every update's eps after it, as
+/// 32-bit words.
+fn regression_table(
+    layout: &RecurrenceLayout,
+    request: &RegressionRequest<'_, f32>,
+    observed: &[(Modality, usize)],
+    zs: &[usize; 4],
+    z_offset: &[usize; 4],
+) -> Vec<u32> {
+    let len = request.window.len;
+    let modules = layout.modules();
+    let s = layout.strides();
+    let sum_z: usize = zs.iter().sum();
+    let has_rows = |modality: Modality| observed.iter().any(|&(o, _)| o == modality) as u32;
+    let table = RegressionTable {
+        len: len as u32,
+        sum_z: sum_z as u32,
+        init_stride: s.init as u32,
+        input_stride: s.input as u32,
+        back_stride: s.back as u32,
+        record_stride: s.record as u32,
+        updates: request.steps.len() as u32,
+        extero_rows: has_rows(Modality::Exteroceptive),
+        proprio_rows: has_rows(Modality::Proprioceptive),
+        pad: [0; 7],
+        modules: std::array::from_fn(|m| {
+            let ml = &modules[m];
+            UpdateModule {
+                z: ml.z as u32,
+                offset: z_offset[m] as u32,
+                input: ml.input as u32,
+                back: ml.back as u32,
+                kl_row: (ml.record + 2 * ml.d + 8 * ml.z) as u32,
+                pad: [0; 3],
+            }
+        }),
+    };
+    let mut words: Vec<u32> = bytemuck::cast_slice(bytemuck::bytes_of(&table)).to_vec();
+    words.reserve(request.eps.len() * len * sum_z);
+    for eps in request.eps {
+        for t in 0..len {
+            for (m, &z) in zs.iter().enumerate() {
+                words.extend(eps[m][t * z..(t + 1) * z].iter().map(|v| v.to_bits()));
+            }
+        }
+    }
+    words
+}
+
 /// The adaptive variables and moments from the read-back (see [`run`]).
 fn unpack(
     results: Vec<Vec<f32>>,
@@ -439,4 +504,27 @@ fn readable(gpu: &Gpu, label: &str, values: &[f32]) -> PooledBuffer {
             .write_buffer(&buffer, 0, bytemuck::cast_slice(values));
     }
     buffer
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every field a 4-byte scalar or an array of them: no padding on either side, so the
+    /// kernel reads the Rust structs at the same offsets (the uniform's size a multiple of
+    /// 16 bytes, as uniforms need).
+    #[test]
+    fn the_update_kernel_s_structs_have_the_wgsl_layout() {
+        assert_eq!(std::mem::size_of::<UpdateModule>(), 8 * 4);
+        assert_eq!(std::mem::size_of::<RegressionTable>(), 48 * 4);
+        assert_eq!(std::mem::size_of::<UpdateParams>(), 12 * 4);
+        let wgsl = include_str!("shaders/regression_update.wgsl");
+        for name in [
+            "struct Params {",
+            "struct UpdateModule {",
+            "struct RegressionTable {",
+        ] {
+            assert!(wgsl.contains(name), "{name} is gone from the WGSL");
+        }
+    }
 }

@@ -5,7 +5,7 @@
 // Its threads own columns of the weight matrices, so their loads are coalesced as stored;
 // four are issued before their four multiply-adds (the sums keep the CPU's order).
 
-@group(0) @binding(0) var<storage, read> table: array<u32>;
+@group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights: array<f32>;
 @group(0) @binding(2) var<storage, read> record: array<f32>;
 @group(0) @binding(3) var<storage, read> grad_d: array<f32>;
@@ -37,9 +37,9 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         gh_next[i] = 0.0;
     }
     let len = workgroupUniformLoad(&steps);
-    let rec_stride = table[REC_STRIDE];
-    let grad_stride = table[GRAD_D_STRIDE];
-    let back_stride = table[BACK_STRIDE];
+    let rec_stride = table.strides.rec;
+    let grad_stride = table.strides.grad_d;
+    let back_stride = table.strides.back;
     for (var step = 0u; step < len; step++) {
         let t = len - 1u - step;
         let rec_t = win.rec + t * rec_stride;
@@ -51,7 +51,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let c = p.kl_scale[m];
             // Phase 1: dF/dh_t and dF/du_t.
             for (var i = lid; i < md.d; i += WG) {
-                let g = gd_cur[dp + i] + grad_d[win.grad_d + t * grad_stride + table[10u + m] + i];
+                let g = gd_cur[dp + i] + grad_d[win.grad_d + t * grad_stride + table.grad_d_at[m] + i];
                 let d_t = record[rec_t + rec_d(md) + i];
                 let gh = fma(g, 1.0 - d_t * d_t, weights[md.decay + i] * gh_next[dp + i]);
                 gh_next[dp + i] = gh;
@@ -81,7 +81,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                 } else if (o < md.d + md.z) {
                     let j = o - md.d;
                     var acc = 0.0;
-                    if (table[1u + m] == 0u) {
+                    if (table.ablated[m] == 0u) {
                         var i = 0u;
                         for (; i + 4u <= md.d; i += 4u) {
                             //#unroll K 4

@@ -1,18 +1,9 @@
-// Shared by the recurrence kernels: the layout table written by `recurrence.rs`.
+// Shared by the recurrence kernels: the layout table written by `recurrence.rs`
+// (`Table`, `TableModule` and `TableWindow` there are these structs, field for field).
 //
-// table (u32):
-//   [1 + m]        1 if module m is ablated (z = 0)
-//   [5..10)        strides: forward record per step, inputs per step, initial states per
-//                  window, read-out gradients per step, backward record per step
-//   [10 + m]       module m's offset within a step of the read-out gradients
-//   [16 + 16 m ..] module m: d, z, parent (4 = none), parent's d, then offsets into the
-//                  weights: W_prior (2z x d: mean rows, then log-sigma rows), b_prior (2z),
-//                  W_dd (d x d), W_dz (d x z), W_dh (d x parent's d), bias (d), 1/tau (d),
-//                  1 - 1/tau (d); then the module's offset within a step of the forward
-//                  record, of the inputs, of the initial states, and of the backward record
-//   [80 + 8 w ..]  window w: steps, inputs offset, forward record offset, posterior is the
-//                  prior (1) or adaptive (0), read-out gradients offset, backward record
-//                  offset
+// Module m's weights in `weights` start at its offsets: W_prior (2z x d: mean rows, then
+// log-sigma rows), b_prior (2z), W_dd (d x d), W_dz (d x z), W_dh (d x parent's d), bias
+// (d), 1/tau (d), 1 - 1/tau (d).
 //
 // Per window and step, module m's forward record holds h (d), d (d), then z-long rows:
 // the prior mean's pre-activation, the prior mean, log sigma_p, 1/sigma_p^2, the posterior
@@ -23,6 +14,9 @@
 const MAX_UNITS: u32 = 128u;
 const WG: u32 = 128u;
 
+// A module: its sizes (parent 4 = none), its offsets into the weights, and its offsets
+// within a step of the forward record, the inputs, the initial states and the backward
+// record.
 struct Module {
     d: u32,
     z: u32,
@@ -42,11 +36,43 @@ struct Module {
     back: u32,
 }
 
+// Per step (per window for `init`): the forward record, the inputs, the initial states,
+// the read-out gradients, the backward record.
+struct Strides {
+    rec: u32,
+    inp: u32,
+    init: u32,
+    grad_d: u32,
+    back: u32,
+}
+
+// A window: its steps, and where its inputs, forward record, read-out gradients and
+// backward record start; `prior` 1 if its posterior is the prior.
+struct WindowInfo {
+    len: u32,
+    inp: u32,
+    rec: u32,
+    prior: u32,
+    grad_d: u32,
+    back: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+struct Table {
+    windows_count: u32,
+    // 1 if module m is ablated (z = 0).
+    ablated: array<u32, 4>,
+    strides: Strides,
+    // Module m's offset within a step of the read-out gradients.
+    grad_d_at: array<u32, 4>,
+    pad: array<u32, 2>,
+    modules: array<Module, 4>,
+    windows: array<WindowInfo>,
+}
+
 fn module_at(m: u32) -> Module {
-    let b = 16u + 16u * m;
-    return Module(table[b], table[b + 1u], table[b + 2u], table[b + 3u], table[b + 4u],
-        table[b + 5u], table[b + 6u], table[b + 7u], table[b + 8u], table[b + 9u], table[b + 10u],
-        table[b + 11u], table[b + 12u], table[b + 13u], table[b + 14u], table[b + 15u]);
+    return table.modules[m];
 }
 
 // Offsets of the forward record's rows within a module's part of a step.
@@ -63,25 +89,8 @@ const SIGMA_Q: u32 = 6u;
 const Z: u32 = 7u;
 const KL: u32 = 8u;
 
-const REC_STRIDE: u32 = 5u;
-const IN_STRIDE: u32 = 6u;
-const INIT_STRIDE: u32 = 7u;
-const GRAD_D_STRIDE: u32 = 8u;
-const BACK_STRIDE: u32 = 9u;
-
-struct WindowInfo {
-    len: u32,
-    inp: u32,
-    rec: u32,
-    prior: u32,
-    grad_d: u32,
-    back: u32,
-}
-
 fn window_at(w: u32) -> WindowInfo {
-    let b = 80u + 8u * w;
-    return WindowInfo(table[b], table[b + 1u], table[b + 2u], table[b + 3u], table[b + 4u],
-        table[b + 5u]);
+    return table.windows[w];
 }
 
 // tanh that saturates instead of returning NaN: some drivers compute it from exponentials

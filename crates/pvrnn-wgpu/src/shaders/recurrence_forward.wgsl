@@ -9,7 +9,7 @@
 // the table gives) to make a warp's loads one coalesced read, and four loads are issued
 // before their four multiply-adds, which keep the CPU's order.
 
-@group(0) @binding(0) var<storage, read> table: array<u32>;
+@group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights_t: array<f32>;
 @group(0) @binding(2) var<storage, read> inputs: array<f32>;
 @group(0) @binding(3) var<storage, read_write> record: array<f32>;
@@ -38,9 +38,9 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         }
     }
     let len = workgroupUniformLoad(&steps);
-    let rec_stride = table[REC_STRIDE];
-    let in_stride = table[IN_STRIDE];
-    let init_stride = table[INIT_STRIDE];
+    let rec_stride = table.strides.rec;
+    let in_stride = table.strides.inp;
+    let init_stride = table.strides.init;
     for (var t = 0u; t < len; t++) {
         let rec_t = win.rec + t * rec_stride;
         let in_t = win.inp + init_stride + t * in_stride;
@@ -105,7 +105,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                 let var_ratio = exp(2.0 * (a_sigma - ls_p));
                 let kl = ls_p - a_sigma + 0.5 * (diff * diff * inv_var_p + var_ratio) - 0.5;
                 var z = fma(sigma_q, eps, mu_q);
-                if (table[1u + m] != 0u) {
+                if (table.ablated[m] != 0u) {
                     z = 0.0;
                 }
                 zs[j] = z;

@@ -5,7 +5,7 @@
 //   W_dd[r][i]    += gu_r d_{t-1,i}        W_dz[r][j] += gu_r z_j
 //   W_dh[r][k]    += gu_r d_parent,t,k     (the bias and time constants are fixed: 0)
 
-@group(0) @binding(0) var<storage, read> table: array<u32>;
+@group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> inputs: array<f32>;
 @group(0) @binding(2) var<storage, read> record: array<f32>;
 @group(0) @binding(3) var<storage, read> back: array<f32>;
@@ -22,7 +22,7 @@ fn d_before(win: WindowInfo, md: Module, t: u32, i: u32) -> f32 {
     if (t == 0u) {
         return inputs[win.inp + md.init + md.d + i];
     }
-    return record[win.rec + (t - 1u) * table[REC_STRIDE] + rec_d(md) + i];
+    return record[win.rec + (t - 1u) * table.strides.rec + rec_d(md) + i];
 }
 
 @compute @workgroup_size(64)
@@ -39,8 +39,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
     }
     let md = module_at(m);
-    let rec_stride = table[REC_STRIDE];
-    let back_stride = table[BACK_STRIDE];
+    let rec_stride = table.strides.rec;
+    let back_stride = table.strides.back;
     var acc = 0.0;
     for (var w = 0u; w < p.windows; w++) {
         let win = window_at(w);

@@ -26,6 +26,7 @@ use pvrnn_core::{Modality, ModelConfig};
 use crate::encode::{DispatchList, bind, grid};
 use crate::gpu::Gpu;
 use crate::iteration::{RecordRows, encode_readout_of_record};
+use crate::output::EncodedReadout;
 use crate::output::{GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
@@ -201,68 +202,152 @@ fn run<'a>(
     let phase = pvrnn_core::profile::phase("  error regression on the device");
     let encode_phase = pvrnn_core::profile::phase("    upload and encode");
     let updates = request.steps.len();
-    let window = &request.window;
-    let len = window.len;
-    let recurrence = &up.recurrence;
-    let layout = &recurrence.layout;
-    let modules = layout.modules();
+    let len = request.window.len;
+    let layout = &up.recurrence.layout;
+    let modules = *layout.modules();
     let s = layout.strides();
     let zs: [usize; 4] = std::array::from_fn(|m| modules[m].z);
-    let sum_z: usize = zs.iter().sum();
-    let count = len * sum_z;
-    let z_offset: [usize; 4] = std::array::from_fn(|m| zs[..m].iter().sum());
-
-    // The inputs as the first update reads them (its eps in the eps slots).
-    let first = Window {
-        eps: std::array::from_fn(|m| request.eps[0][m].as_slice()),
-        ..window.clone()
-    };
-    let (inputs, _) = layout.pack_inputs(std::slice::from_ref(&first));
-    let entries = layout.entries(std::iter::once((len, false)));
-    let table = layout.upload_table(gpu, &request.ablation, &entries);
-    let inputs_buffer = readable(gpu, "regression inputs", &inputs);
-    let moments = pack_moments(request, &zs, &z_offset);
-    let moments_buffer = readable(gpu, "regression moments", &moments);
-    let meta = regression_table(layout, request, observed, &zs, &z_offset);
-    let meta_buffer = gpu.upload("regression table", &meta);
-    let flags = gpu.scratch("regression flags", updates, wgpu::BufferUsages::COPY_SRC);
-    let record = gpu.scratch(
-        "recurrence record",
-        len * s.record,
-        wgpu::BufferUsages::empty(),
-    );
-    let back = gpu.scratch(
-        "recurrence backward",
-        len * s.back,
-        wgpu::BufferUsages::empty(),
-    );
-    let grad_d = gpu.scratch(
-        "read-out gradients",
-        len * s.grad_d,
-        wgpu::BufferUsages::empty(),
-    );
-    // Bound where a modality is not observed (its flag in `meta` says not to read it).
-    let no_rows = gpu.scratch("no row losses", 1, wgpu::BufferUsages::empty());
+    let b = Buffers::upload(gpu, layout, request, observed, &zs);
     // Everything the submission uses stays out of the pool until it has run: a buffer
     // taken again meanwhile would get its new contents (written through the queue) before
     // the submission's first command.
     let mut keep: Vec<PooledBuffer> = Vec::new();
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    encoder.clear_buffer(&flags, 0, None);
+    encoder.clear_buffer(&b.flags, 0, None);
     // Modules without an observed read-out get no gradient from one.
-    encoder.clear_buffer(&grad_d, 0, None);
-    // One update's work, recorded once: every update runs the same dispatches on the same
-    // buffers, so their bind groups are made once and replayed (each bind group and
-    // compute pass costs the host tens of microseconds; an update is some 17 dispatches).
+    encoder.clear_buffer(&b.grad_d, 0, None);
+    let (update, readouts) = record_update(
+        gpu,
+        up,
+        config,
+        request,
+        observed,
+        &b,
+        &mut encoder,
+        &mut keep,
+    );
+    encode_updates(
+        gpu,
+        request,
+        &b,
+        &update,
+        &readouts,
+        &mut encoder,
+        &mut keep,
+    );
+    drop(encode_phase);
+    let run_phase = pvrnn_core::profile::phase("    run and read back");
+    let pending = read_back(
+        gpu,
+        encoder,
+        &[
+            (&b.inputs, b.inputs_len),
+            (&b.moments, b.moments_len),
+            (&b.flags, updates),
+        ],
+    );
+    let used = (keep, readouts, b);
+    Box::pin(async move {
+        let results = pending.await;
+        drop(run_phase);
+        drop(used);
+        let result = unpack(results, &zs, &modules, s, len);
+        drop(phase);
+        result
+    })
+}
+
+/// The device buffers of one call's updates.
+struct Buffers {
+    /// The recurrence's table for the window.
+    table: PooledBuffer,
+    /// The inputs as the first update reads them (its eps in the eps slots), and their
+    /// length; updated in place.
+    inputs: PooledBuffer,
+    inputs_len: usize,
+    /// The moments ([`pack_moments`]), updated in place.
+    moments: PooledBuffer,
+    moments_len: usize,
+    /// The update kernel's table ([`regression_table`]).
+    meta: PooledBuffer,
+    /// Per update, 1 if it was not finite.
+    flags: PooledBuffer,
+    record: PooledBuffer,
+    back: PooledBuffer,
+    grad_d: PooledBuffer,
+    /// Bound where a modality is not observed (its flag in `meta` says not to read it).
+    no_rows: PooledBuffer,
+}
+
+impl Buffers {
+    fn upload(
+        gpu: &Gpu,
+        layout: &RecurrenceLayout,
+        request: &RegressionRequest<'_, f32>,
+        observed: &[(Modality, usize)],
+        zs: &[usize; 4],
+    ) -> Self {
+        let len = request.window.len;
+        let s = layout.strides();
+        let z_offset: [usize; 4] = std::array::from_fn(|m| zs[..m].iter().sum());
+        let first = Window {
+            eps: std::array::from_fn(|m| request.eps[0][m].as_slice()),
+            ..request.window.clone()
+        };
+        let (inputs, _) = layout.pack_inputs(std::slice::from_ref(&first));
+        let entries = layout.entries(std::iter::once((len, false)));
+        let moments = pack_moments(request, zs, &z_offset);
+        let scratch = |label, values| gpu.scratch(label, values, wgpu::BufferUsages::empty());
+        Self {
+            table: layout.upload_table(gpu, &request.ablation, &entries),
+            inputs: readable(gpu, "regression inputs", &inputs),
+            inputs_len: inputs.len(),
+            moments: readable(gpu, "regression moments", &moments),
+            moments_len: moments.len(),
+            meta: gpu.upload(
+                "regression table",
+                &regression_table(layout, request, observed, zs, &z_offset),
+            ),
+            flags: gpu.scratch(
+                "regression flags",
+                request.steps.len(),
+                wgpu::BufferUsages::COPY_SRC,
+            ),
+            record: scratch("recurrence record", len * s.record),
+            back: scratch("recurrence backward", len * s.back),
+            grad_d: scratch("read-out gradients", len * s.grad_d),
+            no_rows: scratch("no row losses", 1),
+        }
+    }
+}
+
+/// One update's work, recorded once: every update runs the same dispatches on the same
+/// buffers, so their bind groups are made once and replayed (each bind group and compute
+/// pass costs the host tens of microseconds; an update is some 17 dispatches). The
+/// recurrence forward, the observed read-outs (returned, for their row losses), the
+/// recurrence backward.
+fn record_update(
+    gpu: &Gpu,
+    up: &Uploaded,
+    config: &ModelConfig,
+    request: &RegressionRequest<'_, f32>,
+    observed: &[(Modality, usize)],
+    b: &Buffers,
+    encoder: &mut wgpu::CommandEncoder,
+    keep: &mut Vec<PooledBuffer>,
+) -> (DispatchList, Vec<(Modality, EncodedReadout)>) {
+    let recurrence = &up.recurrence;
+    let layout = &recurrence.layout;
+    let len = request.window.len;
     let mut update = DispatchList::default();
     layout.encode_forward(
         gpu,
         &recurrence.kernels,
         &mut update,
-        &table,
+        &b.table,
         &recurrence.weights_t,
-        &inputs_buffer,
-        &record,
+        &b.inputs,
+        &b.record,
         1,
     );
     let mut readouts = Vec::with_capacity(observed.len());
@@ -272,19 +357,19 @@ fn run<'a>(
             &up.readouts,
             config,
             layout,
-            &mut encoder,
+            encoder,
             &mut update,
             RecordRows {
-                record: &record,
-                grad_d: &grad_d,
+                record: &b.record,
+                grad_d: &b.grad_d,
                 rows: len,
             },
             modality,
             k,
-            &window.targets[modality.index()],
+            &request.window.targets[modality.index()],
             request.resident_targets,
             false,
-            &mut keep,
+            keep,
         )
         .expect("the read-out is on the device (checked before)");
         readouts.push((modality, readout));
@@ -293,86 +378,68 @@ fn run<'a>(
         gpu,
         &recurrence.kernels,
         &mut update,
-        &table,
+        &b.table,
         &recurrence.weights,
-        &record,
-        &grad_d,
-        &back,
+        &b.record,
+        &b.grad_d,
+        &b.back,
         1,
     ));
-    // Then the update kernel, which alone differs between updates (their index).
+    (update, readouts)
+}
+
+/// Every update into one compute pass: the recorded work, then the update kernel, which
+/// alone differs between updates (its uniform: the index and the RAdam scalars).
+fn encode_updates(
+    gpu: &Gpu,
+    request: &RegressionRequest<'_, f32>,
+    b: &Buffers,
+    update: &DispatchList,
+    readouts: &[(Modality, EncodedReadout)],
+    encoder: &mut wgpu::CommandEncoder,
+    keep: &mut Vec<PooledBuffer>,
+) {
+    let count = b.moments_len / 4;
     let kernel = gpu.regression_kernel();
     let (groups_x, groups_y) = grid(gpu, count);
     let rows = |modality: Modality| -> &wgpu::Buffer {
         readouts
             .iter()
             .find(|(o, _)| *o == modality)
-            .map_or(&no_rows, |(_, r)| &r.row_loss)
+            .map_or(&b.no_rows, |(_, r)| &r.row_loss)
     };
-    let groups: Vec<wgpu::BindGroup> = (0..updates)
-        .map(|u| {
-            let params = gpu.uniform(&UpdateParams::new(u, count, groups_x, &request.steps[u]));
+    let groups: Vec<wgpu::BindGroup> = request
+        .steps
+        .iter()
+        .enumerate()
+        .map(|(u, step)| {
+            let params = gpu.uniform(&UpdateParams::new(u, count, groups_x, step));
             let group = bind(
                 gpu,
                 &kernel,
                 &[
                     &params,
-                    &meta_buffer,
-                    &back,
-                    &record,
+                    &b.meta,
+                    &b.back,
+                    &b.record,
                     rows(Modality::Exteroceptive),
                     rows(Modality::Proprioceptive),
-                    &inputs_buffer,
-                    &moments_buffer,
-                    &flags,
+                    &b.inputs,
+                    &b.moments,
+                    &b.flags,
                 ],
             );
             keep.push(params);
             group
         })
         .collect();
-    {
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-        for group in &groups {
-            update.replay(&mut pass);
-            pass.set_pipeline(&kernel);
-            pass.set_bind_group(0, group, &[]);
-            pass.dispatch_workgroups(groups_x, groups_y, 1);
-        }
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+    for group in &groups {
+        update.replay(&mut pass);
+        pass.set_pipeline(&kernel);
+        pass.set_bind_group(0, group, &[]);
+        pass.dispatch_workgroups(groups_x, groups_y, 1);
     }
-    drop(encode_phase);
-    let run_phase = pvrnn_core::profile::phase("    run and read back");
-    let pending = read_back(
-        gpu,
-        encoder,
-        &[
-            (&inputs_buffer, inputs.len()),
-            (&moments_buffer, moments.len()),
-            (&flags, updates),
-        ],
-    );
-    let used = (
-        keep,
-        readouts,
-        table,
-        meta_buffer,
-        record,
-        back,
-        grad_d,
-        no_rows,
-        inputs_buffer,
-        moments_buffer,
-        flags,
-    );
-    let modules = *modules;
-    Box::pin(async move {
-        let results = pending.await;
-        drop(run_phase);
-        drop(used);
-        let result = unpack(results, &zs, &modules, s, len);
-        drop(phase);
-        result
-    })
 }
 
 /// The moments in the update kernel's layout: m then v, a_mu then a_sigma, per step the

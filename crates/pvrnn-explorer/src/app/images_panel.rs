@@ -161,7 +161,6 @@ impl ExplorerApp {
     }
 
     pub(super) fn images_ui(&mut self, ui: &mut egui::Ui) {
-        self.refresh_images(ui.ctx());
         let Some(bundle) = &self.bundle else { return };
         let layout = bundle.model.config.vision.clone();
         let top = layout.resolutions.len() - 1;

@@ -510,6 +510,8 @@ impl ExplorerApp {
         if self.view.playing {
             ctx.request_repaint();
         }
+        // The images at the cursor, read out here rather than while drawing.
+        self.refresh_images(ctx);
     }
 
     /// Draws the panels (each in its own file).
@@ -519,6 +521,7 @@ impl ExplorerApp {
             return;
         }
         let ctx = ui.ctx().clone();
+        let view_before = self.view.clone();
         egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
         egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
         egui::Panel::left("images")
@@ -539,6 +542,10 @@ impl ExplorerApp {
                 .show(&ctx, |ui| {
                     crate::about::about_ui(ui, &bundle.description, bundle.card.as_ref())
                 });
+        }
+        // A view changed by this frame's controls is read out by the next frame's logic.
+        if self.view != view_before {
+            ctx.request_repaint();
         }
     }
 

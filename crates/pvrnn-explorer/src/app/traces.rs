@@ -4,6 +4,8 @@
 use super::*;
 
 impl ExplorerApp {
+    /// The traces of the current run: the panel draws, the app moves the cursor where the
+    /// user clicked.
     pub(super) fn traces_ui(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
         let Some(key) = self.current_key() else {
@@ -12,7 +14,6 @@ impl ExplorerApp {
         let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
             return;
         };
-        let len = seq.len();
         let entry = self.store.get(&key);
         if let Some(err) = entry.and_then(|e| e.error.as_ref()) {
             ui.colored_label(
@@ -22,56 +23,106 @@ impl ExplorerApp {
         }
         let empty = RunTrace::new(&bundle.model.config);
         let trace = entry.map_or(&empty, |e| &e.trace);
-        let mut seek: Option<usize> = None;
-        let t = self.view.t;
-        let plot = |ui: &mut egui::Ui,
-                    id: String,
-                    title: &str,
-                    height: f32,
-                    lines: Vec<Line<'static>>,
-                    y: Option<(f64, f64)>|
-         -> Option<usize> {
-            ui.label(RichText::new(title).small());
-            let mut p = Plot::new(id)
-                .height(height)
-                .include_x(0.0)
-                .include_x(len as f64)
-                .allow_drag(false)
-                .allow_zoom(false)
-                .allow_scroll(false)
-                .allow_boxed_zoom(false)
-                .show_x(true);
-            if let Some((lo, hi)) = y {
-                p = p.include_y(lo).include_y(hi);
-            }
-            let cursor = ui.visuals().strong_text_color();
-            let response = p.show(ui, |pu| {
-                for l in lines {
-                    pu.line(l);
-                }
-                pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
-            });
-            let r = &response.response;
-            if r.is_pointer_button_down_on() || r.clicked() {
-                r.interact_pointer_pos().map(|pos| {
-                    response
-                        .transform
-                        .value_from_position(pos)
-                        .x
-                        .round()
-                        .clamp(0.0, (len.max(1) - 1) as f64) as usize
-                })
-            } else {
-                None
-            }
+        let panel = TracesPanel {
+            trace,
+            sequence: seq,
+            config: &bundle.model.config,
+            channels: bundle.dataset.manifest.channels(),
+            t: self.view.t,
+            units: &self.view.units,
+            show_d: self.view.show_d,
         };
+        let seek = panel.ui(ui);
+        self.uncertainty_ui(ui, trace);
+        if let Some(s) = seek {
+            self.view.t = s;
+        }
+    }
+}
 
+/// What the traces panel shows: one run of one sequence, at step `t`.
+pub(super) struct TracesPanel<'a> {
+    pub trace: &'a RunTrace,
+    pub sequence: &'a pvrnn_dataset::Sequence,
+    pub config: &'a pvrnn_core::ModelConfig,
+    pub channels: pvrnn_dataset::Channels,
+    pub t: usize,
+    /// The latent units to plot (those a module lacks are skipped).
+    pub units: &'a [usize],
+    pub show_d: bool,
+}
+
+impl TracesPanel<'_> {
+    /// Draws the latent states, proprioception and the summaries; the step the user
+    /// clicked on a plot, if any.
+    pub(super) fn ui(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let mut seek = self.latent_ui(ui);
+        ui.add_space(8.0);
+        seek = self.proprioception_ui(ui).or(seek);
+        ui.add_space(8.0);
+        self.summaries_ui(ui).or(seek)
+    }
+
+    fn len(&self) -> usize {
+        self.sequence.len()
+    }
+
+    /// A plot over the sequence's steps with the cursor at `t`; the step clicked, if any.
+    fn plot(
+        &self,
+        ui: &mut egui::Ui,
+        id: String,
+        title: &str,
+        height: f32,
+        lines: Vec<Line<'static>>,
+        y: Option<(f64, f64)>,
+    ) -> Option<usize> {
+        let len = self.len();
+        ui.label(RichText::new(title).small());
+        let mut p = Plot::new(id)
+            .height(height)
+            .include_x(0.0)
+            .include_x(len as f64)
+            .allow_drag(false)
+            .allow_zoom(false)
+            .allow_scroll(false)
+            .allow_boxed_zoom(false)
+            .show_x(true);
+        if let Some((lo, hi)) = y {
+            p = p.include_y(lo).include_y(hi);
+        }
+        let cursor = ui.visuals().strong_text_color();
+        let response = p.show(ui, |pu| {
+            for l in lines {
+                pu.line(l);
+            }
+            pu.vline(VLine::new("t", self.t as f64).color(cursor).width(1.5));
+        });
+        let r = &response.response;
+        if r.is_pointer_button_down_on() || r.clicked() {
+            r.interact_pointer_pos().map(|pos| {
+                response
+                    .transform
+                    .value_from_position(pos)
+                    .x
+                    .round()
+                    .clamp(0.0, (len.max(1) - 1) as f64) as usize
+            })
+        } else {
+            None
+        }
+    }
+
+    /// Per module mu and sigma (posterior solid, prior dashed) and, if asked, d.
+    fn latent_ui(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let trace = self.trace;
+        let mut seek = None;
         ui.heading("Latent states");
         ui.weak("posterior solid, prior dashed; one colour per unit");
         for id in ModuleId::ALL {
             let m = id.index();
             let (z, d) = (trace.z[m], trace.d[m]);
-            let units: Vec<usize> = self.view.units.iter().copied().filter(|&u| u < z).collect();
+            let units: Vec<usize> = self.units.iter().copied().filter(|&u| u < z).collect();
             let series = |values: &[f32], width: usize, u: usize| -> Vec<[f64; 2]> {
                 (0..trace.steps)
                     .map(|s| [s as f64, values[s * width + u] as f64])
@@ -98,28 +149,30 @@ impl ExplorerApp {
             let mt = &trace.modules[m];
             ui.strong(MODULE_TITLES[m]);
             ui.columns(2, |cols| {
-                if let Some(s) = plot(
-                    &mut cols[0],
-                    format!("mu {m}"),
-                    "mu",
-                    110.0,
-                    pair(&mt.mu_q, &mt.mu_p),
-                    Some((-1.0, 1.0)),
-                ) {
-                    seek = Some(s);
-                }
-                if let Some(s) = plot(
-                    &mut cols[1],
-                    format!("sigma {m}"),
-                    "sigma",
-                    110.0,
-                    pair(&mt.sigma_q, &mt.sigma_p),
-                    Some((0.0, 1.0)),
-                ) {
-                    seek = Some(s);
-                }
+                let mu = pair(&mt.mu_q, &mt.mu_p);
+                let sigma = pair(&mt.sigma_q, &mt.sigma_p);
+                seek = self
+                    .plot(
+                        &mut cols[0],
+                        format!("mu {m}"),
+                        "mu",
+                        110.0,
+                        mu,
+                        Some((-1.0, 1.0)),
+                    )
+                    .or(seek);
+                seek = self
+                    .plot(
+                        &mut cols[1],
+                        format!("sigma {m}"),
+                        "sigma",
+                        110.0,
+                        sigma,
+                        Some((0.0, 1.0)),
+                    )
+                    .or(seek);
             });
-            if self.view.show_d {
+            if self.show_d {
                 let lines: Vec<Line<'static>> = (0..d.min(units.len().max(1) * 2).min(d))
                     .map(|u| {
                         Line::new(format!("d{u}"), PlotPoints::from(series(&mt.d, d, u)))
@@ -127,18 +180,24 @@ impl ExplorerApp {
                             .width(1.0)
                     })
                     .collect();
-                if let Some(s) = plot(ui, format!("d {m}"), "d", 90.0, lines, Some((-1.0, 1.0))) {
-                    seek = Some(s);
-                }
+                seek = self
+                    .plot(ui, format!("d {m}"), "d", 90.0, lines, Some((-1.0, 1.0)))
+                    .or(seek);
             }
         }
+        seek
+    }
 
-        ui.add_space(8.0);
+    /// The robot's channels as its dataset names them, one plot per kind it has: actual
+    /// solid, the posterior reconstruction dashed, in the recordings' units.
+    fn proprioception_ui(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let trace = self.trace;
+        let mut seek = None;
         ui.heading("Proprioception");
         ui.weak("actual solid, predicted (posterior reconstruction) dashed; left arm warm colours, right arm cool");
-        let norm = bundle.model.config.normalisation.clone();
+        let norm = self.config.normalisation.clone();
         // Bundle::new checked that the model's proprioception is the data's.
-        let dims = bundle.model.config.proprio_dims;
+        let dims = self.config.proprio_dims;
         let raw_pred = |values: &[f32], dim: usize| -> Vec<[f64; 2]> {
             (0..trace.steps)
                 .map(|s| {
@@ -150,13 +209,11 @@ impl ExplorerApp {
                 })
                 .collect()
         };
-        // The robot's channels as its dataset names them, one plot per kind it has.
-        let channels = bundle.dataset.manifest.channels();
-        let ranges = channels.layout().ranges();
+        let ranges = self.channels.layout().ranges();
         let kinds = [
-            ("joint angles (rad)", &channels.joints),
-            ("torques (N m)", &channels.torques),
-            ("extra channels", &channels.extra),
+            ("joint angles (rad)", &self.channels.joints),
+            ("torques (N m)", &self.channels.torques),
+            ("extra channels", &self.channels.extra),
         ];
         for ((title, names), range) in kinds.into_iter().zip(ranges) {
             if names.is_empty() {
@@ -165,8 +222,8 @@ impl ExplorerApp {
             let mut lines = Vec::new();
             for (j, (dim, name)) in range.clone().zip(names.iter()).enumerate() {
                 let colour = channel_colour(j, names.len());
-                let actual: Vec<[f64; 2]> = (0..len)
-                    .map(|s| [s as f64, seq.proprio(s)[dim] as f64])
+                let actual: Vec<[f64; 2]> = (0..self.len())
+                    .map(|s| [s as f64, self.sequence.proprio(s)[dim] as f64])
                     .collect();
                 lines.push(
                     Line::new(name.clone(), PlotPoints::from(actual))
@@ -186,46 +243,41 @@ impl ExplorerApp {
                 }
             }
             let id = format!("proprio {}", range.start);
-            if let Some(s) = plot(ui, id, title, 150.0, lines, None) {
-                seek = Some(s);
-            }
+            seek = self.plot(ui, id, title, 150.0, lines, None).or(seek);
         }
+        seek
+    }
 
-        ui.add_space(8.0);
+    /// The window free energy and the prediction errors per step.
+    fn summaries_ui(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let trace = self.trace;
+        let len = self.len();
+        let mut seek = None;
         ui.heading("Summaries");
-        let fe: Vec<[f64; 2]> = trace
-            .free_energy
-            .iter()
-            .enumerate()
-            .map(|(s, &v)| [s as f64, v as f64])
-            .collect();
-        let ve: Vec<[f64; 2]> = trace
-            .recon_error
-            .iter()
-            .enumerate()
-            .map(|(s, e)| [s as f64, e[0] as f64])
-            .collect();
-        let pe: Vec<[f64; 2]> = trace
-            .recon_error
-            .iter()
-            .enumerate()
-            .map(|(s, e)| [s as f64, e[1] as f64])
-            .collect();
+        let per_step = |v: Vec<f64>| -> PlotPoints<'static> {
+            PlotPoints::from(
+                v.into_iter()
+                    .enumerate()
+                    .map(|(s, v)| [s as f64, v])
+                    .collect::<Vec<[f64; 2]>>(),
+            )
+        };
+        let fe = per_step(trace.free_energy.iter().map(|&v| v as f64).collect());
+        let ve = per_step(trace.recon_error.iter().map(|e| e[0] as f64).collect());
+        let pe = per_step(trace.recon_error.iter().map(|e| e[1] as f64).collect());
         ui.columns(2, |cols| {
-            if let Some(s) = plot(
+            let free_energy = vec![Line::new("F", fe).color(Color32::LIGHT_BLUE)];
+            seek = self.plot(
                 &mut cols[0],
                 "fe".into(),
                 "window free energy",
                 120.0,
-                vec![Line::new("F", PlotPoints::from(fe)).color(Color32::LIGHT_BLUE)],
+                free_energy,
                 None,
-            ) {
-                seek = Some(s);
-            }
+            );
             let lines = vec![
-                Line::new("vision", PlotPoints::from(ve)).color(Color32::from_rgb(242, 146, 38)),
-                Line::new("proprioception", PlotPoints::from(pe))
-                    .color(Color32::from_rgb(118, 172, 152)),
+                Line::new("vision", ve).color(Color32::from_rgb(242, 146, 38)),
+                Line::new("proprioception", pe).color(Color32::from_rgb(118, 172, 152)),
             ];
             cols[1].label(RichText::new("prediction error (mean squared, all dimensions)").small());
             let cursor = cols[1].visuals().strong_text_color();
@@ -241,7 +293,7 @@ impl ExplorerApp {
                     for l in lines {
                         pu.line(l);
                     }
-                    pu.vline(VLine::new("t", t as f64).color(cursor).width(1.5));
+                    pu.vline(VLine::new("t", self.t as f64).color(cursor).width(1.5));
                 });
             if r.response.clicked()
                 && let Some(pos) = r.response.interact_pointer_pos()
@@ -255,10 +307,7 @@ impl ExplorerApp {
                 );
             }
         });
-        self.uncertainty_ui(ui, trace);
-        if let Some(s) = seek {
-            self.view.t = s;
-        }
+        seek
     }
 }
 

@@ -21,6 +21,52 @@ pub(super) fn read_out_vision(bundle: &Bundle, rows: &[f32], count: usize) -> Ve
     bundle.loaded.readout(Modality::Exteroceptive, rows, count)
 }
 
+/// The runs the images at the cursor come from: the shown run, the same condition without
+/// ablation (the contribution maps' base), and each module ablated.
+struct ImageRuns {
+    shown: RunKey,
+    base: RunKey,
+    ablated: Vec<RunKey>,
+}
+
+impl ImageRuns {
+    fn of(key: &RunKey) -> Self {
+        Self {
+            shown: key.clone(),
+            base: RunKey {
+                condition: key.condition.without_ablation(),
+                ..key.clone()
+            },
+            ablated: ModuleId::ALL
+                .iter()
+                .map(|&id| RunKey {
+                    condition: key.condition.ablating(id),
+                    ..key.clone()
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Names of the contribution maps' read-outs and pictures, per module.
+const MAPS: [&str; 4] = ["map0", "map1", "map2", "map3"];
+
+/// Vision read-outs of several runs at one step, by name.
+struct ReadOuts {
+    dims: usize,
+    names: Vec<&'static str>,
+    values: Vec<f32>,
+}
+
+impl ReadOuts {
+    fn get(&self, name: &str) -> Option<&[f32]> {
+        self.names
+            .iter()
+            .position(|w| *w == name)
+            .map(|i| &self.values[i * self.dims..(i + 1) * self.dims])
+    }
+}
+
 impl ExplorerApp {
     /// Recomputes the images at the cursor when anything they depend on changed.
     pub(super) fn refresh_images(&mut self, ctx: &egui::Context) {
@@ -28,25 +74,14 @@ impl ExplorerApp {
             return;
         };
         let t = self.view.t;
-        let base = key.condition.without_ablation();
-        let map_keys: Vec<RunKey> = ModuleId::ALL
-            .iter()
-            .map(|&id| RunKey {
-                condition: key.condition.ablating(id),
-                ..key.clone()
-            })
-            .collect();
-        let steps_of = |k: &RunKey| self.store.get(k).map_or(0, |e| e.trace.steps);
-        let base_key = RunKey {
-            condition: base,
-            ..key.clone()
-        };
+        let runs = ImageRuns::of(&key);
+        let steps_of = |k: &RunKey| self.store.get(k).map_or(0, |e| e.trace.steps).min(t + 1);
         let stamp = [
-            steps_of(&key).min(t + 1),
-            steps_of(&base_key).min(t + 1),
-            steps_of(&map_keys[0]).min(t + 1),
-            steps_of(&map_keys[1]).min(t + 1),
-            steps_of(&map_keys[2]).min(t + 1) + steps_of(&map_keys[3]).min(t + 1),
+            steps_of(&runs.shown),
+            steps_of(&runs.base),
+            steps_of(&runs.ablated[0]),
+            steps_of(&runs.ablated[1]),
+            steps_of(&runs.ablated[2]) + steps_of(&runs.ablated[3]),
         ];
         let cache_key = (
             key.clone(),
@@ -58,92 +93,100 @@ impl ExplorerApp {
         if self.images.key.as_ref() == Some(&cache_key) {
             return;
         }
-        let config = &bundle.model.config;
-        let layout = &config.vision;
+        let layout = &bundle.model.config.vision;
         let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
             return;
         };
         let mut actual = vec![0f32; layout.dims()];
         pvrnn_dataset::inputs::vision_vector(seq, t.min(seq.len() - 1), layout, &mut actual);
-        let top = layout.resolutions.len() - 1;
+        let read_outs = self.read_outs_at(bundle, &runs, t);
+        let (pictures, maps) = self.pictures(layout, &actual, &read_outs);
+        self.images.maps = maps;
+        self.images.predicted = read_outs.get("shown").map(<[f32]>::to_vec);
+        self.upload_textures(ctx, pictures);
+        self.images.key = Some(cache_key);
+    }
 
-        // Read-outs at the cursor: the shown run, then the standard and ablated runs.
+    /// The vision read-outs at step `t` of the runs the images need (those computed that
+    /// far): the shown run (its prior prediction if the view asks), and, for the maps, the
+    /// base and the ablated runs.
+    fn read_outs_at(&self, bundle: &Bundle, runs: &ImageRuns, t: usize) -> ReadOuts {
         let ext = ModuleId::Exteroceptive;
         let mut rows: Vec<f32> = Vec::new();
-        let mut which: Vec<&str> = Vec::new();
-        let prior = self.view.prior_images;
-        let mut push = |trace: &RunTrace, name: &'static str, prior: bool| {
-            if trace.steps > t {
-                rows.extend_from_slice(trace.d_at(ext, t, prior));
-                which.push(name);
+        let mut names: Vec<&'static str> = Vec::new();
+        let mut push = |key: &RunKey, name: &'static str, prior: bool| {
+            if let Some(e) = self.store.get(key)
+                && e.trace.steps > t
+            {
+                rows.extend_from_slice(e.trace.d_at(ext, t, prior));
+                names.push(name);
             }
         };
-        if let Some(e) = self.store.get(&key) {
-            push(&e.trace, "shown", prior);
-        }
+        push(&runs.shown, "shown", self.view.prior_images);
         if self.view.maps {
-            if let Some(e) = self.store.get(&base_key) {
-                push(&e.trace, "base", false);
-            }
-            for (k, name) in map_keys.iter().zip(["map0", "map1", "map2", "map3"]) {
-                if let Some(e) = self.store.get(k) {
-                    push(&e.trace, name, false);
-                }
+            push(&runs.base, "base", false);
+            for (k, name) in runs.ablated.iter().zip(MAPS) {
+                push(k, name, false);
             }
         }
-        let dims = layout.dims();
-        let predictions = read_out_vision(bundle, &rows, which.len());
-        let vector = |name: &str| {
-            which
-                .iter()
-                .position(|w| *w == name)
-                .map(|i| &predictions[i * dims..(i + 1) * dims])
-        };
+        ReadOuts {
+            dims: bundle.model.config.vision.dims(),
+            values: read_out_vision(bundle, &rows, names.len()),
+            names,
+        }
+    }
 
-        let edges = images::contours(&images::camera_image(
-            layout,
-            &actual,
-            top,
-            layout.cameras - 1,
-        ));
+    /// Every picture the panel shows (actual and predicted per camera and level, the
+    /// contours, the contribution maps), and the maps themselves.
+    fn pictures(
+        &self,
+        layout: &pvrnn_core::config::VisionLayout,
+        actual: &[f32],
+        read_outs: &ReadOuts,
+    ) -> (Vec<(String, Rgb)>, [Option<Rgb>; 4]) {
+        let top = layout.resolutions.len() - 1;
+        let last_camera = layout.cameras - 1;
+        let edges = images::contours(&images::camera_image(layout, actual, top, last_camera));
+        let outlined = |picture: Rgb, outline: bool| {
+            if outline {
+                images::overlay(&picture, &edges, 60)
+            } else {
+                picture
+            }
+        };
         let mut pictures: Vec<(String, Rgb)> = Vec::new();
         for cam in 0..layout.cameras {
             for level in 0..=top {
-                let a = images::camera_image(layout, &actual, level, cam);
+                let a = images::camera_image(layout, actual, level, cam);
                 let a = if self.view.contours && level == top {
                     images::overlay(&a, &images::contours(&a), 60)
                 } else {
                     a
                 };
                 pictures.push((format!("actual {cam} {level}"), a));
-                if let Some(v) = vector("shown") {
-                    let p = images::camera_image(layout, v, level, cam);
-                    let p = if self.view.contours && level == top && cam == layout.cameras - 1 {
-                        images::overlay(&p, &edges, 60)
-                    } else {
-                        p
-                    };
+                if let Some(v) = read_outs.get("shown") {
+                    let outline = self.view.contours && level == top && cam == last_camera;
+                    let p = outlined(images::camera_image(layout, v, level, cam), outline);
                     pictures.push((format!("predicted {cam} {level}"), p));
                 }
             }
         }
         pictures.push(("contours".to_string(), edges.clone()));
-        self.images.maps = Default::default();
-        if let Some(b) = vector("base") {
-            for (m, name) in ["map0", "map1", "map2", "map3"].iter().enumerate() {
-                if let Some(v) = vector(name) {
-                    let map = images::contribution(layout, b, v, top, layout.cameras - 1, 4.0);
-                    self.images.maps[m] = Some(map.clone());
-                    let map = if self.view.contours {
-                        images::overlay(&map, &edges, 60)
-                    } else {
-                        map
-                    };
-                    pictures.push((format!("map {m}"), map));
+        let mut maps: [Option<Rgb>; 4] = Default::default();
+        if let Some(base) = read_outs.get("base") {
+            for (m, name) in MAPS.iter().enumerate() {
+                if let Some(v) = read_outs.get(name) {
+                    let map = images::contribution(layout, base, v, top, last_camera, 4.0);
+                    maps[m] = Some(map.clone());
+                    pictures.push((format!("map {m}"), outlined(map, self.view.contours)));
                 }
             }
         }
-        self.images.predicted = vector("shown").map(<[f32]>::to_vec);
+        (pictures, maps)
+    }
+
+    /// The pictures into the texture cache (textures no longer shown are dropped).
+    fn upload_textures(&mut self, ctx: &egui::Context, pictures: Vec<(String, Rgb)>) {
         let keep: std::collections::HashSet<String> =
             pictures.iter().map(|(n, _)| n.clone()).collect();
         self.images.textures.retain(|n, _| keep.contains(n));
@@ -157,7 +200,6 @@ impl ExplorerApp {
                 }
             }
         }
-        self.images.key = Some(cache_key);
     }
 
     pub(super) fn images_ui(&mut self, ui: &mut egui::Ui) {

@@ -8,6 +8,18 @@ impl ExplorerApp {
     pub(super) fn controls_ui(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
         let config = bundle.model.config.clone();
+        self.top_row_ui(ui);
+        let standard = Condition::standard(&config);
+        let mut c = self.view.condition.unwrap_or(standard);
+        condition_ui(ui, &config, &mut c, standard);
+        if Some(c) != self.view.condition && !(self.view.condition.is_none() && c == standard) {
+            self.view.condition = Some(c);
+        }
+        self.display_row_ui(ui);
+    }
+
+    /// The first row: the name, about, comparison, export, open, the sequence, the status.
+    fn top_row_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal_wrapped(|ui| {
             ui.strong("PV-RNN explorer");
             ui.toggle_value(&mut self.show_about, "About this model");
@@ -58,92 +70,10 @@ impl ExplorerApp {
                 Status::None => {}
             }
         });
-        let standard = Condition::standard(&config);
-        let mut c = self.view.condition.unwrap_or(standard);
-        ui.horizontal_wrapped(|ui| {
-            let vision_label = ui.label("Vision observed:");
-            let levels = config.vision.resolutions.len();
-            let label = |n: usize| {
-                if n == 0 {
-                    "none".to_string()
-                } else {
-                    config.vision.resolutions[..n]
-                        .iter()
-                        .rev()
-                        .map(|r| r.to_string())
-                        .collect::<Vec<_>>()
-                        .join("+")
-                }
-            };
-            egui::ComboBox::from_id_salt("vision")
-                .selected_text(label(c.vision_levels as usize))
-                .show_ui(ui, |ui| {
-                    for n in (0..=levels).rev() {
-                        ui.selectable_value(&mut c.vision_levels, n as u8, label(n));
-                    }
-                })
-                .response
-                .labelled_by(vision_label.id);
-            ui.checkbox(&mut c.proprio, "proprioception observed");
-            ui.separator();
-            ui.label("Ablate:");
-            for id in ModuleId::ALL {
-                ui.checkbox(&mut c.ablation[id.index()], id.name());
-            }
-            let l = ui.label("mode");
-            egui::ComboBox::from_id_salt("ablation mode")
-                .selected_text(c.ablation_mode.name())
-                .show_ui(ui, |ui| {
-                    for (mode, tip) in [
-                        (
-                            AblationMode::Readout,
-                            "inference runs as standard; each step is read out again with z = 0 (the paper's contribution maps)",
-                        ),
-                        (
-                            AblationMode::Inference,
-                            "z = 0 during the whole inference, so the other modules may compensate",
-                        ),
-                    ] {
-                        ui.selectable_value(&mut c.ablation_mode, mode, mode.name())
-                            .on_hover_text(tip);
-                    }
-                })
-                .response
-                .labelled_by(l.id)
-                .on_hover_text("when an ablation (and the contribution maps) applies");
-            ui.separator();
-            let l = ui.label("H");
-            ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
-                .labelled_by(l.id);
-            let l = ui.label("iterations");
-            ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
-                .labelled_by(l.id);
-            let l = ui.label("lr");
-            let mut lr = c.lr();
-            if ui
-                .add(
-                    egui::DragValue::new(&mut lr)
-                        .range(0.001..=100.0)
-                        .speed(0.01),
-                )
-                .labelled_by(l.id)
-                .changed()
-            {
-                c.set_lr(lr);
-            }
-            let l = ui.label("seed");
-            ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
-            if ui
-                .button("standard")
-                .on_hover_text("The model's configured inference, everything observed")
-                .clicked()
-            {
-                c = standard;
-            }
-        });
-        if Some(c) != self.view.condition && !(self.view.condition.is_none() && c == standard) {
-            self.view.condition = Some(c);
-        }
+    }
+
+    /// The last row: which units and what is drawn, and the run's progress.
+    fn display_row_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal_wrapped(|ui| {
             let l = ui.label("Units:");
             let edit = ui.add(egui::TextEdit::singleline(&mut self.units_text).desired_width(90.0)).labelled_by(l.id);
@@ -265,6 +195,97 @@ impl ExplorerApp {
             self.view.t = self.view.t.min(len.saturating_sub(1));
         }
     }
+}
+
+/// The condition of online inference as controls (vision, proprioception, ablation and
+/// its mode, H, iterations, lr, seed, back to standard), edited in place.
+fn condition_ui(
+    ui: &mut egui::Ui,
+    config: &pvrnn_core::ModelConfig,
+    c: &mut Condition,
+    standard: Condition,
+) {
+    ui.horizontal_wrapped(|ui| {
+        let vision_label = ui.label("Vision observed:");
+        let levels = config.vision.resolutions.len();
+        let label = |n: usize| {
+            if n == 0 {
+                "none".to_string()
+            } else {
+                config.vision.resolutions[..n]
+                    .iter()
+                    .rev()
+                    .map(|r| r.to_string())
+                    .collect::<Vec<_>>()
+                    .join("+")
+            }
+        };
+        egui::ComboBox::from_id_salt("vision")
+            .selected_text(label(c.vision_levels as usize))
+            .show_ui(ui, |ui| {
+                for n in (0..=levels).rev() {
+                    ui.selectable_value(&mut c.vision_levels, n as u8, label(n));
+                }
+            })
+            .response
+            .labelled_by(vision_label.id);
+        ui.checkbox(&mut c.proprio, "proprioception observed");
+        ui.separator();
+        ui.label("Ablate:");
+        for id in ModuleId::ALL {
+            ui.checkbox(&mut c.ablation[id.index()], id.name());
+        }
+        let l = ui.label("mode");
+        egui::ComboBox::from_id_salt("ablation mode")
+            .selected_text(c.ablation_mode.name())
+            .show_ui(ui, |ui| {
+                for (mode, tip) in [
+                    (
+                        AblationMode::Readout,
+                        "inference runs as standard; each step is read out again with z = 0 (the paper's contribution maps)",
+                    ),
+                    (
+                        AblationMode::Inference,
+                        "z = 0 during the whole inference, so the other modules may compensate",
+                    ),
+                ] {
+                    ui.selectable_value(&mut c.ablation_mode, mode, mode.name())
+                        .on_hover_text(tip);
+                }
+            })
+            .response
+            .labelled_by(l.id)
+            .on_hover_text("when an ablation (and the contribution maps) applies");
+        ui.separator();
+        let l = ui.label("H");
+        ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
+            .labelled_by(l.id);
+        let l = ui.label("iterations");
+        ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
+            .labelled_by(l.id);
+        let l = ui.label("lr");
+        let mut lr = c.lr();
+        if ui
+            .add(
+                egui::DragValue::new(&mut lr)
+                    .range(0.001..=100.0)
+                    .speed(0.01),
+            )
+            .labelled_by(l.id)
+            .changed()
+        {
+            c.set_lr(lr);
+        }
+        let l = ui.label("seed");
+        ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
+        if ui
+            .button("standard")
+            .on_hover_text("The model's configured inference, everything observed")
+            .clicked()
+        {
+            *c = standard;
+        }
+    });
 }
 
 /// Short text of a condition, e.g. `vision 32+16, proprio off, ablate executive, H 30, 50 it`.

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use pvrnn_core::backend::Backend;
 use pvrnn_core::infer::{InferenceSettings, OnlineInference};
-use pvrnn_core::{Modality, Model, Observations};
-use pvrnn_dataset::{Dataset, Selection};
+use pvrnn_core::{Modality, Model, ModelConfig, Observations};
+use pvrnn_dataset::{Dataset, Selection, Sequence};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -334,32 +334,16 @@ pub fn evaluate(
         .into_par_iter()
         .map(|s| baselines.of_sequence(&data, s))
         .collect();
-    if settings.nearest_neighbour
-        && let Some(nearest) = NearestFrames::search(
+    if settings.nearest_neighbour {
+        add_nearest_frames(
             dataset,
             &model,
             &sequences,
             &data,
-            &settings.inference.observed,
-        )?
-    {
-        let mut steps: Vec<Vec<Option<StepErrors>>> =
-            data.lengths().iter().map(|&len| vec![None; len]).collect();
-        nearest.for_each(dataset, &model, |s, t, frame| {
-            let truth = [
-                data.step(Modality::Exteroceptive, s, t),
-                data.step(Modality::Proprioceptive, s, t),
-            ];
-            steps[s][t] = Some(score(&groups, frame, truth, prepared[s].0[t].as_deref()));
-        })?;
-        for ((_, series), steps) in prepared.iter_mut().zip(steps) {
-            series.push(Series {
-                source: Source::Nearest,
-                target: Target::Recon,
-                trial: None,
-                steps,
-            });
-        }
+            settings,
+            &groups,
+            &mut prepared,
+        )?;
     }
 
     let jobs: Vec<(usize, usize)> = (0..sequences.len())
@@ -390,6 +374,68 @@ pub fn evaluate(
         })
         .collect::<Result<_>>()?;
 
+    let results = sequence_results(&sequences, prepared, runs, &data, config, vision_levels);
+    Ok(Evaluation {
+        settings: settings.clone(),
+        groups,
+        sequences: results,
+        resolutions: config.vision.resolutions.clone(),
+        cameras: manifest.cameras.clone(),
+    })
+}
+
+/// The nearest learning frame's series (a baseline: the learning frame whose inputs are
+/// closest to the observed ones), when the dataset has learning sequences to search.
+fn add_nearest_frames(
+    dataset: &Dataset,
+    model: &Model<f32>,
+    sequences: &[&Sequence],
+    data: &Observations<f32>,
+    settings: &EvalSettings,
+    groups: &[Group],
+    prepared: &mut [(ChangeMasks, Vec<Series>)],
+) -> Result<()> {
+    let Some(nearest) = NearestFrames::search(
+        dataset,
+        model,
+        sequences,
+        data,
+        &settings.inference.observed,
+    )?
+    else {
+        return Ok(());
+    };
+    let mut steps: Vec<Vec<Option<StepErrors>>> =
+        data.lengths().iter().map(|&len| vec![None; len]).collect();
+    nearest.for_each(dataset, model, |s, t, frame| {
+        let truth = [
+            data.step(Modality::Exteroceptive, s, t),
+            data.step(Modality::Proprioceptive, s, t),
+        ];
+        steps[s][t] = Some(score(groups, frame, truth, prepared[s].0[t].as_deref()));
+    })?;
+    for ((_, series), steps) in prepared.iter_mut().zip(steps) {
+        series.push(Series {
+            source: Source::Nearest,
+            target: Target::Recon,
+            trial: None,
+            steps,
+        });
+    }
+    Ok(())
+}
+
+/// Per sequence: its description, the baselines' series and every finished trial's, the
+/// first finished trial's pictures (with the baselines' beside them), restarts and
+/// failures.
+fn sequence_results(
+    sequences: &[&Sequence],
+    prepared: Vec<(ChangeMasks, Vec<Series>)>,
+    runs: Vec<(usize, TrialRun)>,
+    data: &Observations<f32>,
+    config: &ModelConfig,
+    vision_levels: usize,
+) -> Vec<SequenceResult> {
     let mut results: Vec<SequenceResult> = sequences
         .iter()
         .zip(prepared)
@@ -422,15 +468,9 @@ pub fn evaluate(
         }
     }
     for (s, r) in results.iter_mut().enumerate() {
-        fill_baseline_images(&mut r.images, &data, s, config, vision_levels);
+        fill_baseline_images(&mut r.images, data, s, config, vision_levels);
     }
-    Ok(Evaluation {
-        settings: settings.clone(),
-        groups,
-        sequences: results,
-        resolutions: config.vision.resolutions.clone(),
-        cameras: manifest.cameras.clone(),
-    })
+    results
 }
 
 /// Steps shown in pictures: `n` evenly spaced over `len`.

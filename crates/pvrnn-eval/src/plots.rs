@@ -226,61 +226,30 @@ fn error_chart(
 ) -> Result<()> {
     let top = &eval.groups[top_g].name;
     let x_max = seq.meta.length as f64;
-    let line = |label: &str, colour, dashed, source, target, g| Line {
-        label: label.to_string(),
-        colour,
-        dashed,
-        markers: false,
-        points: step_curve(seq, source, target, g),
-    };
     let top_observed = eval.groups[top_g].observed;
+    let trials = eval.settings.trials - seq.failures.len();
+    let failed = match seq.failures.len() {
+        0 => String::new(),
+        n => format!("; {n} diverged"),
+    };
+    let seen = if top_observed {
+        "observed"
+    } else {
+        "not observed"
+    };
     draw_png(path, (1100, 980), |root| {
         let (charts, bar) = root.split_vertically(920);
         let parts = charts.split_evenly((3, 1));
-        let mut recon = vec![
-            line("model", MODEL, false, Source::Model, Target::Recon, top_g),
-            line(
-                "mean learning image",
-                MEAN,
-                true,
-                Source::Mean,
-                Target::Recon,
-                top_g,
-            ),
-        ];
-        if !top_observed {
-            recon.insert(
-                1,
-                line(
-                    "bilinear upsampling",
-                    UPSAMPLE,
-                    false,
-                    Source::Upsample,
-                    Target::Recon,
-                    top_g,
-                ),
-            );
-        }
         line_chart(
             &parts[0],
             &format!(
-                "{}: {top} reconstruction of x_t ({}, mean of {} trials{})",
-                seq.meta.name,
-                if top_observed {
-                    "observed"
-                } else {
-                    "not observed"
-                },
-                eval.settings.trials - seq.failures.len(),
-                match seq.failures.len() {
-                    0 => String::new(),
-                    n => format!("; {n} diverged"),
-                }
+                "{}: {top} reconstruction of x_t ({seen}, mean of {trials} trials{failed})",
+                seq.meta.name
             ),
             "step",
             "MSE",
             x_max,
-            &recon,
+            &reconstruction_lines(seq, top_g, top_observed),
         )?;
         line_chart(
             &parts[1],
@@ -289,7 +258,8 @@ fn error_chart(
             "MSE",
             x_max,
             &[
-                line(
+                step_line(
+                    seq,
                     "model (prior)",
                     MODEL,
                     false,
@@ -297,7 +267,8 @@ fn error_chart(
                     Target::Next,
                     top_g,
                 ),
-                line(
+                step_line(
+                    seq,
                     "previous frame",
                     PREVIOUS,
                     false,
@@ -305,7 +276,8 @@ fn error_chart(
                     Target::Next,
                     top_g,
                 ),
-                line(
+                step_line(
+                    seq,
                     "mean learning image",
                     MEAN,
                     true,
@@ -315,38 +287,109 @@ fn error_chart(
                 ),
             ],
         )?;
-        let mut proprio = Vec::new();
-        for (name, g) in [("joints", joints), ("torques", torques)] {
-            if let Some(g) = g {
-                proprio.push(line(
-                    &format!("{name}: model"),
-                    MODEL,
-                    name == "torques",
-                    Source::Model,
-                    Target::Next,
-                    g,
-                ));
-                proprio.push(line(
-                    &format!("{name}: previous step"),
-                    PREVIOUS,
-                    name == "torques",
-                    Source::Previous,
-                    Target::Next,
-                    g,
-                ));
-            }
-        }
         line_chart(
             &parts[2],
             "proprioception: prediction of x_(t+1)",
             "step",
             "MSE",
             x_max,
-            &proprio,
+            &proprioception_lines(seq, joints, torques),
         )?;
         subtask_bar(&bar, seq)
     })?;
     Ok(())
+}
+
+/// One series of a sequence's per-step errors as a line.
+fn step_line(
+    seq: &SequenceResult,
+    label: &str,
+    colour: RGBColor,
+    dashed: bool,
+    source: Source,
+    target: Target,
+    g: usize,
+) -> Line {
+    Line {
+        label: label.to_string(),
+        colour,
+        dashed,
+        markers: false,
+        points: step_curve(seq, source, target, g),
+    }
+}
+
+/// The top resolution's reconstruction: the model, bilinear upsampling where that
+/// resolution is not observed, the mean learning image.
+fn reconstruction_lines(seq: &SequenceResult, top_g: usize, top_observed: bool) -> Vec<Line> {
+    let mut lines = vec![
+        step_line(
+            seq,
+            "model",
+            MODEL,
+            false,
+            Source::Model,
+            Target::Recon,
+            top_g,
+        ),
+        step_line(
+            seq,
+            "mean learning image",
+            MEAN,
+            true,
+            Source::Mean,
+            Target::Recon,
+            top_g,
+        ),
+    ];
+    if !top_observed {
+        let upsampling = step_line(
+            seq,
+            "bilinear upsampling",
+            UPSAMPLE,
+            false,
+            Source::Upsample,
+            Target::Recon,
+            top_g,
+        );
+        lines.insert(1, upsampling);
+    }
+    lines
+}
+
+/// The one-step predictions of joints and torques (dashed), against the previous step.
+fn proprioception_lines(
+    seq: &SequenceResult,
+    joints: Option<usize>,
+    torques: Option<usize>,
+) -> Vec<Line> {
+    let mut lines = Vec::new();
+    for (name, g) in [("joints", joints), ("torques", torques)] {
+        if let Some(g) = g {
+            let dashed = name == "torques";
+            let model = format!("{name}: model");
+            let previous = format!("{name}: previous step");
+            lines.push(step_line(
+                seq,
+                &model,
+                MODEL,
+                dashed,
+                Source::Model,
+                Target::Next,
+                g,
+            ));
+            lines.push(step_line(
+                seq,
+                &previous,
+                PREVIOUS,
+                dashed,
+                Source::Previous,
+                Target::Next,
+                g,
+            ));
+        }
+    }
+    lines
 }
 
 /// `plots/error_<sequence>.png` and `plots/images_<sequence>.png` for every sequence.

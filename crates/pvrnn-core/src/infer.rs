@@ -729,26 +729,8 @@ impl<T: Real> OnlineInference<T> {
                 / n
         });
 
-        // Slide: once the window is full, the state after its oldest step is held and that
-        // step leaves the window.
         if len == self.settings.window {
-            self.held_h = Some(std::array::from_fn(|m| {
-                let d = config.module(ModuleId::ALL[m]).d;
-                trace.modules[m].h[..d].to_vec()
-            }));
-            for m in 0..4 {
-                let z = self.z(m);
-                self.a_mu[m].drain(..z);
-                self.a_sigma[m].drain(..z);
-                for opt_i in [m, m + 4] {
-                    self.optimizer.m[opt_i].drain(..z);
-                    self.optimizer.v[opt_i].drain(..z);
-                }
-            }
-            for rows in &mut self.observations {
-                rows.remove(0);
-            }
-            self.targets_id = crate::data::next_id();
+            self.slide(trace);
         }
         self.pending = None;
         self.steps_done += 1;
@@ -764,6 +746,30 @@ impl<T: Real> OnlineInference<T> {
             rate_halvings,
             declined_by_device: self.regress_declined,
         })
+    }
+
+    /// Slides the full window: the state after its oldest step (from the step's standard
+    /// pass, `trace`) is held, and that step's adaptive variables, moments and
+    /// observations leave the window.
+    fn slide(&mut self, trace: &Trace<T>) {
+        let config = &self.model.config;
+        self.held_h = Some(std::array::from_fn(|m| {
+            let d = config.module(ModuleId::ALL[m]).d;
+            trace.modules[m].h[..d].to_vec()
+        }));
+        for m in 0..4 {
+            let z = self.z(m);
+            self.a_mu[m].drain(..z);
+            self.a_sigma[m].drain(..z);
+            for opt_i in [m, m + 4] {
+                self.optimizer.m[opt_i].drain(..z);
+                self.optimizer.v[opt_i].drain(..z);
+            }
+        }
+        for rows in &mut self.observations {
+            rows.remove(0);
+        }
+        self.targets_id = crate::data::next_id();
     }
 
     /// x^_{t+1} from the prior: one generation step from the state after step t with

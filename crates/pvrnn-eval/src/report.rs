@@ -610,6 +610,33 @@ fn preamble(md: &mut String, eval: &Evaluation, meta: &ReportMeta, condition: &C
         condition.iterations,
         condition.lr
     );
+    stability(md, eval, trials);
+    let _ = writeln!(
+        md,
+        "- **Errors**: mean squared error in the model's normalised units (inputs in [-0.9, 0.9]). \
+         Per trial pooled over steps and dimensions; per sequence the mean of its trials; then mean ± standard \
+         error over sequences (trials of one sequence share its data and are not counted as samples). \
+         *recon*: the posterior reconstruction of the current step x_t (all dimensions, observed or not); \
+         *next*: the one-step prior prediction of x_(t+1). Groups marked * were not observed."
+    );
+    let _ = writeln!(
+        md,
+        "- **Baselines** (deterministic; mean over sequences): *upsample*: bilinear upsampling of the highest observed resolution; \
+         *upsample_detail*: that plus the fine detail of the mean learning image (the mean image minus its own upsampling from the observed resolution); \
+         *nearest*: the learning-split frame whose observed inputs are closest (each modality's mean squared distance over its observed dimensions, summed), whole; \
+         *previous*: the current step's true input as the prediction of the next (it sees dimensions the model may not); \
+         *mean*: the mean learning-split input. *won*: the sequences on which the model (mean of its trials) beats the baseline."
+    );
+    let _ = writeln!(
+        md,
+        "- **Changing pixels**: a pixel whose channels move by more than {} of 255 levels since the previous frame.\n",
+        eval.settings.change_threshold
+    );
+}
+
+/// The report's stability and failure lines: steps that restarted at a halved rate, and
+/// trials that diverged beyond repair (left out, with what that excludes).
+fn stability(md: &mut String, eval: &Evaluation, trials: usize) {
     let restarts = sequence_rows(eval, |s| &s.restarts);
     if restarts.is_empty() {
         let _ = writeln!(md, "- **Stability**: no step's online inference diverged.");
@@ -671,27 +698,6 @@ fn preamble(md: &mut String, eval: &Evaluation, meta: &ReportMeta, condition: &C
             failures[0].entry.message
         );
     }
-    let _ = writeln!(
-        md,
-        "- **Errors**: mean squared error in the model's normalised units (inputs in [-0.9, 0.9]). \
-         Per trial pooled over steps and dimensions; per sequence the mean of its trials; then mean ± standard \
-         error over sequences (trials of one sequence share its data and are not counted as samples). \
-         *recon*: the posterior reconstruction of the current step x_t (all dimensions, observed or not); \
-         *next*: the one-step prior prediction of x_(t+1). Groups marked * were not observed."
-    );
-    let _ = writeln!(
-        md,
-        "- **Baselines** (deterministic; mean over sequences): *upsample*: bilinear upsampling of the highest observed resolution; \
-         *upsample_detail*: that plus the fine detail of the mean learning image (the mean image minus its own upsampling from the observed resolution); \
-         *nearest*: the learning-split frame whose observed inputs are closest (each modality's mean squared distance over its observed dimensions, summed), whole; \
-         *previous*: the current step's true input as the prediction of the next (it sees dimensions the model may not); \
-         *mean*: the mean learning-split input. *won*: the sequences on which the model (mean of its trials) beats the baseline."
-    );
-    let _ = writeln!(
-        md,
-        "- **Changing pixels**: a pixel whose channels move by more than {} of 255 levels since the previous frame.\n",
-        eval.settings.change_threshold
-    );
 }
 
 /// The model beside each baseline: one row per comparison.

@@ -316,6 +316,39 @@ fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
     out
 }
 
+/// How a loss call is cut into chunks of rows and column splits (see
+/// [`GpuOutputLayer::encode_loss`]).
+#[derive(Clone, Copy, Debug)]
+struct LossCut {
+    chunk: usize,
+    splits: usize,
+    cols_per_split: usize,
+}
+
+/// One chunk's rows: the first, how many, the observed columns, 1 / divisor.
+#[derive(Clone, Copy, Debug)]
+struct ChunkRows {
+    start: usize,
+    rows: usize,
+    k: usize,
+    scale: f32,
+}
+
+/// The buffers a loss call's chunks read and write.
+struct LossBuffers<'b> {
+    /// The top hidden activations and the chunk's targets.
+    x: &'b wgpu::Buffer,
+    y: &'b wgpu::Buffer,
+    /// The row pass's per-split partials, reduced into `grad_in` and `row_loss`.
+    part_in: &'b wgpu::Buffer,
+    part_loss: &'b wgpu::Buffer,
+    grad_in: &'b wgpu::Buffer,
+    row_loss: &'b wgpu::Buffer,
+    /// Where the column pass accumulates d W and d b.
+    gw: &'b wgpu::Buffer,
+    gb: &'b wgpu::Buffer,
+}
+
 /// The output layer's loss encoded on the device (see [`GpuOutputLayer::encode_loss`]): the
 /// buffers that hold its results, and those the submission uses until it has run.
 struct EncodedLoss {
@@ -361,23 +394,9 @@ impl GpuOutputLayer {
     ) -> EncodedLoss {
         let gpu = &*self.gpu;
         let hv = vec4s(layer.hidden);
-        let limit = self.chunk_limit();
-        let max_groups = gpu.limits().max_compute_workgroups_per_dimension as usize;
-        // Rows per chunk: the chunk's targets fit one binding.
-        let chunk = (limit / (4 * k)).max(1).min(n);
-        // Column splits: enough workgroups to fill the GPU, partials within one binding.
-        let tiles = k.div_ceil(TILE_COLUMNS);
-        let row_blocks = chunk.div_ceil(WORKGROUP);
-        let splits = self
-            .tiling
-            .target_workgroups
-            .div_ceil(row_blocks)
-            .min(limit / (16 * hv * chunk))
-            .min(max_groups)
-            .min(self.tiling.max_splits)
-            .clamp(1, tiles);
-        let cols_per_split = tiles.div_ceil(splits) * TILE_COLUMNS;
-        let splits = k.div_ceil(cols_per_split);
+        let cut = self.loss_cut(n, k, hv);
+        let chunk = cut.chunk;
+        let splits = cut.splits;
         let scale = (1.0 / divisor as f64) as f32;
 
         let resident = resident.map(|observations| {
@@ -430,78 +449,26 @@ impl GpuOutputLayer {
                 (None, Some(buffer)) => buffer,
                 (None, None) => unreachable!("targets are resident or streamed"),
             };
-            let rows_params = gpu.uniform(&RowsParams {
-                rows: rows as u32,
-                k: k as u32,
-                cols_per_split: cols_per_split as u32,
+            let buffers = LossBuffers {
+                x,
+                y,
+                part_in: &part_in,
+                part_loss: &part_loss,
+                grad_in: &grad_in,
+                row_loss: &row_loss,
+                gw,
+                gb,
+            };
+            let chunk_rows = ChunkRows {
+                start,
+                rows,
+                k,
                 scale,
-                row_offset: start as u32,
-                _pad: [0; 3],
-            });
-            let rows_group = bind(
-                gpu,
-                &layer.kernels.loss_rows,
-                &[
-                    &rows_params,
-                    x,
-                    layer.weight(),
-                    layer.bias(),
-                    y,
-                    &part_in,
-                    &part_loss,
-                ],
-            );
-            dispatch(
-                encoder,
-                &layer.kernels.loss_rows,
-                &rows_group,
-                rows.div_ceil(WORKGROUP) as u32,
-                splits as u32,
-            );
-            let reduce_params = gpu.uniform(&ReduceParams {
-                rows: rows as u32,
-                splits: splits as u32,
-                row_offset: start as u32,
-                _pad: 0,
-            });
-            let reduce_group = bind(
-                gpu,
-                &layer.kernels.reduce,
-                &[&reduce_params, &part_in, &part_loss, &grad_in, &row_loss],
-            );
-            dispatch(
-                encoder,
-                &layer.kernels.reduce,
-                &reduce_group,
-                (rows * hv).div_ceil(WORKGROUP) as u32,
-                1,
-            );
-            if weight_grads {
-                let columns_params = gpu.uniform(&ColumnsParams {
-                    rows: rows as u32,
-                    k: k as u32,
-                    scale,
-                    row_offset: start as u32,
-                    accumulate: (start > 0) as u32,
-                    _pad: [0; 3],
-                });
-                let columns_group = bind(
-                    gpu,
-                    &layer.kernels.loss_columns,
-                    &[&columns_params, x, layer.weight(), layer.bias(), y, gw, gb],
-                );
-                dispatch(
-                    encoder,
-                    &layer.kernels.loss_columns,
-                    &columns_group,
-                    k.div_ceil(WORKGROUP) as u32,
-                    1,
-                );
-                in_flight.push(columns_params);
-            }
+            };
+            let params =
+                self.encode_loss_chunk(encoder, layer, &buffers, chunk_rows, cut, weight_grads);
             in_flight.extend(streamed);
-            in_flight.push(rows_params);
-            in_flight.push(reduce_params);
+            in_flight.extend(params);
             start += rows;
         }
         in_flight.push(part_in);
@@ -513,6 +480,141 @@ impl GpuOutputLayer {
             in_flight,
             resident_targets: resident,
         }
+    }
+
+    /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and
+    /// column splits (enough workgroups to fill the GPU, partials within one binding).
+    fn loss_cut(&self, n: usize, k: usize, hv: usize) -> LossCut {
+        let limit = self.chunk_limit();
+        let max_groups = self.gpu.limits().max_compute_workgroups_per_dimension as usize;
+        let chunk = (limit / (4 * k)).max(1).min(n);
+        // Column splits: enough workgroups to fill the GPU, partials within one binding.
+        let tiles = k.div_ceil(TILE_COLUMNS);
+        let row_blocks = chunk.div_ceil(WORKGROUP);
+        let splits = self
+            .tiling
+            .target_workgroups
+            .div_ceil(row_blocks)
+            .min(limit / (16 * hv * chunk))
+            .min(max_groups)
+            .min(self.tiling.max_splits)
+            .clamp(1, tiles);
+        let cols_per_split = tiles.div_ceil(splits) * TILE_COLUMNS;
+        let splits = k.div_ceil(cols_per_split);
+        LossCut {
+            chunk,
+            splits,
+            cols_per_split,
+        }
+    }
+
+    /// One chunk of rows of a loss call: the row pass (forward, error, partial d input),
+    /// its reduction, and with `weight_grads` the column pass. Returns the chunk's
+    /// parameter buffers, to keep until the submission has run.
+    fn encode_loss_chunk(
+        &self,
+        encoder: &mut dyn Recorder,
+        layer: &Layer,
+        b: &LossBuffers<'_>,
+        chunk: ChunkRows,
+        cut: LossCut,
+        weight_grads: bool,
+    ) -> Vec<PooledBuffer> {
+        let gpu = &*self.gpu;
+        let hv = vec4s(layer.hidden);
+        let ChunkRows {
+            start,
+            rows,
+            k,
+            scale,
+        } = chunk;
+        let mut params = Vec::new();
+        let rows_params = gpu.uniform(&RowsParams {
+            rows: rows as u32,
+            k: k as u32,
+            cols_per_split: cut.cols_per_split as u32,
+            scale,
+            row_offset: start as u32,
+            _pad: [0; 3],
+        });
+        let rows_group = bind(
+            gpu,
+            &layer.kernels.loss_rows,
+            &[
+                &rows_params,
+                b.x,
+                layer.weight(),
+                layer.bias(),
+                b.y,
+                b.part_in,
+                b.part_loss,
+            ],
+        );
+        dispatch(
+            encoder,
+            &layer.kernels.loss_rows,
+            &rows_group,
+            rows.div_ceil(WORKGROUP) as u32,
+            cut.splits as u32,
+        );
+        let reduce_params = gpu.uniform(&ReduceParams {
+            rows: rows as u32,
+            splits: cut.splits as u32,
+            row_offset: start as u32,
+            _pad: 0,
+        });
+        let reduce_group = bind(
+            gpu,
+            &layer.kernels.reduce,
+            &[
+                &reduce_params,
+                b.part_in,
+                b.part_loss,
+                b.grad_in,
+                b.row_loss,
+            ],
+        );
+        dispatch(
+            encoder,
+            &layer.kernels.reduce,
+            &reduce_group,
+            (rows * hv).div_ceil(WORKGROUP) as u32,
+            1,
+        );
+        if weight_grads {
+            let columns_params = gpu.uniform(&ColumnsParams {
+                rows: rows as u32,
+                k: k as u32,
+                scale,
+                row_offset: start as u32,
+                accumulate: (start > 0) as u32,
+                _pad: [0; 3],
+            });
+            let columns_group = bind(
+                gpu,
+                &layer.kernels.loss_columns,
+                &[
+                    &columns_params,
+                    b.x,
+                    layer.weight(),
+                    layer.bias(),
+                    b.y,
+                    b.gw,
+                    b.gb,
+                ],
+            );
+            dispatch(
+                encoder,
+                &layer.kernels.loss_columns,
+                &columns_group,
+                k.div_ceil(WORKGROUP) as u32,
+                1,
+            );
+            params.push(columns_params);
+        }
+        params.push(rows_params);
+        params.push(reduce_params);
+        params
     }
 
     /// Encodes a learner's whole read-out of `modality` from the module states in `input`:

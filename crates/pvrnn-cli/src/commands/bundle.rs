@@ -265,21 +265,16 @@ pub fn run(a: Args) -> Result<()> {
         first_runs.get_or_insert(runs);
     }
 
-    // What f16 weights change: the first condition's first sequence, run again in f32.
     let weights = if weights.is_empty() {
-        let (observed, _) = &conditions[0];
-        settings.observed = *observed;
-        let first_sequence = data.select(&[0])?;
-        let f32_run = runs_of(&full, &settings, &first_sequence, "f16 check")?.remove(0);
-        let f16_run = &first_runs.as_ref().expect("at least one condition")[0];
-        let change =
-            |m: usize| (mean_recon_error(f16_run, m) / mean_recon_error(&f32_run, m) - 1.0) * 100.0;
-        format!(
-            "f16 (rounding the weights changes the mean reconstruction error of {} by {:+.2}% (vision) and {:+.2}% (proprioception), measured on one run)",
-            names[0],
-            change(0),
-            change(1)
-        )
+        let first = &first_runs.as_ref().expect("at least one condition")[0];
+        f16_note(
+            &full,
+            first,
+            &mut settings,
+            conditions[0].0,
+            &data,
+            &names[0],
+        )?
     } else {
         weights
     };
@@ -294,6 +289,43 @@ pub fn run(a: Args) -> Result<()> {
     );
     eprintln!("runs: {states}");
 
+    let card = model_card(
+        &a,
+        &model,
+        &dataset,
+        iteration,
+        learning,
+        format!("{weights}; {states}"),
+    )?;
+    write_card_readme(&a, &card, &run_files)?;
+    let manifest = BundleManifest::new(
+        a.description,
+        "model.safetensors".into(),
+        pvrnn_dataset::MANIFEST.into(),
+        run_files,
+        Some(card),
+    );
+    io::write_atomic(&a.out.join(BUNDLE_MANIFEST), manifest.to_json().as_bytes())?;
+    eprintln!(
+        "wrote {} ({} sequences, {} precomputed conditions)",
+        a.out.display(),
+        names.len(),
+        conditions.len()
+    );
+    Ok(())
+}
+
+/// The model card: the training's iteration, time, machine, data and final free energy
+/// (from its log, where there is one), the weights' note, departures from the paper and
+/// the evaluations cited.
+fn model_card(
+    a: &Args,
+    model: &Model<f32>,
+    dataset: &Dataset,
+    iteration: Option<u64>,
+    learning: usize,
+    weights: String,
+) -> Result<ModelCard> {
     let log = a.training_log.clone().unwrap_or_else(|| log_path(&a.model));
     let trained = if a.training_log.is_some() || log.is_file() {
         training_row(&log, iteration)?
@@ -312,26 +344,33 @@ pub fn run(a: Args) -> Result<()> {
             )
         }),
         free_energy: trained.map(|t| t.0),
-        weights: format!("{weights}; {states}"),
+        weights,
         departures: model.config.departures_from_paper(),
         evaluations,
     };
-    write_card_readme(&a, &card, &run_files)?;
-    let manifest = BundleManifest::new(
-        a.description,
-        "model.safetensors".into(),
-        pvrnn_dataset::MANIFEST.into(),
-        run_files,
-        Some(card),
-    );
-    io::write_atomic(&a.out.join(BUNDLE_MANIFEST), manifest.to_json().as_bytes())?;
-    eprintln!(
-        "wrote {} ({} sequences, {} precomputed conditions)",
-        a.out.display(),
-        names.len(),
-        conditions.len()
-    );
-    Ok(())
+    Ok(card)
+}
+
+/// What f16 weights change: `sequence`'s run under the first condition (`f16_run`, with
+/// the shipped weights) against the same run with the f32 weights of `full`.
+fn f16_note(
+    full: &Arc<Model<f32>>,
+    f16_run: &Run<f32>,
+    settings: &mut InferenceSettings,
+    observed: Observed,
+    data: &Observations<f32>,
+    sequence: &str,
+) -> Result<String> {
+    settings.observed = observed;
+    let first_sequence = data.select(&[0])?;
+    let f32_run = runs_of(full, settings, &first_sequence, "f16 check")?.remove(0);
+    let change =
+        |m: usize| (mean_recon_error(f16_run, m) / mean_recon_error(&f32_run, m) - 1.0) * 100.0;
+    Ok(format!(
+        "f16 (rounding the weights changes the mean reconstruction error of {sequence} by {:+.2}% (vision) and {:+.2}% (proprioception), measured on one run)",
+        change(0),
+        change(1)
+    ))
 }
 
 /// The evaluations the card cites (`--evaluation`: report folders or summary files).

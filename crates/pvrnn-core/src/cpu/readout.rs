@@ -146,11 +146,15 @@ pub(crate) fn output_loss<T: Real>(
     weight_grads: bool,
 ) -> OutputLoss<T> {
     let hl = out.weight.shape()[1];
-    let dims = out.weight.shape()[0];
-    let small = out_t.filter(|_| n <= SMALL_ROWS && !weight_grads);
-    let w = out.weight.data();
-    let bias = out.bias.as_ref().map(|b| b.data());
-    let scale = T::from_f64(1.0 / divisor as f64);
+    let layer = FusedLayer {
+        w: out.weight.data(),
+        bias: out.bias.as_ref().map(|b| b.data()),
+        hl,
+        dims: out.weight.shape()[0],
+        small: out_t.filter(|_| n <= SMALL_ROWS && !weight_grads),
+        scale: T::from_f64(1.0 / divisor as f64),
+        weight_grads,
+    };
     // Groups split the columns in whole vector-width units.
     let units = k.div_ceil(LANES);
     let groups = k.div_ceil(GROUP_COLUMNS).clamp(1, MAX_GROUPS.min(units));
@@ -158,120 +162,179 @@ pub(crate) fn output_loss<T: Real>(
     let parts = parallel::map_if(macs >= parallel::PARALLEL_MIN_MACS, groups, |g| {
         let c_begin = (g * units / groups * LANES).min(k);
         let c_end = ((g + 1) * units / groups * LANES).min(k);
-        let mut grad_in = vec![T::ZERO; n * hl];
-        let mut sse = vec![0f64; n];
-        let mut gw = vec![
-            T::ZERO;
-            if weight_grads {
-                (c_end - c_begin) * hl
-            } else {
-                0
-            }
-        ];
-        let mut gb = vec![
-            T::ZERO;
-            if weight_grads && bias.is_some() {
-                c_end - c_begin
-            } else {
-                0
-            }
-        ];
+        let mut acc = GroupSums::new(&layer, n, c_end - c_begin);
         let mut tile = vec![T::ZERO; ROW_BLOCK.min(n) * COL_BLOCK.min(k)];
         for c0 in (c_begin..c_end).step_by(COL_BLOCK) {
             let cw = COL_BLOCK.min(c_end - c0);
-            let w_blk = MatRef::from_row_major_slice(&w[c0 * hl..(c0 + cw) * hl], cw, hl);
             for r0 in (0..n).step_by(ROW_BLOCK) {
                 let rw = ROW_BLOCK.min(n - r0);
-                let x_blk = MatRef::from_row_major_slice(&input[r0 * hl..(r0 + rw) * hl], rw, hl);
-                let tile = &mut tile[..rw * cw];
-                match small {
-                    Some(wt) => small_forward(
-                        tile,
-                        &input[r0 * hl..(r0 + rw) * hl],
-                        rw,
-                        hl,
-                        wt,
-                        dims,
-                        c0,
-                        cw,
-                    ),
-                    None => faer::linalg::matmul::matmul(
-                        MatMut::from_row_major_slice_mut(tile, rw, cw),
-                        Accum::Replace,
-                        x_blk,
-                        w_blk.transpose(),
-                        T::ONE,
-                        Par::Seq,
-                    ),
-                }
-                for i in 0..rw {
-                    // The targets are read once per pass, a short run of each distant row:
-                    // fetch a later row's run while this one computes, or the loads stall.
-                    if let Some(ahead) = targets.get(r0 + i + TARGET_PREFETCH_ROWS) {
-                        prefetch(&ahead[c0..c0 + cw]);
-                    }
-                    let row = &mut tile[i * cw..(i + 1) * cw];
-                    if let Some(b) = bias {
-                        for (v, &bi) in row.iter_mut().zip(&b[c0..c0 + cw]) {
-                            *v += bi;
-                        }
-                    }
-                    sse[r0 + i] += T::output_error(row, &targets[r0 + i][c0..c0 + cw], scale);
-                }
-                let g_pre = MatRef::from_row_major_slice(tile, rw, cw);
-                if weight_grads {
-                    let off = (c0 - c_begin) * hl;
-                    faer::linalg::matmul::matmul(
-                        MatMut::from_row_major_slice_mut(&mut gw[off..off + cw * hl], cw, hl),
-                        Accum::Add,
-                        g_pre.transpose(),
-                        x_blk,
-                        T::ONE,
-                        Par::Seq,
-                    );
-                    if bias.is_some() {
-                        let sums = column_sums(tile, cw);
-                        for (acc, s) in gb[c0 - c_begin..c0 - c_begin + cw].iter_mut().zip(sums) {
-                            *acc += s;
-                        }
-                    }
-                }
-                let g_in = &mut grad_in[r0 * hl..(r0 + rw) * hl];
-                if small.is_some() {
-                    small_backward(g_in, tile, rw, hl, &w[c0 * hl..(c0 + cw) * hl], cw);
-                } else {
-                    faer::linalg::matmul::matmul(
-                        MatMut::from_row_major_slice_mut(g_in, rw, hl),
-                        Accum::Add,
-                        g_pre,
-                        w_blk,
-                        T::ONE,
-                        Par::Seq,
-                    );
-                }
+                let block = Block {
+                    r0,
+                    rw,
+                    c0,
+                    cw,
+                    c_begin,
+                };
+                layer.tile(&mut tile[..rw * cw], &block, input, targets, &mut acc);
             }
         }
-        (grad_in, sse, gw, gb)
+        acc
     });
 
     let mut parts = parts.into_iter();
-    let (mut grad_in, mut sse, mut grad_w, mut grad_b) = parts.next().expect("at least one group");
-    for (gi, s, gw, gb) in parts {
-        for (a, b) in grad_in.iter_mut().zip(gi) {
+    let mut sums = parts.next().expect("at least one group");
+    for part in parts {
+        for (a, b) in sums.grad_in.iter_mut().zip(part.grad_in) {
             *a += b;
         }
-        for (a, b) in sse.iter_mut().zip(s) {
+        for (a, b) in sums.sse.iter_mut().zip(part.sse) {
             *a += b;
         }
-        grad_w.extend(gw);
-        grad_b.extend(gb);
+        sums.gw.extend(part.gw);
+        sums.gb.extend(part.gb);
     }
     let half_over_k = 0.5 / divisor as f64;
     OutputLoss {
-        row_loss: sse.into_iter().map(|s| s * half_over_k).collect(),
-        grad_in,
-        grad_w: weight_grads.then_some(grad_w),
-        grad_b: (weight_grads && bias.is_some()).then_some(grad_b),
+        row_loss: sums.sse.into_iter().map(|s| s * half_over_k).collect(),
+        grad_in: sums.grad_in,
+        grad_w: weight_grads.then_some(sums.gw),
+        grad_b: (weight_grads && layer.bias.is_some()).then_some(sums.gb),
+    }
+}
+
+/// The output layer as the fused kernel reads it.
+struct FusedLayer<'a, T> {
+    /// `[dims, hl]` row-major, and the bias.
+    w: &'a [T],
+    bias: Option<&'a [T]>,
+    hl: usize,
+    dims: usize,
+    /// W^T, when the small-row kernels replace faer.
+    small: Option<&'a [T]>,
+    /// 1 / divisor: each row's error gradient's factor.
+    scale: T,
+    weight_grads: bool,
+}
+
+/// One tile of rows x columns of the output layer.
+#[derive(Clone, Copy)]
+struct Block {
+    r0: usize,
+    rw: usize,
+    c0: usize,
+    cw: usize,
+    /// The first column of the tile's group.
+    c_begin: usize,
+}
+
+/// What one column group accumulates: d F / d input (all rows), the rows' squared errors,
+/// and its columns' weight and bias gradients.
+struct GroupSums<T> {
+    grad_in: Vec<T>,
+    sse: Vec<f64>,
+    gw: Vec<T>,
+    gb: Vec<T>,
+}
+
+impl<T: Real> GroupSums<T> {
+    fn new(layer: &FusedLayer<'_, T>, n: usize, columns: usize) -> Self {
+        let grads = layer.weight_grads;
+        Self {
+            grad_in: vec![T::ZERO; n * layer.hl],
+            sse: vec![0f64; n],
+            gw: vec![T::ZERO; if grads { columns * layer.hl } else { 0 }],
+            gb: vec![
+                T::ZERO;
+                if grads && layer.bias.is_some() {
+                    columns
+                } else {
+                    0
+                }
+            ],
+        }
+    }
+}
+
+impl<T: Real> FusedLayer<'_, T> {
+    /// One tile: forward, error and its gradient in place, then (while in cache) the
+    /// weight gradient and d F / d input products.
+    fn tile(
+        &self,
+        tile: &mut [T],
+        b: &Block,
+        input: &[T],
+        targets: &[&[T]],
+        acc: &mut GroupSums<T>,
+    ) {
+        let (hl, Block { r0, rw, c0, cw, .. }) = (self.hl, *b);
+        let w_blk = MatRef::from_row_major_slice(&self.w[c0 * hl..(c0 + cw) * hl], cw, hl);
+        let x_blk = MatRef::from_row_major_slice(&input[r0 * hl..(r0 + rw) * hl], rw, hl);
+        match self.small {
+            Some(wt) => small_forward(
+                tile,
+                &input[r0 * hl..(r0 + rw) * hl],
+                rw,
+                hl,
+                wt,
+                self.dims,
+                c0,
+                cw,
+            ),
+            None => faer::linalg::matmul::matmul(
+                MatMut::from_row_major_slice_mut(tile, rw, cw),
+                Accum::Replace,
+                x_blk,
+                w_blk.transpose(),
+                T::ONE,
+                Par::Seq,
+            ),
+        }
+        for i in 0..rw {
+            // The targets are read once per pass, a short run of each distant row: fetch a
+            // later row's run while this one computes, or the loads stall.
+            if let Some(ahead) = targets.get(r0 + i + TARGET_PREFETCH_ROWS) {
+                prefetch(&ahead[c0..c0 + cw]);
+            }
+            let row = &mut tile[i * cw..(i + 1) * cw];
+            if let Some(bias) = self.bias {
+                for (v, &bi) in row.iter_mut().zip(&bias[c0..c0 + cw]) {
+                    *v += bi;
+                }
+            }
+            acc.sse[r0 + i] += T::output_error(row, &targets[r0 + i][c0..c0 + cw], self.scale);
+        }
+        let g_pre = MatRef::from_row_major_slice(tile, rw, cw);
+        if self.weight_grads {
+            let off = (c0 - b.c_begin) * hl;
+            faer::linalg::matmul::matmul(
+                MatMut::from_row_major_slice_mut(&mut acc.gw[off..off + cw * hl], cw, hl),
+                Accum::Add,
+                g_pre.transpose(),
+                x_blk,
+                T::ONE,
+                Par::Seq,
+            );
+            if self.bias.is_some() {
+                let sums = column_sums(tile, cw);
+                let at = c0 - b.c_begin;
+                for (a, s) in acc.gb[at..at + cw].iter_mut().zip(sums) {
+                    *a += s;
+                }
+            }
+        }
+        let g_in = &mut acc.grad_in[r0 * hl..(r0 + rw) * hl];
+        if self.small.is_some() {
+            small_backward(g_in, tile, rw, hl, &self.w[c0 * hl..(c0 + cw) * hl], cw);
+        } else {
+            faer::linalg::matmul::matmul(
+                MatMut::from_row_major_slice_mut(g_in, rw, hl),
+                Accum::Add,
+                g_pre,
+                w_blk,
+                T::ONE,
+                Par::Seq,
+            );
+        }
     }
 }
 

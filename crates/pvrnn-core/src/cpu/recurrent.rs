@@ -376,32 +376,16 @@ fn backward_impl<T: Real>(
             gprior.clear();
             gprior.resize(2 * z, T::ZERO);
             let row = t * z..(t + 1) * z;
-            let (g_mu_p, g_ls_p) = gprior.split_at_mut(z);
-            let (g_mu_p, g_ls_p, gz) = (&mut g_mu_p[..z], &mut g_ls_p[..z], &gz[..z]);
-            let (mu_p, mu_q, ivp) = (
-                &mt.mu_p[row.clone()],
-                &mt.mu_q[row.clone()],
-                &mt.inv_var_p[row.clone()],
+            latent_grads(
+                mt,
+                row.clone(),
+                &gz[..z],
+                c,
+                p.log_sigma_bound,
+                &mut ga_mu[m][row.clone()],
+                &mut ga_sigma[m][row],
+                &mut gprior,
             );
-            let (ls_q, ls_p) = (&mt.log_sigma_q[row.clone()], &mt.log_sigma_p[row.clone()]);
-            let zz = &mt.z[row.clone()];
-            let (ga_mu, ga_sigma) = (&mut ga_mu[m][row.clone()], &mut ga_sigma[m][row.clone()]);
-            let two = T::from_f64(2.0);
-            // d log sigma / d pre-activation: 1, or 1 - (log sigma / B)^2 under a bound.
-            let inv_bound = p.log_sigma_bound.map_or(T::ZERO, |b| T::ONE / b);
-            for j in 0..z {
-                // sigma_q^2 / sigma_p^2, from the logs as in the forward pass.
-                let var_ratio = (two * (ls_q[j] - ls_p[j])).exp();
-                let diff = mu_q[j] - mu_p[j];
-                let g_mu_q = gz[j] + c * diff * ivp[j];
-                // z - mu_q = sigma_q * eps is d z / d log sigma_q.
-                let g_ls_q = gz[j] * (zz[j] - mu_q[j]) + c * (var_ratio - T::ONE);
-                let (bq, bp) = (ls_q[j] * inv_bound, ls_p[j] * inv_bound);
-                ga_mu[j] = g_mu_q * (T::ONE - mu_q[j] * mu_q[j]);
-                ga_sigma[j] = g_ls_q * (T::ONE - bq * bq);
-                g_mu_p[j] = -c * diff * ivp[j] * (T::ONE - mu_p[j] * mu_p[j]);
-                g_ls_p[j] = c * (T::ONE - diff * diff * ivp[j] - var_ratio) * (T::ONE - bp * bp);
-            }
             gemv_padded(&mut gd_prev[m], &pm.w_prior, &gprior, pm.pd);
             if weight_grads {
                 gu_all[m][t * d..(t + 1) * d].copy_from_slice(gu);
@@ -425,6 +409,49 @@ fn backward_impl<T: Real>(
         a_mu: ga_mu,
         a_sigma: ga_sigma,
         weights,
+    }
+}
+
+/// One module's step of back-propagation through its latent variables: from d F / d z
+/// (`gz`) and the KL term (weighted by `c`) to d F / d the adaptive variables a_mu,
+/// a_sigma of the posterior (`ga_mu`, `ga_sigma`) and d F / d the prior's
+/// pre-activations (`gprior`: mean, then log sigma).
+#[inline]
+fn latent_grads<T: Real>(
+    mt: &ModuleTrace<T>,
+    row: std::ops::Range<usize>,
+    gz: &[T],
+    c: T,
+    log_sigma_bound: Option<T>,
+    ga_mu: &mut [T],
+    ga_sigma: &mut [T],
+    gprior: &mut [T],
+) {
+    let z = gz.len();
+    let (g_mu_p, g_ls_p) = gprior.split_at_mut(z);
+    let (g_mu_p, g_ls_p) = (&mut g_mu_p[..z], &mut g_ls_p[..z]);
+    let (mu_p, mu_q, ivp) = (
+        &mt.mu_p[row.clone()],
+        &mt.mu_q[row.clone()],
+        &mt.inv_var_p[row.clone()],
+    );
+    let (ls_q, ls_p) = (&mt.log_sigma_q[row.clone()], &mt.log_sigma_p[row.clone()]);
+    let zz = &mt.z[row];
+    let two = T::from_f64(2.0);
+    // d log sigma / d pre-activation: 1, or 1 - (log sigma / B)^2 under a bound.
+    let inv_bound = log_sigma_bound.map_or(T::ZERO, |b| T::ONE / b);
+    for j in 0..z {
+        // sigma_q^2 / sigma_p^2, from the logs as in the forward pass.
+        let var_ratio = (two * (ls_q[j] - ls_p[j])).exp();
+        let diff = mu_q[j] - mu_p[j];
+        let g_mu_q = gz[j] + c * diff * ivp[j];
+        // z - mu_q = sigma_q * eps is d z / d log sigma_q.
+        let g_ls_q = gz[j] * (zz[j] - mu_q[j]) + c * (var_ratio - T::ONE);
+        let (bq, bp) = (ls_q[j] * inv_bound, ls_p[j] * inv_bound);
+        ga_mu[j] = g_mu_q * (T::ONE - mu_q[j] * mu_q[j]);
+        ga_sigma[j] = g_ls_q * (T::ONE - bq * bq);
+        g_mu_p[j] = -c * diff * ivp[j] * (T::ONE - mu_p[j] * mu_p[j]);
+        g_ls_p[j] = c * (T::ONE - diff * diff * ivp[j] - var_ratio) * (T::ONE - bp * bp);
     }
 }
 

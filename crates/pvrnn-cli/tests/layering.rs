@@ -1,7 +1,7 @@
 //! Every crate's modules stay layered (ARCHITECTURE.md): no module imports another that
-//! imports it back; and in the core the CPU backend is named only by itself and by
-//! `defaults`, the one place a default backend is chosen. Read from the sources, so that
-//! the rules cannot drift.
+//! imports it back; in the core the CPU backend is named only by itself and by `defaults`,
+//! the one place a default backend is chosen; and no function is longer than a newcomer
+//! reads at once (120 lines). Read from the sources, so that the rules cannot drift.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -173,4 +173,103 @@ fn the_circle_finder_finds_a_circle() {
         find_circle(&graph),
         Some(vec!["a".into(), "b".into(), "c".into(), "a".into()])
     );
+}
+
+/// The longest a function may be, in lines from its `fn` to its closing brace.
+const MAX_FUNCTION_LINES: usize = 120;
+
+/// Every function of `text` with a body: (name, first line, lines). A function ends at the
+/// first line that closes a brace at its `fn`'s indentation (rustfmt's layout).
+fn functions(text: &str) -> Vec<(String, usize, usize)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut found = Vec::new();
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i];
+        let indent = line.len() - line.trim_start().len();
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let Some(at) = words.iter().position(|w| *w == "fn") else {
+            i += 1;
+            continue;
+        };
+        let before_ok = words[..at].iter().all(|w| {
+            matches!(*w, "pub" | "async" | "const" | "unsafe" | "extern") || w.starts_with("pub(")
+        });
+        if !before_ok || line.trim_start().starts_with("//") {
+            i += 1;
+            continue;
+        }
+        let name = words
+            .get(at + 1)
+            .map(|w| w.split(['(', '<']).next().unwrap_or("").to_string())
+            .unwrap_or_default();
+        // The signature ends with `{` (a body) or `;` (a declaration).
+        let mut j = i;
+        while j < lines.len()
+            && !lines[j].trim_end().ends_with('{')
+            && !lines[j].trim_end().ends_with(';')
+        {
+            j += 1;
+        }
+        if j >= lines.len() || lines[j].trim_end().ends_with(';') {
+            i = j + 1;
+            continue;
+        }
+        let close = " ".repeat(indent) + "}";
+        let mut k = j + 1;
+        while k < lines.len()
+            && !(lines[k].starts_with(&close)
+                && lines[k].len() - lines[k].trim_start().len() == indent)
+        {
+            k += 1;
+        }
+        found.push((name, i + 1, k - i + 1));
+        i = j + 1;
+    }
+    found
+}
+
+#[test]
+fn no_function_is_longer_than_a_newcomer_reads_at_once() {
+    let mut long = Vec::new();
+    let mut stack = vec![crates_dir()];
+    let mut files = 0;
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).expect("a readable folder") {
+            let path = entry.expect("an entry").path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            if path.is_dir() {
+                // Sources only: not tests, benches or build output.
+                if !matches!(name, "tests" | "benches" | "target" | "snapshots") {
+                    stack.push(path);
+                }
+                continue;
+            }
+            if !name.ends_with(".rs") || !path.components().any(|c| c.as_os_str() == "src") {
+                continue;
+            }
+            files += 1;
+            let text = std::fs::read_to_string(&path).expect("a readable source");
+            for (function, line, lines) in functions(&text) {
+                if lines > MAX_FUNCTION_LINES {
+                    long.push(format!(
+                        "{}:{line} {function}: {lines} lines",
+                        path.display()
+                    ));
+                }
+            }
+        }
+    }
+    assert!(files > 50, "the sources were not found ({files} files)");
+    assert!(
+        long.is_empty(),
+        "functions over {MAX_FUNCTION_LINES} lines (split them into named steps):\n{}",
+        long.join("\n")
+    );
+}
+
+#[test]
+fn the_function_reader_measures_bodies_and_skips_declarations() {
+    let text = "trait T {\n    fn declared(\n        &self,\n    ) -> u32;\n}\n\npub(crate) fn body(x: u32) -> u32 {\n    let y = x;\n    y\n}\n";
+    assert_eq!(functions(text), vec![("body".to_string(), 7, 4)]);
 }

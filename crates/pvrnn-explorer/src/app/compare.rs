@@ -122,7 +122,6 @@ impl ExplorerApp {
             return;
         };
         let cells = self.comparison();
-        self.refresh_comparison(ctx, &cells);
         let Some(bundle) = &self.bundle else { return };
         let len = bundle
             .dataset
@@ -197,7 +196,7 @@ impl ExplorerApp {
     }
 
     /// Reads out the cells' images at the cursor when a run reached it since last time.
-    fn refresh_comparison(&mut self, ctx: &egui::Context, cells: &[CompareCell]) {
+    pub(super) fn refresh_comparison(&mut self, ctx: &egui::Context, cells: &[CompareCell]) {
         let Some(bundle) = &self.bundle else { return };
         let t = self.view.t;
         let key = (

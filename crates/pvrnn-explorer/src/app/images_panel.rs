@@ -204,7 +204,35 @@ impl ExplorerApp {
 
     pub(super) fn images_ui(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
-        let layout = bundle.model.config.vision.clone();
+        let panel = ImagesPanel {
+            layout: &bundle.model.config.vision,
+            textures: &self.images.textures,
+            prior_images: self.view.prior_images,
+            maps: self.view.maps,
+            ablation_mode: self
+                .condition()
+                .map_or(AblationMode::default(), |c| c.ablation_mode),
+        };
+        panel.ui(ui);
+    }
+}
+
+/// What the images panel shows: the pictures the logic layer read out at the cursor
+/// (`ExplorerApp::refresh_images`), per camera and resolution, and the contours and
+/// contribution maps.
+struct ImagesPanel<'a> {
+    layout: &'a pvrnn_core::config::VisionLayout,
+    textures: &'a HashMap<String, TextureHandle>,
+    /// Whether the predicted row is the prior prediction of t+1 (else the posterior
+    /// reconstruction of t).
+    prior_images: bool,
+    maps: bool,
+    ablation_mode: AblationMode,
+}
+
+impl ImagesPanel<'_> {
+    fn ui(&self, ui: &mut egui::Ui) {
+        let layout = self.layout;
         let top = layout.resolutions.len() - 1;
         let shown = 120.0;
         let image = |ui: &mut egui::Ui, tex: Option<&TextureHandle>, size: f32| match tex {
@@ -225,7 +253,7 @@ impl ExplorerApp {
             }
         };
         let cams = ["left camera", "right camera"];
-        let predicted_label = if self.view.prior_images {
+        let predicted_label = if self.prior_images {
             "prior prediction (t+1)"
         } else {
             "posterior reconstruction"
@@ -245,7 +273,7 @@ impl ExplorerApp {
                     for level in (0..=top).rev() {
                         image(
                             ui,
-                            self.images.textures.get(&format!("actual {cam} {level}")),
+                            self.textures.get(&format!("actual {cam} {level}")),
                             shown,
                         );
                     }
@@ -254,9 +282,7 @@ impl ExplorerApp {
                     for level in (0..=top).rev() {
                         image(
                             ui,
-                            self.images
-                                .textures
-                                .get(&format!("predicted {cam} {level}")),
+                            self.textures.get(&format!("predicted {cam} {level}")),
                             shown,
                         );
                     }
@@ -273,21 +299,19 @@ impl ExplorerApp {
         ui.horizontal_wrapped(|ui| {
             ui.vertical(|ui| {
                 ui.label("contours");
-                image(ui, self.images.textures.get("contours"), 96.0);
+                image(ui, self.textures.get("contours"), 96.0);
             });
-            if self.view.maps {
+            if self.maps {
                 for (m, id) in ModuleId::ALL.iter().enumerate() {
                     ui.vertical(|ui| {
                         ui.label(id.name());
-                        image(ui, self.images.textures.get(&format!("map {m}")), 96.0);
+                        image(ui, self.textures.get(&format!("map {m}")), 96.0);
                     });
                 }
             }
         });
-        if self.view.maps {
-            let mode = self
-                .condition()
-                .map_or(AblationMode::default(), |c| c.ablation_mode);
+        if self.maps {
+            let mode = self.ablation_mode;
             ui.weak(format!(
                 "brighter = larger |standard - ablated| prediction (x4); {} ablation",
                 mode.name()

@@ -510,8 +510,13 @@ impl ExplorerApp {
         if self.view.playing {
             ctx.request_repaint();
         }
-        // The images at the cursor, read out here rather than while drawing.
+        // The images at the cursor (and the comparison's), read out here rather than while
+        // drawing.
         self.refresh_images(ctx);
+        if self.view.compare.is_some() {
+            let cells = self.comparison();
+            self.refresh_comparison(ctx, &cells);
+        }
     }
 
     /// Draws the panels (each in its own file).

@@ -3,48 +3,46 @@
 use super::traces::unit_colour;
 use super::*;
 
-impl ExplorerApp {
-    /// Fig. 4 for the shown run: per module, the mean prior sigma and its mean absolute
-    /// change between steps.
-    pub(super) fn uncertainty_ui(&self, ui: &mut egui::Ui, trace: &RunTrace) {
-        let summary = uncertainty(trace);
-        ui.label(
-            RichText::new("uncertainty (Fig. 4): mean prior sigma and its mean |change| per step")
-                .small(),
-        );
-        ui.columns(2, |cols| {
-            for (col, (title, pick)) in cols.iter_mut().zip([
-                ("mean prior sigma", 0usize),
-                ("mean |change of prior sigma|", 1usize),
-            ]) {
-                let bars: Vec<Bar> = summary
-                    .iter()
-                    .enumerate()
-                    .map(|(i, (name, v))| {
-                        Bar::new(i as f64, [v.0, v.1][pick])
-                            .name(name.to_string())
-                            .fill(unit_colour(i))
-                    })
-                    .collect();
-                col.label(RichText::new(title).small());
-                Plot::new(format!("uncertainty {pick}"))
-                    .height(100.0)
-                    .allow_drag(false)
-                    .allow_zoom(false)
-                    .allow_scroll(false)
-                    .show_x(false)
-                    .show(col, |pu| {
-                        pu.bar_chart(BarChart::new(title, bars).width(0.7));
-                    });
-                let text = summary
-                    .iter()
-                    .map(|(n, v)| format!("{n} {:.4}", [v.0, v.1][pick]))
-                    .collect::<Vec<_>>()
-                    .join("   ");
-                col.label(RichText::new(text).small().monospace());
-            }
-        });
-    }
+/// Fig. 4 for the shown run: per module, the mean prior sigma and its mean absolute change
+/// between steps.
+pub(super) fn uncertainty_ui(ui: &mut egui::Ui, trace: &RunTrace) {
+    let summary = uncertainty(trace);
+    ui.label(
+        RichText::new("uncertainty (Fig. 4): mean prior sigma and its mean |change| per step")
+            .small(),
+    );
+    ui.columns(2, |cols| {
+        for (col, (title, pick)) in cols.iter_mut().zip([
+            ("mean prior sigma", 0usize),
+            ("mean |change of prior sigma|", 1usize),
+        ]) {
+            let bars: Vec<Bar> = summary
+                .iter()
+                .enumerate()
+                .map(|(i, (name, v))| {
+                    Bar::new(i as f64, [v.0, v.1][pick])
+                        .name(name.to_string())
+                        .fill(unit_colour(i))
+                })
+                .collect();
+            col.label(RichText::new(title).small());
+            Plot::new(format!("uncertainty {pick}"))
+                .height(100.0)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .show_x(false)
+                .show(col, |pu| {
+                    pu.bar_chart(BarChart::new(title, bars).width(0.7));
+                });
+            let text = summary
+                .iter()
+                .map(|(n, v)| format!("{n} {:.4}", [v.0, v.1][pick]))
+                .collect::<Vec<_>>()
+                .join("   ");
+            col.label(RichText::new(text).small().monospace());
+        }
+    });
 }
 
 /// Per module (and all together): (mean prior sigma, mean |prior sigma(t) - prior sigma(t-1)|).

@@ -37,84 +37,99 @@ impl ExplorerApp {
     }
 
     pub(super) fn time_ui(&mut self, ui: &mut egui::Ui) {
-        let len = self.sequence_len();
         let computed = self.current_run().map_or(0, |e| e.trace.steps);
-        ui.horizontal(|ui| {
-            let label = if self.view.playing { "pause" } else { "play" };
-            if ui.button(label).clicked() {
-                if !self.view.playing && self.view.t + 1 >= len {
-                    self.view.t = 0;
-                }
-                self.view.playing = !self.view.playing;
-            }
-            if ui
-                .button("<")
-                .on_hover_text("step back (left arrow)")
-                .clicked()
-            {
-                self.view.t = self.view.t.saturating_sub(1);
-            }
-            if ui
-                .button(">")
-                .on_hover_text("step forward (right arrow)")
-                .clicked()
-            {
-                self.view.t = (self.view.t + 1).min(len.saturating_sub(1));
-            }
-            ui.add(
-                egui::Slider::new(&mut self.view.speed, 1.0..=60.0)
-                    .suffix(" steps/s")
-                    .logarithmic(true)
-                    .text("speed"),
-            );
-            ui.separator();
-            ui.label(format!("t = {} / {}", self.view.t, len.saturating_sub(1)));
+        let sequence = self.bundle.as_ref().and_then(|b| {
+            self.view
+                .sequence
+                .as_ref()
+                .and_then(|name| b.dataset.by_name(name))
         });
-        let mut t = self.view.t;
-        ui.spacing_mut().slider_width = ui.available_width() - 60.0;
-        ui.add(
-            egui::Slider::new(&mut t, 0..=len.saturating_sub(1))
-                .show_value(false)
-                .text("time"),
-        );
-        self.view.t = t;
-        // Subtask strip under the scrub bar, and how far inference has got.
-        let (rect, _) = ui.allocate_exact_size(
-            egui::vec2(ui.spacing().slider_width, 8.0),
-            egui::Sense::hover(),
-        );
-        if let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence)
-            && let Some(seq) = b.dataset.by_name(name)
-        {
-            let painter = ui.painter_at(rect);
-            let w = rect.width() / seq.len().max(1) as f32;
-            for (t, &label) in seq.subtask.iter().enumerate() {
-                let x = rect.left() + t as f32 * w;
-                let alpha = if t < computed { 255 } else { 90 };
-                let c = SUBTASK_COLOURS[label as usize % 4];
-                painter.rect_filled(
-                    egui::Rect::from_min_max(
-                        egui::pos2(x, rect.top()),
-                        egui::pos2(x + w + 0.5, rect.bottom()),
-                    ),
-                    0.0,
-                    Color32::from_rgba_unmultiplied(c.r(), c.g(), c.b(), alpha),
-                );
+        time_panel(ui, &mut self.view, sequence, computed);
+    }
+}
+
+/// The time bar: play, step, speed, the scrub bar with the sequence's subtasks under it
+/// (faded where inference has not reached), and the subtask at the cursor.
+fn time_panel(
+    ui: &mut egui::Ui,
+    view: &mut crate::state::ViewState,
+    sequence: Option<&pvrnn_dataset::Sequence>,
+    computed: usize,
+) {
+    let len = sequence.map_or(0, |s| s.len());
+    ui.horizontal(|ui| {
+        let label = if view.playing { "pause" } else { "play" };
+        if ui.button(label).clicked() {
+            if !view.playing && view.t + 1 >= len {
+                view.t = 0;
             }
-            let x = rect.left() + self.view.t as f32 * w;
-            painter.vline(x, rect.y_range(), (2.0, Color32::WHITE));
-            let names = seq
-                .info
-                .subtasks
-                .get(seq.subtask[self.view.t.min(seq.len() - 1)] as usize)
-                .cloned()
-                .unwrap_or_default();
-            ui.horizontal(|ui| {
-                ui.weak(format!("subtask: {names}"));
-                if computed < seq.len() {
-                    ui.weak(format!("(inference has reached step {computed})"));
-                }
-            });
+            view.playing = !view.playing;
         }
+        if ui
+            .button("<")
+            .on_hover_text("step back (left arrow)")
+            .clicked()
+        {
+            view.t = view.t.saturating_sub(1);
+        }
+        if ui
+            .button(">")
+            .on_hover_text("step forward (right arrow)")
+            .clicked()
+        {
+            view.t = (view.t + 1).min(len.saturating_sub(1));
+        }
+        ui.add(
+            egui::Slider::new(&mut view.speed, 1.0..=60.0)
+                .suffix(" steps/s")
+                .logarithmic(true)
+                .text("speed"),
+        );
+        ui.separator();
+        ui.label(format!("t = {} / {}", view.t, len.saturating_sub(1)));
+    });
+    let mut t = view.t;
+    ui.spacing_mut().slider_width = ui.available_width() - 60.0;
+    ui.add(
+        egui::Slider::new(&mut t, 0..=len.saturating_sub(1))
+            .show_value(false)
+            .text("time"),
+    );
+    view.t = t;
+    // Subtask strip under the scrub bar, and how far inference has got.
+    let (rect, _) = ui.allocate_exact_size(
+        egui::vec2(ui.spacing().slider_width, 8.0),
+        egui::Sense::hover(),
+    );
+    if let Some(seq) = sequence {
+        let painter = ui.painter_at(rect);
+        let w = rect.width() / seq.len().max(1) as f32;
+        for (t, &label) in seq.subtask.iter().enumerate() {
+            let x = rect.left() + t as f32 * w;
+            let alpha = if t < computed { 255 } else { 90 };
+            let c = SUBTASK_COLOURS[label as usize % 4];
+            painter.rect_filled(
+                egui::Rect::from_min_max(
+                    egui::pos2(x, rect.top()),
+                    egui::pos2(x + w + 0.5, rect.bottom()),
+                ),
+                0.0,
+                Color32::from_rgba_unmultiplied(c.r(), c.g(), c.b(), alpha),
+            );
+        }
+        let x = rect.left() + view.t as f32 * w;
+        painter.vline(x, rect.y_range(), (2.0, Color32::WHITE));
+        let names = seq
+            .info
+            .subtasks
+            .get(seq.subtask[view.t.min(seq.len() - 1)] as usize)
+            .cloned()
+            .unwrap_or_default();
+        ui.horizontal(|ui| {
+            ui.weak(format!("subtask: {names}"));
+            if computed < seq.len() {
+                ui.weak(format!("(inference has reached step {computed})"));
+            }
+        });
     }
 }

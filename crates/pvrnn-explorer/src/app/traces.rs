@@ -33,7 +33,7 @@ impl ExplorerApp {
             show_d: self.view.show_d,
         };
         let seek = panel.ui(ui);
-        self.uncertainty_ui(ui, trace);
+        super::summaries::uncertainty_ui(ui, trace);
         if let Some(s) = seek {
             self.view.t = s;
         }

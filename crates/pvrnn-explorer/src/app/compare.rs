@@ -73,6 +73,83 @@ pub struct CompareCell {
     pub steps: usize,
 }
 
+/// What the comparison window shows: each cell's picture (read out by the logic layer)
+/// and errors at step `t`.
+struct ComparePanel<'a> {
+    set: CompareSet,
+    cells: &'a [CompareCell],
+    textures: &'a [Option<TextureHandle>],
+    resolutions: &'a [usize],
+    /// The sequence's steps.
+    len: usize,
+    t: usize,
+}
+
+impl ComparePanel<'_> {
+    /// Draws the window; whether it stays open.
+    fn show(&self, ctx: &egui::Context) -> bool {
+        let top = self.resolutions.len() - 1;
+        let r = self.resolutions[top];
+        let mut open = true;
+        let columns = if self.set == CompareSet::Vision {
+            self.resolutions.len()
+        } else {
+            self.cells.len()
+        };
+        egui::Window::new(format!("Compare: {}", self.set.name()))
+            .open(&mut open)
+            .default_width(160.0 * columns as f32)
+            .show(ctx, |ui| {
+                ui.weak(format!(
+                    "step t = {}: left camera at {r}x{r}, posterior reconstruction; error = mean squared error of all dimensions (model units) at t, and over the steps computed",
+                    self.t
+                ));
+                egui::Grid::new("compare grid")
+                    .spacing([8.0, 6.0])
+                    .show(ui, |ui| {
+                        for (i, cell) in self.cells.iter().enumerate() {
+                            ui.vertical(|ui| {
+                                ui.strong(&cell.label);
+                                let size = egui::vec2(140.0, 140.0);
+                                match self.textures.get(i).and_then(Option::as_ref) {
+                                    Some(t) => {
+                                        ui.add(egui::Image::new(t).fit_to_exact_size(size));
+                                    }
+                                    None => {
+                                        let (rect, _) =
+                                            ui.allocate_exact_size(size, egui::Sense::hover());
+                                        ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
+                                        ui.painter().text(
+                                            rect.center(),
+                                            egui::Align2::CENTER_CENTER,
+                                            format!("computing {}/{}", cell.steps, self.len),
+                                            egui::FontId::proportional(11.0),
+                                            Color32::GRAY,
+                                        );
+                                    }
+                                }
+                                let text = |e: Option<[f32; 2]>| {
+                                    e.map_or("–".to_string(), |e| {
+                                        format!("vision {:.4}, proprio {:.4}", e[0], e[1])
+                                    })
+                                };
+                                ui.label(format!("at t: {}", text(cell.error_at_t)));
+                                ui.weak(format!(
+                                    "mean over {} steps: {}",
+                                    cell.steps,
+                                    text(cell.mean_error)
+                                ));
+                            });
+                            if (i + 1) % columns == 0 {
+                                ui.end_row();
+                            }
+                        }
+                    });
+            });
+        open
+    }
+}
+
 impl ExplorerApp {
     /// The comparison's cells, when the view is open.
     pub fn comparison(&self) -> Vec<CompareCell> {
@@ -123,74 +200,19 @@ impl ExplorerApp {
         };
         let cells = self.comparison();
         let Some(bundle) = &self.bundle else { return };
-        let len = bundle
-            .dataset
-            .by_name(
-                &cells
-                    .first()
-                    .map(|c| c.key.sequence.clone())
-                    .unwrap_or_default(),
-            )
+        let len = cells
+            .first()
+            .and_then(|c| bundle.dataset.by_name(&c.key.sequence))
             .map_or(0, |s| s.len());
-        let top = bundle.model.config.vision.resolutions.len() - 1;
-        let r = bundle.model.config.vision.resolutions[top];
-        let mut open = true;
-        let columns = if set == CompareSet::Vision {
-            bundle.model.config.vision.resolutions.len()
-        } else {
-            cells.len()
+        let panel = ComparePanel {
+            set,
+            cells: &cells,
+            textures: &self.compare_images.textures,
+            resolutions: &bundle.model.config.vision.resolutions,
+            len,
+            t: self.view.t,
         };
-        egui::Window::new(format!("Compare: {}", set.name()))
-            .open(&mut open)
-            .default_width(160.0 * columns as f32)
-            .show(ctx, |ui| {
-                ui.weak(format!(
-                    "step t = {}: left camera at {r}x{r}, posterior reconstruction; error = mean squared error of all dimensions (model units) at t, and over the steps computed",
-                    self.view.t
-                ));
-                egui::Grid::new("compare grid")
-                    .spacing([8.0, 6.0])
-                    .show(ui, |ui| {
-                        for (i, cell) in cells.iter().enumerate() {
-                            ui.vertical(|ui| {
-                                ui.strong(&cell.label);
-                                let size = egui::vec2(140.0, 140.0);
-                                match self.compare_images.textures.get(i).and_then(Option::as_ref) {
-                                    Some(t) => {
-                                        ui.add(egui::Image::new(t).fit_to_exact_size(size));
-                                    }
-                                    None => {
-                                        let (rect, _) =
-                                            ui.allocate_exact_size(size, egui::Sense::hover());
-                                        ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
-                                        ui.painter().text(
-                                            rect.center(),
-                                            egui::Align2::CENTER_CENTER,
-                                            format!("computing {}/{len}", cell.steps),
-                                            egui::FontId::proportional(11.0),
-                                            Color32::GRAY,
-                                        );
-                                    }
-                                }
-                                let text = |e: Option<[f32; 2]>| {
-                                    e.map_or("–".to_string(), |e| {
-                                        format!("vision {:.4}, proprio {:.4}", e[0], e[1])
-                                    })
-                                };
-                                ui.label(format!("at t: {}", text(cell.error_at_t)));
-                                ui.weak(format!(
-                                    "mean over {} steps: {}",
-                                    cell.steps,
-                                    text(cell.mean_error)
-                                ));
-                            });
-                            if (i + 1) % columns == 0 {
-                                ui.end_row();
-                            }
-                        }
-                    });
-            });
-        if !open {
+        if !panel.show(ctx) {
             self.view.compare = None;
         }
     }

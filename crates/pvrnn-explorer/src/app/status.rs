@@ -31,9 +31,34 @@ pub(super) fn finished_note(f: &Finished) -> (String, String) {
 
 impl ExplorerApp {
     pub(super) fn progress_ui(&self, ui: &mut egui::Ui) {
+        let line = StatusLine {
+            store: &self.store,
+            shown: self.current_key(),
+            last_run: self.last_run_note.as_ref(),
+            compute: &self.compute_label,
+            renderer: &self.renderer_label,
+        };
+        line.ui(ui);
+    }
+}
+
+/// The status line: which run computes and how far, the last run's note, where runs
+/// compute and what draws.
+struct StatusLine<'a> {
+    store: &'a RunStore,
+    /// The run the view shows.
+    shown: Option<RunKey>,
+    /// What the last finished run computed, and how fast (on hover).
+    last_run: Option<&'a (String, String)>,
+    compute: &'a str,
+    renderer: &'a str,
+}
+
+impl StatusLine<'_> {
+    fn ui(&self, ui: &mut egui::Ui) {
         match (self.store.computing(), self.store.progress()) {
             (Some(key), Some((done, total))) => {
-                let what = if Some(key) == self.current_key().as_ref() {
+                let what = if Some(key) == self.shown.as_ref() {
                     "inference"
                 } else {
                     "ablation runs"
@@ -55,15 +80,15 @@ impl ExplorerApp {
                 ui.weak("all runs ready");
             }
         }
-        if let Some((what, timing)) = &self.last_run_note {
+        if let Some((what, timing)) = self.last_run {
             ui.weak(what.as_str()).on_hover_text(timing.as_str());
         }
-        ui.weak(self.compute_label.as_str())
+        ui.weak(self.compute)
             .on_hover_text(
                 "where live runs compute (desktop: --backend auto|cpu|wgpu [--gpu-recurrence]; web: ?compute=auto|cpu|webgpu[&recurrence=gpu] before the #)",
             );
-        if !self.renderer_label.is_empty() {
-            ui.weak(self.renderer_label.as_str()).on_hover_text(
+        if !self.renderer.is_empty() {
+            ui.weak(self.renderer).on_hover_text(
                 "what draws the window (desktop: --renderer auto|wgpu|glow; web: ?render=glow|wgpu before the #)",
             );
         }

@@ -16,6 +16,7 @@
 //! tolerance is the precision's ([`SuiteReal`]).
 #![allow(clippy::unwrap_used)] // a test suite: a failed unwrap is a failed test
 
+pub mod branching;
 pub mod contract;
 pub mod fixtures;
 pub mod gradients;
@@ -84,6 +85,7 @@ macro_rules! backend_suite {
                 $backend
             }
             $crate::backend_suite!(@tests $real;
+                branching::a_run_continued_from_its_state_is_the_same_run_and_a_branch_shares_its_past,
                 contract::prior_preactivations_are_the_prior_layers_of_the_state,
                 contract::the_prior_rollout_and_the_readouts_agree_with_evaluate,
                 gradients::learning_gradients_match_finite_differences,

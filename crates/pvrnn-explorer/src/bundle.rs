@@ -126,13 +126,7 @@ impl Bundle {
                 continue;
             }
             let trace = RunTrace::from_run(&loaded.run, &self.model.config, self.loaded.as_ref());
-            self.precomputed.push((
-                RunKey {
-                    sequence: name,
-                    condition,
-                },
-                trace,
-            ));
+            self.precomputed.push((RunKey::new(name, condition), trace));
             added += 1;
         }
         if !skipped.is_empty() {

@@ -3,12 +3,12 @@
 //! the browser, so the same engine runs inline between frames (desktop, tests) and inside a
 //! Web Worker (web), where the page only sees the messages.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use pvrnn_core::backend::Backend;
 use pvrnn_core::config::{ModelConfig, ModuleId};
-use pvrnn_core::infer::{OnlineInference, StepOutput};
+use pvrnn_core::infer::{InferenceState, OnlineInference, StepOutput};
 use pvrnn_core::{Modality, Model, Observations};
 use web_time::{Duration, Instant};
 
@@ -150,7 +150,26 @@ struct Job {
     /// Time spent computing (slices only, not the pauses in between).
     busy: Duration,
     started: Instant,
+    /// A branch still to take: at this step, continue under these settings.
+    switch: Option<(usize, pvrnn_core::infer::InferenceSettings)>,
+    /// Steps already known (a branch's shared past), reported before any computed one.
+    replay: VecDeque<CompactStep>,
+    /// What the job learns of its base run (the run itself, or a branch's past), so that
+    /// later branches of it start where they leave it instead of recomputing its past.
+    history: History,
+    backend: Option<Arc<dyn Backend<f32>>>,
 }
+
+/// The steps of a run and the inference state before each: `states[t]` is the state
+/// before step t, so a branch at t continues from it. A few kilobytes a step.
+#[derive(Clone, Debug, Default)]
+struct History {
+    steps: Vec<CompactStep>,
+    states: Vec<InferenceState<f32>>,
+}
+
+/// Runs whose histories are kept (the oldest is forgotten first).
+const HISTORIES: usize = 8;
 
 /// Inference iterations per slice before the clock is checked.
 const CHUNK: usize = 5;
@@ -166,6 +185,8 @@ pub struct Engine {
     failures: Vec<Event>,
     /// Where runs compute; `None`: the CPU backend.
     backend: Option<Arc<dyn Backend<f32>>>,
+    /// Histories of base runs computed here (by key, without a branch), newest last.
+    histories: VecDeque<(RunKey, History)>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -241,22 +262,78 @@ impl Engine {
             .get(&key.sequence)
             .ok_or_else(|| format!("no observations of sequence `{}`", key.sequence))?
             .clone();
-        let settings = key.condition.settings(&model.config);
-        let inference = match &self.backend {
-            Some(backend) => {
-                OnlineInference::with_backend(model.clone(), settings, backend.as_ref())
-            }
-            None => OnlineInference::new(model.clone(), settings),
-        }
-        .map_err(|e| e.to_string())?;
-        Ok(Job {
+        let open = |settings| open(model, settings, self.backend.as_ref());
+        let mut job = Job {
             key: key.clone(),
-            inference,
+            inference: open(key.condition.settings(&model.config))?,
             observations,
             next: 0,
             busy: Duration::ZERO,
             started: Instant::now(),
-        })
+            switch: None,
+            replay: VecDeque::new(),
+            history: History::default(),
+            backend: self.backend.clone(),
+        };
+        let Some(then) = &key.then else {
+            return Ok(job);
+        };
+        let at = then.at as usize;
+        let len = job.observations.lengths()[0];
+        if at >= len {
+            return Err(format!(
+                "a branch at step {at}, but `{}` has {len} steps",
+                key.sequence
+            ));
+        }
+        let settings = then.condition.settings(&model.config);
+        let base = key.base();
+        let known = self
+            .history(&base)
+            .or_else(|| self.paused.get(&base).map(|j| &j.history))
+            .filter(|h| h.states.len() > at && h.steps.len() >= at);
+        match known {
+            // The base run's state at `at` is known: the branch starts there.
+            Some(h) => {
+                job.inference = open(settings)?;
+                let state = h.states[at].clone();
+                continue_at(&mut job.inference, state, &job.observations)?;
+                job.replay = h.steps[..at].iter().cloned().collect();
+                job.next = at;
+            }
+            // Otherwise it computes the base run's past first (and keeps its history).
+            None => job.switch = Some((at, settings)),
+        }
+        Ok(job)
+    }
+
+    fn history(&self, key: &RunKey) -> Option<&History> {
+        self.histories
+            .iter()
+            .rev()
+            .find(|(k, _)| k == key)
+            .map(|(_, h)| h)
+    }
+
+    /// Keeps what a finished (or stopped) job learned of its base run, unless a longer
+    /// history of that run is kept already.
+    fn keep_history(&mut self, job: &mut Job) {
+        let history = std::mem::take(&mut job.history);
+        if history.states.is_empty() {
+            return;
+        }
+        let key = job.key.base();
+        if self
+            .history(&key)
+            .is_some_and(|h| h.states.len() >= history.states.len())
+        {
+            return;
+        }
+        self.histories.retain(|(k, _)| *k != key);
+        self.histories.push_back((key, history));
+        while self.histories.len() > HISTORIES {
+            self.histories.pop_front();
+        }
     }
 
     /// Computes the running job for about `budget` (at least one slice) and reports what
@@ -275,6 +352,9 @@ impl Engine {
             if !std::mem::take(&mut first) && start.elapsed() >= budget {
                 break;
             }
+            for step in job.replay.drain(..) {
+                events.push(Event::Step(job.key.clone(), Box::new(step)));
+            }
             let slice = Instant::now();
             let result = advance(job).await;
             job.busy += slice.elapsed();
@@ -291,7 +371,9 @@ impl Engine {
                             wall: job.started.elapsed(),
                             declined_by_device: job.inference.steps_declined_by_device(),
                         }));
-                        self.current = None;
+                        if let Some(mut job) = self.current.take() {
+                            self.keep_history(&mut job);
+                        }
                     }
                 }
                 Err(e) => {
@@ -304,8 +386,63 @@ impl Engine {
     }
 }
 
+/// An online inference of `model` on `backend` (the CPU's when `None`).
+fn open(
+    model: &Arc<Model<f32>>,
+    settings: pvrnn_core::infer::InferenceSettings,
+    backend: Option<&Arc<dyn Backend<f32>>>,
+) -> Result<OnlineInference<f32>, String> {
+    match backend {
+        Some(backend) => OnlineInference::with_backend(model.clone(), settings, backend.as_ref()),
+        None => OnlineInference::new(model.clone(), settings),
+    }
+    .map_err(|e| e.to_string())
+}
+
+/// Continues `inference` from `state`, with the window's inputs from the sequence.
+fn continue_at(
+    inference: &mut OnlineInference<f32>,
+    state: InferenceState<f32>,
+    observations: &Observations<f32>,
+) -> Result<(), String> {
+    let end = state.steps_done();
+    let inputs: Vec<(&[f32], &[f32])> = (end - state.window_len()..end)
+        .map(|t| {
+            (
+                observations.step(Modality::Exteroceptive, 0, t),
+                observations.step(Modality::Proprioceptive, 0, t),
+            )
+        })
+        .collect();
+    inference
+        .continue_from(state, &inputs)
+        .map_err(|e| e.to_string())
+}
+
+/// Before step t: a base run records its state; a branch due here switches to its
+/// condition.
+fn before_step(job: &mut Job) -> Result<(), String> {
+    let t = job.next;
+    let recording = job.key.then.is_none() || job.switch.is_some();
+    if recording && job.history.states.len() == t {
+        let state = job.inference.state().map_err(|e| e.to_string())?;
+        job.history.states.push(state);
+    }
+    if let Some((at, settings)) = job.switch.take_if(|(at, _)| *at == t) {
+        debug_assert_eq!(at, t);
+        let state = job.inference.state().map_err(|e| e.to_string())?;
+        let model = job.inference.model().clone();
+        job.inference = open(&model, settings, job.backend.as_ref())?;
+        continue_at(&mut job.inference, state, &job.observations)?;
+    }
+    Ok(())
+}
+
 /// A few updates of the job, and the step if it finished one.
 async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
+    if !job.inference.in_step() {
+        before_step(job)?;
+    }
     let inf = &mut job.inference;
     if !inf.in_step() {
         let t = job.next;
@@ -330,8 +467,13 @@ async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
     #[cfg(target_arch = "wasm32")]
     let out = inf.finish_step_async().await;
     let out = out.map_err(|e| e.to_string())?;
+    let step = CompactStep::from_output(&out);
+    let recording = job.key.then.is_none() || job.switch.is_some();
+    if recording && job.history.steps.len() == job.next {
+        job.history.steps.push(step.clone());
+    }
     job.next += 1;
-    Ok(Some(CompactStep::from_output(&out)))
+    Ok(Some(step))
 }
 
 #[cfg(test)]
@@ -401,17 +543,14 @@ mod tests {
     fn a_paused_run_resumes_to_the_same_result() {
         let (model, obs) = setup();
         let standard = Condition::standard(&model.config);
-        let a = RunKey {
-            sequence: "s".into(),
-            condition: standard,
-        };
-        let b = RunKey {
-            sequence: "s".into(),
-            condition: Condition {
+        let a = RunKey::new("s", standard);
+        let b = RunKey::new(
+            "s",
+            Condition {
                 seed: 5,
                 ..standard
             },
-        };
+        );
 
         let mut engine = Engine::default();
         engine.set_model(model.clone());
@@ -448,12 +587,61 @@ mod tests {
     }
 
     #[test]
+    fn a_branch_shares_the_steps_before_it_whether_its_past_is_known_or_recomputed() {
+        let (model, obs) = setup();
+        let standard = Condition::standard(&model.config);
+        let base = RunKey::new("s", standard);
+        let blind = Condition {
+            vision_levels: 0,
+            ..standard
+        };
+        let branch = base.branched(5, blind);
+        let fresh = || {
+            let mut engine = Engine::default();
+            engine.set_model(model.clone());
+            engine.add_observations("s".into(), obs.clone());
+            engine
+        };
+        // Recomputed: a fresh engine knows nothing of the base run.
+        let mut engine = fresh();
+        engine.run(branch.clone());
+        let recomputed = steps_of(&run_to_end(&mut engine), &branch);
+        // Known: the base run was computed here first.
+        let mut engine = fresh();
+        engine.run(base.clone());
+        let whole = steps_of(&run_to_end(&mut engine), &base);
+        engine.run(branch.clone());
+        // The shared past arrives at once (one slice computes at most one step).
+        let mut events = engine.work(Duration::ZERO);
+        assert!(steps_of(&events, &branch).len() >= 5, "{events:?}");
+        events.extend(run_to_end(&mut engine));
+        let known = steps_of(&events, &branch);
+        let Some(Event::Done(done)) = events.last() else {
+            panic!("{events:?}")
+        };
+        assert_eq!(recomputed.len(), 9);
+        assert_eq!(known, recomputed, "the two ways to a branch differ");
+        assert_eq!(recomputed[..5], whole[..5], "the shared past differs");
+        assert_ne!(
+            recomputed[5], whole[5],
+            "the branch's condition changed nothing"
+        );
+        assert_eq!(done.steps, 9);
+        // A branch past the sequence's end is an error, not a run.
+        let mut engine = fresh();
+        let late = base.branched(9, blind);
+        engine.run(late.clone());
+        let events = engine.work(Duration::from_millis(10));
+        assert!(
+            matches!(&events[..], [Event::Failed(k, e)] if *k == late && e.contains("9 steps")),
+            "{events:?}"
+        );
+    }
+
+    #[test]
     fn steps_survive_the_flat_encoding() {
         let (model, obs) = setup();
-        let key = RunKey {
-            sequence: "s".into(),
-            condition: Condition::standard(&model.config),
-        };
+        let key = RunKey::new("s", Condition::standard(&model.config));
         let layout = StepLayout::of(&model.config);
         let mut engine = Engine::default();
         engine.set_model(model);
@@ -472,10 +660,7 @@ mod tests {
     #[test]
     fn missing_inputs_are_reported_not_panicked() {
         let (model, _) = setup();
-        let key = RunKey {
-            sequence: "nowhere".into(),
-            condition: Condition::standard(&model.config),
-        };
+        let key = RunKey::new("nowhere", Condition::standard(&model.config));
         let mut engine = Engine::default();
         engine.set_model(model);
         engine.run(key.clone());

@@ -50,6 +50,15 @@ pub struct ViewState {
     pub speed: f32,
     /// The comparison view, when open.
     pub compare: Option<CompareSet>,
+    /// A branch of the shown run, shown beside it.
+    pub branch: Option<BranchView>,
+}
+
+/// A branch of the shown run: the same run up to step `at`, then under `condition`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BranchView {
+    pub at: usize,
+    pub condition: Condition,
 }
 
 impl Default for ViewState {
@@ -67,6 +76,7 @@ impl Default for ViewState {
             playing: false,
             speed: 10.0,
             compare: None,
+            branch: None,
         }
     }
 }
@@ -180,14 +190,23 @@ impl ViewState {
             self.t = len - 1;
         }
         let levels = bundle.model.config.vision.resolutions.len();
-        if let Some(c) = &mut self.condition
-            && c.vision_levels as usize > levels
-        {
+        let branch = self.branch.as_mut().map(|b| &mut b.condition);
+        for c in self.condition.as_mut().into_iter().chain(branch) {
+            if c.vision_levels as usize > levels {
+                notes.push(format!(
+                    "vision levels {} asked for, the model has {levels}: observing all",
+                    c.vision_levels
+                ));
+                c.vision_levels = levels as u8;
+            }
+        }
+        if let Some(b) = self.branch.filter(|b| b.at >= len) {
             notes.push(format!(
-                "vision levels {} asked for, the model has {levels}: observing all",
-                c.vision_levels
+                "a branch at step {}, past the sequence's last step ({}): no branch",
+                b.at,
+                len - 1
             ));
-            c.vision_levels = levels as u8;
+            self.branch = None;
         }
         notes
     }
@@ -200,20 +219,11 @@ impl ViewState {
         }
         parts.push(format!("t={}", self.t));
         if let Some(c) = &self.condition {
-            parts.push(format!("vision={}", c.vision_levels));
-            parts.push(format!("proprio={}", c.proprio as u8));
-            parts.push(format!(
-                "ablate={}",
-                c.ablation
-                    .iter()
-                    .map(|&a| if a { '1' } else { '0' })
-                    .collect::<String>()
-            ));
-            parts.push(format!("amode={}", c.ablation_mode.name()));
-            parts.push(format!("H={}", c.window));
-            parts.push(format!("iter={}", c.iterations));
-            parts.push(format!("lr={}", c.lr()));
-            parts.push(format!("seed={}", c.seed));
+            condition_entries(c, "", &mut parts);
+        }
+        if let Some(b) = &self.branch {
+            parts.push(format!("branch={}", b.at));
+            condition_entries(&b.condition, BRANCH, &mut parts);
         }
         parts.push(format!("units={}", format_units(&self.units)));
         if let Some(c) = self.compare {
@@ -241,6 +251,13 @@ impl ViewState {
         let mut v = base.clone();
         let mut c = base.condition.unwrap_or(standard);
         let mut condition_given = false;
+        // A branch's condition starts from the view's own (a hash that names only what
+        // the branch changes).
+        let mut branch = base.branch.unwrap_or(BranchView {
+            at: 0,
+            condition: c,
+        });
+        let mut branch_given = base.branch.is_some();
         let mut ignored = Vec::new();
         for pair in hash.trim_start_matches('#').split('&') {
             if pair.is_empty() {
@@ -275,60 +292,28 @@ impl ViewState {
                     };
                     (set.map(|set| v.compare = set).is_some(), false)
                 }
-                "vision" => (
-                    num()
-                        .filter(|&n| n <= 8)
-                        .map(|n| c.vision_levels = n as u8)
-                        .is_some(),
-                    true,
-                ),
-                "proprio" => (flag().map(|f| c.proprio = f).is_some(), true),
-                "ablate" => {
-                    let ok = value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1');
-                    if ok {
-                        for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
-                            *slot = ch == '1';
-                        }
-                    }
-                    (ok, true)
+                "branch" if value == "off" => {
+                    branch_given = false;
+                    (true, false)
                 }
-                "amode" => (
-                    pvrnn_core::AblationMode::parse(value)
-                        .map(|mode| c.ablation_mode = mode)
-                        .is_ok(),
-                    true,
-                ),
-                "H" => (
-                    num()
-                        .filter(|&n| (1..=10_000).contains(&n))
-                        .map(|n| c.window = n as u16)
-                        .is_some(),
-                    true,
-                ),
-                "iter" => (
-                    num()
-                        .filter(|&n| n <= 10_000)
-                        .map(|n| c.iterations = n as u16)
-                        .is_some(),
-                    true,
-                ),
-                "lr" => (
-                    value
-                        .parse::<f64>()
-                        .ok()
-                        .filter(|lr| *lr > 0.0 && *lr <= 100.0)
-                        .map(|lr| c.set_lr(lr))
-                        .is_some(),
-                    true,
-                ),
-                "seed" => (
-                    num()
-                        .filter(|&n| n <= u32::MAX as u64)
-                        .map(|n| c.seed = n as u32)
-                        .is_some(),
-                    true,
-                ),
-                _ => (false, false),
+                "branch" => {
+                    let at = num().map(|n| n as usize);
+                    if let Some(at) = at {
+                        branch.at = at;
+                        branch_given = true;
+                    }
+                    (at.is_some(), false)
+                }
+                _ => match key.strip_prefix(BRANCH) {
+                    Some(key) => match read_condition_entry(&mut branch.condition, key, value) {
+                        Some(read) => (read, false),
+                        None => (false, false),
+                    },
+                    None => match read_condition_entry(&mut c, key, value) {
+                        Some(read) => (read, true),
+                        None => (false, false),
+                    },
+                },
             };
             if read {
                 condition_given |= sets_condition;
@@ -339,6 +324,7 @@ impl ViewState {
         if condition_given {
             v.condition = Some(c);
         }
+        v.branch = branch_given.then_some(branch);
         let notes = if ignored.is_empty() {
             Vec::new()
         } else {
@@ -349,6 +335,79 @@ impl ViewState {
         };
         (v, notes)
     }
+}
+
+/// The prefix of a branch's condition entries in the hash (`b.vision=0`).
+const BRANCH: &str = "b.";
+
+/// A condition's entries in the hash, each key after `prefix`.
+fn condition_entries(c: &Condition, prefix: &str, parts: &mut Vec<String>) {
+    let ablate: String = c
+        .ablation
+        .iter()
+        .map(|&a| if a { '1' } else { '0' })
+        .collect();
+    for (key, value) in [
+        ("vision", c.vision_levels.to_string()),
+        ("proprio", (c.proprio as u8).to_string()),
+        ("ablate", ablate),
+        ("amode", c.ablation_mode.name().to_string()),
+        ("H", c.window.to_string()),
+        ("iter", c.iterations.to_string()),
+        ("lr", c.lr().to_string()),
+        ("seed", c.seed.to_string()),
+    ] {
+        parts.push(format!("{prefix}{key}={value}"));
+    }
+}
+
+/// Reads one condition entry into `c`: `None` when `key` is not a condition's, else
+/// whether the value was read (a malformed one leaves `c` as it was).
+fn read_condition_entry(c: &mut Condition, key: &str, value: &str) -> Option<bool> {
+    let num = || value.parse::<u64>().ok();
+    let flag = || match value {
+        "1" | "true" => Some(true),
+        "0" | "false" => Some(false),
+        _ => None,
+    };
+    Some(match key {
+        "vision" => num()
+            .filter(|&n| n <= 8)
+            .map(|n| c.vision_levels = n as u8)
+            .is_some(),
+        "proprio" => flag().map(|f| c.proprio = f).is_some(),
+        "ablate" => {
+            let ok = value.len() == 4 && value.chars().all(|ch| ch == '0' || ch == '1');
+            if ok {
+                for (slot, ch) in c.ablation.iter_mut().zip(value.chars()) {
+                    *slot = ch == '1';
+                }
+            }
+            ok
+        }
+        "amode" => pvrnn_core::AblationMode::parse(value)
+            .map(|mode| c.ablation_mode = mode)
+            .is_ok(),
+        "H" => num()
+            .filter(|&n| (1..=10_000).contains(&n))
+            .map(|n| c.window = n as u16)
+            .is_some(),
+        "iter" => num()
+            .filter(|&n| n <= 10_000)
+            .map(|n| c.iterations = n as u16)
+            .is_some(),
+        "lr" => value
+            .parse::<f64>()
+            .ok()
+            .filter(|lr| *lr > 0.0 && *lr <= 100.0)
+            .map(|lr| c.set_lr(lr))
+            .is_some(),
+        "seed" => num()
+            .filter(|&n| n <= u32::MAX as u64)
+            .map(|n| c.seed = n as u32)
+            .is_some(),
+        _ => return None,
+    })
 }
 
 #[cfg(test)]
@@ -380,13 +439,22 @@ mod tests {
             contours: true,
             maps: false,
             compare: Some(CompareSet::Vision),
+            branch: Some(BranchView {
+                at: 80,
+                condition: Condition {
+                    vision_levels: 0,
+                    proprio: true,
+                    ..c
+                },
+            }),
             ..ViewState::default()
         };
         let hash = v.to_hash();
         assert!(
             hash.contains("units=0-2,5,9-10")
                 && hash.contains("ablate=1001")
-                && hash.contains("amode=inference"),
+                && hash.contains("amode=inference")
+                && hash.contains("branch=80&b.vision=0&b.proprio=1"),
             "{hash}"
         );
         let (back, notes) =

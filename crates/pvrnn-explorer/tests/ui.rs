@@ -149,10 +149,7 @@ fn contribution_maps_need_and_get_the_ablation_runs() {
     let key = app.current_key().unwrap();
     let standard = key.condition.without_ablation();
     for module in pvrnn_core::ModuleId::ALL {
-        let k = pvrnn_explorer::condition::RunKey {
-            condition: standard.ablating(module),
-            ..key.clone()
-        };
+        let k = pvrnn_explorer::condition::RunKey::new(&key.sequence, standard.ablating(module));
         let run = app
             .run(&k)
             .expect("each single-module ablation is computed");
@@ -680,6 +677,51 @@ fn the_open_buttons_read_what_the_file_dialog_chose() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Branch at t: the branch shares the run's steps before t, differs after, is drawn beside
+/// it (plots and a row of images), lives in the address, and goes away when removed.
+#[test]
+fn a_branch_at_the_cursor_shares_the_past_and_is_shown_beside_the_run() {
+    let view = ViewState {
+        t: 6,
+        ..ViewState::default()
+    };
+    let mut h = harness(ExplorerApp::new(Some(common::bundle()), view));
+    h.get_by_label("Branch here").click();
+    h.step();
+    settle(&mut h);
+    let app = h.state();
+    let branch = app.view().branch.expect("a branch at the cursor");
+    assert_eq!((branch.at, branch.condition.vision_levels), (6, 0));
+    assert!(app.view().to_hash().contains("branch=6&b.vision=0"));
+    let (run, key) = (app.current_run().unwrap(), app.branch_key().unwrap());
+    let forked = app.run(&key).expect("the branch is computed");
+    assert!(
+        forked.complete && forked.error.is_none(),
+        "{:?}",
+        forked.error
+    );
+    assert_eq!(forked.trace.steps, 12);
+    for t in 0..12 {
+        let apart: f64 = pvrnn_core::ModuleId::ALL
+            .iter()
+            .map(|&m| pvrnn_explorer::app::divergence(&run.trace, &forked.trace, m, t))
+            .sum();
+        assert_eq!(apart == 0.0, t < 6, "step {t}: divergence {apart}");
+    }
+    let labels = format!("{:?}", h.root());
+    for text in [
+        "Branch at step 6",
+        "branch (from step 6)",
+        "divergence: RMS |d(branch) - d(run)| per module",
+        "KL(posterior || prior) per module (nats)",
+    ] {
+        assert!(labels.contains(text), "no `{text}` in the view");
+    }
+    h.get_by_label("remove the branch").click();
+    h.step();
+    assert_eq!(h.state().view().branch, None);
+}
+
 /// Another robot: one camera, one 6-joint arm without torque sensing, a gripper channel.
 #[test]
 fn a_robot_of_another_shape_is_shown_with_its_own_channels() {
@@ -777,6 +819,23 @@ mod snapshots {
             ..ViewState::default()
         };
         drawn(ExplorerApp::new(Some(common::bundle()), view)).snapshot("comparison_view");
+    }
+
+    #[test]
+    fn a_branch_beside_its_run() {
+        let view = ViewState {
+            t: 9,
+            maps: false,
+            branch: Some(pvrnn_explorer::state::BranchView {
+                at: 5,
+                condition: Condition {
+                    proprio: false,
+                    ..Condition::standard(&common::bundle().model.config)
+                },
+            }),
+            ..ViewState::default()
+        };
+        drawn(ExplorerApp::new(Some(common::bundle()), view)).snapshot("branch_view");
     }
 
     #[test]

@@ -20,9 +20,9 @@ use web_time::Duration;
 wasm_bindgen_test_configure!(run_in_browser);
 
 fn key() -> RunKey {
-    RunKey {
-        sequence: "wiping_650mm_test0".into(),
-        condition: Condition {
+    RunKey::new(
+        "wiping_650mm_test0",
+        Condition {
             vision_levels: 1,
             proprio: true,
             ablation: [false, true, false, false],
@@ -32,7 +32,7 @@ fn key() -> RunKey {
             lr_bits: 0.09f64.to_bits(),
             seed: 3,
         },
-    }
+    )
 }
 
 async fn sleep_ms(ms: i32) {

@@ -162,10 +162,7 @@ impl ExplorerApp {
         compare_conditions(set, key.condition, &bundle.model.config.vision.resolutions)
             .into_iter()
             .map(|(label, condition)| {
-                let key = RunKey {
-                    condition,
-                    ..key.clone()
-                };
+                let key = RunKey::new(&key.sequence, condition);
                 let trace = self.store.get(&key).map(|e| &e.trace);
                 let steps = trace.map_or(0, |tr| tr.steps);
                 let mean_error = trace.filter(|tr| tr.steps > 0).map(|tr| {

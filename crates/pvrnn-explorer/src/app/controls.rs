@@ -11,7 +11,7 @@ impl ExplorerApp {
         self.top_row_ui(ui);
         let standard = Condition::standard(&config);
         let mut c = self.view.condition.unwrap_or(standard);
-        condition_ui(ui, &config, &mut c, standard);
+        condition_ui(ui, &config, &mut c, standard, "");
         if Some(c) != self.view.condition && !(self.view.condition.is_none() && c == standard) {
             self.view.condition = Some(c);
         }
@@ -86,6 +86,14 @@ impl ExplorerApp {
             ui.checkbox(&mut self.view.prior_images, "prior prediction images");
             ui.checkbox(&mut self.view.contours, "contours");
             ui.checkbox(&mut self.view.maps, "contribution maps").on_hover_text("Runs inference once more with each module ablated (four runs; minutes at full vision in a browser)");
+            if self.view.branch.is_none()
+                && ui
+                    .button("Branch here")
+                    .on_hover_text("Continue this run from the cursor's step under another condition, shown beside it")
+                    .clicked()
+            {
+                self.branch_here();
+            }
             ui.separator();
             self.progress_ui(ui);
         });
@@ -199,11 +207,14 @@ impl ExplorerApp {
 
 /// The condition of online inference as controls (vision, proprioception, ablation and
 /// its mode, H, iterations, lr, seed, back to standard), edited in place.
-fn condition_ui(
+/// A condition's controls. `salt` keeps a second set (the branch's) apart from the
+/// first; the branch's window is its run's, so only the first offers H.
+pub(super) fn condition_ui(
     ui: &mut egui::Ui,
     config: &pvrnn_core::ModelConfig,
     c: &mut Condition,
     standard: Condition,
+    salt: &str,
 ) {
     ui.horizontal_wrapped(|ui| {
         let vision_label = ui.label("Vision observed:");
@@ -220,7 +231,7 @@ fn condition_ui(
                     .join("+")
             }
         };
-        egui::ComboBox::from_id_salt("vision")
+        egui::ComboBox::from_id_salt((salt, "vision"))
             .selected_text(label(c.vision_levels as usize))
             .show_ui(ui, |ui| {
                 for n in (0..=levels).rev() {
@@ -236,7 +247,7 @@ fn condition_ui(
             ui.checkbox(&mut c.ablation[id.index()], id.name());
         }
         let l = ui.label("mode");
-        egui::ComboBox::from_id_salt("ablation mode")
+        egui::ComboBox::from_id_salt((salt, "ablation mode"))
             .selected_text(c.ablation_mode.name())
             .show_ui(ui, |ui| {
                 for (mode, tip) in [
@@ -257,9 +268,11 @@ fn condition_ui(
             .labelled_by(l.id)
             .on_hover_text("when an ablation (and the contribution maps) applies");
         ui.separator();
-        let l = ui.label("H");
-        ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
-            .labelled_by(l.id);
+        if salt.is_empty() {
+            let l = ui.label("H");
+            ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
+                .labelled_by(l.id);
+        }
         let l = ui.label("iterations");
         ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
             .labelled_by(l.id);

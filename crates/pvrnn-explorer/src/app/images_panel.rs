@@ -6,7 +6,7 @@ use super::*;
 /// Images shown at the cursor, recomputed when what they depend on changes.
 #[derive(Default)]
 pub(super) struct ImageCache {
-    pub(super) key: Option<(RunKey, usize, bool, bool, [usize; 5])>,
+    pub(super) key: Option<(RunKey, usize, bool, bool, [usize; 6])>,
     pub(super) textures: HashMap<String, TextureHandle>,
     /// The predicted vision vector and contribution maps at the cursor (kept for tests).
     pub(super) predicted: Option<Vec<f32>>,
@@ -22,27 +22,23 @@ pub(super) fn read_out_vision(bundle: &Bundle, rows: &[f32], count: usize) -> Ve
 }
 
 /// The runs the images at the cursor come from: the shown run, the same condition without
-/// ablation (the contribution maps' base), and each module ablated.
+/// ablation (the contribution maps' base), each module ablated, and the branch.
 struct ImageRuns {
     shown: RunKey,
     base: RunKey,
     ablated: Vec<RunKey>,
+    branch: Option<RunKey>,
 }
 
 impl ImageRuns {
-    fn of(key: &RunKey) -> Self {
+    fn of(key: &RunKey, branch: Option<RunKey>) -> Self {
         Self {
+            branch,
             shown: key.clone(),
-            base: RunKey {
-                condition: key.condition.without_ablation(),
-                ..key.clone()
-            },
+            base: RunKey::new(&key.sequence, key.condition.without_ablation()),
             ablated: ModuleId::ALL
                 .iter()
-                .map(|&id| RunKey {
-                    condition: key.condition.ablating(id),
-                    ..key.clone()
-                })
+                .map(|&id| RunKey::new(&key.sequence, key.condition.ablating(id)))
                 .collect(),
         }
     }
@@ -74,7 +70,7 @@ impl ExplorerApp {
             return;
         };
         let t = self.view.t;
-        let runs = ImageRuns::of(&key);
+        let runs = ImageRuns::of(&key, self.branch_key());
         let steps_of = |k: &RunKey| self.store.get(k).map_or(0, |e| e.trace.steps).min(t + 1);
         let stamp = [
             steps_of(&runs.shown),
@@ -82,6 +78,7 @@ impl ExplorerApp {
             steps_of(&runs.ablated[0]),
             steps_of(&runs.ablated[1]),
             steps_of(&runs.ablated[2]) + steps_of(&runs.ablated[3]),
+            runs.branch.as_ref().map_or(0, steps_of),
         ];
         let cache_key = (
             key.clone(),
@@ -123,6 +120,9 @@ impl ExplorerApp {
             }
         };
         push(&runs.shown, "shown", self.view.prior_images);
+        if let Some(branch) = &runs.branch {
+            push(branch, "branch", self.view.prior_images);
+        }
         if self.view.maps {
             push(&runs.base, "base", false);
             for (k, name) in runs.ablated.iter().zip(MAPS) {
@@ -164,10 +164,12 @@ impl ExplorerApp {
                     a
                 };
                 pictures.push((format!("actual {cam} {level}"), a));
-                if let Some(v) = read_outs.get("shown") {
-                    let outline = self.view.contours && level == top && cam == last_camera;
-                    let p = outlined(images::camera_image(layout, v, level, cam), outline);
-                    pictures.push((format!("predicted {cam} {level}"), p));
+                let outline = self.view.contours && level == top && cam == last_camera;
+                for (run, name) in [("shown", "predicted"), ("branch", "branch")] {
+                    if let Some(v) = read_outs.get(run) {
+                        let p = outlined(images::camera_image(layout, v, level, cam), outline);
+                        pictures.push((format!("{name} {cam} {level}"), p));
+                    }
                 }
             }
         }
@@ -212,6 +214,7 @@ impl ExplorerApp {
             ablation_mode: self
                 .condition()
                 .map_or(AblationMode::default(), |c| c.ablation_mode),
+            branch_at: self.view.branch.map(|b| b.at),
         };
         panel.ui(ui);
     }
@@ -228,6 +231,8 @@ struct ImagesPanel<'a> {
     prior_images: bool,
     maps: bool,
     ablation_mode: AblationMode,
+    /// Where the branch leaves the run, when there is one: its predictions get a row.
+    branch_at: Option<usize>,
 }
 
 impl ImagesPanel<'_> {
@@ -278,15 +283,21 @@ impl ImagesPanel<'_> {
                         );
                     }
                     ui.end_row();
-                    ui.label(predicted_label);
-                    for level in (0..=top).rev() {
-                        image(
-                            ui,
-                            self.textures.get(&format!("predicted {cam} {level}")),
-                            shown,
-                        );
+                    let mut rows = vec![(predicted_label.to_string(), "predicted")];
+                    if let Some(at) = self.branch_at {
+                        rows.push((format!("branch (from step {at})"), "branch"));
                     }
-                    ui.end_row();
+                    for (label, name) in rows {
+                        ui.label(label);
+                        for level in (0..=top).rev() {
+                            image(
+                                ui,
+                                self.textures.get(&format!("{name} {cam} {level}")),
+                                shown,
+                            );
+                        }
+                        ui.end_row();
+                    }
                 });
         }
         ui.add_space(6.0);

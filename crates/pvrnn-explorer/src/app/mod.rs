@@ -20,6 +20,7 @@ use crate::runs::{Entry, RunStore, RunTrace};
 use crate::state::{ViewState, format_units, parse_units};
 
 mod bench;
+mod branch;
 mod compare;
 mod controls;
 mod export;
@@ -32,6 +33,7 @@ mod traces;
 pub use bench::bench_frames;
 #[cfg(not(target_arch = "wasm32"))]
 pub use bench::bench_live;
+pub use branch::{divergence, module_kl};
 use compare::CompareCache;
 pub use compare::{CompareCell, compare_conditions};
 pub use controls::condition_label;
@@ -333,10 +335,10 @@ impl ExplorerApp {
     }
 
     pub fn current_key(&self) -> Option<RunKey> {
-        Some(RunKey {
-            sequence: self.view.sequence.clone()?,
-            condition: self.condition()?.canonical(),
-        })
+        Some(RunKey::new(
+            self.view.sequence.clone()?,
+            self.condition()?.canonical(),
+        ))
     }
 
     pub fn current_run(&self) -> Option<&Entry> {
@@ -371,21 +373,15 @@ impl ExplorerApp {
             return false;
         };
         self.store.request(key.clone(), true);
+        if let Some(branch) = self.branch_key() {
+            self.store.request(branch, false);
+        }
         if self.view.maps {
             let base = key.condition.without_ablation();
-            self.store.request(
-                RunKey {
-                    condition: base,
-                    ..key.clone()
-                },
-                false,
-            );
+            self.store.request(RunKey::new(&key.sequence, base), false);
             for id in ModuleId::ALL {
                 self.store.request(
-                    RunKey {
-                        condition: key.condition.ablating(id),
-                        ..key.clone()
-                    },
+                    RunKey::new(&key.sequence, key.condition.ablating(id)),
                     false,
                 );
             }
@@ -536,7 +532,10 @@ impl ExplorerApp {
                 egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
             });
         egui::CentralPanel::default().show(ui, |ui| {
-            egui::ScrollArea::vertical().show(ui, |ui| self.traces_ui(ui));
+            egui::ScrollArea::vertical().show(ui, |ui| {
+                self.branch_ui(ui);
+                self.traces_ui(ui);
+            });
         });
         self.compare_ui(&ctx);
         if let Some(bundle) = &self.bundle {

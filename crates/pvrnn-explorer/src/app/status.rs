@@ -103,10 +103,10 @@ mod tests {
     #[test]
     fn a_finished_run_says_its_speed_and_where_the_gpu_declined() {
         let mut f = Finished {
-            key: RunKey {
-                sequence: "wiping_650mm_test0".into(),
-                condition: Condition::standard(&pvrnn_core::ModelConfig::default()),
-            },
+            key: RunKey::new(
+                "wiping_650mm_test0",
+                Condition::standard(&pvrnn_core::ModelConfig::default()),
+            ),
             steps: 300,
             busy: Duration::from_secs(20),
             wall: Duration::from_secs(30),

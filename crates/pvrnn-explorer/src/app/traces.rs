@@ -77,7 +77,38 @@ impl TracesPanel<'_> {
         lines: Vec<Line<'static>>,
         y: Option<(f64, f64)>,
     ) -> Option<usize> {
-        let len = self.len();
+        let plot = StepPlot {
+            len: self.len(),
+            t: self.t,
+            mark: None,
+            legend: false,
+        };
+        plot.show(ui, id, title, height, lines, y)
+    }
+}
+
+/// A plot over a sequence's `len` steps with the cursor at `t` (and a marked step, such as
+/// where a branch leaves its run).
+#[derive(Clone, Copy)]
+pub(super) struct StepPlot {
+    pub len: usize,
+    pub t: usize,
+    pub mark: Option<usize>,
+    pub legend: bool,
+}
+
+impl StepPlot {
+    /// Draws `lines` under `title`; the step clicked, if any.
+    pub(super) fn show(
+        &self,
+        ui: &mut egui::Ui,
+        id: String,
+        title: &str,
+        height: f32,
+        lines: Vec<Line<'static>>,
+        y: Option<(f64, f64)>,
+    ) -> Option<usize> {
+        let len = self.len;
         ui.label(RichText::new(title).small());
         let mut p = Plot::new(id)
             .height(height)
@@ -91,12 +122,24 @@ impl TracesPanel<'_> {
         if let Some((lo, hi)) = y {
             p = p.include_y(lo).include_y(hi);
         }
+        if self.legend {
+            p = p.legend(Legend::default());
+        }
         let cursor = ui.visuals().strong_text_color();
         let response = p.show(ui, |pu| {
             for l in lines {
                 pu.line(l);
             }
-            pu.vline(VLine::new("t", self.t as f64).color(cursor).width(1.5));
+            // The vertical lines are unnamed, so that legends list the plotted lines only.
+            if let Some(at) = self.mark {
+                pu.vline(
+                    VLine::new("", at as f64)
+                        .color(Color32::from_rgb(200, 120, 220))
+                        .style(LineStyle::dashed_loose())
+                        .width(1.5),
+                );
+            }
+            pu.vline(VLine::new("", self.t as f64).color(cursor).width(1.5));
         });
         let r = &response.response;
         if r.is_pointer_button_down_on() || r.clicked() {
@@ -112,7 +155,9 @@ impl TracesPanel<'_> {
             None
         }
     }
+}
 
+impl TracesPanel<'_> {
     /// Per module mu and sigma (posterior solid, prior dashed) and, if asked, d.
     fn latent_ui(&self, ui: &mut egui::Ui) -> Option<usize> {
         let trace = self.trace;

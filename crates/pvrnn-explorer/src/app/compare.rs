@@ -83,6 +83,8 @@ struct ComparePanel<'a> {
     /// The sequence's steps.
     len: usize,
     t: usize,
+    /// The name of the camera shown.
+    camera: String,
 }
 
 impl ComparePanel<'_> {
@@ -101,8 +103,8 @@ impl ComparePanel<'_> {
             .default_width(160.0 * columns as f32)
             .show(ctx, |ui| {
                 ui.weak(format!(
-                    "step t = {}: left camera at {r}x{r}, posterior reconstruction; error = mean squared error of all dimensions (model units) at t, and over the steps computed",
-                    self.t
+                    "step t = {}: {} at {r}x{r}, posterior reconstruction; error = mean squared error of all dimensions (model units) at t, and over the steps computed",
+                    self.t, self.camera
                 ));
                 egui::Grid::new("compare grid")
                     .spacing([8.0, 6.0])
@@ -208,6 +210,7 @@ impl ExplorerApp {
             resolutions: &bundle.model.config.vision.resolutions,
             len,
             t: self.view.t,
+            camera: super::images_panel::camera_name(&bundle.dataset.manifest.cameras, 0),
         };
         if !panel.show(ctx) {
             self.view.compare = None;

@@ -208,6 +208,7 @@ impl ExplorerApp {
         let Some(bundle) = &self.bundle else { return };
         let panel = ImagesPanel {
             layout: &bundle.model.config.vision,
+            cameras: &bundle.dataset.manifest.cameras,
             textures: &self.images.textures,
             prior_images: self.view.prior_images,
             maps: self.view.maps,
@@ -225,6 +226,8 @@ impl ExplorerApp {
 /// contribution maps.
 struct ImagesPanel<'a> {
     layout: &'a pvrnn_core::config::VisionLayout,
+    /// The cameras' names, as the dataset gives them.
+    cameras: &'a [String],
     textures: &'a HashMap<String, TextureHandle>,
     /// Whether the predicted row is the prior prediction of t+1 (else the posterior
     /// reconstruction of t).
@@ -257,14 +260,14 @@ impl ImagesPanel<'_> {
                 );
             }
         };
-        let cams = ["left camera", "right camera"];
+        let camera = |cam: usize| camera_name(self.cameras, cam);
         let predicted_label = if self.prior_images {
             "prior prediction (t+1)"
         } else {
             "posterior reconstruction"
         };
         for cam in 0..layout.cameras {
-            ui.strong(cams.get(cam).copied().unwrap_or("camera"));
+            ui.strong(camera(cam));
             egui::Grid::new(format!("images {cam}"))
                 .spacing([4.0, 2.0])
                 .show(ui, |ui| {
@@ -303,7 +306,7 @@ impl ImagesPanel<'_> {
         ui.add_space(6.0);
         ui.strong(format!(
             "contours and contributions ({}, {}x{})",
-            cams[layout.cameras.min(2) - 1],
+            camera(layout.cameras - 1),
             layout.resolutions[top],
             layout.resolutions[top]
         ));
@@ -328,5 +331,13 @@ impl ImagesPanel<'_> {
                 mode.name()
             ));
         }
+    }
+}
+
+/// A camera's name as the dataset gives it (`camera 2` if it gives none).
+pub(super) fn camera_name(names: &[String], cam: usize) -> String {
+    match names.get(cam) {
+        Some(name) if !name.trim().is_empty() => format!("{name} camera"),
+        _ => format!("camera {cam}"),
     }
 }

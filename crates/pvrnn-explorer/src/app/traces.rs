@@ -239,7 +239,7 @@ impl TracesPanel<'_> {
         let trace = self.trace;
         let mut seek = None;
         ui.heading("Proprioception");
-        ui.weak("actual solid, predicted (posterior reconstruction) dashed; left arm warm colours, right arm cool");
+        ui.weak("actual solid, predicted (posterior reconstruction) dashed");
         let norm = self.config.normalisation.clone();
         // Bundle::new checked that the model's proprioception is the data's.
         let dims = self.config.proprio_dims;
@@ -255,18 +255,24 @@ impl TracesPanel<'_> {
                 .collect()
         };
         let ranges = self.channels.layout().ranges();
+        let extra = format!(
+            "extra channels: {} (their own units)",
+            self.channels.extra.join(", ")
+        );
         let kinds = [
-            ("joint angles (rad)", &self.channels.joints),
-            ("torques (N m)", &self.channels.torques),
-            ("extra channels", &self.channels.extra),
+            ("joint angles (rad)".to_string(), &self.channels.joints),
+            ("torques (N m)".to_string(), &self.channels.torques),
+            (extra, &self.channels.extra),
         ];
         for ((title, names), range) in kinds.into_iter().zip(ranges) {
             if names.is_empty() {
                 continue;
             }
+            let colours = ChannelColours::of(names);
+            let title = format!("{title}; {}", colours.key());
             let mut lines = Vec::new();
             for (j, (dim, name)) in range.clone().zip(names.iter()).enumerate() {
-                let colour = channel_colour(j, names.len());
+                let colour = colours.colour(j);
                 let actual: Vec<[f64; 2]> = (0..self.len())
                     .map(|s| [s as f64, self.sequence.proprio(s)[dim] as f64])
                     .collect();
@@ -288,7 +294,14 @@ impl TracesPanel<'_> {
                 }
             }
             let id = format!("proprio {}", range.start);
-            seek = self.plot(ui, id, title, 150.0, lines, None).or(seek);
+            let plot = StepPlot {
+                len: self.len(),
+                t: self.t,
+                mark: None,
+                // Named lines where a legend stays readable; the groups' colours otherwise.
+                legend: names.len() <= LEGEND_CHANNELS,
+            };
+            seek = plot.show(ui, id, &title, 150.0, lines, None).or(seek);
         }
         seek
     }
@@ -363,21 +376,98 @@ pub(super) fn unit_colour(k: usize) -> Color32 {
     c.into()
 }
 
-/// Channel `i` of `n` of one kind: the paper's two 7-joint arms in two hue families (red
-/// left, blue right), any other robot's channels around the colour wheel.
-pub(super) fn channel_colour(i: usize, n: usize) -> Color32 {
-    if n == 14 {
-        arm_colour(i)
-    } else {
-        egui::ecolor::Hsva::new(i as f32 / n.max(1) as f32, 0.7, 0.7, 1.0).into()
+/// Plots of at most this many channels name them in a legend.
+const LEGEND_CHANNELS: usize = 8;
+
+/// Colours of one kind of channels, from their names: channels whose names share a prefix
+/// (`left_q1`, `left_q2`: group `left`) get shades of one hue, each group its own hue
+/// (the paper's robot: left arm red, right arm cyan); ungrouped channels go around the
+/// colour wheel.
+pub(super) struct ChannelColours {
+    /// Per channel: its group and its place in the group.
+    place: Vec<(usize, usize)>,
+    groups: Vec<(String, usize)>,
+}
+
+impl ChannelColours {
+    pub(super) fn of(names: &[String]) -> Self {
+        let prefix = |n: &str| n.split_once('_').map(|(p, _)| p.to_string());
+        let mut groups: Vec<(String, usize)> = Vec::new();
+        let mut place = Vec::new();
+        for name in names {
+            // A group is a prefix two channels or more share.
+            let shared = prefix(name).filter(|p| {
+                names
+                    .iter()
+                    .filter(|n| prefix(n).as_ref() == Some(p))
+                    .count()
+                    > 1
+            });
+            let key = shared.unwrap_or_else(|| name.clone());
+            let g = match groups.iter().position(|(k, _)| *k == key) {
+                Some(g) => g,
+                None => {
+                    groups.push((key, 0));
+                    groups.len() - 1
+                }
+            };
+            place.push((g, groups[g].1));
+            groups[g].1 += 1;
+        }
+        Self { place, groups }
+    }
+
+    fn grouped(&self) -> bool {
+        self.groups.len() < self.place.len()
+    }
+
+    pub(super) fn colour(&self, channel: usize) -> Color32 {
+        let (g, k) = self.place[channel];
+        if !self.grouped() {
+            let hue = channel as f32 / self.place.len().max(1) as f32;
+            return egui::ecolor::Hsva::new(hue, 0.7, 0.7, 1.0).into();
+        }
+        let hue = g as f32 / self.groups.len() as f32;
+        let size = self.groups[g].1.max(1) as f32;
+        egui::ecolor::Hsva::new(
+            hue + 0.08 * k as f32 / size,
+            0.75,
+            0.55 + 0.4 * k as f32 / size,
+            1.0,
+        )
+        .into()
+    }
+
+    /// What the colours mean, e.g. `colours: left red, right cyan`.
+    pub(super) fn key(&self) -> String {
+        if !self.grouped() {
+            return "one colour per channel".into();
+        }
+        let groups: Vec<String> = (0..self.groups.len())
+            .map(|g| {
+                let hue = g as f32 / self.groups.len() as f32;
+                format!("{} {}", self.groups[g].0, hue_name(hue))
+            })
+            .collect();
+        format!("colours: {}", groups.join(", "))
     }
 }
 
-pub(super) fn arm_colour(joint: usize) -> Color32 {
-    let (hue, j) = if joint < 7 {
-        (0.0 + joint as f32 * 0.025, joint)
-    } else {
-        (0.5 + (joint - 7) as f32 * 0.03, joint - 7)
-    };
-    egui::ecolor::Hsva::new(hue, 0.75, 0.6 + 0.05 * j as f32, 1.0).into()
+/// The common name of a hue in [0, 1).
+fn hue_name(hue: f32) -> &'static str {
+    const NAMES: [&str; 12] = [
+        "red",
+        "orange",
+        "yellow",
+        "lime",
+        "green",
+        "spring green",
+        "cyan",
+        "azure",
+        "blue",
+        "violet",
+        "magenta",
+        "rose",
+    ];
+    NAMES[((hue * 12.0).round() as usize) % 12]
 }

@@ -70,22 +70,44 @@ pub fn contribution(
     gain: f32,
 ) -> Rgb {
     let r = layout.resolutions[level];
+    gray(&pixel_differences(layout, a, b, level, camera), r, gain)
+}
+
+/// |a - b| per pixel of one camera's image at one level, averaged over channels (model
+/// units), row-major.
+pub fn pixel_differences(
+    layout: &VisionLayout,
+    a: &[f32],
+    b: &[f32],
+    level: usize,
+    camera: usize,
+) -> Vec<f32> {
+    let r = layout.resolutions[level];
     let off = layout.image_offset(level, camera);
     let ch = layout.channels;
-    let mut pixels = Vec::with_capacity(r * r * 3);
-    for p in 0..r * r {
-        let range = off + p * ch..off + (p + 1) * ch;
-        let diff: f32 = a[range.clone()]
-            .iter()
-            .zip(&b[range])
-            .map(|(x, y)| (x - y).abs())
-            .sum::<f32>()
-            / ch as f32;
+    (0..r * r)
+        .map(|p| {
+            let range = off + p * ch..off + (p + 1) * ch;
+            a[range.clone()]
+                .iter()
+                .zip(&b[range])
+                .map(|(x, y)| (x - y).abs())
+                .sum::<f32>()
+                / ch as f32
+        })
+        .collect()
+}
+
+/// A grayscale picture of per-pixel differences in model units; `gain` maps a difference
+/// of the full range to `gain` x white.
+pub fn gray(differences: &[f32], size: usize, gain: f32) -> Rgb {
+    let mut pixels = Vec::with_capacity(size * size * 3);
+    for &diff in differences {
         // Model units span 1.8.
         let v = (diff / 1.8 * gain * 255.0).min(255.0) as u8;
         pixels.extend_from_slice(&[v, v, v]);
     }
-    Rgb { size: r, pixels }
+    Rgb { size, pixels }
 }
 
 /// Draws the bright pixels of `edges` over `img` in a highlight colour.

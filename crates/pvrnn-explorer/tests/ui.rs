@@ -171,6 +171,42 @@ fn contribution_maps_need_and_get_the_ablation_runs() {
         })
         .count();
     assert!(lit >= 1);
+
+    // Over time: a value per step and module, the one at the cursor the map's mean, and
+    // the map averaged over the cursor's subtask (steps 0-5: `first`).
+    let mut h = h;
+    for _ in 0..4 {
+        h.step();
+    }
+    let app = h.state();
+    for module in pvrnn_core::ModuleId::ALL {
+        let curve = app.contribution_curve(module);
+        assert_eq!(curve.len(), 12, "{module:?}");
+        let map = app.contribution_map(module).unwrap();
+        let shown: f32 = map.pixels.iter().step_by(3).map(|&p| p as f32).sum::<f32>()
+            / (map.size * map.size) as f32
+            * 1.8
+            / (4.0 * 255.0);
+        // The picture rounds down to 8 bits and clips at white.
+        assert!(
+            shown <= curve[5] + 1e-6,
+            "{module:?}: {shown} vs {}",
+            curve[5]
+        );
+        assert!(
+            shown >= curve[5].min(1.8 / 4.0) - 0.01,
+            "{module:?}: {shown} vs {}",
+            curve[5]
+        );
+    }
+    let labels = format!("{:?}", h.root());
+    for text in [
+        "Contributions over time",
+        "averaged over the subtask `first` (6 steps read out)",
+        "12 of 12 steps read out",
+    ] {
+        assert!(labels.contains(text), "no `{text}` in the view");
+    }
 }
 
 /// A bundle as `pvrnn bundle` writes it: precomputed runs show without computing.
@@ -917,6 +953,20 @@ mod snapshots {
             ..ViewState::default()
         };
         drawn(ExplorerApp::new(Some(common::bundle()), view)).snapshot("branch_view");
+    }
+
+    #[test]
+    fn contributions_over_time() {
+        let view = ViewState {
+            t: 8,
+            maps: true,
+            ..ViewState::default()
+        };
+        let mut h = drawn(ExplorerApp::new(Some(common::bundle()), view));
+        for _ in 0..4 {
+            h.step();
+        }
+        h.snapshot("contributions_over_time");
     }
 
     #[test]

@@ -11,6 +11,9 @@ pub(super) struct ImageCache {
     /// The predicted vision vector and contribution maps at the cursor (kept for tests).
     pub(super) predicted: Option<Vec<f32>>,
     pub(super) maps: [Option<Rgb>; 4],
+    /// The subtask at the cursor and the steps its averaged maps hold so far.
+    pub(super) phase: Option<String>,
+    pub(super) phase_steps: usize,
 }
 
 /// The vision read-outs of `count` exteroceptive d rows (concatenated), none for none.
@@ -97,7 +100,19 @@ impl ExplorerApp {
         let mut actual = vec![0f32; layout.dims()];
         pvrnn_dataset::inputs::vision_vector(seq, t.min(seq.len() - 1), layout, &mut actual);
         let read_outs = self.read_outs_at(bundle, &runs, t);
-        let (pictures, maps) = self.pictures(layout, &actual, &read_outs);
+        let (mut pictures, maps) = self.pictures(layout, &actual, &read_outs);
+        if self.view.maps {
+            let label = seq.subtask.get(t).copied().unwrap_or(0);
+            let size = layout.resolutions[layout.resolutions.len() - 1];
+            self.images.phase_steps = 0;
+            for m in 0..4 {
+                if let Some((map, steps)) = self.contributions.phase_map(label, m, size) {
+                    pictures.push((format!("phase map {m}"), map));
+                    self.images.phase_steps = steps;
+                }
+            }
+            self.images.phase = seq.info.subtasks.get(label as usize).cloned();
+        }
         self.images.maps = maps;
         self.images.predicted = read_outs.get("shown").map(<[f32]>::to_vec);
         self.upload_textures(ctx, pictures);
@@ -216,6 +231,8 @@ impl ExplorerApp {
                 .condition()
                 .map_or(AblationMode::default(), |c| c.ablation_mode),
             branch_at: self.view.branch.map(|b| b.at),
+            phase: self.images.phase.as_deref(),
+            phase_steps: self.images.phase_steps,
         };
         panel.ui(ui);
     }
@@ -236,6 +253,9 @@ struct ImagesPanel<'a> {
     ablation_mode: AblationMode,
     /// Where the branch leaves the run, when there is one: its predictions get a row.
     branch_at: Option<usize>,
+    /// The subtask at the cursor, and the steps of it the averaged maps hold.
+    phase: Option<&'a str>,
+    phase_steps: usize,
 }
 
 impl ImagesPanel<'_> {
@@ -324,6 +344,21 @@ impl ImagesPanel<'_> {
                 }
             }
         });
+        if self.maps && self.phase_steps > 0 {
+            ui.label(format!(
+                "averaged over the subtask `{}` ({} steps read out)",
+                self.phase.unwrap_or("?"),
+                self.phase_steps
+            ));
+            ui.horizontal_wrapped(|ui| {
+                for (m, id) in ModuleId::ALL.iter().enumerate() {
+                    ui.vertical(|ui| {
+                        ui.label(id.name());
+                        image(ui, self.textures.get(&format!("phase map {m}")), 96.0);
+                    });
+                }
+            });
+        }
         if self.maps {
             let mode = self.ablation_mode;
             ui.weak(format!(

@@ -22,6 +22,7 @@ use crate::state::{ViewState, format_units, parse_units};
 mod bench;
 mod branch;
 mod compare;
+mod contributions;
 mod controls;
 mod export;
 mod images_panel;
@@ -72,6 +73,7 @@ pub struct ExplorerApp {
     status: Status,
     images: ImageCache,
     compare_images: CompareCache,
+    contributions: contributions::ContributionsOverTime,
     /// A picture of the window on its way back from the renderer.
     pending_shot: export::PendingShot,
     /// Where exports go on the desktop.
@@ -169,6 +171,7 @@ impl ExplorerApp {
             status: Status::None,
             images: ImageCache::default(),
             compare_images: CompareCache::default(),
+            contributions: Default::default(),
             pending_shot: Default::default(),
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
@@ -258,6 +261,7 @@ impl ExplorerApp {
         notes.extend(self.view.sanitize(&bundle));
         self.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
+        self.contributions = Default::default();
         let notes: Vec<String> = bundle.notes.iter().cloned().chain(notes).collect();
         self.status = Status::Info(if !notes.is_empty() {
             notes.join("; ")
@@ -353,6 +357,12 @@ impl ExplorerApp {
     /// A module's contribution map at the cursor, as last drawn.
     pub fn contribution_map(&self, module: ModuleId) -> Option<&Rgb> {
         self.images.maps[module.index()].as_ref()
+    }
+
+    /// A module's contribution at every step read out so far (mean |standard - ablated|
+    /// predicted image, model units; with the maps on).
+    pub fn contribution_curve(&self, module: ModuleId) -> &[f32] {
+        &self.contributions.curves[module.index()]
     }
 
     /// Any cached or computing run.
@@ -507,7 +517,12 @@ impl ExplorerApp {
             ctx.request_repaint();
         }
         // The images at the cursor (and the comparison's), read out here rather than while
-        // drawing.
+        // drawing; the contributions over time a few steps a frame until they are done.
+        let read_out = self.contributions.done;
+        self.refresh_contributions();
+        if self.contributions.done != read_out {
+            ctx.request_repaint();
+        }
         self.refresh_images(ctx);
         if self.view.compare.is_some() {
             let cells = self.comparison();
@@ -534,6 +549,7 @@ impl ExplorerApp {
         egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| {
                 self.branch_ui(ui);
+                self.contributions_ui(ui);
                 self.traces_ui(ui);
             });
         });

@@ -155,6 +155,38 @@ fn fetch(
     }
 }
 
+/// Files fetched on demand (the findings' figures): each requested once, kept until
+/// taken; the page repaints when one arrives.
+#[derive(Debug, Default)]
+pub struct Fetches(Rc<RefCell<HashMap<String, Option<Result<Vec<u8>, String>>>>>);
+
+impl Fetches {
+    /// `url`'s bytes once they arrived (then forgotten here); `None` while on the way.
+    pub fn get(
+        &mut self,
+        url: &str,
+        ctx: &eframe::egui::Context,
+    ) -> Option<Result<Vec<u8>, String>> {
+        let mut files = self.0.borrow_mut();
+        match files.get_mut(url) {
+            Some(arrived) => arrived.take(),
+            None => {
+                files.insert(url.to_string(), None);
+                let (files, key, ctx) = (self.0.clone(), url.to_string(), ctx.clone());
+                fetch(
+                    url,
+                    |_, _| {},
+                    move |result| {
+                        files.borrow_mut().insert(key, Some(result));
+                        ctx.request_repaint();
+                    },
+                );
+                None
+            }
+        }
+    }
+}
+
 #[derive(Default)]
 struct Download {
     base: String,

@@ -13,6 +13,7 @@ pub mod condition;
 pub mod drop;
 pub mod engine;
 pub mod executor;
+pub mod findings;
 pub mod images;
 pub mod runs;
 pub mod state;

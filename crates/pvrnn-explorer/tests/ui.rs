@@ -970,6 +970,17 @@ mod snapshots {
     }
 
     #[test]
+    fn the_findings_panel() {
+        let mut h = drawn(ExplorerApp::new(
+            Some(common::bundle()),
+            ViewState::default(),
+        ));
+        h.get_by_label("Findings").click();
+        h.run_steps(3);
+        h.snapshot("findings");
+    }
+
+    #[test]
     fn the_view_without_a_model() {
         drawn(ExplorerApp::new(None, ViewState::default())).snapshot("no_model");
     }

@@ -23,6 +23,8 @@ impl ExplorerApp {
         ui.horizontal_wrapped(|ui| {
             ui.strong("PV-RNN explorer");
             ui.toggle_value(&mut self.show_about, "About this model");
+            ui.toggle_value(&mut self.show_findings, "Findings")
+                .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
             let l = ui.label("Compare");
             let text = |c: Option<CompareSet>| match c {
                 None => "off",

@@ -25,6 +25,7 @@ mod compare;
 mod contributions;
 mod controls;
 mod export;
+mod findings_panel;
 mod images_panel;
 mod status;
 mod summaries;
@@ -74,6 +75,9 @@ pub struct ExplorerApp {
     images: ImageCache,
     compare_images: CompareCache,
     contributions: contributions::ContributionsOverTime,
+    figures: findings_panel::FigureCache,
+    /// Whether the findings window is open.
+    show_findings: bool,
     /// A picture of the window on its way back from the renderer.
     pending_shot: export::PendingShot,
     /// Where exports go on the desktop.
@@ -172,6 +176,8 @@ impl ExplorerApp {
             images: ImageCache::default(),
             compare_images: CompareCache::default(),
             contributions: Default::default(),
+            figures: Default::default(),
+            show_findings: false,
             pending_shot: Default::default(),
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
@@ -554,6 +560,7 @@ impl ExplorerApp {
             });
         });
         self.compare_ui(&ctx);
+        self.findings_ui(&ctx);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")
                 .open(&mut self.show_about)

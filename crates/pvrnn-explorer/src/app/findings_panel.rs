@@ -1,0 +1,150 @@
+//! The findings panel: the paper's claims beside what the experiments found (statistic,
+//! effect with its interval, scale, the committed figures), each with one click to the
+//! view of the shipped network that shows it and a sentence on what to look at.
+
+use super::*;
+use crate::findings::{FINDINGS, Finding};
+
+/// The findings' figures as textures, read when the panel first shows them.
+#[derive(Default)]
+pub(super) struct FigureCache {
+    textures: HashMap<&'static str, Result<TextureHandle, String>>,
+    #[cfg(target_arch = "wasm32")]
+    fetches: crate::browser::Fetches,
+}
+
+impl FigureCache {
+    /// A figure's texture: read (desktop: built in; web: fetched, `None` until it arrives).
+    fn get(
+        &mut self,
+        ctx: &egui::Context,
+        path: &'static str,
+    ) -> Option<&Result<TextureHandle, String>> {
+        if !self.textures.contains_key(path) {
+            let bytes = self.bytes(ctx, path)?;
+            let texture = bytes.and_then(|b| {
+                let image = image::load_from_memory(&b)
+                    .map_err(|e| format!("{path}: {e}"))?
+                    .to_rgba8();
+                let size = [image.width() as usize, image.height() as usize];
+                let pixels = egui::ColorImage::from_rgba_unmultiplied(size, image.as_raw());
+                Ok(ctx.load_texture(path, pixels, TextureOptions::LINEAR))
+            });
+            self.textures.insert(path, texture);
+        }
+        self.textures.get(path)
+    }
+
+    #[cfg(not(target_arch = "wasm32"))]
+    fn bytes(&mut self, _ctx: &egui::Context, path: &str) -> Option<Result<Vec<u8>, String>> {
+        Some(
+            crate::findings::FIGURES
+                .iter()
+                .find(|(p, _)| *p == path)
+                .map(|(_, b)| b.to_vec())
+                .ok_or_else(|| format!("{path} is not built in")),
+        )
+    }
+
+    #[cfg(target_arch = "wasm32")]
+    fn bytes(&mut self, ctx: &egui::Context, path: &str) -> Option<Result<Vec<u8>, String>> {
+        self.fetches.get(&crate::findings::figure_url(path), ctx)
+    }
+}
+
+impl ExplorerApp {
+    /// The findings window, when open.
+    pub(super) fn findings_ui(&mut self, ctx: &egui::Context) {
+        let mut open = self.show_findings;
+        let mut follow = None;
+        egui::Window::new("The paper's findings, and ours")
+            .open(&mut open)
+            .default_width(720.0)
+            .max_width(760.0)
+            .default_height(640.0)
+            .vscroll(true)
+            .show(ctx, |ui| {
+                ui.label(
+                    "Each claim of the paper with its statistic, ours as measured (effect with \
+                     its 95% interval; docs/results/experiments.md), the scale it was measured \
+                     at, and the view of the shipped network that shows it.",
+                );
+                for (i, finding) in FINDINGS.iter().enumerate() {
+                    let panel = FindingPanel { finding, index: i };
+                    if panel.ui(ui, &mut self.figures) {
+                        follow = finding.view;
+                    }
+                }
+            });
+        self.show_findings = open;
+        if let Some(view) = follow {
+            self.apply_hash(view);
+        }
+    }
+}
+
+/// One finding, drawn in the findings window.
+struct FindingPanel<'a> {
+    finding: &'a Finding,
+    index: usize,
+}
+
+impl FindingPanel<'_> {
+    /// Draws the finding; whether the user asked for its view.
+    fn ui(&self, ui: &mut egui::Ui, figures: &mut FigureCache) -> bool {
+        let f = self.finding;
+        let mut follow = false;
+        egui::CollapsingHeader::new(RichText::new(f.claim).strong())
+            .id_salt(("finding", self.index))
+            .default_open(self.index == 0)
+            .show(ui, |ui| {
+                for (label, text) in [
+                    ("paper:", f.paper),
+                    ("ours:", f.ours),
+                    ("effect [95% CI]; detectable:", f.effect),
+                    ("scale:", f.scale),
+                ] {
+                    ui.horizontal_wrapped(|ui| {
+                        ui.label(RichText::new(label).weak());
+                        ui.label(text);
+                    });
+                }
+                ui.horizontal_wrapped(|ui| {
+                    for &path in f.figures {
+                        match figures.get(ui.ctx(), path) {
+                            Some(Ok(texture)) => {
+                                let size = texture.size_vec2();
+                                let width = 340.0f32.min(size.x);
+                                ui.add(
+                                    egui::Image::new(texture).fit_to_exact_size(egui::vec2(
+                                        width,
+                                        width * size.y / size.x,
+                                    )),
+                                )
+                                .on_hover_text(format!("docs/results/{path}"));
+                            }
+                            Some(Err(e)) => {
+                                ui.weak(format!("figure not available: {e}"));
+                            }
+                            None => {
+                                ui.spinner();
+                            }
+                        }
+                    }
+                });
+                ui.label(f.look);
+                match f.view {
+                    Some(view) => {
+                        follow = ui
+                            .button("Show it on the shipped network")
+                            .on_hover_text(format!("opens #{view}"))
+                            .clicked();
+                    }
+                    None => {
+                        ui.weak("no view of one network shows it");
+                    }
+                }
+            });
+        follow
+    }
+}

@@ -1,0 +1,162 @@
+//! The paper's findings beside ours: each claim with the paper's statistic, ours and its
+//! effect as `docs/results/experiments.md` gives them (a test keeps the two the same), the
+//! scale it was measured at, the committed figures, and a view of the shipped network that
+//! shows it, with what to look at. The findings panel (`app::findings_panel`) draws them.
+
+/// One claim of the paper and what the experiments found.
+#[derive(Clone, Copy, Debug)]
+pub struct Finding {
+    /// The claim, in a sentence.
+    pub claim: &'static str,
+    /// The row of the findings tables in `docs/results/experiments.md` it comes from.
+    pub row: &'static str,
+    pub paper: &'static str,
+    /// Our statistic and effect (with its interval), as the row gives them.
+    pub ours: &'static str,
+    pub effect: &'static str,
+    /// Networks, iterations and trials behind `ours`.
+    pub scale: &'static str,
+    /// Figures, as paths under `docs/results/`.
+    pub figures: &'static [&'static str],
+    /// The view of the shipped network that shows it (a URL hash), if one can.
+    pub view: Option<&'static str>,
+    /// What to look at there.
+    pub look: &'static str,
+}
+
+pub const FINDINGS: &[Finding] = &[
+    Finding {
+        claim: "Each module contributes at its own time: the executive module while reaching, the others as the task proceeds",
+        row: "When each module contributes (Figs 2B, 3A)",
+        paper: "described in figures",
+        ours: "executive, repositioning reaching / holding / lifting: 0.0104 ± 0.0021 / 0.0041 ± 0.0019 / 0.0052 ± 0.0011; wiping reaching / wiping / releasing: 0.0122 ± 0.0036 / 0.0090 ± 0.0031 / 0.0100 ± 0.0011; associative, repositioning 0.0242 / 0.0121 / 0.0183, wiping 0.0129 / 0.0106 / 0.0191",
+        effect: "– (descriptive)",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &[
+            "converged/hierarchy/report/contributions_over_time_repositioning.png",
+            "converged/hierarchy/report/contributions_over_time_wiping.png",
+        ],
+        view: Some("seq=repositioning_650mm_test0&t=40&maps=1"),
+        look: "Turn to *Contributions over time*: one curve per module of how much zeroing its z changes the predicted image, and below the images the maps averaged over the cursor's subtask. Step through reaching (to 67), holding (to 178) and lifting. The four ablation runs compute live (minutes in a browser).",
+    },
+    Finding {
+        claim: "The executive module's latent state changes most at subtask boundaries",
+        row: "Executive change at subtask boundaries (Figs 2-3)",
+        paper: "described, no test",
+        ours: "near − elsewhere (t ≥ 30) −0.0009; two-sided permutation p = 0.34",
+        effect: "−0.0009 [−0.0040, +0.0022], d = −0.47; ±0.0040",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &[],
+        view: Some("seq=wiping_650mm_test0&t=83&d=0"),
+        look: "Watch the executive module's mu traces (top) where the subtask bar under the time slider changes colour: steps 83 and 224 in this sequence.",
+    },
+    Finding {
+        claim: "Where the arm hides the person, the reconstruction shows the hidden body",
+        row: "Hidden body parts are inferred (Fig 3B), relative to the observed frame",
+        paper: "pictures",
+        ours: "reconstruction −0.0109, t(3), p < 0.001; from the 16x16 input −0.0109, p < 0.001; prior prediction −0.0109, p < 0.001",
+        effect: "reconstruction −0.0109 [−0.0118, −0.0100], d = −18.9; ±0.0012",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &["converged/hierarchy/report/contribution_maps.png"],
+        view: Some("seq=repositioning_650mm_test0&t=120&contours=1"),
+        look: "Compare the posterior reconstruction with the actual image where the arm passes over the person (the contours are the actual image's edges).",
+    },
+    Finding {
+        claim: "Uncertainty (mean prior sigma) does not differ between the tasks",
+        row: "Mean prior σ equal across tasks (Fig 4A), equivalence",
+        paper: "t(4) = 1.67, p = 0.17",
+        ours: "TOST vs ±0.127: 90% CI [+0.0051, +0.0145], p < 0.001: equivalent; paired t(3) = 4.90, p = 0.016",
+        effect: "+0.0098 [+0.0034, +0.0161], d = 2.5; ±0.0083",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &["converged/uncertainty/report/sigma_p.png"],
+        view: Some("seq=wiping_650mm_test0&t=150"),
+        look: "The bars under the traces are the run's Fig. 4: mean prior sigma per module. Switch the task to repositioning and compare.",
+    },
+    Finding {
+        claim: "Uncertainty changes less over time in repositioning than in wiping",
+        row: "σ changes less in repositioning (Fig 4B)",
+        paper: "t(4) = −8.15, p = 0.0012",
+        ours: "t(3) = −2.44, p = 0.092",
+        effect: "−0.0016 [−0.0037, +0.0005], d = −1.2; ±0.0027",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &["converged/uncertainty/report/sigma_p_change.png"],
+        view: Some("seq=repositioning_650mm_test0&t=150"),
+        look: "The right-hand bars: mean |change of prior sigma| per step; switch the task to wiping and compare.",
+    },
+    Finding {
+        claim: "The full-resolution error rises as less of the vision is observed",
+        row: "64x64 error rises as the observed resolution drops (Fig 5B)",
+        paper: "F(2, 20) = 105.57, p < 0.001",
+        ours: "ART F(2, 15) = 7.41, p = 0.006; 64 / 32+16 / 16: 0.00698 / 0.00677 / 0.00698",
+        effect: "16 − 64 (proprio on): −0.00003 [−0.0012, +0.0011], d = −0.04; ±0.0015",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &["converged/robustness/report/robustness.png"],
+        view: Some("seq=repositioning_650mm_test0&t=120&compare=vision"),
+        look: "The comparison window sets every observed resolution beside the others, with proprioception on and off; each cell's error is at the cursor and over the steps computed.",
+    },
+    Finding {
+        claim: "Observing proprioception lowers the visual error, most at low resolution",
+        row: "Proprioception lowers the error (Fig 5B)",
+        paper: "F(1, 20) = 46.09, p < 0.001",
+        ours: "ART F(1, 15) = 0.03, p = 0.86; on / off 0.00690 / 0.00692",
+        effect: "off − on at 64: −0.00002 [−0.00025, +0.00022], d = −0.11; ±0.00031",
+        scale: "converged campaign, networks 0-3 (4 networks; 2 trials x 6 test sequences each)",
+        figures: &["converged/robustness/report/robustness.png"],
+        view: Some("seq=repositioning_650mm_test0&t=120&compare=vision&vision=1&proprio=0"),
+        look: "In the comparison window compare the proprioception on and off rows at 16x16; the main view shows 16x16 without proprioception.",
+    },
+    Finding {
+        claim: "Learning more repositioning interferes with wiping, not the other way round",
+        row: "Adding repositioning data raises wiping's error (Fig 6B), paper's pooled error",
+        paper: "F(3, 16) = 19.16, p < 0.001",
+        ours: "ART F(3, 8) = 1.07, p = 0.414 (pooled over all 32,284 sensory dimensions)",
+        effect: "9 added − none: −1.1e-4 [−8.3e-4, +6.0e-4]; ±9.6e-4",
+        scale: "reduced scale: 3 x 5,000 per condition (networks x iterations)",
+        figures: &["interference/report/interference_wiping.png"],
+        view: None,
+        look: "Interference compares networks trained on different data: the shipped network cannot show it. The figures are the reduced-scale runs (3 networks x 5,000 iterations per condition); the converged interference networks are not trained yet.",
+    },
+];
+
+/// The figures' bytes, built into the desktop app (the web site fetches them from
+/// `findings/`, where Trunk copies `docs/results/`'s reports).
+#[cfg(not(target_arch = "wasm32"))]
+pub const FIGURES: &[(&str, &[u8])] = &[
+    (
+        "converged/hierarchy/report/contribution_maps.png",
+        include_bytes!("../../../docs/results/converged/hierarchy/report/contribution_maps.png"),
+    ),
+    (
+        "converged/hierarchy/report/contributions_over_time_repositioning.png",
+        include_bytes!(
+            "../../../docs/results/converged/hierarchy/report/contributions_over_time_repositioning.png"
+        ),
+    ),
+    (
+        "converged/hierarchy/report/contributions_over_time_wiping.png",
+        include_bytes!(
+            "../../../docs/results/converged/hierarchy/report/contributions_over_time_wiping.png"
+        ),
+    ),
+    (
+        "converged/robustness/report/robustness.png",
+        include_bytes!("../../../docs/results/converged/robustness/report/robustness.png"),
+    ),
+    (
+        "converged/uncertainty/report/sigma_p.png",
+        include_bytes!("../../../docs/results/converged/uncertainty/report/sigma_p.png"),
+    ),
+    (
+        "converged/uncertainty/report/sigma_p_change.png",
+        include_bytes!("../../../docs/results/converged/uncertainty/report/sigma_p_change.png"),
+    ),
+    (
+        "interference/report/interference_wiping.png",
+        include_bytes!("../../../docs/results/interference/report/interference_wiping.png"),
+    ),
+];
+
+/// Where the web site serves a figure: `findings/` + its path under `docs/results/`.
+pub fn figure_url(path: &str) -> String {
+    format!("findings/{path}")
+}

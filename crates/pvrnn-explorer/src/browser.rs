@@ -158,7 +158,10 @@ fn fetch(
 /// Files fetched on demand (the findings' figures): each requested once, kept until
 /// taken; the page repaints when one arrives.
 #[derive(Debug, Default)]
-pub struct Fetches(Rc<RefCell<HashMap<String, Option<Result<Vec<u8>, String>>>>>);
+pub struct Fetches(Rc<RefCell<HashMap<String, Fetched>>>);
+
+/// A fetch's result, `None` until it arrives (or once taken).
+type Fetched = Option<Result<Vec<u8>, String>>;
 
 impl Fetches {
     /// `url`'s bytes once they arrived (then forgotten here); `None` while on the way.

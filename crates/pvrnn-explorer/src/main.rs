@@ -15,6 +15,10 @@ struct Args {
     /// A bundle folder from `pvrnn bundle` (default: models/default).
     #[arg(long)]
     bundle: Option<std::path::PathBuf>,
+    /// A second network to show beside the first: a bundle folder of the same cameras and
+    /// proprioception (another network, or another checkpoint's bundle).
+    #[arg(long, value_name = "DIR")]
+    second: Option<std::path::PathBuf>,
     /// Open this view: a URL hash such as 'seq=wiping_650mm_test0&t=120&vision=1'.
     #[arg(long)]
     view: Option<String>,
@@ -205,6 +209,7 @@ fn main() {
             .borrow_mut()
             .take()
             .or_else(|| Bundle::open_dir(&dir).ok());
+        let second = args.second.as_ref().map(|dir| Bundle::open_dir(dir));
         let (screenshot, hash, compute, gpu_recurrence) = (
             args.screenshot.clone(),
             args.view.clone(),
@@ -222,6 +227,9 @@ fn main() {
                 // Through the app, so what it ignores or corrects shows in its status line.
                 if let Some(hash) = &hash {
                     app.apply_hash(hash);
+                }
+                if let Some(Err(e)) = second.map(|opened| opened.and_then(|b| app.set_second(b))) {
+                    eprintln!("the second network: {e}");
                 }
                 app.compute_in_background_on(&cc.egui_ctx, open_backend(compute, gpu_recurrence));
                 if let Some(path) = screenshot {

@@ -758,6 +758,69 @@ fn a_branch_at_the_cursor_shares_the_past_and_is_shown_beside_the_run() {
     assert_eq!(h.state().view().branch, None);
 }
 
+/// Two networks side by side: a checkpoint opened as the second network runs the shown
+/// sequence under the shown condition beside the first, with its errors, their difference
+/// and its images; a network that sees differently is refused with the reason.
+#[test]
+fn a_second_network_runs_beside_the_first() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::bundle()),
+        ViewState {
+            t: 4,
+            ..ViewState::default()
+        },
+    ));
+    let dir = tempdir().join("second");
+    std::fs::create_dir_all(&dir).unwrap();
+    let later = pvrnn_core::Model::<f32>::init(common::config(), 1, 12, 77).unwrap();
+    io::save_model(&dir.join("late.safetensors"), &later).unwrap();
+    let file = dir.join("late.safetensors");
+    h.state_mut()
+        .set_file_dialog(Box::new(move |_| Some(vec![file.clone()])));
+    h.get_by_label("Second network").click();
+    h.run_steps(3);
+    h.get_by_label("Open files (a checkpoint of this dataset, or a bundle's files)")
+        .click();
+    h.step();
+    settle(&mut h);
+    let app = h.state();
+    let (first, second) = (app.current_run().unwrap(), app.second_run().unwrap());
+    assert!(
+        second.complete && second.error.is_none(),
+        "{:?}",
+        second.error
+    );
+    assert_eq!(second.trace.steps, first.trace.steps);
+    assert_ne!(second.trace.recon_error, first.trace.recon_error);
+    let labels = format!("{:?}", h.root());
+    for text in [
+        "late.safetensors",
+        "second network",
+        "difference: second - first (below 0: the second predicts better)",
+    ] {
+        assert!(labels.contains(text), "no `{text}` in the view");
+    }
+    // Another condition: the second network follows it.
+    h.get_by_label("executive").click();
+    h.step();
+    settle(&mut h);
+    let second = h.state().second_run().unwrap();
+    assert!(second.complete && second.trace.steps == 12);
+    h.get_by_label("close the second network").click();
+    h.step();
+    assert!(h.state().second_run().is_none());
+
+    // A network with other cameras cannot be compared, and the user is told why.
+    let mut config = common::config();
+    config.vision.resolutions = vec![8];
+    let dataset = common::dataset();
+    let other = pvrnn_core::Model::<f32>::init(config, 1, 12, 5).unwrap();
+    let refused =
+        Bundle::new("one level".into(), other, dataset).and_then(|b| h.state_mut().set_second(b));
+    let err = refused.unwrap_err();
+    assert!(err.contains("cannot be compared"), "{err}");
+}
+
 /// Another robot: one camera, one 6-joint arm without torque sensing, a gripper channel.
 #[test]
 fn a_robot_of_another_shape_is_shown_with_its_own_channels() {
@@ -978,6 +1041,21 @@ mod snapshots {
         h.get_by_label("Findings").click();
         h.run_steps(3);
         h.snapshot("findings");
+    }
+
+    #[test]
+    fn a_second_network_beside_the_first() {
+        let mut app = ExplorerApp::new(
+            Some(common::bundle()),
+            ViewState {
+                t: 6,
+                ..ViewState::default()
+            },
+        );
+        let later = pvrnn_core::Model::<f32>::init(common::config(), 1, 12, 77).unwrap();
+        let later = Bundle::new("a later checkpoint".into(), later, common::dataset()).unwrap();
+        app.set_second(later).unwrap();
+        drawn(app).snapshot("second_network");
     }
 
     #[test]

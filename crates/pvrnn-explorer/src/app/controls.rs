@@ -55,6 +55,26 @@ impl ExplorerApp {
                     self.open_with_dialog(folder);
                 }
             }
+            ui.menu_button("Second network", |ui| {
+                for (label, folder) in [
+                    ("Open a bundle folder", true),
+                    ("Open files (a checkpoint of this dataset, or a bundle's files)", false),
+                ] {
+                    if ui.button(label).clicked() {
+                        self.opening_second = true;
+                        #[cfg(target_arch = "wasm32")]
+                        if let Err(e) = self.web.pick_files(folder) {
+                            self.opening_second = false;
+                            self.status = Status::Error(format!("cannot open the file picker: {e}"));
+                        }
+                        #[cfg(not(target_arch = "wasm32"))]
+                        self.open_with_dialog(folder);
+                        ui.close();
+                    }
+                }
+            })
+            .response
+            .on_hover_text("Show another network (another bundle, or an earlier or later checkpoint) beside this one, on the same sequence under the same condition");
             ui.separator();
             self.sequence_picker(ui);
             ui.separator();

@@ -6,7 +6,7 @@ use super::*;
 /// Images shown at the cursor, recomputed when what they depend on changes.
 #[derive(Default)]
 pub(super) struct ImageCache {
-    pub(super) key: Option<(RunKey, usize, bool, bool, [usize; 6])>,
+    pub(super) key: Option<(RunKey, usize, bool, bool, [usize; 7])>,
     pub(super) textures: HashMap<String, TextureHandle>,
     /// The predicted vision vector and contribution maps at the cursor (kept for tests).
     pub(super) predicted: Option<Vec<f32>>,
@@ -82,6 +82,7 @@ impl ExplorerApp {
             steps_of(&runs.ablated[1]),
             steps_of(&runs.ablated[2]) + steps_of(&runs.ablated[3]),
             runs.branch.as_ref().map_or(0, steps_of),
+            self.second_run().map_or(0, |e| e.trace.steps.min(t + 1)),
         ];
         let cache_key = (
             key.clone(),
@@ -101,6 +102,7 @@ impl ExplorerApp {
         pvrnn_dataset::inputs::vision_vector(seq, t.min(seq.len() - 1), layout, &mut actual);
         let read_outs = self.read_outs_at(bundle, &runs, t);
         let (mut pictures, maps) = self.pictures(layout, &actual, &read_outs);
+        pictures.extend(self.second_pictures(t));
         if self.view.maps {
             let label = seq.subtask.get(t).copied().unwrap_or(0);
             let size = layout.resolutions[layout.resolutions.len() - 1];
@@ -149,6 +151,29 @@ impl ExplorerApp {
             values: read_out_vision(bundle, &rows, names.len()),
             names,
         }
+    }
+
+    /// The second network's predictions at step t (its own read-out of its own states).
+    fn second_pictures(&self, t: usize) -> Vec<(String, Rgb)> {
+        let (Some(second), Some(entry)) = (&self.second, self.second_run()) else {
+            return Vec::new();
+        };
+        if entry.trace.steps <= t {
+            return Vec::new();
+        }
+        let d = entry
+            .trace
+            .d_at(ModuleId::Exteroceptive, t, self.view.prior_images);
+        let vision = read_out_vision(&second.bundle, d, 1);
+        let layout = &second.bundle.model.config.vision;
+        let mut pictures = Vec::new();
+        for cam in 0..layout.cameras {
+            for level in 0..layout.resolutions.len() {
+                let p = images::camera_image(layout, &vision, level, cam);
+                pictures.push((format!("second {cam} {level}"), p));
+            }
+        }
+        pictures
     }
 
     /// Every picture the panel shows (actual and predicted per camera and level, the
@@ -231,6 +256,7 @@ impl ExplorerApp {
                 .condition()
                 .map_or(AblationMode::default(), |c| c.ablation_mode),
             branch_at: self.view.branch.map(|b| b.at),
+            second: self.second.is_some(),
             phase: self.images.phase.as_deref(),
             phase_steps: self.images.phase_steps,
         };
@@ -253,6 +279,8 @@ struct ImagesPanel<'a> {
     ablation_mode: AblationMode,
     /// Where the branch leaves the run, when there is one: its predictions get a row.
     branch_at: Option<usize>,
+    /// Whether a second network's predictions get a row.
+    second: bool,
     /// The subtask at the cursor, and the steps of it the averaged maps hold.
     phase: Option<&'a str>,
     phase_steps: usize,
@@ -309,6 +337,9 @@ impl ImagesPanel<'_> {
                     let mut rows = vec![(predicted_label.to_string(), "predicted")];
                     if let Some(at) = self.branch_at {
                         rows.push((format!("branch (from step {at})"), "branch"));
+                    }
+                    if self.second {
+                        rows.push(("second network".to_string(), "second"));
                     }
                     for (label, name) in rows {
                         ui.label(label);

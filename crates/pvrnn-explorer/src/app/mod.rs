@@ -27,6 +27,7 @@ mod controls;
 mod export;
 mod findings_panel;
 mod images_panel;
+mod second;
 mod status;
 mod summaries;
 mod time_panel;
@@ -78,6 +79,10 @@ pub struct ExplorerApp {
     figures: findings_panel::FigureCache,
     /// Whether the findings window is open.
     show_findings: bool,
+    /// A second network shown beside the first.
+    second: Option<second::SecondNetwork>,
+    /// The next files opened go to the second network.
+    opening_second: bool,
     /// A picture of the window on its way back from the renderer.
     pending_shot: export::PendingShot,
     /// Where exports go on the desktop.
@@ -178,6 +183,8 @@ impl ExplorerApp {
             contributions: Default::default(),
             figures: Default::default(),
             show_findings: false,
+            second: None,
+            opening_second: false,
             pending_shot: Default::default(),
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
@@ -268,6 +275,8 @@ impl ExplorerApp {
         self.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
         self.contributions = Default::default();
+        // Another first network may not be comparable with the second.
+        self.second = None;
         let notes: Vec<String> = bundle.notes.iter().cloned().chain(notes).collect();
         self.status = Status::Info(if !notes.is_empty() {
             notes.join("; ")
@@ -332,7 +341,7 @@ impl ExplorerApp {
 
     /// No inference running or waiting.
     pub fn idle(&self) -> bool {
-        self.store.idle()
+        self.store.idle() && self.second.as_ref().is_none_or(|s| s.store.idle())
     }
 
     pub fn condition(&self) -> Option<Condition> {
@@ -410,6 +419,7 @@ impl ExplorerApp {
         let worked = self
             .store
             .work(&model, budget, &mut |name| bundle.observations(name));
+        let worked = self.compute_second() || worked;
         let notes = self.store.take_notes();
         if !notes.is_empty() {
             self.status = Status::Info(notes.join("; "));
@@ -435,6 +445,7 @@ impl ExplorerApp {
     #[cfg(not(target_arch = "wasm32"))]
     fn open_with_dialog(&mut self, folder: bool) {
         let Some(paths) = (self.file_dialog)(folder) else {
+            self.opening_second = false;
             self.status = Status::Info(
                 "nothing opened (on Linux the file dialog needs xdg-desktop-portal or zenity; \
                  dropping files on the window, or --bundle DIR, works everywhere)"
@@ -448,6 +459,9 @@ impl ExplorerApp {
     /// Shows what a set of files holds (a bundle, a model, a dataset, runs), keeping what
     /// they do not replace.
     fn open_files(&mut self, files: Vec<crate::drop::DroppedFile>) {
+        if std::mem::take(&mut self.opening_second) {
+            return self.open_second(files);
+        }
         match crate::drop::assemble(files, self.bundle.as_ref()) {
             Ok(bundle) => self.set_bundle(bundle),
             Err(e) => self.status = Status::Error(e),
@@ -555,6 +569,7 @@ impl ExplorerApp {
         egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| {
                 self.branch_ui(ui);
+                self.second_ui(ui);
                 self.contributions_ui(ui);
                 self.traces_ui(ui);
             });

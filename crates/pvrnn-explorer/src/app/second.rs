@@ -1,0 +1,226 @@
+//! A second network beside the first: another bundle, or another checkpoint of the same
+//! dataset (an early and a late one), run on the same sequence under the same condition,
+//! with both networks' prediction errors over time and their difference, and its predicted
+//! images in the images panel. Its runs compute in their own store, a slice per frame.
+
+use super::traces::StepPlot;
+use super::*;
+
+/// Time the second network's runs get per frame.
+const SECOND_BUDGET: Duration = Duration::from_millis(8);
+
+/// The second network and its runs.
+pub(super) struct SecondNetwork {
+    pub(super) bundle: Bundle,
+    pub(super) store: RunStore,
+    /// What the user opened, as the panel names it.
+    pub(super) name: String,
+}
+
+impl SecondNetwork {
+    /// `bundle` beside `first`, if the two can be compared: the same cameras, resolutions
+    /// and proprioception, so the same sequences and conditions mean the same.
+    pub(super) fn new(bundle: Bundle, first: &Bundle, name: String) -> Result<Self, String> {
+        let (a, b) = (&first.model.config, &bundle.model.config);
+        if a.vision != b.vision || a.proprio_dims != b.proprio_dims {
+            return Err(format!(
+                "`{name}` cannot be compared with the open network: it sees {} camera(s) at \
+                 {:?} and {} proprioceptive dimensions, the open one {} at {:?} and {}",
+                b.vision.cameras,
+                b.vision.resolutions,
+                b.proprio_dims,
+                a.vision.cameras,
+                a.vision.resolutions,
+                a.proprio_dims
+            ));
+        }
+        let mut store = RunStore::default();
+        for (key, trace) in bundle.precomputed.iter().cloned() {
+            store.insert_complete(key, trace);
+        }
+        Ok(Self {
+            bundle,
+            store,
+            name,
+        })
+    }
+
+    /// The run of `key` on this network, if its dataset has the sequence.
+    pub(super) fn run(&self, key: &RunKey) -> Option<&Entry> {
+        self.store.get(key)
+    }
+}
+
+impl ExplorerApp {
+    /// Opens files as the second network (a bundle, or a model that uses the open one's
+    /// dataset).
+    pub(super) fn open_second(&mut self, files: Vec<crate::drop::DroppedFile>) {
+        let Some(first) = &self.bundle else {
+            self.status = Status::Error("open a network first, then a second beside it".into());
+            return;
+        };
+        let name = files
+            .iter()
+            .map(|(n, _)| n.as_str())
+            .find(|n| n.ends_with(".safetensors") || *n == crate::bundle::BUNDLE_MANIFEST)
+            .unwrap_or("second network")
+            .to_string();
+        let opened = crate::drop::assemble(files, Some(first)).and_then(|b| {
+            let name = if b.description == "dropped files" {
+                name
+            } else {
+                b.description.clone()
+            };
+            SecondNetwork::new(b, first, name)
+        });
+        match opened {
+            Ok(second) => {
+                self.status = Status::Info(format!("second network: {}", second.name));
+                self.second = Some(second);
+            }
+            Err(e) => self.status = Status::Error(e),
+        }
+    }
+
+    /// Opens a bundle folder as the second network (the desktop's `--second`).
+    pub fn set_second(&mut self, bundle: Bundle) -> Result<(), String> {
+        let first = self.bundle.as_ref().ok_or("open a network first")?;
+        let name = bundle.description.clone();
+        self.second = Some(SecondNetwork::new(bundle, first, name)?);
+        Ok(())
+    }
+
+    /// The second network's run of the shown run, if there is a second network.
+    pub fn second_run(&self) -> Option<&Entry> {
+        self.second.as_ref()?.run(&self.current_key()?)
+    }
+
+    /// Asks the second network for the shown run and computes for a slice.
+    pub(super) fn compute_second(&mut self) -> bool {
+        let key = self.current_key();
+        let (Some(second), Some(key)) = (self.second.as_mut(), key) else {
+            return false;
+        };
+        if second.bundle.dataset.by_name(&key.sequence).is_none() {
+            return false;
+        }
+        second.store.request(key, true);
+        let model = second.bundle.model.clone();
+        let bundle = &mut second.bundle;
+        second
+            .store
+            .work(&model, SECOND_BUDGET, &mut |name| bundle.observations(name))
+            || !second.store.idle()
+    }
+
+    /// The second network's panel (nothing without one).
+    pub(super) fn second_ui(&mut self, ui: &mut egui::Ui) {
+        let (Some(second), Some(key)) = (&self.second, self.current_key()) else {
+            return;
+        };
+        let mut remove = false;
+        ui.horizontal_wrapped(|ui| {
+            ui.heading("Second network");
+            ui.label(&second.name);
+            remove = ui.button("close the second network").clicked();
+        });
+        if second.bundle.dataset.by_name(&key.sequence).is_none() {
+            ui.colored_label(
+                Color32::from_rgb(230, 80, 80),
+                format!(
+                    "the second network's data has no sequence `{}`",
+                    key.sequence
+                ),
+            );
+        } else if let Some(err) = second.run(&key).and_then(|e| e.error.as_ref()) {
+            ui.colored_label(
+                Color32::from_rgb(230, 80, 80),
+                format!("its run failed: {err}"),
+            );
+        }
+        let empty = RunTrace::default();
+        let first = self.store.get(&key).map_or(&empty, |e| &e.trace);
+        let other = second.run(&key).map_or(&empty, |e| &e.trace);
+        let plot = StepPlot {
+            len: self.sequence_len(),
+            t: self.view.t,
+            mark: None,
+            legend: true,
+        };
+        let seek = errors_ui(ui, &plot, first, other);
+        if let Some(t) = seek {
+            self.view.t = t;
+        }
+        ui.separator();
+        if remove {
+            self.second = None;
+        }
+    }
+}
+
+/// Dashed: the first network; solid: the second.
+const FIRST: LineStyle = LineStyle::Dashed { length: 6.0 };
+const MODALITIES: [(&str, Color32); 2] = [
+    ("vision", Color32::from_rgb(242, 146, 38)),
+    ("proprioception", Color32::from_rgb(118, 172, 152)),
+];
+
+/// Both networks' prediction errors over time, and their difference; the step clicked.
+fn errors_ui(
+    ui: &mut egui::Ui,
+    plot: &StepPlot,
+    first: &RunTrace,
+    second: &RunTrace,
+) -> Option<usize> {
+    let mut seek = None;
+    ui.columns(2, |cols| {
+        let mut lines = Vec::new();
+        for (trace, style, who) in [
+            (first, FIRST, "first"),
+            (second, LineStyle::Solid, "second"),
+        ] {
+            for (i, (name, colour)) in MODALITIES.into_iter().enumerate() {
+                let points: Vec<[f64; 2]> = (0..trace.steps)
+                    .map(|t| [t as f64, trace.recon_error[t][i] as f64])
+                    .collect();
+                let line = Line::new(format!("{name} ({who})"), PlotPoints::from(points));
+                lines.push(line.color(colour).style(style));
+            }
+        }
+        let title = "prediction error (mean squared, all dimensions); dashed: the first network";
+        seek = plot.show(
+            &mut cols[0],
+            "second errors".into(),
+            title,
+            130.0,
+            lines,
+            None,
+        );
+        let both = first.steps.min(second.steps);
+        let difference = MODALITIES
+            .into_iter()
+            .enumerate()
+            .map(|(i, (name, colour))| {
+                let points: Vec<[f64; 2]> = (0..both)
+                    .map(|t| {
+                        let d = second.recon_error[t][i] - first.recon_error[t][i];
+                        [t as f64, d as f64]
+                    })
+                    .collect();
+                Line::new(name, PlotPoints::from(points)).color(colour)
+            })
+            .collect();
+        let title = "difference: second - first (below 0: the second predicts better)";
+        seek = plot
+            .show(
+                &mut cols[1],
+                "second difference".into(),
+                title,
+                130.0,
+                difference,
+                None,
+            )
+            .or(seek);
+    });
+    seek
+}

@@ -193,8 +193,12 @@ impl Fetches {
 #[derive(Default)]
 struct Download {
     base: String,
-    /// Files still to arrive (after the two manifests).
+    /// Every file to arrive (after the two manifests).
     expected: Vec<String>,
+    /// Those the first view needs: fetched first, the rest only once they are in.
+    first: Vec<String>,
+    /// Whether the first view's bundle was handed over.
+    first_shown: bool,
     files: HashMap<String, Vec<u8>>,
     progress: HashMap<String, (f64, f64)>,
     error: Option<String>,
@@ -206,10 +210,11 @@ struct Download {
 #[derive(Debug)]
 pub enum DownloadPoll {
     /// Still downloading: what, and the fraction done when the sizes are known.
-    Progress {
-        what: String,
-        fraction: Option<f32>,
-    },
+    Progress { what: String, fraction: Option<f32> },
+    /// What the first view needs is in (the model, one sequence, its precomputed run): a
+    /// bundle of that much, shown while the rest downloads.
+    First(Box<Bundle>),
+    /// Everything is in: the whole bundle (or why it could not be read).
     Done(Result<Box<Bundle>, String>),
 }
 
@@ -217,6 +222,8 @@ pub enum DownloadPoll {
 pub struct WebState {
     download: Option<Rc<RefCell<Download>>>,
     dropped: Rc<RefCell<(usize, Vec<DroppedFile>)>>,
+    /// Wakes the app when a file it was reading arrives (the reads end between frames).
+    repaint: Rc<RefCell<Option<eframe::egui::Context>>>,
 }
 
 impl std::fmt::Debug for WebState {
@@ -248,15 +255,26 @@ impl WebState {
         );
     }
 
+    /// The context to wake when a file read ends (the app sets it every frame).
+    pub fn wake(&self, ctx: &eframe::egui::Context) {
+        let mut repaint = self.repaint.borrow_mut();
+        if repaint.is_none() {
+            *repaint = Some(ctx.clone());
+        }
+    }
+
     /// Reads files dropped on the page (asynchronously in the browser).
     pub fn read_dropped(&self, dropped: &[eframe::egui::DroppedFileHandle]) {
         self.dropped.borrow_mut().0 += dropped.len();
         for f in dropped {
-            let (f, queue) = (f.clone(), self.dropped.clone());
+            let (f, queue, repaint) = (f.clone(), self.dropped.clone(), self.repaint.clone());
             wasm_bindgen_futures::spawn_local(async move {
                 let name = f.path().to_string_lossy().into_owned();
                 let bytes = f.bytes_async().await;
                 queue.borrow_mut().1.push((name, bytes));
+                if let Some(ctx) = repaint.borrow().as_ref() {
+                    ctx.request_repaint();
+                }
             });
         }
     }
@@ -278,14 +296,14 @@ impl WebState {
             let _ = input.set_attribute("webkitdirectory", "");
         }
         let _ = input.set_attribute("style", "display:none");
-        let queue = self.dropped.clone();
+        let (queue, repaint) = (self.dropped.clone(), self.repaint.clone());
         let source = input.clone();
         let on_change = Closure::<dyn FnMut()>::new(move || {
             let Some(files) = source.files() else { return };
             queue.borrow_mut().0 += files.length() as usize;
             for i in 0..files.length() {
                 let Some(file) = files.get(i) else { continue };
-                let queue = queue.clone();
+                let (queue, repaint) = (queue.clone(), repaint.clone());
                 wasm_bindgen_futures::spawn_local(async move {
                     let name = file.name();
                     let bytes = wasm_bindgen_futures::JsFuture::from(file.array_buffer())
@@ -293,6 +311,9 @@ impl WebState {
                         .map(|b| js_sys::Uint8Array::new(&b).to_vec())
                         .map_err(|e| format!("cannot read it: {e:?}"));
                     queue.borrow_mut().1.push((name, bytes));
+                    if let Some(ctx) = repaint.borrow().as_ref() {
+                        ctx.request_repaint();
+                    }
                 });
             }
             source.remove();
@@ -337,14 +358,35 @@ impl WebState {
             .iter()
             .filter(|f| !d.files.contains_key(*f))
             .count();
+        let first_in = !d.first.is_empty() && d.first.iter().all(|f| d.files.contains_key(f));
+        if first_in && !d.first_shown && waiting > 0 {
+            let part = Bundle::from_part_of_files(&d.files);
+            log(&format!(
+                "first view's files in after {:.0} ms ({} of {} files; page time {:.0} ms)",
+                now_ms() - d.started_ms,
+                d.expected.len() - waiting,
+                d.expected.len(),
+                now_ms()
+            ));
+            drop(d);
+            let download = self.download.as_ref()?;
+            download.borrow_mut().first_shown = true;
+            // A first part that cannot be read waits for the whole bundle, which says why.
+            return part.ok().map(|b| DownloadPoll::First(Box::new(b)));
+        }
         if d.expected.is_empty() || waiting > 0 {
             let (loaded, total) = d
                 .progress
                 .values()
                 .fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
+            let what = if d.first_shown {
+                "loading the other sequences and runs of"
+            } else {
+                "loading"
+            };
             return Some(DownloadPoll::Progress {
                 what: format!(
-                    "loading {} ({:.1} / {:.1} MB, {} of {} files)",
+                    "{what} {} ({:.1} / {:.1} MB, {} of {} files)",
                     d.base,
                     loaded / 1e6,
                     total / 1e6,
@@ -363,6 +405,53 @@ impl WebState {
         drop(d);
         self.download = None;
         Some(DownloadPoll::Done(result.map(Box::new)))
+    }
+}
+
+/// The sequence the page's address asks for, if any (its files come first).
+fn wanted_sequence() -> Option<String> {
+    let standard = crate::Condition::standard(&pvrnn_core::ModelConfig::default());
+    let hash = location_hash();
+    crate::ViewState::from_hash(&hash, &crate::ViewState::default(), standard)
+        .0
+        .sequence
+}
+
+/// Fetches `files` into the download; once the first view's files are all in, the rest.
+fn fetch_files(d: &Rc<RefCell<Download>>, files: Vec<String>) {
+    let base = d.borrow().base.clone();
+    for file in files {
+        let (dp, dd, name) = (d.clone(), d.clone(), file.clone());
+        let name2 = file.clone();
+        fetch(
+            &format!("{base}{file}"),
+            move |loaded, total| {
+                dp.borrow_mut()
+                    .progress
+                    .insert(name.clone(), (loaded, total));
+            },
+            move |r| match r {
+                Err(e) => dd.borrow_mut().error = Some(e),
+                Ok(bytes) => {
+                    let rest = {
+                        let mut d = dd.borrow_mut();
+                        let was_in = d.first.iter().all(|f| d.files.contains_key(f));
+                        d.files.insert(name2, bytes);
+                        let now_in = d.first.iter().all(|f| d.files.contains_key(f));
+                        (!was_in && now_in).then(|| {
+                            d.expected
+                                .iter()
+                                .filter(|f| !d.first.contains(f))
+                                .cloned()
+                                .collect::<Vec<_>>()
+                        })
+                    };
+                    if let Some(rest) = rest {
+                        fetch_files(&dd, rest);
+                    }
+                }
+            },
+        );
     }
 }
 
@@ -386,30 +475,18 @@ fn manifest_arrived(d: Rc<RefCell<Download>>, bytes: Vec<u8>) {
                 let list = std::str::from_utf8(&json)
                     .map_err(|_| "the dataset manifest is not text".to_string())
                     .and_then(|text| Bundle::files_of(&manifest, text));
-                match list {
+                let first = std::str::from_utf8(&json)
+                    .map_err(|_| "the dataset manifest is not text".to_string())
+                    .and_then(|text| {
+                        Bundle::first_files(&manifest, text, wanted_sequence().as_deref())
+                    });
+                match list.and_then(|l| first.map(|f| (l, f))) {
                     Err(e) => d2.borrow_mut().error = Some(e),
-                    Ok(list) => {
+                    Ok((list, first)) => {
                         d2.borrow_mut().files.insert(manifest.dataset.clone(), json);
-                        d2.borrow_mut().expected = list.clone();
-                        let base = d2.borrow().base.clone();
-                        for file in list {
-                            let (dp, dd, name) = (d2.clone(), d2.clone(), file.clone());
-                            let name2 = file.clone();
-                            fetch(
-                                &format!("{base}{file}"),
-                                move |loaded, total| {
-                                    dp.borrow_mut()
-                                        .progress
-                                        .insert(name.clone(), (loaded, total));
-                                },
-                                move |r| match r {
-                                    Err(e) => dd.borrow_mut().error = Some(e),
-                                    Ok(bytes) => {
-                                        dd.borrow_mut().files.insert(name2, bytes);
-                                    }
-                                },
-                            );
-                        }
+                        d2.borrow_mut().expected = list;
+                        d2.borrow_mut().first = first.clone();
+                        fetch_files(&d2, first);
                     }
                 }
             }

@@ -182,6 +182,63 @@ impl Bundle {
         Ok(files)
     }
 
+    /// The files the first view needs, of those [`Self::files_of`] lists: the model, the
+    /// sequence `wanted` (a view's, if the dataset has it; else the first), and the first
+    /// runs file (the model's standard condition, as `pvrnn bundle` writes it).
+    pub fn first_files(
+        manifest: &BundleManifest,
+        dataset_json: &str,
+        wanted: Option<&str>,
+    ) -> Result<Vec<String>, String> {
+        let dataset: pvrnn_dataset::Manifest = serde_json::from_str(dataset_json)
+            .map_err(|e| format!("{}: not a dataset manifest: {e}", manifest.dataset))?;
+        let sequence = dataset
+            .sequences
+            .iter()
+            .find(|s| Some(s.name.as_str()) == wanted)
+            .or(dataset.sequences.first())
+            .ok_or_else(|| format!("{}: no sequences", manifest.dataset))?;
+        let mut files = vec![manifest.model.clone(), sequence.file.clone()];
+        files.extend(manifest.runs.first().cloned());
+        Ok(files)
+    }
+
+    /// The bundle as far as `files` hold it: the sequences and runs files that arrived
+    /// (the first view, while the rest downloads); runs of sequences still on their way
+    /// are left for the whole bundle, without a note.
+    pub fn from_part_of_files(files: &HashMap<String, Vec<u8>>) -> Result<Self, String> {
+        let manifest_bytes = files
+            .get(BUNDLE_MANIFEST)
+            .ok_or_else(|| format!("{BUNDLE_MANIFEST} is missing"))?;
+        let mut manifest =
+            BundleManifest::parse(manifest_bytes, BUNDLE_MANIFEST).map_err(|e| e.to_string())?;
+        let dataset_bytes = files
+            .get(&manifest.dataset)
+            .ok_or_else(|| format!("{} is missing", manifest.dataset))?;
+        let mut dataset: serde_json::Value = serde_json::from_slice(dataset_bytes)
+            .map_err(|e| format!("{}: not JSON: {e}", manifest.dataset))?;
+        if let Some(serde_json::Value::Array(sequences)) = dataset.get_mut("sequences") {
+            sequences.retain(|s| {
+                s.get("file")
+                    .and_then(|f| f.as_str())
+                    .is_some_and(|f| files.contains_key(f))
+            });
+        }
+        manifest.runs.retain(|r| files.contains_key(r));
+        let mut part = files.clone();
+        part.insert(
+            manifest.dataset.clone(),
+            serde_json::to_vec(&dataset).map_err(|e| e.to_string())?,
+        );
+        part.insert(
+            BUNDLE_MANIFEST.into(),
+            serde_json::to_vec(&manifest).map_err(|e| e.to_string())?,
+        );
+        let mut bundle = Self::from_files(&part)?;
+        bundle.notes.clear();
+        Ok(bundle)
+    }
+
     /// Opens a bundle folder, or a dataset folder with a model file beside it.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn open_dir(dir: &std::path::Path) -> Result<Self, String> {

@@ -130,6 +130,9 @@ pub struct Finished {
     /// Steps whose updates the GPU was asked to run at once but declined, so that they ran
     /// one at a time (`OnlineInference::steps_declined_by_device`).
     pub declined_by_device: usize,
+    /// Steps that were not computed but replayed (a branch's shared past, known from its
+    /// run): `steps - replayed` were computed in `busy`.
+    pub replayed: usize,
 }
 
 /// What the engine reports.
@@ -154,6 +157,8 @@ struct Job {
     switch: Option<(usize, pvrnn_core::infer::InferenceSettings)>,
     /// Steps already known (a branch's shared past), reported before any computed one.
     replay: VecDeque<CompactStep>,
+    /// How many steps were replayed.
+    replayed: usize,
     /// What the job learns of its base run (the run itself, or a branch's past), so that
     /// later branches of it start where they leave it instead of recomputing its past.
     history: History,
@@ -272,6 +277,7 @@ impl Engine {
             started: Instant::now(),
             switch: None,
             replay: VecDeque::new(),
+            replayed: 0,
             history: History::default(),
             backend: self.backend.clone(),
         };
@@ -299,6 +305,7 @@ impl Engine {
                 let state = h.states[at].clone();
                 continue_at(&mut job.inference, state, &job.observations)?;
                 job.replay = h.steps[..at].iter().cloned().collect();
+                job.replayed = at;
                 job.next = at;
             }
             // Otherwise it computes the base run's past first (and keeps its history).
@@ -370,6 +377,7 @@ impl Engine {
                             busy: job.busy,
                             wall: job.started.elapsed(),
                             declined_by_device: job.inference.steps_declined_by_device(),
+                            replayed: job.replayed,
                         }));
                         if let Some(mut job) = self.current.take() {
                             self.keep_history(&mut job);

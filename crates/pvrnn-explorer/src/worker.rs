@@ -210,6 +210,7 @@ impl Reply {
                         ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
                         ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
                         ("declined", (f.declined_by_device as f64).into()),
+                        ("replayed", (f.replayed as f64).into()),
                     ],
                 ),
                 Event::Failed(key, e) => message(
@@ -259,6 +260,7 @@ impl Reply {
                 busy: ms("busy_ms")?,
                 wall: ms("wall_ms")?,
                 declined_by_device: number_field(m, "declined")? as usize,
+                replayed: number_field(m, "replayed")? as usize,
             }),
             "failed" => Event::Failed(key, string_field(m, "message")?),
             other => return Err(format!("unknown worker message `{other}`")),

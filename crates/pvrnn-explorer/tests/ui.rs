@@ -209,6 +209,74 @@ fn contribution_maps_need_and_get_the_ablation_runs() {
     }
 }
 
+/// The web's progressive load on the shipped bundle: the first view needs the model, the
+/// sequence the address asks for and the standard condition's runs (about 4.8 of 12 MB
+/// gzipped), shows that sequence's precomputed run, and the rest joins it unchanged.
+#[test]
+fn the_first_view_needs_one_sequence_and_the_rest_joins_it() {
+    use pvrnn_explorer::bundle::BundleManifest;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
+    let all: HashMap<String, Vec<u8>> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            (name, std::fs::read(&p).unwrap())
+        })
+        .collect();
+    let manifest = BundleManifest::parse(&all[BUNDLE_MANIFEST], BUNDLE_MANIFEST).unwrap();
+    let dataset_json = std::str::from_utf8(&all["dataset.json"]).unwrap();
+    let wanted = "wiping_650mm_test0";
+    let first = Bundle::first_files(&manifest, dataset_json, Some(wanted)).unwrap();
+    assert_eq!(
+        first,
+        [
+            "model.safetensors",
+            "wiping_650mm_test0.safetensors",
+            "runs-all-on.safetensors"
+        ]
+    );
+    let part: HashMap<String, Vec<u8>> = first
+        .iter()
+        .chain([&BUNDLE_MANIFEST.to_string(), &"dataset.json".to_string()])
+        .map(|f| (f.clone(), all[f].clone()))
+        .collect();
+    let part_bundle = Bundle::from_part_of_files(&part).unwrap();
+    assert_eq!(part_bundle.dataset.sequences.len(), 1);
+    assert!(part_bundle.notes.is_empty(), "{:?}", part_bundle.notes);
+    let view = ViewState {
+        sequence: Some(wanted.into()),
+        t: 100,
+        maps: false,
+        ..ViewState::default()
+    };
+    let mut app = ExplorerApp::new(Some(part_bundle), view);
+    app.compute(std::time::Duration::ZERO);
+    let shown = app.current_run().expect("the standard run is precomputed");
+    assert!(shown.complete, "the first view needs no computing");
+    let shown = shown.trace.clone();
+
+    let whole = Bundle::from_files(&all).unwrap();
+    app.complete_bundle(whole);
+    assert_eq!(app.bundle().unwrap().dataset.sequences.len(), 6);
+    assert_eq!(app.view().sequence.as_deref(), Some(wanted));
+    assert_eq!(app.view().t, 100);
+    assert_eq!(
+        app.current_run().unwrap().trace,
+        shown,
+        "the shown run stays"
+    );
+    app.view_mut().sequence = Some("repositioning_590mm_test0".into());
+    app.compute(std::time::Duration::ZERO);
+    assert!(
+        app.current_run().unwrap().complete,
+        "the others' runs joined"
+    );
+    // Without the address's sequence the first sequence comes first.
+    let first = Bundle::first_files(&manifest, dataset_json, Some("nowhere")).unwrap();
+    assert_eq!(first[1], "repositioning_590mm_test0.safetensors");
+}
+
 /// A bundle as `pvrnn bundle` writes it: precomputed runs show without computing.
 #[test]
 fn precomputed_runs_load_instantly() {

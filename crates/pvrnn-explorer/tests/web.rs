@@ -94,11 +94,74 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
         "the app panicked: {:?}",
         handle.panic_message()
     );
-    let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+    let mut app = runner.app_mut::<ExplorerApp>().expect("the app is running");
     let run = app.current_run().expect("the shown sequence has a run");
     assert!(run.complete, "the live run did not finish in 30 s");
     assert_eq!(run.error, None);
     assert!(run.trace.steps > 0 && run.trace.free_energy.iter().all(|f| f.is_finite()));
+
+    // Branch at step 5 without vision, as a link does: through the page's address.
+    drop(app);
+    web_sys::window()
+        .unwrap()
+        .location()
+        .set_hash("t=5&branch=5&b.vision=0")
+        .unwrap();
+    let branched = |runner: &eframe::WebRunner| {
+        let app = runner.app_mut::<ExplorerApp>()?;
+        let key = app.branch_key()?;
+        app.run(&key).map(|e| e.complete)
+    };
+    for _ in 0..300 {
+        if branched(runner) == Some(true) {
+            break;
+        }
+        sleep_ms(100).await;
+    }
+    let mut app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+    let branch = app.branch_key().expect("the address's branch");
+    assert_eq!(branch.then.map(|s| s.at), Some(5));
+    let forked = app.run(&branch).expect("the branch is computed").clone();
+    assert!(
+        forked.complete && forked.error.is_none(),
+        "{:?}",
+        forked.error
+    );
+    assert_eq!(forked.trace.steps, 12);
+
+    // A second network (another checkpoint), chosen in the browser's picker.
+    let later = pvrnn_core::Model::<f32>::init(common::config(), 1, 12, 77).unwrap();
+    let bytes = pvrnn_core::io::model_to_bytes(&later).unwrap();
+    let input = app.pick_second_network(false).expect("a file input");
+    drop(app);
+    let chosen = web_sys::DataTransfer::new().expect("a DataTransfer");
+    let parts = js_sys::Array::of1(&js_sys::Uint8Array::from(&bytes[..]));
+    let file = web_sys::File::new_with_u8_array_sequence(&parts, "late.safetensors").unwrap();
+    chosen.items().add_with_file(&file).expect("added");
+    input.set_files(chosen.files().as_ref());
+    input
+        .dispatch_event(&web_sys::Event::new("change").expect("an event"))
+        .expect("dispatched");
+    let second = |runner: &eframe::WebRunner| {
+        let app = runner.app_mut::<ExplorerApp>()?;
+        app.second_run().map(|e| e.complete)
+    };
+    for _ in 0..300 {
+        if second(runner) == Some(true) {
+            break;
+        }
+        sleep_ms(100).await;
+    }
+    let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+    let second = app.second_run().expect("the second network's run");
+    assert!(
+        second.complete && second.error.is_none(),
+        "{:?}",
+        second.error
+    );
+    assert_ne!(second.trace.recon_error, forked.trace.recon_error);
+    drop(app);
+    web_sys::window().unwrap().location().set_hash("").unwrap();
 }
 
 /// A panic shows over the page, with its message, instead of a frozen canvas.
@@ -183,6 +246,7 @@ fn worker_messages_round_trip() {
             busy: Duration::from_millis(1500),
             wall: Duration::from_millis(2000),
             declined_by_device: 3,
+            replayed: 40,
         }),
         Event::Failed(key(), "no observations".into()),
     ];
@@ -230,6 +294,17 @@ fn worker_messages_round_trip() {
         Command::Run {
             generation: 2,
             key: key(),
+        },
+        // A branch: the run's condition up to step 40, another from it on.
+        Command::Run {
+            generation: 2,
+            key: key().branched(
+                40,
+                Condition {
+                    proprio: false,
+                    ..key().condition
+                },
+            ),
         },
     ] {
         assert_eq!(Command::decode(&command.encode().0).unwrap(), command);

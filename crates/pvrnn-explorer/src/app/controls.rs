@@ -61,14 +61,15 @@ impl ExplorerApp {
                     ("Open files (a checkpoint of this dataset, or a bundle's files)", false),
                 ] {
                     if ui.button(label).clicked() {
-                        self.opening_second = true;
                         #[cfg(target_arch = "wasm32")]
-                        if let Err(e) = self.web.pick_files(folder) {
-                            self.opening_second = false;
+                        if let Err(e) = self.pick_second_network(folder) {
                             self.status = Status::Error(format!("cannot open the file picker: {e}"));
                         }
                         #[cfg(not(target_arch = "wasm32"))]
-                        self.open_with_dialog(folder);
+                        {
+                            self.opening_second = true;
+                            self.open_with_dialog(folder);
+                        }
                         ui.close();
                     }
                 }

@@ -288,6 +288,40 @@ impl ExplorerApp {
         self.bundle = Some(bundle);
     }
 
+    /// The whole bundle, after the first view showed part of it (the web's progressive
+    /// load): its other sequences and precomputed runs join what is shown, which stays as
+    /// it is (the view, the runs computed, the model the executor has).
+    pub fn complete_bundle(&mut self, whole: Bundle) {
+        let Some(shown) = self.bundle.as_mut() else {
+            return self.set_bundle(whole);
+        };
+        if shown.model.params != whole.model.params || shown.model.config != whole.model.config {
+            return self.set_bundle(whole);
+        }
+        let Bundle {
+            description,
+            card,
+            dataset,
+            precomputed,
+            notes,
+            ..
+        } = whole;
+        shown.description = description;
+        shown.card = card;
+        shown.dataset = dataset;
+        shown.notes = notes;
+        for (key, trace) in precomputed {
+            if !self.store.get(&key).is_some_and(|e| e.complete) {
+                self.store.insert_complete(key, trace);
+            }
+        }
+        self.status = Status::Info(if shown.notes.is_empty() {
+            format!("{} sequences", shown.dataset.sequences.len())
+        } else {
+            shown.notes.join("; ")
+        });
+    }
+
     pub fn view(&self) -> &ViewState {
         &self.view
     }
@@ -493,6 +527,10 @@ impl ExplorerApp {
             Some(DownloadPoll::Progress { what, fraction }) => {
                 self.status = Status::Loading { what, fraction }
             }
+            Some(DownloadPoll::First(bundle)) => self.set_bundle(*bundle),
+            Some(DownloadPoll::Done(Ok(bundle))) if self.bundle.is_some() => {
+                self.complete_bundle(*bundle)
+            }
             Some(DownloadPoll::Done(Ok(bundle))) => self.set_bundle(*bundle),
             Some(DownloadPoll::Done(Err(e))) => self.status = Status::Error(e),
             None => {}
@@ -504,6 +542,8 @@ impl ExplorerApp {
         if self.web.downloading() {
             ctx.request_repaint_after(Duration::from_millis(100));
         }
+        #[cfg(target_arch = "wasm32")]
+        self.web.wake(ctx);
         self.take_dropped(ctx);
         self.take_picture(ctx);
         // egui's clock rather than the wall clock, so tests can step time exactly.

@@ -82,6 +82,19 @@ impl ExplorerApp {
         }
     }
 
+    /// Opens the browser's file picker for the second network; what the user picks opens
+    /// beside the first. Returns the input element (tests fill it).
+    #[cfg(target_arch = "wasm32")]
+    pub fn pick_second_network(
+        &mut self,
+        folder: bool,
+    ) -> Result<eframe::web_sys::HtmlInputElement, String> {
+        self.opening_second = true;
+        self.web
+            .pick_files(folder)
+            .inspect_err(|_| self.opening_second = false)
+    }
+
     /// Opens a bundle folder as the second network (the desktop's `--second`).
     pub fn set_second(&mut self, bundle: Bundle) -> Result<(), String> {
         let first = self.bundle.as_ref().ok_or("open a network first")?;

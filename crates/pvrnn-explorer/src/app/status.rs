@@ -6,17 +6,30 @@ use crate::engine::Finished;
 /// What the status bar says of a finished live run, and its timing (the hover text; the
 /// web build also logs both).
 pub(super) fn finished_note(f: &Finished) -> (String, String) {
-    let what = format!(
+    let mut what = format!(
         "run {} ({}) computed live: {} steps",
         f.key.sequence,
         condition_label(&f.key.condition),
         f.steps,
     );
+    if let Some(then) = &f.key.then {
+        what = format!(
+            "branch of run {} ({}) at step {} under ({}) computed live: {} steps, {} of them \
+             computed",
+            f.key.sequence,
+            condition_label(&f.key.condition),
+            then.at,
+            condition_label(&then.condition),
+            f.steps,
+            f.steps - f.replayed
+        );
+    }
+    let computed = (f.steps - f.replayed) as f64;
     let mut timing = format!(
         "in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
         f.wall.as_secs_f64(),
-        f.steps as f64 / f.wall.as_secs_f64().max(1e-9),
-        f.steps as f64 / f.busy.as_secs_f64().max(1e-9)
+        computed / f.wall.as_secs_f64().max(1e-9),
+        computed / f.busy.as_secs_f64().max(1e-9)
     );
     if f.declined_by_device > 0 {
         // The status bar said the recurrence runs on the GPU: say where the updates did not.
@@ -111,6 +124,7 @@ mod tests {
             busy: Duration::from_secs(20),
             wall: Duration::from_secs(30),
             declined_by_device: 0,
+            replayed: 0,
         };
         let (what, timing) = finished_note(&f);
         assert!(what.starts_with("run wiping_650mm_test0 ("), "{what}");
@@ -124,6 +138,27 @@ mod tests {
         assert!(
             timing.ends_with("; the GPU declined the inference updates of 12 of its steps (a shape its kernels do not hold), which ran one at a time"),
             "{timing}"
+        );
+        // A branch's speed counts the steps it computed, not those it shares.
+        let blind = Condition {
+            vision_levels: 0,
+            ..f.key.condition
+        };
+        f.key = f.key.branched(150, blind);
+        (f.replayed, f.declined_by_device) = (150, 0);
+        let (what, timing) = finished_note(&f);
+        assert!(
+            what.starts_with("branch of run wiping_650mm_test0 ("),
+            "{what}"
+        );
+        assert!(
+            what.contains(") at step 150 under (vision levels 0,"),
+            "{what}"
+        );
+        assert!(what.ends_with("300 steps, 150 of them computed"), "{what}");
+        assert_eq!(
+            timing,
+            "in 30.0 s = 5.0 steps/s (7.5 steps/s of computing time)"
         );
     }
 }

@@ -94,14 +94,15 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
         "the app panicked: {:?}",
         handle.panic_message()
     );
-    let mut app = runner.app_mut::<ExplorerApp>().expect("the app is running");
-    let run = app.current_run().expect("the shown sequence has a run");
-    assert!(run.complete, "the live run did not finish in 30 s");
-    assert_eq!(run.error, None);
-    assert!(run.trace.steps > 0 && run.trace.free_energy.iter().all(|f| f.is_finite()));
+    {
+        let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+        let run = app.current_run().expect("the shown sequence has a run");
+        assert!(run.complete, "the live run did not finish in 30 s");
+        assert_eq!(run.error, None);
+        assert!(run.trace.steps > 0 && run.trace.free_energy.iter().all(|f| f.is_finite()));
+    }
 
     // Branch at step 5 without vision, as a link does: through the page's address.
-    drop(app);
     web_sys::window()
         .unwrap()
         .location()
@@ -118,10 +119,12 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
         }
         sleep_ms(100).await;
     }
-    let mut app = runner.app_mut::<ExplorerApp>().expect("the app is running");
-    let branch = app.branch_key().expect("the address's branch");
-    assert_eq!(branch.then.map(|s| s.at), Some(5));
-    let forked = app.run(&branch).expect("the branch is computed").clone();
+    let forked = {
+        let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+        let branch = app.branch_key().expect("the address's branch");
+        assert_eq!(branch.then.map(|s| s.at), Some(5));
+        app.run(&branch).expect("the branch is computed").clone()
+    };
     assert!(
         forked.complete && forked.error.is_none(),
         "{:?}",
@@ -132,8 +135,10 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
     // A second network (another checkpoint), chosen in the browser's picker.
     let later = pvrnn_core::Model::<f32>::init(common::config(), 1, 12, 77).unwrap();
     let bytes = pvrnn_core::io::model_to_bytes(&later).unwrap();
-    let input = app.pick_second_network(false).expect("a file input");
-    drop(app);
+    let input = {
+        let mut app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+        app.pick_second_network(false).expect("a file input")
+    };
     let chosen = web_sys::DataTransfer::new().expect("a DataTransfer");
     let parts = js_sys::Array::of1(&js_sys::Uint8Array::from(&bytes[..]));
     let file = web_sys::File::new_with_u8_array_sequence(&parts, "late.safetensors").unwrap();
@@ -152,15 +157,16 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
         }
         sleep_ms(100).await;
     }
-    let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
-    let second = app.second_run().expect("the second network's run");
-    assert!(
-        second.complete && second.error.is_none(),
-        "{:?}",
-        second.error
-    );
-    assert_ne!(second.trace.recon_error, forked.trace.recon_error);
-    drop(app);
+    {
+        let app = runner.app_mut::<ExplorerApp>().expect("the app is running");
+        let second = app.second_run().expect("the second network's run");
+        assert!(
+            second.complete && second.error.is_none(),
+            "{:?}",
+            second.error
+        );
+        assert_ne!(second.trace.recon_error, forked.trace.recon_error);
+    }
     web_sys::window().unwrap().location().set_hash("").unwrap();
 }
 

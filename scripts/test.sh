@@ -82,13 +82,8 @@ done
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release
 
-step "the web site is at most 15 MB gzipped"
-size=$(find dist -type f -exec sh -c 'gzip -6 -c "$1" | wc -c' _ {} \; | awk '{s += $1} END {print s}')
-echo "dist/: $((size / 1000)) kB gzipped" >&2
-if [ "$size" -gt 15000000 ]; then
-    echo "the site is over 15 MB gzipped" >&2
-    exit 1
-fi
+step "the web site's sizes against their record (web/sizes.json)"
+python3 scripts/site-sizes.py
 
 step "the web site in headless Chromium"
 port=${PVRNN_TEST_PORT:-8765}

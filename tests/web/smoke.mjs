@@ -4,7 +4,10 @@
 //   node tests/web/smoke.mjs URL SCREENSHOT.png [--live-seconds N] [--webgpu]
 //
 // With --live-seconds N it also opens a condition that is not precomputed (16x16 vision
-// plus proprioception with the executive module ablated) and waits up to N seconds for the live run's speed in the console.
+// plus proprioception with the executive module ablated) and waits up to N seconds for the live run's speed in the console,
+// then branches that run at step 20 without vision and waits as long for the branch's speed.
+// It also checks that the first view came before the whole bundle (progressive load) and
+// that the findings' figures are served.
 // With --webgpu it also opens the site in a browser with WebGPU and checks that the worker
 // takes it when asked (`?compute=webgpu`), and that eframe's wgpu renderer draws the page
 // when asked (`?render=wgpu`).
@@ -107,6 +110,17 @@ try {
   const ready = await waitForLog(page, logs, 'bundle ready');
   if (ready) console.log(`ready: ${ready} (${Date.now() - started} ms after navigation, wall clock)`);
   else fail('the bundle never finished loading');
+  // Progressive: the first view's files (model, one sequence, the standard runs) are in,
+  // and shown, before the rest.
+  const first = logs.findIndex((l) => l.includes("first view's files in"));
+  if (first < 0) fail('the first view did not come before the whole bundle');
+  else if (first > logs.findIndex((l) => l.includes('bundle ready'))) fail('the first view came after the whole bundle');
+  else console.log(`first view: ${logs[first]}`);
+  // The findings panel's figures are served beside the site.
+  for (const figure of ['findings/converged/robustness/report/robustness.png', 'findings/interference/report/interference_wiping.png']) {
+    const response = await page.request.get(new URL(figure, url).href);
+    if (!response.ok()) fail(`${figure}: HTTP ${response.status()}`);
+  }
   await page.waitForTimeout(2500);
   const shot = await page.screenshot();
   writeFileSync(out, shot);
@@ -139,6 +153,14 @@ try {
     // Chromium runs module workers: live runs must be computed beside the page, not in it.
     const inPage = logs.find((l) => l.includes('computing in the page'));
     if (inPage) fail(`the inference worker did not work: ${inPage}`);
+    // Branch the live run at step 20 without vision: the worker knows the run's states, so
+    // only the steps from 20 on are computed; its speed is the branch's live speed.
+    await page.evaluate(() => { location.hash = 'vision=1&proprio=1&ablate=1000&maps=0&t=20&branch=20&b.vision=0&b.proprio=1&b.ablate=1000'; });
+    const branchUntil = Date.now() + liveSeconds * 1000;
+    let branch;
+    while (!(branch = logs.find((l) => l.includes('branch of run'))) && Date.now() < branchUntil) await page.waitForTimeout(500);
+    if (branch) console.log(`branch: ${branch}`);
+    else fail(`no branch finished within ${liveSeconds} s`);
   }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();

@@ -232,8 +232,9 @@ fn main() {
                     eprintln!("the second network: {e}");
                 }
                 app.compute_in_background_on(&cc.egui_ctx, open_backend(compute, gpu_recurrence));
-                if let Some(path) = screenshot {
-                    app.screenshot_and_close(path);
+                match screenshot {
+                    Some(path) => app.screenshot_and_close(path),
+                    None => app.offer_tour(),
                 }
                 Ok(Box::new(app))
             }),

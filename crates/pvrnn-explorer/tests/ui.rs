@@ -874,6 +874,21 @@ fn a_second_network_runs_beside_the_first() {
     settle(&mut h);
     let second = h.state().second_run().unwrap();
     assert!(second.complete && second.trace.steps == 12);
+    // The comparison takes networks too: each condition on the first, then on the second.
+    h.state_mut().view_mut().compare = Some(pvrnn_explorer::state::CompareSet::Vision);
+    h.step();
+    settle(&mut h);
+    let cells = h.state().comparison();
+    assert_eq!(cells.len(), 8);
+    let (first, second): (Vec<_>, Vec<_>) = cells.iter().partition(|c| !c.second);
+    for (a, b) in first.iter().zip(&second) {
+        assert_eq!(a.key, b.key);
+        assert!(b.label.ends_with("(second network)"), "{}", b.label);
+        assert_eq!((a.steps, b.steps), (12, 12));
+        assert_ne!(a.mean_error, b.mean_error, "{}", b.label);
+    }
+    h.state_mut().view_mut().compare = None;
+    h.step();
     h.get_by_label("close the second network").click();
     h.step();
     assert!(h.state().second_run().is_none());
@@ -887,6 +902,41 @@ fn a_second_network_runs_beside_the_first() {
         Bundle::new("one level".into(), other, dataset).and_then(|b| h.state_mut().set_second(b));
     let err = refused.unwrap_err();
     assert!(err.contains("cannot be compared"), "{err}");
+}
+
+/// The tour: offered on a first visit, stepped through, remembered once done or skipped.
+#[test]
+fn the_tour_is_offered_once_and_can_be_skipped_or_restarted() {
+    let config = tempdir().join("tour-config");
+    let _ = std::fs::remove_dir_all(&config);
+    let mut app = ExplorerApp::new(Some(common::bundle()), ViewState::default());
+    app.set_config_dir(Some(config.clone()));
+    app.offer_tour();
+    let mut h = harness(app);
+    assert_eq!(h.state().tour_stop(), Some(0));
+    let labels = format!("{:?}", h.root());
+    assert!(labels.contains("Tour 1 of 6: What you see"), "{labels}");
+    for stop in 1..6 {
+        h.get_by_label("next").click();
+        // A new stop is a new window: egui sizes it before it shows.
+        h.run_steps(6);
+        assert_eq!(h.state().tour_stop(), Some(stop));
+    }
+    h.get_by_label("done").click();
+    h.run_steps(6);
+    assert_eq!(h.state().tour_stop(), None);
+    // Remembered: not offered again; the Tour button starts it, and it can be skipped.
+    let mut app = ExplorerApp::new(Some(common::bundle()), ViewState::default());
+    app.set_config_dir(Some(config));
+    app.offer_tour();
+    let mut h = harness(app);
+    assert_eq!(h.state().tour_stop(), None);
+    h.get_by_label("Tour").click();
+    h.run_steps(6);
+    assert_eq!(h.state().tour_stop(), Some(0));
+    h.get_by_label("skip the tour").click();
+    h.run_steps(6);
+    assert_eq!(h.state().tour_stop(), None);
 }
 
 /// Another robot: one camera, one 6-joint arm without torque sensing, a gripper channel.
@@ -1124,6 +1174,13 @@ mod snapshots {
         let later = Bundle::new("a later checkpoint".into(), later, common::dataset()).unwrap();
         app.set_second(later).unwrap();
         drawn(app).snapshot("second_network");
+    }
+
+    #[test]
+    fn the_tour_s_first_stop() {
+        let mut app = ExplorerApp::new(Some(common::bundle()), ViewState::default());
+        app.start_tour();
+        drawn(app).snapshot("tour");
     }
 
     #[test]

@@ -46,7 +46,9 @@ pub fn bench_frames(mut app: ExplorerApp, frames: usize) {
 /// Computes the shown run live while drawing frames headless as a window would (at most 60
 /// per second, vsync, and only as often as the app asks to be repainted), first in the
 /// frame loop (slices of each frame's budget), then on a background thread, and prints the
-/// steps per second of each. `make` gives a fresh app each time (the run not yet computed).
+/// steps per second of each; with a branch in the view (`branch=` in `--view`), then the
+/// branch's, timed from the run's end (it continues from the run's kept states). `make`
+/// gives a fresh app each time (the run not yet computed).
 #[cfg(not(target_arch = "wasm32"))]
 pub fn bench_live(make: impl Fn() -> ExplorerApp) {
     const FRAME: Duration = Duration::from_micros(16_667);
@@ -68,10 +70,21 @@ pub fn bench_live(make: impl Fn() -> ExplorerApp) {
         };
         let start = Instant::now();
         let mut frames = 0usize;
-        while !app
-            .current_run()
-            .is_some_and(|r| r.complete || r.error.is_some())
-        {
+        // With a branch in the view, it is computed after its run and timed from then.
+        let done = |app: &ExplorerApp, key: Option<crate::condition::RunKey>| {
+            key.and_then(|k| app.run(&k))
+                .is_some_and(|r| r.complete || r.error.is_some())
+        };
+        let mut run_done: Option<(f64, usize)> = None;
+        loop {
+            if run_done.is_none() && done(&app, app.current_key()) {
+                let steps = app.current_run().map_or(0, |r| r.trace.steps);
+                run_done = Some((start.elapsed().as_secs_f64(), frames));
+                report_run(&app, label, steps, start.elapsed().as_secs_f64(), frames);
+            }
+            if run_done.is_some() && (app.view.branch.is_none() || done(&app, app.branch_key())) {
+                break;
+            }
             let frame = Instant::now();
             let mut out = ctx.run_ui(input(), |ui| app.show(ui));
             out.textures_delta.clear();
@@ -92,16 +105,34 @@ pub fn bench_live(make: impl Fn() -> ExplorerApp) {
                 break;
             }
         }
-        let seconds = start.elapsed().as_secs_f64();
-        let steps = app.current_run().map_or(0, |r| r.trace.steps);
-        let key = app
-            .current_key()
-            .map(|k| super::condition_label(&k.condition));
+        let (Some((run_seconds, run_frames)), Some(b)) = (run_done, app.view.branch) else {
+            continue;
+        };
+        let seconds = start.elapsed().as_secs_f64() - run_seconds;
+        let steps = app
+            .branch_key()
+            .and_then(|k| app.run(&k))
+            .map_or(0, |r| r.trace.steps.saturating_sub(b.at));
         println!(
-            "live run {label}: {steps} steps in {seconds:.1} s = {:.2} steps/s, {:.0} frames/s ({})",
+            "branch {label} at step {} ({}): {steps} steps computed in {seconds:.1} s = {:.2} \
+             steps/s, {:.0} frames/s",
+            b.at,
+            super::condition_label(&b.condition),
             steps as f64 / seconds,
-            frames as f64 / seconds,
-            key.unwrap_or_default()
+            (frames - run_frames) as f64 / seconds,
         );
     }
+}
+
+/// Prints a finished live run's speed.
+fn report_run(app: &ExplorerApp, label: &str, steps: usize, seconds: f64, frames: usize) {
+    let key = app
+        .current_key()
+        .map(|k| super::condition_label(&k.condition));
+    println!(
+        "live run {label}: {steps} steps in {seconds:.1} s = {:.2} steps/s, {:.0} frames/s ({})",
+        steps as f64 / seconds,
+        frames as f64 / seconds,
+        key.unwrap_or_default()
+    );
 }

@@ -1,7 +1,8 @@
 //! The comparison view: the step at the cursor under several conditions side by side, each
 //! with its predicted image and its reconstruction error, filled in as the runs arrive
 //! (vision 64 / 32+16 / 16 x proprioception on / off: the paper's Fig. 5 question answered by
-//! looking; or each module ablated).
+//! looking; or each module ablated). With a second network open, its cells follow the
+//! first's: the same conditions, the other network.
 
 use super::images_panel::read_out_vision;
 use super::*;
@@ -52,10 +53,14 @@ pub fn compare_conditions(
     }
 }
 
+/// What the comparison's pictures were read out of: each cell's run (and whether the second
+/// network's), the cursor, and how far each run had got.
+type CompareStamp = (Vec<(RunKey, bool)>, usize, Vec<usize>);
+
 /// Textures of the comparison at the cursor, redone when a run grows past the cursor.
 #[derive(Default)]
 pub(super) struct CompareCache {
-    key: Option<(Vec<RunKey>, usize, Vec<usize>)>,
+    key: Option<CompareStamp>,
     textures: Vec<Option<TextureHandle>>,
 }
 
@@ -64,6 +69,8 @@ pub(super) struct CompareCache {
 pub struct CompareCell {
     pub label: String,
     pub key: RunKey,
+    /// Whether the cell is the second network's.
+    pub second: bool,
     /// Mean squared reconstruction error at the cursor (vision, proprioception), once the
     /// run got there.
     pub error_at_t: Option<[f32; 2]>,
@@ -96,7 +103,7 @@ impl ComparePanel<'_> {
         let columns = if self.set == CompareSet::Vision {
             self.resolutions.len()
         } else {
-            self.cells.len()
+            self.cells.iter().filter(|c| !c.second).count()
         };
         egui::Window::new(format!("Compare: {}", self.set.name()))
             .open(&mut open)
@@ -161,11 +168,23 @@ impl ExplorerApp {
             return Vec::new();
         };
         let t = self.view.t;
-        compare_conditions(set, key.condition, &bundle.model.config.vision.resolutions)
-            .into_iter()
-            .map(|(label, condition)| {
+        let conditions =
+            compare_conditions(set, key.condition, &bundle.model.config.vision.resolutions);
+        let second = self
+            .second
+            .as_ref()
+            .filter(|s| s.bundle.dataset.by_name(&key.sequence).is_some());
+        let networks = std::iter::once(false).chain(second.map(|_| true));
+        networks
+            .flat_map(|network| conditions.iter().map(move |c| (network, c.clone())))
+            .map(|(network, (label, condition))| {
                 let key = RunKey::new(&key.sequence, condition);
-                let trace = self.store.get(&key).map(|e| &e.trace);
+                let label = if network {
+                    format!("{label} (second network)")
+                } else {
+                    label
+                };
+                let trace = self.compare_store(network).get(&key).map(|e| &e.trace);
                 let steps = trace.map_or(0, |tr| tr.steps);
                 let mean_error = trace.filter(|tr| tr.steps > 0).map(|tr| {
                     let n = tr.recon_error.len() as f32;
@@ -177,6 +196,7 @@ impl ExplorerApp {
                 });
                 CompareCell {
                     label,
+                    second: network,
                     error_at_t: trace.and_then(|tr| tr.recon_error.get(t).copied()),
                     mean_error,
                     steps,
@@ -186,10 +206,21 @@ impl ExplorerApp {
             .collect()
     }
 
+    /// The runs of the first network (`false`) or the second.
+    fn compare_store(&self, second: bool) -> &RunStore {
+        match (&self.second, second) {
+            (Some(s), true) => &s.store,
+            _ => &self.store,
+        }
+    }
+
     /// Asks for the comparison's runs (after the shown one).
     pub(super) fn request_comparison(&mut self) {
         for cell in self.comparison() {
-            self.store.request(cell.key, false);
+            match (&mut self.second, cell.second) {
+                (Some(s), true) => s.store.request(cell.key, false),
+                _ => self.store.request(cell.key, false),
+            }
         }
     }
 
@@ -222,7 +253,10 @@ impl ExplorerApp {
         let Some(bundle) = &self.bundle else { return };
         let t = self.view.t;
         let key = (
-            cells.iter().map(|c| c.key.clone()).collect::<Vec<_>>(),
+            cells
+                .iter()
+                .map(|c| (c.key.clone(), c.second))
+                .collect::<Vec<_>>(),
             t,
             cells.iter().map(|c| c.steps.min(t + 1)).collect::<Vec<_>>(),
         );
@@ -230,26 +264,40 @@ impl ExplorerApp {
             return;
         }
         let ext = ModuleId::Exteroceptive;
-        let mut rows = Vec::new();
-        let mut which = Vec::new();
-        for (i, cell) in cells.iter().enumerate() {
-            if let Some(e) = self.store.get(&cell.key).filter(|e| e.trace.steps > t) {
-                rows.extend_from_slice(e.trace.d_at(ext, t, false));
-                which.push(i);
-            }
-        }
-        let layout = &bundle.model.config.vision;
-        let dims = layout.dims();
-        let predictions = read_out_vision(bundle, &rows, which.len());
-        let top = layout.resolutions.len() - 1;
         let mut textures = vec![None; cells.len()];
-        for (k, &i) in which.iter().enumerate() {
-            let rgb = images::camera_image(layout, &predictions[k * dims..(k + 1) * dims], top, 0);
-            textures[i] = Some(ctx.load_texture(
-                format!("compare {i}"),
-                rgb.to_color_image(),
-                TextureOptions::NEAREST,
-            ));
+        // Each network reads its own cells out, in one batch.
+        for network in [false, true] {
+            let reader = match (&self.second, network) {
+                (Some(s), true) => &s.bundle,
+                (None, true) => continue,
+                _ => bundle,
+            };
+            let mut rows = Vec::new();
+            let mut which = Vec::new();
+            for (i, cell) in cells
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.second == network)
+            {
+                let store = self.compare_store(network);
+                if let Some(e) = store.get(&cell.key).filter(|e| e.trace.steps > t) {
+                    rows.extend_from_slice(e.trace.d_at(ext, t, false));
+                    which.push(i);
+                }
+            }
+            let layout = &reader.model.config.vision;
+            let dims = layout.dims();
+            let predictions = read_out_vision(reader, &rows, which.len());
+            let top = layout.resolutions.len() - 1;
+            for (k, &i) in which.iter().enumerate() {
+                let picture = &predictions[k * dims..(k + 1) * dims];
+                let rgb = images::camera_image(layout, picture, top, 0);
+                textures[i] = Some(ctx.load_texture(
+                    format!("compare {i}"),
+                    rgb.to_color_image(),
+                    TextureOptions::NEAREST,
+                ));
+            }
         }
         self.compare_images = CompareCache {
             key: Some(key),

@@ -23,6 +23,13 @@ impl ExplorerApp {
         ui.horizontal_wrapped(|ui| {
             ui.strong("PV-RNN explorer");
             ui.toggle_value(&mut self.show_about, "About this model");
+            if ui
+                .button("Tour")
+                .on_hover_text("A short tour of the panels")
+                .clicked()
+            {
+                self.start_tour();
+            }
             ui.toggle_value(&mut self.show_findings, "Findings")
                 .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
             let l = ui.label("Compare");
@@ -39,7 +46,8 @@ impl ExplorerApp {
                     }
                 })
                 .response
-                .labelled_by(l.id);
+                .labelled_by(l.id)
+                .on_hover_text("Set conditions side by side at the cursor: every observed resolution with proprioception on and off (Fig. 5), or each module ablated (Fig. 2B)");
             self.export_ui(ui);
             for (label, folder) in [("Open files", false), ("Open folder", true)] {
                 if ui
@@ -99,15 +107,21 @@ impl ExplorerApp {
     fn display_row_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal_wrapped(|ui| {
             let l = ui.label("Units:");
-            let edit = ui.add(egui::TextEdit::singleline(&mut self.units_text).desired_width(90.0)).labelled_by(l.id);
+            let edit = ui
+                .add(egui::TextEdit::singleline(&mut self.units_text).desired_width(90.0))
+                .labelled_by(l.id)
+                .on_hover_text("Which latent units (indices of z, and of d with d traces) the plots show, e.g. 0-3,7");
             if edit.changed()
                 && let Some(u) = parse_units(&self.units_text)
             {
                 self.view.units = u;
             }
-            ui.checkbox(&mut self.view.show_d, "d traces");
-            ui.checkbox(&mut self.view.prior_images, "prior prediction images");
-            ui.checkbox(&mut self.view.contours, "contours");
+            ui.checkbox(&mut self.view.show_d, "d traces")
+                .on_hover_text("Also plot each module's deterministic state d (tanh of its internal state h, unitless, -1 to 1)");
+            ui.checkbox(&mut self.view.prior_images, "prior prediction images")
+                .on_hover_text("Predicted images: the prior's prediction of step t+1 made at t (before seeing it) instead of the posterior reconstruction of step t");
+            ui.checkbox(&mut self.view.contours, "contours")
+                .on_hover_text("Draw the edges of the actual image over the pictures (Sobel magnitude of its brightness)");
             ui.checkbox(&mut self.view.maps, "contribution maps").on_hover_text("Runs inference once more with each module ablated (four runs; minutes at full vision in a browser)");
             if self.view.branch.is_none()
                 && ui
@@ -262,12 +276,15 @@ pub(super) fn condition_ui(
                 }
             })
             .response
-            .labelled_by(vision_label.id);
-        ui.checkbox(&mut c.proprio, "proprioception observed");
+            .labelled_by(vision_label.id)
+            .on_hover_text("The image resolutions the network observes during inference (pixels per side; the lowest first); none = it infers from proprioception alone");
+        ui.checkbox(&mut c.proprio, "proprioception observed")
+            .on_hover_text("Whether the joint angles (rad) and torques (N m) are observed during inference");
         ui.separator();
         ui.label("Ablate:");
         for id in ModuleId::ALL {
-            ui.checkbox(&mut c.ablation[id.index()], id.name());
+            ui.checkbox(&mut c.ablation[id.index()], id.name())
+                .on_hover_text(format!("Set the {} module's latent z to 0 (see mode)", id.name()));
         }
         let l = ui.label("mode");
         egui::ComboBox::from_id_salt((salt, "ablation mode"))
@@ -294,11 +311,13 @@ pub(super) fn condition_ui(
         if salt.is_empty() {
             let l = ui.label("H");
             ui.add(egui::DragValue::new(&mut c.window).range(1..=500))
-                .labelled_by(l.id);
+                .labelled_by(l.id)
+                .on_hover_text("H: the inference window, in steps: the last H steps' latents are re-inferred at each step");
         }
         let l = ui.label("iterations");
         ui.add(egui::DragValue::new(&mut c.iterations).range(0..=1000))
-            .labelled_by(l.id);
+            .labelled_by(l.id)
+            .on_hover_text("Inference updates (RAdam) of the window's latents per step");
         let l = ui.label("lr");
         let mut lr = c.lr();
         if ui
@@ -308,12 +327,15 @@ pub(super) fn condition_ui(
                     .speed(0.01),
             )
             .labelled_by(l.id)
+            .on_hover_text("The inference learning rate (RAdam, unitless)")
             .changed()
         {
             c.set_lr(lr);
         }
         let l = ui.label("seed");
-        ui.add(egui::DragValue::new(&mut c.seed)).labelled_by(l.id);
+        ui.add(egui::DragValue::new(&mut c.seed))
+            .labelled_by(l.id)
+            .on_hover_text("Seed of the noise eps sampled in inference: another seed, another trial");
         if ui
             .button("standard")
             .on_hover_text("The model's configured inference, everything observed")

@@ -31,6 +31,7 @@ mod second;
 mod status;
 mod summaries;
 mod time_panel;
+mod tour;
 mod traces;
 
 pub use bench::bench_frames;
@@ -83,6 +84,11 @@ pub struct ExplorerApp {
     second: Option<second::SecondNetwork>,
     /// The next files opened go to the second network.
     opening_second: bool,
+    /// The guided tour's stop, while it is on.
+    tour: Option<usize>,
+    /// Where the desktop app remembers the tour was seen.
+    #[cfg(not(target_arch = "wasm32"))]
+    config_dir: Option<std::path::PathBuf>,
     /// A picture of the window on its way back from the renderer.
     pending_shot: export::PendingShot,
     /// Where exports go on the desktop.
@@ -185,6 +191,9 @@ impl ExplorerApp {
             show_findings: false,
             second: None,
             opening_second: false,
+            tour: None,
+            #[cfg(not(target_arch = "wasm32"))]
+            config_dir: tour::default_config_dir(),
             pending_shot: Default::default(),
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
@@ -223,6 +232,7 @@ impl ExplorerApp {
             Err(e) => crate::browser::log(&format!("computing in the page: {e}")),
         }
         app.web.start_download(bundle_url);
+        app.offer_tour();
         app.last_hash = crate::browser::location_hash();
         app
     }
@@ -616,6 +626,7 @@ impl ExplorerApp {
         });
         self.compare_ui(&ctx);
         self.findings_ui(&ctx);
+        self.tour_ui(&ctx);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")
                 .open(&mut self.show_about)

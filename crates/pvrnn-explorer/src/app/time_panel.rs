@@ -59,7 +59,11 @@ fn time_panel(
     let len = sequence.map_or(0, |s| s.len());
     ui.horizontal(|ui| {
         let label = if view.playing { "pause" } else { "play" };
-        if ui.button(label).clicked() {
+        if ui
+            .button(label)
+            .on_hover_text("play the run from the cursor (space)")
+            .clicked()
+        {
             if !view.playing && view.t + 1 >= len {
                 view.t = 0;
             }
@@ -84,7 +88,8 @@ fn time_panel(
                 .suffix(" steps/s")
                 .logarithmic(true)
                 .text("speed"),
-        );
+        )
+        .on_hover_text("playback speed, in sequence steps per second");
         ui.separator();
         ui.label(format!("t = {} / {}", view.t, len.saturating_sub(1)));
     });
@@ -94,7 +99,8 @@ fn time_panel(
         egui::Slider::new(&mut t, 0..=len.saturating_sub(1))
             .show_value(false)
             .text("time"),
-    );
+    )
+    .on_hover_text("the cursor's step t; the bar under it: the subtasks, faded where inference has not reached");
     view.t = t;
     // Subtask strip under the scrub bar, and how far inference has got.
     let (rect, _) = ui.allocate_exact_size(

@@ -13,7 +13,7 @@
 // when asked (`?render=wgpu`).
 import { createRequire } from 'node:module';
 import { inflateSync } from 'node:zlib';
-import { writeFileSync } from 'node:fs';
+import { readFileSync, writeFileSync } from 'node:fs';
 
 // playwright-core is installed with the web tools (web/package.json).
 const require = createRequire(new URL('../../web/', import.meta.url));
@@ -162,6 +162,20 @@ try {
     if (branch) console.log(`branch: ${branch}`);
     else fail(`no branch finished within ${liveSeconds} s`);
   }
+  // Every finding's link (crates/pvrnn-explorer/src/findings.rs) lands on a view the page
+  // shows as it is: the status line corrects nothing and reports no error.
+  const findings = readFileSync(new URL('../../crates/pvrnn-explorer/src/findings.rs', import.meta.url), 'utf8');
+  const views = [...findings.matchAll(/view: Some\("([^"]+)"\)/g)].map((m) => m[1]);
+  if (views.length < 5) fail(`only ${views.length} findings' views found in findings.rs`);
+  for (const view of views) {
+    const before = logs.length;
+    await page.evaluate((h) => { location.hash = h; }, view);
+    await page.waitForTimeout(1500);
+    const said = logs.slice(before).filter((l) => l.startsWith('status'));
+    const wrong = said.find((l) => /ignored|no sequence|past the sequence|status \(error\)/.test(l));
+    if (wrong) fail(`finding link #${view}: ${wrong}`);
+  }
+  console.log(`findings' links: ${views.length} views opened without a correction`);
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();
 

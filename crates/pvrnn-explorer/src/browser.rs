@@ -224,6 +224,8 @@ pub struct WebState {
     dropped: Rc<RefCell<(usize, Vec<DroppedFile>)>>,
     /// Wakes the app when a file it was reading arrives (the reads end between frames).
     repaint: Rc<RefCell<Option<eframe::egui::Context>>>,
+    /// The status line's message last logged.
+    last_status: String,
 }
 
 impl std::fmt::Debug for WebState {
@@ -253,6 +255,21 @@ impl WebState {
                 Ok(bytes) => manifest_arrived(d, bytes),
             },
         );
+    }
+
+    /// Logs the status line's message to the console when it changes (what a view was
+    /// corrected to, an error), so that the page's tests and users' consoles see it.
+    pub fn log_status(&mut self, status: &crate::app::Status) {
+        use crate::app::Status;
+        let text = match status {
+            Status::Info(s) => format!("status: {s}"),
+            Status::Error(s) => format!("status (error): {s}"),
+            Status::None | Status::Loading { .. } => return,
+        };
+        if self.last_status != text {
+            log(&text);
+            self.last_status = text;
+        }
     }
 
     /// The context to wake when a file read ends (the app sets it every frame).

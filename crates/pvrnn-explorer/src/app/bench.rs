@@ -125,6 +125,7 @@ pub fn bench_live(make: impl Fn() -> ExplorerApp) {
 }
 
 /// Prints a finished live run's speed.
+#[cfg(not(target_arch = "wasm32"))]
 fn report_run(app: &ExplorerApp, label: &str, steps: usize, seconds: f64, frames: usize) {
     let key = app
         .current_key()

@@ -598,6 +598,8 @@ impl ExplorerApp {
             let cells = self.comparison();
             self.refresh_comparison(ctx, &cells);
         }
+        #[cfg(target_arch = "wasm32")]
+        self.web.log_status(&self.status);
     }
 
     /// Draws the panels (each in its own file).

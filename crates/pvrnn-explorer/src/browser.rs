@@ -259,13 +259,8 @@ impl WebState {
 
     /// Logs the status line's message to the console when it changes (what a view was
     /// corrected to, an error), so that the page's tests and users' consoles see it.
-    pub fn log_status(&mut self, status: &crate::app::Status) {
-        use crate::app::Status;
-        let text = match status {
-            Status::Info(s) => format!("status: {s}"),
-            Status::Error(s) => format!("status (error): {s}"),
-            Status::None | Status::Loading { .. } => return,
-        };
+    pub fn log_status(&mut self, text: Option<String>) {
+        let Some(text) = text else { return };
         if self.last_status != text {
             log(&text);
             self.last_status = text;

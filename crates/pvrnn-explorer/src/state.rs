@@ -52,6 +52,8 @@ pub struct ViewState {
     pub compare: Option<CompareSet>,
     /// A branch of the shown run, shown beside it.
     pub branch: Option<BranchView>,
+    /// The latent traces and summaries show the branch instead of its run.
+    pub branch_traces: bool,
 }
 
 /// A branch of the shown run: the same run up to step `at`, then under `condition`.
@@ -77,6 +79,7 @@ impl Default for ViewState {
             speed: 10.0,
             compare: None,
             branch: None,
+            branch_traces: false,
         }
     }
 }
@@ -234,6 +237,7 @@ impl ViewState {
             ("prior", self.prior_images),
             ("contours", self.contours),
             ("maps", self.maps),
+            ("btraces", self.branch_traces),
         ] {
             parts.push(format!("{key}={}", on as u8));
         }
@@ -285,6 +289,7 @@ impl ViewState {
                 "prior" => (flag().map(|f| v.prior_images = f).is_some(), false),
                 "contours" => (flag().map(|f| v.contours = f).is_some(), false),
                 "maps" => (flag().map(|f| v.maps = f).is_some(), false),
+                "btraces" => (flag().map(|f| v.branch_traces = f).is_some(), false),
                 "compare" => {
                     let set = match value {
                         "off" | "0" => Some(None),
@@ -438,6 +443,7 @@ mod tests {
             prior_images: true,
             contours: true,
             maps: false,
+            branch_traces: true,
             compare: Some(CompareSet::Vision),
             branch: Some(BranchView {
                 at: 80,

@@ -821,6 +821,12 @@ fn a_branch_at_the_cursor_shares_the_past_and_is_shown_beside_the_run() {
     ] {
         assert!(labels.contains(text), "no `{text}` in the view");
     }
+    // The latent traces can show the branch instead of its run.
+    h.get_by_label("latent traces of the branch").click();
+    h.run_steps(2);
+    assert!(h.state().view().to_hash().contains("btraces=1"));
+    let labels = format!("{:?}", h.root());
+    assert!(labels.contains("The traces below are the branch's (from step 6)"));
     h.get_by_label("remove the branch").click();
     h.step();
     assert_eq!(h.state().view().branch, None);

@@ -48,6 +48,8 @@ impl ExplorerApp {
             if ui.button("remove the branch").clicked() {
                 self.view.branch = None;
             }
+            ui.checkbox(&mut self.view.branch_traces, "latent traces of the branch")
+                .on_hover_text("The latent states, proprioception and summaries below show the branch instead of its run");
         });
         if self.view.branch.is_none() {
             return;

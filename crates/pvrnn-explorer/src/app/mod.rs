@@ -599,7 +599,11 @@ impl ExplorerApp {
             self.refresh_comparison(ctx, &cells);
         }
         #[cfg(target_arch = "wasm32")]
-        self.web.log_status(&self.status);
+        self.web.log_status(match &self.status {
+            Status::Info(s) => Some(format!("status: {s}")),
+            Status::Error(s) => Some(format!("status (error): {s}")),
+            Status::None | Status::Loading { .. } => None,
+        });
     }
 
     /// Draws the panels (each in its own file).

@@ -8,12 +8,20 @@ impl ExplorerApp {
     /// user clicked.
     pub(super) fn traces_ui(&mut self, ui: &mut egui::Ui) {
         let Some(bundle) = &self.bundle else { return };
-        let Some(key) = self.current_key() else {
+        let shown = self.current_key();
+        let branch = self.branch_key().filter(|_| self.view.branch_traces);
+        let Some(key) = branch.or(shown) else {
             return;
         };
         let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
             return;
         };
+        if let Some(then) = &key.then {
+            ui.label(
+                RichText::new(format!("The traces below are the branch's (from step {})", then.at))
+                    .strong(),
+            );
+        }
         let entry = self.store.get(&key);
         if let Some(err) = entry.and_then(|e| e.error.as_ref()) {
             ui.colored_label(
@@ -87,6 +95,32 @@ impl TracesPanel<'_> {
     }
 }
 
+/// What each plot shows, by the start of its title: the quantity and its unit (the hover
+/// help of the plots' titles).
+pub(super) const PLOT_HELP: [(&str, &str); 12] = [
+    ("mu", "Latent mean mu of each chosen unit of z over the steps: posterior (inferred from what was seen) solid, prior (predicted from the past) dashed; unitless"),
+    ("sigma", "Latent standard deviation sigma of each chosen unit of z: posterior solid, prior dashed; unitless, the network's uncertainty"),
+    ("d", "The module's deterministic state d = tanh(h) of its first units; unitless, -1 to 1"),
+    ("joint angles", "Joint angles in rad: measured solid, the network's posterior reconstruction dashed"),
+    ("torques", "Joint torques in N m: measured solid, the network's posterior reconstruction dashed"),
+    ("extra channels", "The robot's other channels in their own units: measured solid, reconstructed dashed"),
+    ("window free energy", "Free energy of the inference window after the step's updates (nats): reconstruction error plus the KL terms weighted by w"),
+    ("prediction error", "Mean squared error of the reconstruction against the whole observation (every pixel of every resolution, or every proprioceptive channel), in model units"),
+    ("divergence", "Root mean square of d(branch) - d(run) over each module's units at each step; unitless, 0 where the two share their past"),
+    ("KL", "KL divergence of each module's posterior from its prior at each step, summed over its units (nats): how much the observation moved the latent state"),
+    ("mean |standard - ablated|", "How much the predicted image changes when the module's z is set to 0 at that step: mean absolute difference over the pixels, model units"),
+    ("difference: second - first", "The second network's prediction error minus the first's at each step (model units): below 0 the second predicts better"),
+];
+
+/// The hover help of a plot titled `title`.
+pub(super) fn plot_help(title: &str) -> Option<&'static str> {
+    // The short titles (mu, sigma, d) are whole titles; the others start longer ones.
+    PLOT_HELP
+        .iter()
+        .find(|(start, _)| title == *start || (start.len() > 5 && title.starts_with(start)))
+        .map(|(_, help)| *help)
+}
+
 /// A plot over a sequence's `len` steps with the cursor at `t` (and a marked step, such as
 /// where a branch leaves its run).
 #[derive(Clone, Copy)]
@@ -109,7 +143,10 @@ impl StepPlot {
         y: Option<(f64, f64)>,
     ) -> Option<usize> {
         let len = self.len;
-        ui.label(RichText::new(title).small());
+        let label = ui.label(RichText::new(title).small());
+        if let Some(help) = plot_help(title) {
+            label.on_hover_text(help);
+        }
         let mut p = Plot::new(id)
             .height(height)
             .include_x(0.0)
@@ -337,7 +374,11 @@ impl TracesPanel<'_> {
                 Line::new("vision", ve).color(Color32::from_rgb(242, 146, 38)),
                 Line::new("proprioception", pe).color(Color32::from_rgb(118, 172, 152)),
             ];
-            cols[1].label(RichText::new("prediction error (mean squared, all dimensions)").small());
+            let title = "prediction error (mean squared, all dimensions)";
+            let label = cols[1].label(RichText::new(title).small());
+            if let Some(help) = plot_help(title) {
+                label.on_hover_text(help);
+            }
             let cursor = cols[1].visuals().strong_text_color();
             let r = Plot::new("errors")
                 .height(120.0)
@@ -470,4 +511,31 @@ fn hue_name(hue: f32) -> &'static str {
         "rose",
     ];
     NAMES[((hue * 12.0).round() as usize) % 12]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::plot_help;
+
+    #[test]
+    fn every_plot_title_has_its_help_and_only_its_own() {
+        let help = |t: &str| plot_help(t).unwrap_or_else(|| panic!("no help for `{t}`"));
+        assert!(help("mu").starts_with("Latent mean"));
+        assert!(help("sigma").starts_with("Latent standard deviation"));
+        assert!(help("d").starts_with("The module's deterministic state"));
+        for (title, start) in [
+            ("divergence: RMS |d(branch) - d(run)| per module", "Root mean square"),
+            ("difference: second - first (below 0: the second predicts better)", "The second"),
+            ("joint angles (rad); colours: left red, right cyan", "Joint angles"),
+            ("torques (N m); one colour per channel", "Joint torques"),
+            ("extra channels: grip_mm (their own units)", "The robot's other"),
+            ("window free energy", "Free energy"),
+            ("prediction error (mean squared, all dimensions)", "Mean squared error"),
+            ("KL(posterior || prior) per module (nats)", "KL divergence"),
+            ("mean |standard - ablated| predicted image per module", "How much"),
+        ] {
+            assert!(help(title).starts_with(start), "{title}");
+        }
+        assert_eq!(plot_help("dx"), None);
+    }
 }

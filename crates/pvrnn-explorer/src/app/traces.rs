@@ -18,8 +18,11 @@ impl ExplorerApp {
         };
         if let Some(then) = &key.then {
             ui.label(
-                RichText::new(format!("The traces below are the branch's (from step {})", then.at))
-                    .strong(),
+                RichText::new(format!(
+                    "The traces below are the branch's (from step {})",
+                    then.at
+                ))
+                .strong(),
             );
         }
         let entry = self.store.get(&key);
@@ -98,18 +101,54 @@ impl TracesPanel<'_> {
 /// What each plot shows, by the start of its title: the quantity and its unit (the hover
 /// help of the plots' titles).
 pub(super) const PLOT_HELP: [(&str, &str); 12] = [
-    ("mu", "Latent mean mu of each chosen unit of z over the steps: posterior (inferred from what was seen) solid, prior (predicted from the past) dashed; unitless"),
-    ("sigma", "Latent standard deviation sigma of each chosen unit of z: posterior solid, prior dashed; unitless, the network's uncertainty"),
-    ("d", "The module's deterministic state d = tanh(h) of its first units; unitless, -1 to 1"),
-    ("joint angles", "Joint angles in rad: measured solid, the network's posterior reconstruction dashed"),
-    ("torques", "Joint torques in N m: measured solid, the network's posterior reconstruction dashed"),
-    ("extra channels", "The robot's other channels in their own units: measured solid, reconstructed dashed"),
-    ("window free energy", "Free energy of the inference window after the step's updates (nats): reconstruction error plus the KL terms weighted by w"),
-    ("prediction error", "Mean squared error of the reconstruction against the whole observation (every pixel of every resolution, or every proprioceptive channel), in model units"),
-    ("divergence", "Root mean square of d(branch) - d(run) over each module's units at each step; unitless, 0 where the two share their past"),
-    ("KL", "KL divergence of each module's posterior from its prior at each step, summed over its units (nats): how much the observation moved the latent state"),
-    ("mean |standard - ablated|", "How much the predicted image changes when the module's z is set to 0 at that step: mean absolute difference over the pixels, model units"),
-    ("difference: second - first", "The second network's prediction error minus the first's at each step (model units): below 0 the second predicts better"),
+    (
+        "mu",
+        "Latent mean mu of each chosen unit of z over the steps: posterior (inferred from what was seen) solid, prior (predicted from the past) dashed; unitless",
+    ),
+    (
+        "sigma",
+        "Latent standard deviation sigma of each chosen unit of z: posterior solid, prior dashed; unitless, the network's uncertainty",
+    ),
+    (
+        "d",
+        "The module's deterministic state d = tanh(h) of its first units; unitless, -1 to 1",
+    ),
+    (
+        "joint angles",
+        "Joint angles in rad: measured solid, the network's posterior reconstruction dashed",
+    ),
+    (
+        "torques",
+        "Joint torques in N m: measured solid, the network's posterior reconstruction dashed",
+    ),
+    (
+        "extra channels",
+        "The robot's other channels in their own units: measured solid, reconstructed dashed",
+    ),
+    (
+        "window free energy",
+        "Free energy of the inference window after the step's updates (nats): reconstruction error plus the KL terms weighted by w",
+    ),
+    (
+        "prediction error",
+        "Mean squared error of the reconstruction against the whole observation (every pixel of every resolution, or every proprioceptive channel), in model units",
+    ),
+    (
+        "divergence",
+        "Root mean square of d(branch) - d(run) over each module's units at each step; unitless, 0 where the two share their past",
+    ),
+    (
+        "KL(posterior",
+        "KL divergence of each module's posterior from its prior at each step, summed over its units (nats): how much the observation moved the latent state",
+    ),
+    (
+        "mean |standard - ablated|",
+        "How much the predicted image changes when the module's z is set to 0 at that step: mean absolute difference over the pixels, model units",
+    ),
+    (
+        "difference: second - first",
+        "The second network's prediction error minus the first's at each step (model units): below 0 the second predicts better",
+    ),
 ];
 
 /// The hover help of a plot titled `title`.
@@ -524,15 +563,33 @@ mod tests {
         assert!(help("sigma").starts_with("Latent standard deviation"));
         assert!(help("d").starts_with("The module's deterministic state"));
         for (title, start) in [
-            ("divergence: RMS |d(branch) - d(run)| per module", "Root mean square"),
-            ("difference: second - first (below 0: the second predicts better)", "The second"),
-            ("joint angles (rad); colours: left red, right cyan", "Joint angles"),
+            (
+                "divergence: RMS |d(branch) - d(run)| per module",
+                "Root mean square",
+            ),
+            (
+                "difference: second - first (below 0: the second predicts better)",
+                "The second",
+            ),
+            (
+                "joint angles (rad); colours: left red, right cyan",
+                "Joint angles",
+            ),
             ("torques (N m); one colour per channel", "Joint torques"),
-            ("extra channels: grip_mm (their own units)", "The robot's other"),
+            (
+                "extra channels: grip_mm (their own units)",
+                "The robot's other",
+            ),
             ("window free energy", "Free energy"),
-            ("prediction error (mean squared, all dimensions)", "Mean squared error"),
+            (
+                "prediction error (mean squared, all dimensions)",
+                "Mean squared error",
+            ),
             ("KL(posterior || prior) per module (nats)", "KL divergence"),
-            ("mean |standard - ablated| predicted image per module", "How much"),
+            (
+                "mean |standard - ablated| predicted image per module",
+                "How much",
+            ),
         ] {
             assert!(help(title).starts_with(start), "{title}");
         }

@@ -291,22 +291,25 @@ impl ImagesPanel<'_> {
         let layout = self.layout;
         let top = layout.resolutions.len() - 1;
         let shown = 120.0;
-        let image = |ui: &mut egui::Ui, tex: Option<&TextureHandle>, size: f32| match tex {
-            Some(t) => {
-                ui.add(egui::Image::new(t).fit_to_exact_size(egui::vec2(size, size)));
-            }
-            None => {
-                let (rect, _) =
-                    ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::hover());
-                ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
-                ui.painter().text(
-                    rect.center(),
-                    egui::Align2::CENTER_CENTER,
-                    "computing",
-                    egui::FontId::proportional(11.0),
-                    Color32::GRAY,
-                );
-            }
+        // Each picture by its texture's name, with what it shows on hover.
+        let image = |ui: &mut egui::Ui, name: &str, size: f32| {
+            let response = match self.textures.get(name) {
+                Some(t) => ui.add(egui::Image::new(t).fit_to_exact_size(egui::vec2(size, size))),
+                None => {
+                    let (rect, response) =
+                        ui.allocate_exact_size(egui::vec2(size, size), egui::Sense::hover());
+                    ui.painter().rect_filled(rect, 2.0, Color32::from_gray(40));
+                    ui.painter().text(
+                        rect.center(),
+                        egui::Align2::CENTER_CENTER,
+                        "computing",
+                        egui::FontId::proportional(11.0),
+                        Color32::GRAY,
+                    );
+                    response
+                }
+            };
+            response.on_hover_text(picture_help(name, self.prior_images));
         };
         let camera = |cam: usize| camera_name(self.cameras, cam);
         let predicted_label = if self.prior_images {
@@ -327,11 +330,7 @@ impl ImagesPanel<'_> {
                     ui.end_row();
                     ui.label("actual");
                     for level in (0..=top).rev() {
-                        image(
-                            ui,
-                            self.textures.get(&format!("actual {cam} {level}")),
-                            shown,
-                        );
+                        image(ui, &format!("actual {cam} {level}"), shown);
                     }
                     ui.end_row();
                     let mut rows = vec![(predicted_label.to_string(), "predicted")];
@@ -344,11 +343,7 @@ impl ImagesPanel<'_> {
                     for (label, name) in rows {
                         ui.label(label);
                         for level in (0..=top).rev() {
-                            image(
-                                ui,
-                                self.textures.get(&format!("{name} {cam} {level}")),
-                                shown,
-                            );
+                            image(ui, &format!("{name} {cam} {level}"), shown);
                         }
                         ui.end_row();
                     }
@@ -364,13 +359,13 @@ impl ImagesPanel<'_> {
         ui.horizontal_wrapped(|ui| {
             ui.vertical(|ui| {
                 ui.label("contours");
-                image(ui, self.textures.get("contours"), 96.0);
+                image(ui, "contours", 96.0);
             });
             if self.maps {
                 for (m, id) in ModuleId::ALL.iter().enumerate() {
                     ui.vertical(|ui| {
                         ui.label(id.name());
-                        image(ui, self.textures.get(&format!("map {m}")), 96.0);
+                        image(ui, &format!("map {m}"), 96.0);
                     });
                 }
             }
@@ -385,7 +380,7 @@ impl ImagesPanel<'_> {
                 for (m, id) in ModuleId::ALL.iter().enumerate() {
                     ui.vertical(|ui| {
                         ui.label(id.name());
-                        image(ui, self.textures.get(&format!("phase map {m}")), 96.0);
+                        image(ui, &format!("phase map {m}"), 96.0);
                     });
                 }
             });
@@ -405,5 +400,21 @@ pub(super) fn camera_name(names: &[String], cam: usize) -> String {
     match names.get(cam) {
         Some(name) if !name.trim().is_empty() => format!("{name} camera"),
         _ => format!("camera {cam}"),
+    }
+}
+
+/// What a picture of the images panel shows, by its texture's name (`actual 0 2`, `map 1`).
+fn picture_help(name: &str, prior_images: bool) -> &'static str {
+    let kind = name.split(' ').next().unwrap_or("");
+    match kind {
+        "actual" => "The camera's actual frame at this resolution (model units -1 to 1 shown as 8-bit RGB)",
+        "predicted" if prior_images => "The network's prior prediction of step t+1, made at t before seeing it, read out of its state",
+        "predicted" => "The network's posterior reconstruction of step t, read out of its inferred state",
+        "branch" => "The branch's prediction at t (the same as the run's before the branch step)",
+        "second" => "The second network's prediction at t, under the same condition",
+        "contours" => "Edges of the actual image (Sobel magnitude of its brightness)",
+        "map" => "Contribution at t: |standard - ablated| predicted image with the module's z set to 0, x4 (white: a difference of 0.45 model units or more)",
+        "phase" => "Contribution averaged over the steps of the cursor's subtask read out so far, x4",
+        _ => "",
     }
 }

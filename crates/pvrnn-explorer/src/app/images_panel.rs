@@ -407,14 +407,24 @@ pub(super) fn camera_name(names: &[String], cam: usize) -> String {
 fn picture_help(name: &str, prior_images: bool) -> &'static str {
     let kind = name.split(' ').next().unwrap_or("");
     match kind {
-        "actual" => "The camera's actual frame at this resolution (model units -1 to 1 shown as 8-bit RGB)",
-        "predicted" if prior_images => "The network's prior prediction of step t+1, made at t before seeing it, read out of its state",
-        "predicted" => "The network's posterior reconstruction of step t, read out of its inferred state",
+        "actual" => {
+            "The camera's actual frame at this resolution (model units -1 to 1 shown as 8-bit RGB)"
+        }
+        "predicted" if prior_images => {
+            "The network's prior prediction of step t+1, made at t before seeing it, read out of its state"
+        }
+        "predicted" => {
+            "The network's posterior reconstruction of step t, read out of its inferred state"
+        }
         "branch" => "The branch's prediction at t (the same as the run's before the branch step)",
         "second" => "The second network's prediction at t, under the same condition",
         "contours" => "Edges of the actual image (Sobel magnitude of its brightness)",
-        "map" => "Contribution at t: |standard - ablated| predicted image with the module's z set to 0, x4 (white: a difference of 0.45 model units or more)",
-        "phase" => "Contribution averaged over the steps of the cursor's subtask read out so far, x4",
+        "map" => {
+            "Contribution at t: |standard - ablated| predicted image with the module's z set to 0, x4 (white: a difference of 0.45 model units or more)"
+        }
+        "phase" => {
+            "Contribution averaged over the steps of the cursor's subtask read out so far, x4"
+        }
         _ => "",
     }
 }

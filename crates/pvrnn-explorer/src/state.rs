@@ -54,6 +54,8 @@ pub struct ViewState {
     pub branch: Option<BranchView>,
     /// The latent traces and summaries show the branch instead of its run.
     pub branch_traces: bool,
+    /// Trials (noise seeds from the condition's on) the contributions over time average.
+    pub map_trials: u8,
 }
 
 /// A branch of the shown run: the same run up to step `at`, then under `condition`.
@@ -80,6 +82,7 @@ impl Default for ViewState {
             compare: None,
             branch: None,
             branch_traces: false,
+            map_trials: 1,
         }
     }
 }
@@ -229,6 +232,9 @@ impl ViewState {
             condition_entries(&b.condition, BRANCH, &mut parts);
         }
         parts.push(format!("units={}", format_units(&self.units)));
+        if self.map_trials > 1 {
+            parts.push(format!("trials={}", self.map_trials));
+        }
         if let Some(c) = self.compare {
             parts.push(format!("compare={}", c.name()));
         }
@@ -290,6 +296,13 @@ impl ViewState {
                 "contours" => (flag().map(|f| v.contours = f).is_some(), false),
                 "maps" => (flag().map(|f| v.maps = f).is_some(), false),
                 "btraces" => (flag().map(|f| v.branch_traces = f).is_some(), false),
+                "trials" => (
+                    num()
+                        .filter(|&n| (1..=10).contains(&n))
+                        .map(|n| v.map_trials = n as u8)
+                        .is_some(),
+                    false,
+                ),
                 "compare" => {
                     let set = match value {
                         "off" | "0" => Some(None),
@@ -444,6 +457,7 @@ mod tests {
             contours: true,
             maps: false,
             branch_traces: true,
+            map_trials: 3,
             compare: Some(CompareSet::Vision),
             branch: Some(BranchView {
                 at: 80,

@@ -277,6 +277,51 @@ fn the_first_view_needs_one_sequence_and_the_rest_joins_it() {
     assert_eq!(first[1], "repositioning_590mm_test0.safetensors");
 }
 
+/// Contributions averaged over trials: the curve of two trials is the mean of each trial's
+/// (noise seeds 0 and 1), and the subtask's maps pool both trials' steps.
+#[test]
+fn contributions_average_over_trials() {
+    let curves = |seed: u32, trials: u8| {
+        let view = ViewState {
+            t: 2,
+            maps: true,
+            map_trials: trials,
+            condition: Some(Condition {
+                seed,
+                ..Condition::standard(&common::config())
+            }),
+            ..ViewState::default()
+        };
+        let mut h = harness(ExplorerApp::new(Some(common::bundle()), view));
+        for _ in 0..6 {
+            h.step();
+        }
+        let labels = format!("{:?}", h.root());
+        let curves: Vec<Vec<f32>> = pvrnn_core::ModuleId::ALL
+            .iter()
+            .map(|&m| h.state().contribution_curve(m))
+            .collect();
+        (curves, labels)
+    };
+    let (both, labels) = curves(0, 2);
+    let (first, _) = curves(0, 1);
+    let (second, _) = curves(1, 1);
+    for m in 0..4 {
+        assert_eq!(both[m].len(), 12);
+        for t in 0..12 {
+            let mean = (first[m][t] + second[m][t]) / 2.0;
+            assert!((both[m][t] - mean).abs() <= 1e-6, "module {m}, step {t}");
+        }
+    }
+    assert_ne!(first, second, "the seeds are different trials");
+    for text in [
+        "mean of 2 trials, seeds 0-1",
+        "averaged over the subtask `first` (12 steps read out)",
+    ] {
+        assert!(labels.contains(text), "no `{text}` in the view");
+    }
+}
+
 /// A bundle as `pvrnn bundle` writes it: precomputed runs show without computing.
 #[test]
 fn precomputed_runs_load_instantly() {

@@ -420,8 +420,8 @@ impl ExplorerApp {
 
     /// A module's contribution at every step read out so far (mean |standard - ablated|
     /// predicted image, model units; with the maps on).
-    pub fn contribution_curve(&self, module: ModuleId) -> &[f32] {
-        &self.contributions.curves[module.index()]
+    pub fn contribution_curve(&self, module: ModuleId) -> Vec<f32> {
+        self.contributions.curves()[module.index()].clone()
     }
 
     /// Any cached or computing run.
@@ -446,13 +446,15 @@ impl ExplorerApp {
             self.store.request(branch, false);
         }
         if self.view.maps {
-            let base = key.condition.without_ablation();
-            self.store.request(RunKey::new(&key.sequence, base), false);
-            for id in ModuleId::ALL {
-                self.store.request(
-                    RunKey::new(&key.sequence, key.condition.ablating(id)),
-                    false,
-                );
+            let trials: Vec<Condition> =
+                contributions::map_conditions(&key.condition, self.view.map_trials).collect();
+            for c in trials {
+                let base = c.without_ablation();
+                self.store.request(RunKey::new(&key.sequence, base), false);
+                for id in ModuleId::ALL {
+                    self.store
+                        .request(RunKey::new(&key.sequence, c.ablating(id)), false);
+                }
             }
         }
         self.request_comparison();
@@ -588,9 +590,7 @@ impl ExplorerApp {
         }
         // The images at the cursor (and the comparison's), read out here rather than while
         // drawing; the contributions over time a few steps a frame until they are done.
-        let read_out = self.contributions.done;
-        self.refresh_contributions();
-        if self.contributions.done != read_out {
+        if self.refresh_contributions() {
             ctx.request_repaint();
         }
         self.refresh_images(ctx);

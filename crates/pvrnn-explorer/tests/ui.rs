@@ -1053,61 +1053,16 @@ fn a_robot_of_another_shape_is_shown_with_its_own_channels() {
 /// 2 torques and 1 extra channel. Every label comes from the bundle's names.
 #[test]
 fn another_robot_s_cameras_and_channels_label_the_views() {
-    use pvrnn_dataset::{Channels, Dataset, Split};
-    let cameras = ["head", "left_wrist", "right_wrist"];
-    let channels = Channels {
-        joints: vec!["base_yaw".into(), "shoulder".into(), "elbow".into()],
-        torques: vec!["shoulder_tau".into(), "elbow_tau".into()],
-        extra: vec!["grip_mm".into()],
-    };
-    let robot = |name: &str, split, t: usize, seed: u32| {
-        let mut s = common::sequence(name, "handover", split, t, seed);
-        s.cameras = 3;
-        s.images = (0..t * 3 * 8 * 8 * 3)
-            .map(|i| ((i as u32 * 29 + seed) % 256) as u8)
-            .collect();
-        s.joints = (0..t * 3).map(|i| (i as f32 * 0.1).sin()).collect();
-        s.torques = (0..t * 2).map(|i| (i as f32 * 0.2).cos()).collect();
-        s.extra = (0..t).map(|i| i as f32 * 0.5).collect();
-        s
-    };
-    let dataset = Dataset::with_channels(
-        "three cameras",
-        cameras.iter().map(|c| c.to_string()).collect(),
-        8,
-        channels,
-        vec![
-            robot("learn", Split::Learn, 10, 1),
-            robot("test", Split::Test, 8, 2),
-        ],
-    )
-    .unwrap();
-    let mut config = common::config();
-    config.vision.cameras = 3;
-    config.proprio_dims = 6;
-    let model = pvrnn_core::Model::<f32>::init(config, 1, 10, 3).unwrap();
-    let bundle = Bundle::new("three cameras".into(), model, dataset).unwrap();
     let view = ViewState {
         compare: Some(pvrnn_explorer::state::CompareSet::Ablation),
         ..ViewState::default()
     };
-    let h = harness(ExplorerApp::new(Some(bundle), view));
+    let h = harness(ExplorerApp::new(Some(common::three_camera_bundle()), view));
     let labels = format!("{:?}", h.root());
-    for text in [
-        "head camera",
-        "left_wrist camera",
-        "right_wrist camera",
-        "contours and contributions (right_wrist camera, 8x8)",
-        "step t = 0: head camera at 8x8",
-        "joint angles (rad); one colour per channel",
-        "torques (N m); one colour per channel",
-        "extra channels: grip_mm (their own units)",
-        "base_yaw",
-        "elbow_tau",
-    ] {
+    for text in common::THREE_CAMERA_LABELS {
         assert!(labels.contains(text), "no `{text}` in the view");
     }
-    for paper_only in ["left camera", "right camera", "left arm", "warm"] {
+    for paper_only in common::PAPER_ONLY_LABELS {
         assert!(!labels.contains(paper_only), "`{paper_only}` in the view");
     }
 }

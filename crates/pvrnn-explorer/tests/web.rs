@@ -170,6 +170,42 @@ async fn the_web_entry_starts_the_explorer_and_computes_a_run() {
     web_sys::window().unwrap().location().set_hash("").unwrap();
 }
 
+/// A robot that is not the paper's is labelled with its own names in the browser build too:
+/// the app's accessibility tree (what screen readers get) holds every label.
+#[wasm_bindgen_test]
+fn another_robot_s_names_label_the_web_view() {
+    let view = ViewState {
+        compare: Some(pvrnn_explorer::state::CompareSet::Ablation),
+        ..ViewState::default()
+    };
+    let mut app = ExplorerApp::new(Some(common::three_camera_bundle()), view);
+    let ctx = eframe::egui::Context::default();
+    ctx.enable_accesskit();
+    let input = || eframe::egui::RawInput {
+        screen_rect: Some(eframe::egui::Rect::from_min_size(
+            eframe::egui::Pos2::ZERO,
+            eframe::egui::vec2(1400.0, 1000.0),
+        )),
+        ..Default::default()
+    };
+    let mut tree = String::new();
+    for _ in 0..400 {
+        let mut out = ctx.run_ui(input(), |ui| app.show(ui));
+        // Headless: no textures are uploaded, so their deltas are dropped on purpose.
+        out.textures_delta.clear();
+        tree = format!("{:?}", out.platform_output.accesskit_update);
+        if app.idle() && tree.contains("elbow_tau") {
+            break;
+        }
+    }
+    for text in common::THREE_CAMERA_LABELS {
+        assert!(tree.contains(text), "no `{text}` in the web view");
+    }
+    for paper_only in common::PAPER_ONLY_LABELS {
+        assert!(!tree.contains(paper_only), "`{paper_only}` in the web view");
+    }
+}
+
 /// A panic shows over the page, with its message, instead of a frozen canvas.
 #[wasm_bindgen_test]
 fn a_panic_is_shown_over_the_page() {

@@ -77,3 +77,59 @@ pub fn model() -> Model<f32> {
 pub fn bundle() -> Bundle {
     Bundle::new("tiny".into(), model(), dataset()).unwrap()
 }
+
+/// A robot that is not the paper's: three cameras (head, left_wrist, right_wrist), 3 joints,
+/// 2 torques and 1 extra channel.
+pub fn three_camera_bundle() -> Bundle {
+    use pvrnn_dataset::Channels;
+    let channels = Channels {
+        joints: vec!["base_yaw".into(), "shoulder".into(), "elbow".into()],
+        torques: vec!["shoulder_tau".into(), "elbow_tau".into()],
+        extra: vec!["grip_mm".into()],
+    };
+    let robot = |name: &str, split, t: usize, seed: u32| {
+        let mut s = sequence(name, "handover", split, t, seed);
+        s.cameras = 3;
+        s.images = (0..t * 3 * 8 * 8 * 3)
+            .map(|i| ((i as u32 * 29 + seed) % 256) as u8)
+            .collect();
+        s.joints = (0..t * 3).map(|i| (i as f32 * 0.1).sin()).collect();
+        s.torques = (0..t * 2).map(|i| (i as f32 * 0.2).cos()).collect();
+        s.extra = (0..t).map(|i| i as f32 * 0.5).collect();
+        s
+    };
+    let dataset = Dataset::with_channels(
+        "three cameras",
+        ["head", "left_wrist", "right_wrist"]
+            .iter()
+            .map(|c| c.to_string())
+            .collect(),
+        8,
+        channels,
+        vec![
+            robot("learn", Split::Learn, 10, 1),
+            robot("test", Split::Test, 8, 2),
+        ],
+    )
+    .unwrap();
+    let mut config = config();
+    config.vision.cameras = 3;
+    config.proprio_dims = 6;
+    let model = Model::<f32>::init(config, 1, 10, 3).unwrap();
+    Bundle::new("three cameras".into(), model, dataset).unwrap()
+}
+
+/// The labels a robot's bundle must show, and those only the paper's robot has.
+pub const THREE_CAMERA_LABELS: [&str; 10] = [
+    "head camera",
+    "left_wrist camera",
+    "right_wrist camera",
+    "contours and contributions (right_wrist camera, 8x8)",
+    "step t = 0: head camera at 8x8",
+    "joint angles (rad); one colour per channel",
+    "torques (N m); one colour per channel",
+    "extra channels: grip_mm (their own units)",
+    "base_yaw",
+    "elbow_tau",
+];
+pub const PAPER_ONLY_LABELS: [&str; 4] = ["left camera", "right camera", "left arm", "warm"];

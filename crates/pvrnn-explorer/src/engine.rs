@@ -165,6 +165,14 @@ struct Job {
     backend: Option<Arc<dyn Backend<f32>>>,
 }
 
+impl Job {
+    /// Whether the job is computing its base run (the run itself, or a branch's past
+    /// before it switches), whose history later branches continue from.
+    fn records_its_base(&self) -> bool {
+        self.key.then.is_none() || self.switch.is_some()
+    }
+}
+
 /// The steps of a run and the inference state before each: `states[t]` is the state
 /// before step t, so a branch at t continues from it. A few kilobytes a step.
 #[derive(Clone, Debug, Default)]
@@ -431,8 +439,7 @@ fn continue_at(
 /// condition.
 fn before_step(job: &mut Job) -> Result<(), String> {
     let t = job.next;
-    let recording = job.key.then.is_none() || job.switch.is_some();
-    if recording && job.history.states.len() == t {
+    if job.records_its_base() && job.history.states.len() == t {
         let state = job.inference.state().map_err(|e| e.to_string())?;
         job.history.states.push(state);
     }
@@ -476,8 +483,7 @@ async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
     let out = inf.finish_step_async().await;
     let out = out.map_err(|e| e.to_string())?;
     let step = CompactStep::from_output(&out);
-    let recording = job.key.then.is_none() || job.switch.is_some();
-    if recording && job.history.steps.len() == job.next {
+    if job.records_its_base() && job.history.steps.len() == job.next {
         job.history.steps.push(step.clone());
     }
     job.next += 1;

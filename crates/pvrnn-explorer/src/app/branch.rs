@@ -3,7 +3,7 @@
 //! errors, and each module's KL. The branch's predicted images are in the images panel.
 
 use super::controls::condition_ui;
-use super::traces::{StepPlot, unit_colour};
+use super::traces::{REFERENCE, StepPlot, paired_error_lines, unit_colour};
 use super::*;
 use crate::state::BranchView;
 
@@ -99,9 +99,6 @@ struct BranchPanel<'a> {
     plot: StepPlot,
 }
 
-/// Dashed: the original run; solid: the branch.
-const ORIGINAL: LineStyle = LineStyle::Dashed { length: 6.0 };
-
 impl BranchPanel<'_> {
     /// The three plots; the step clicked, if any.
     fn ui(&self, ui: &mut egui::Ui) -> Option<usize> {
@@ -137,25 +134,7 @@ impl BranchPanel<'_> {
                 .collect();
             let title = "divergence: RMS |d(branch) - d(run)| per module";
             seek = self.show(&mut cols[0], "branch divergence", title, divergence);
-            let mut errors = Vec::new();
-            for (trace, style, who) in [
-                (self.original, ORIGINAL, "run"),
-                (self.branch, LineStyle::Solid, "branch"),
-            ] {
-                for (i, (name, colour)) in [
-                    ("vision", Color32::from_rgb(242, 146, 38)),
-                    ("proprioception", Color32::from_rgb(118, 172, 152)),
-                ]
-                .into_iter()
-                .enumerate()
-                {
-                    let points = (0..trace.steps)
-                        .map(|t| [t as f64, trace.recon_error[t][i] as f64])
-                        .collect::<Vec<_>>();
-                    let line = Line::new(format!("{name} ({who})"), PlotPoints::from(points));
-                    errors.push(line.color(colour).style(style));
-                }
-            }
+            let errors = paired_error_lines((self.original, "run"), (self.branch, "branch"));
             let title = "prediction error (mean squared, all dimensions)";
             let with_legend = StepPlot {
                 legend: true,
@@ -173,7 +152,7 @@ impl BranchPanel<'_> {
                 .or(seek);
             let mut kl = Vec::new();
             for (trace, style, who) in [
-                (self.original, ORIGINAL, "run"),
+                (self.original, REFERENCE, "run"),
                 (self.branch, LineStyle::Solid, "branch"),
             ] {
                 for id in ModuleId::ALL {

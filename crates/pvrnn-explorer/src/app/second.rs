@@ -3,7 +3,7 @@
 //! with both networks' prediction errors over time and their difference, and its predicted
 //! images in the images panel. Its runs compute in their own store, a slice per frame.
 
-use super::traces::StepPlot;
+use super::traces::{ERROR_COLOURS, StepPlot, paired_error_lines};
 use super::*;
 
 /// Time the second network's runs get per frame.
@@ -171,13 +171,6 @@ impl ExplorerApp {
     }
 }
 
-/// Dashed: the first network; solid: the second.
-const FIRST: LineStyle = LineStyle::Dashed { length: 6.0 };
-const MODALITIES: [(&str, Color32); 2] = [
-    ("vision", Color32::from_rgb(242, 146, 38)),
-    ("proprioception", Color32::from_rgb(118, 172, 152)),
-];
-
 /// Both networks' prediction errors over time, and their difference; the step clicked.
 fn errors_ui(
     ui: &mut egui::Ui,
@@ -187,19 +180,7 @@ fn errors_ui(
 ) -> Option<usize> {
     let mut seek = None;
     ui.columns(2, |cols| {
-        let mut lines = Vec::new();
-        for (trace, style, who) in [
-            (first, FIRST, "first"),
-            (second, LineStyle::Solid, "second"),
-        ] {
-            for (i, (name, colour)) in MODALITIES.into_iter().enumerate() {
-                let points: Vec<[f64; 2]> = (0..trace.steps)
-                    .map(|t| [t as f64, trace.recon_error[t][i] as f64])
-                    .collect();
-                let line = Line::new(format!("{name} ({who})"), PlotPoints::from(points));
-                lines.push(line.color(colour).style(style));
-            }
-        }
+        let lines = paired_error_lines((first, "first"), (second, "second"));
         let title = "prediction error (mean squared, all dimensions); dashed: the first network";
         seek = plot.show(
             &mut cols[0],
@@ -210,7 +191,7 @@ fn errors_ui(
             None,
         );
         let both = first.steps.min(second.steps);
-        let difference = MODALITIES
+        let difference = ERROR_COLOURS
             .into_iter()
             .enumerate()
             .map(|(i, (name, colour))| {

@@ -160,6 +160,35 @@ pub(super) fn plot_help(title: &str) -> Option<&'static str> {
         .map(|(_, help)| *help)
 }
 
+/// The prediction errors' colours, per modality (vision, proprioception).
+pub(super) const ERROR_COLOURS: [(&str, Color32); 2] = [
+    ("vision", Color32::from_rgb(242, 146, 38)),
+    ("proprioception", Color32::from_rgb(118, 172, 152)),
+];
+
+/// How the reference of two runs side by side is drawn (the run a branch leaves, the
+/// first network): dashed, the other solid.
+pub(super) const REFERENCE: LineStyle = LineStyle::Dashed { length: 6.0 };
+
+/// Two runs' prediction errors per modality over their steps, `(trace, name)` each, the
+/// reference dashed.
+pub(super) fn paired_error_lines(
+    reference: (&RunTrace, &str),
+    other: (&RunTrace, &str),
+) -> Vec<Line<'static>> {
+    let mut lines = Vec::new();
+    for ((trace, who), style) in [(reference, REFERENCE), (other, LineStyle::Solid)] {
+        for (i, (name, colour)) in ERROR_COLOURS.into_iter().enumerate() {
+            let points: Vec<[f64; 2]> = (0..trace.steps)
+                .map(|t| [t as f64, trace.recon_error[t][i] as f64])
+                .collect();
+            let line = Line::new(format!("{name} ({who})"), PlotPoints::from(points));
+            lines.push(line.color(colour).style(style));
+        }
+    }
+    lines
+}
+
 /// A plot over a sequence's `len` steps with the cursor at `t` (and a marked step, such as
 /// where a branch leaves its run).
 #[derive(Clone, Copy)]
@@ -409,9 +438,10 @@ impl TracesPanel<'_> {
                 free_energy,
                 None,
             );
+            let [(vision, vision_colour), (proprio, proprio_colour)] = ERROR_COLOURS;
             let lines = vec![
-                Line::new("vision", ve).color(Color32::from_rgb(242, 146, 38)),
-                Line::new("proprioception", pe).color(Color32::from_rgb(118, 172, 152)),
+                Line::new(vision, ve).color(vision_colour),
+                Line::new(proprio, pe).color(proprio_colour),
             ];
             let title = "prediction error (mean squared, all dimensions)";
             let label = cols[1].label(RichText::new(title).small());

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use pvrnn_core::infer::{InferenceSettings, run_sequence_on};
-use pvrnn_core::train::Trainer;
+use pvrnn_core::train::{Trainer, step_together};
 use pvrnn_core::{Modality, Model, NoiseMode, Observations, Observed, Real};
 
 use crate::fixtures::{learning_config, sine_observations};
@@ -140,5 +140,71 @@ pub fn learning_lowers_free_energy_and_online_inference_tracks_the_sequence<T: S
     assert!(
         perr < 0.5 * baseline,
         "one-step prior prediction MSE {perr}"
+    );
+}
+
+/// A fresh learning run of the suite's learning fixture with `seed` (weights and noise).
+fn fresh_run<T: Real>(backend: &Shared<T>, seed: u64) -> (Trainer<T>, Observations<T>) {
+    let config = learning_config();
+    let data = sine_observations::<T>(&config, 2, 48);
+    let model = Model::<T>::init_on(backend.as_ref(), config, 2, 48, seed).unwrap();
+    let trainer = Trainer::new_on(
+        Box::new(backend.clone()),
+        model,
+        NoiseMode::Sampled { seed },
+    );
+    (trainer, data)
+}
+
+/// Every value of a run's model, parameters then adaptive variables, as bits.
+fn model_bits<T: Real>(trainer: &mut Trainer<T>) -> Vec<u64> {
+    let model = trainer.model();
+    let params = model.params.named().into_iter().map(|(_, t, _)| t.data());
+    let adaptive = model.adaptive.named().into_iter().map(|(_, t)| t.data());
+    params
+        .chain(adaptive)
+        .flat_map(|values| values.iter().map(|v| v.to_f64().to_bits()))
+        .collect()
+}
+
+/// Three runs (seeds 1-3) stepped together (`step_together`, a cohort) give each run's
+/// free energies and weights bit for bit as the run stepped alone.
+pub fn learning_runs_stepped_together_equal_each_run_alone<T: SuiteReal>(backend: &Shared<T>) {
+    const ITERATIONS: usize = 4;
+    let mut alone = Vec::new();
+    for seed in 1..=3 {
+        let (mut trainer, data) = fresh_run(backend, seed);
+        let totals: Vec<u64> = (0..ITERATIONS)
+            .map(|_| trainer.step(&data).unwrap().total.to_bits())
+            .collect();
+        alone.push((totals, model_bits(&mut trainer)));
+    }
+    let (mut runs, data): (Vec<Trainer<T>>, Vec<Observations<T>>) =
+        (1..=3).map(|seed| fresh_run(backend, seed)).unzip();
+    let data_refs: Vec<&Observations<T>> = data.iter().collect();
+    let mut together = vec![Vec::new(); 3];
+    for _ in 0..ITERATIONS {
+        let mut members: Vec<&mut Trainer<T>> = runs.iter_mut().collect();
+        let reports = step_together(&mut members, &data_refs).unwrap();
+        for (totals, report) in together.iter_mut().zip(reports) {
+            totals.push(report.unwrap().total.to_bits());
+        }
+    }
+    for (k, ((totals, bits), (run, together))) in
+        alone.iter().zip(runs.iter_mut().zip(&together)).enumerate()
+    {
+        assert_eq!(totals, together, "run {k}: free energies stepped together");
+        assert_eq!(run.iteration, ITERATIONS as u64);
+        assert!(
+            *bits == model_bits(run),
+            "run {k}: weights after {ITERATIONS} iterations stepped together differ from alone"
+        );
+    }
+    // One dataset per run, or a clear error.
+    let mut members: Vec<&mut Trainer<T>> = runs.iter_mut().collect();
+    let error = step_together(&mut members, &data_refs[..2]).unwrap_err();
+    assert!(
+        error.to_string().contains("3 learning runs but 2 datasets"),
+        "{error}"
     );
 }

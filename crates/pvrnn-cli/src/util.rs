@@ -363,6 +363,13 @@ pub enum BackendKind {
     Wgpu,
 }
 
+/// A backend, what it runs on in words, and its GPU device if it has one.
+pub type OpenedBackend = (
+    Box<dyn pvrnn_core::backend::Backend<f32>>,
+    String,
+    Option<std::sync::Arc<pvrnn_wgpu::Gpu>>,
+);
+
 impl BackendArgs {
     /// `--backend`'s value and options as written on a command line ("wgpu
     /// --gpu-recurrence"), for the commands a Slurm script runs.
@@ -382,6 +389,13 @@ impl BackendArgs {
 
     /// Opens the backend and says in words what it runs on ("cpu" or the GPU adapter).
     pub fn open(&self) -> Result<(Box<dyn pvrnn_core::backend::Backend<f32>>, String)> {
+        self.open_with_gpu()
+            .map(|(backend, name, _)| (backend, name))
+    }
+
+    /// [`Self::open`], with the GPU device when the backend has one (for its memory
+    /// figures).
+    pub fn open_with_gpu(&self) -> Result<OpenedBackend> {
         Ok(match self.backend {
             BackendKind::Cpu => {
                 if self.gpu_recurrence {
@@ -390,7 +404,11 @@ impl BackendArgs {
                 if self.weights_on_host {
                     bail!("--weights-on-host needs --backend wgpu");
                 }
-                (Box::new(pvrnn_core::cpu::CpuBackend), "cpu".to_string())
+                (
+                    Box::new(pvrnn_core::cpu::CpuBackend),
+                    "cpu".to_string(),
+                    None,
+                )
             }
             BackendKind::Wgpu => {
                 let gpu = pvrnn_wgpu::WgpuBackend::new()
@@ -404,7 +422,8 @@ impl BackendArgs {
                 if self.weights_on_host {
                     name.push_str(", weights on the host");
                 }
-                (Box::new(gpu), name)
+                let device = gpu.gpu().clone();
+                (Box::new(gpu), name, Some(device))
             }
         })
     }

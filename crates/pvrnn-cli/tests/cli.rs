@@ -677,6 +677,71 @@ fn bench_profile_names_the_phases_of_an_iteration() {
     assert_eq!(first.len(), 2, "warm-up and one timed iteration: {v}");
     assert!(first.iter().all(|f| f.is_finite() && *f > 0.0), "{v}");
     assert_eq!(first, free_energy(&plain), "the same seeded run twice");
+    assert!(
+        v["gpu_buffer_mb"].is_null(),
+        "no GPU memory on the CPU: {v}"
+    );
+}
+
+/// `--networks N` trains N networks together: the figures are per iteration of all of
+/// them, network 0's free energies are the single run's, and on a GPU (lavapipe here)
+/// the device memory its buffers hold grows with N. `PVRNN_SKIP_WGPU=1` skips the GPU part.
+#[test]
+fn bench_trains_several_networks_together() {
+    let bench = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec![
+            "bench",
+            "--sequences",
+            "1",
+            "--steps",
+            "33",
+            "--train-iterations",
+            "1",
+            "--only",
+            "train",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        serde_json::from_str(ok(&args).trim()).unwrap()
+    };
+    let free_energy = |v: &serde_json::Value| v["train_free_energy"].clone();
+    let one = bench(&[]);
+    let three = bench(&["--networks", "3"]);
+    assert_eq!(three["networks"], 3, "{three}");
+    let (mean, rate) = (
+        three["train_iter_s"].as_f64().unwrap(),
+        three["network_iterations_per_s"].as_f64().unwrap(),
+    );
+    assert!((rate - 3.0 / mean).abs() < 1e-9 * rate, "{three}");
+    assert_eq!(
+        free_energy(&one),
+        free_energy(&three),
+        "network 0 is the single run"
+    );
+    let e = fails(&["bench", "--networks", "0"]);
+    assert!(e.contains("--networks"), "{e}");
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let gpu = |n: &str| bench(&["--backend", "wgpu", "--gpu-recurrence", "--networks", n]);
+    let (one, two) = (gpu("1"), gpu("2"));
+    assert_eq!(
+        free_energy(&one),
+        free_energy(&two),
+        "network 0 is the single run"
+    );
+    let (m1, m2) = (
+        one["gpu_buffer_mb"]
+            .as_f64()
+            .expect("the GPU's buffer memory"),
+        two["gpu_buffer_mb"]
+            .as_f64()
+            .expect("the GPU's buffer memory"),
+    );
+    assert!(
+        m1 > 0.0 && m2 > m1,
+        "buffer memory with 1 and 2 networks: {m1} and {m2} MB"
+    );
 }
 
 #[test]

@@ -199,6 +199,18 @@ pub trait Learner<T: Real>: Backend<T> {
         let _ = (data, eps);
         None
     }
+
+    /// [`Self::free_energy`] started now and finished when the result is awaited: a learner
+    /// on a device queues the iteration and returns, so that several learning runs on one
+    /// device (a cohort, [`crate::train::step_together`]) are all queued before the host
+    /// waits for the first. The default computes it at once.
+    fn begin_free_energy<'a>(
+        &'a self,
+        data: &'a Observations<T>,
+        eps: &'a [[Vec<T>; 4]],
+    ) -> Option<Deferred<'a, Result<FreeEnergy>>> {
+        self.free_energy(data, eps).map(crate::deferred::ready)
+    }
 }
 
 /// Weights ready for evaluation on one backend. Everything the model computes goes through

@@ -232,34 +232,63 @@ impl<T: Real> Trainer<T> {
     }
 
     fn step_here(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
+        let on_device = match self.begin(data)? {
+            Some(eps) => Some(crate::deferred::now(self.device_iteration(data, &eps)?)?),
+            None => None,
+        };
+        self.finish(data, on_device)
+    }
+
+    /// Makes the learner at the first step; where it evaluates whole iterations on its
+    /// device, checks the data and returns this iteration's eps for it (`None`: the host
+    /// evaluates, in [`Self::finish`]).
+    fn begin(&mut self, data: &Observations<T>) -> Result<Option<WindowEps<T>>> {
         if self.learner.is_none() {
             self.learner = self.backend.learner(&self.model, &self.optimizer);
         }
-        let draw = NoiseDraw::training(self.noise, self.iteration);
-        // The whole evaluation on the device, where the learner keeps everything there.
-        let on_device = match &self.learner {
-            Some(learner) => {
-                let whole = learner.runs_whole_iterations();
-                if whole != (learner.resident().len() == self.optimizer.m.len()) {
-                    return Err(Error::Mismatch(
-                        "the backend's learner keeps every trainable tensor on its device only if it evaluates iterations there whole".into(),
-                    ));
-                }
-                if whole {
-                    check_model_fits_data(&self.model, data)?;
-                    let eps = window_eps(&self.model.config, data.lengths(), draw);
-                    let report = learner.free_energy(data, &eps).ok_or_else(|| {
-                        Error::Mismatch(
-                            "the backend's learner did not evaluate the iteration it keeps on its device".into(),
-                        )
-                    })??;
-                    Some(report)
-                } else {
-                    None
-                }
-            }
-            None => None,
+        let Some(learner) = &self.learner else {
+            return Ok(None);
         };
+        let whole = learner.runs_whole_iterations();
+        if whole != (learner.resident().len() == self.optimizer.m.len()) {
+            return Err(Error::Mismatch(
+                "the backend's learner keeps every trainable tensor on its device only if it evaluates iterations there whole".into(),
+            ));
+        }
+        if !whole {
+            return Ok(None);
+        }
+        check_model_fits_data(&self.model, data)?;
+        let draw = NoiseDraw::training(self.noise, self.iteration);
+        Ok(Some(window_eps(&self.model.config, data.lengths(), draw)))
+    }
+
+    /// The iteration evaluated on the learner's device (after [`Self::begin`] gave `eps`),
+    /// queued there; awaiting it waits for the device.
+    fn device_iteration<'a>(
+        &'a self,
+        data: &'a Observations<T>,
+        eps: &'a [[Vec<T>; 4]],
+    ) -> Result<crate::deferred::Deferred<'a, Result<FreeEnergy>>> {
+        self.learner
+            .as_ref()
+            .and_then(|learner| learner.begin_free_energy(data, eps))
+            .ok_or_else(|| {
+                Error::Mismatch(
+                    "the backend's learner did not evaluate the iteration it keeps on its device"
+                        .into(),
+                )
+            })
+    }
+
+    /// The rest of an iteration: the evaluation on the host unless the device gave
+    /// `on_device`, the finiteness check and the optimiser's step.
+    fn finish(
+        &mut self,
+        data: &Observations<T>,
+        on_device: Option<FreeEnergy>,
+    ) -> Result<FreeEnergy> {
+        let draw = NoiseDraw::training(self.noise, self.iteration);
         let (report, grads) = match on_device {
             Some(report) => (report, None),
             None => {
@@ -308,6 +337,61 @@ impl<T: Real> Trainer<T> {
         self.iteration += 1;
         Ok(report)
     }
+}
+
+/// An iteration's eps per sequence and module ([`window_eps`]).
+type WindowEps<T> = Vec<[Vec<T>; 4]>;
+
+/// One iteration of several learning runs at once (a cohort: networks of one experiment
+/// condition with different seeds, `members[i]` learning `data[i]`). Where the runs' learners
+/// evaluate whole iterations on one device, every run's iteration is queued there before
+/// the host waits for the first, so the device runs them back to back; the others step
+/// one after another. Each run's result is exactly that of [`Trainer::step`] alone (the
+/// backend suite checks it). Returns each run's free energy or error, in order.
+pub fn step_together<T: Real>(
+    members: &mut [&mut Trainer<T>],
+    data: &[&Observations<T>],
+) -> Result<Vec<Result<FreeEnergy>>> {
+    if members.len() != data.len() {
+        return Err(Error::InvalidArgument(format!(
+            "{} learning runs but {} datasets: every run steps on its own",
+            members.len(),
+            data.len()
+        )));
+    }
+    Ok(crate::parallel::in_pool(|| {
+        let mut eps: Vec<Result<Option<WindowEps<T>>>> = members
+            .iter_mut()
+            .zip(data)
+            .map(|(m, d)| m.begin(d))
+            .collect();
+        // Queued on the device, all of them, then awaited in order.
+        let on_device: Vec<Option<Result<FreeEnergy>>> = {
+            let queued: Vec<Option<Result<_>>> = members
+                .iter()
+                .zip(data)
+                .zip(&eps)
+                .map(|((m, d), e)| match e {
+                    Ok(Some(e)) => Some(m.device_iteration(d, e)),
+                    _ => None,
+                })
+                .collect();
+            queued
+                .into_iter()
+                .map(|q| q.map(|q| q.and_then(crate::deferred::now)))
+                .collect()
+        };
+        members
+            .iter_mut()
+            .zip(data)
+            .zip(eps.iter_mut().zip(on_device))
+            .map(|((m, d), (e, device))| {
+                std::mem::replace(e, Ok(None))?;
+                let report = device.transpose()?;
+                m.finish(d, report)
+            })
+            .collect()
+    }))
 }
 
 /// The trainable tensors' values, in [`trainable_names`]' order.

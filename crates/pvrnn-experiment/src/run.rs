@@ -286,20 +286,9 @@ impl Selection {
     }
 }
 
-/// Runs the selected jobs not done yet, `parallel` at a time, in dependency order.
-///
-/// `backend_name` says what computes (`cpu, 2 threads`); every result records it.
-pub fn run(
-    dir: &Path,
-    backend: &Arc<dyn Backend<f32>>,
-    backend_name: &str,
-    parallel: usize,
-    selection: Selection,
-    stop: &AtomicBool,
-    events: &(dyn Fn(Event<'_>) + Sync),
-) -> Result<()> {
-    let plan = Plan::load(dir)?;
-    let cache = Cache::default();
+/// Whether `selection` names a network or a job of `plan`, and a job's dependencies are
+/// done.
+fn check_selection(plan: &Plan, dir: &Path, selection: Selection) -> Result<()> {
     if let Selection::Network(k) = selection {
         let networks = plan.jobs.iter().map(|j| j.network() + 1).max().unwrap_or(0);
         ensure!(
@@ -324,8 +313,63 @@ pub fn run(
             missing.is_empty(),
             "job {id} needs jobs {missing:?} done first"
         );
+    }
+    Ok(())
+}
+
+/// How a run spreads its jobs: `jobs` at a time, and up to `cohort` trainings of the same
+/// sequences (an experiment condition's networks) trained together in one of them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Workers {
+    pub jobs: usize,
+    pub cohort: usize,
+}
+
+/// Runs the selected jobs not done yet, `parallel` at a time, in dependency order.
+///
+/// `backend_name` says what computes (`cpu, 2 threads`); every result records it.
+pub fn run(
+    dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
+    parallel: usize,
+    selection: Selection,
+    stop: &AtomicBool,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let workers = Workers {
+        jobs: parallel,
+        cohort: 1,
+    };
+    run_with(dir, backend, backend_name, workers, selection, stop, events)
+}
+
+/// [`run`] with trainings in cohorts ([`Workers`]).
+pub fn run_with(
+    dir: &Path,
+    backend: &Arc<dyn Backend<f32>>,
+    backend_name: &str,
+    workers: Workers,
+    selection: Selection,
+    stop: &AtomicBool,
+    events: &(dyn Fn(Event<'_>) + Sync),
+) -> Result<()> {
+    let parallel = workers.jobs;
+    let plan = Plan::load(dir)?;
+    let cache = Cache::default();
+    check_selection(&plan, dir, selection)?;
+    if let Selection::Job(id) = selection {
         if !plan.is_done(dir, id) {
-            run_job(&plan, dir, backend, backend_name, id, &cache, stop, events)?;
+            run_jobs(
+                &plan,
+                dir,
+                backend,
+                backend_name,
+                &[id],
+                &cache,
+                stop,
+                events,
+            )?;
         }
         return Ok(());
     }
@@ -334,17 +378,27 @@ pub fn run(
         vec![false; plan.jobs.len()],
     ));
     let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-    let next = || -> Option<usize> {
+    // The next ready job, with up to `cohort - 1` more ready trainings of its sequences.
+    let next = || -> Option<Vec<usize>> {
         let mut s = state.lock().ok()?;
         let (done, taken) = &mut *s;
-        let id = (0..plan.jobs.len()).find(|&i| {
+        let ready = |i: usize| {
             selection.includes(&plan, i)
                 && !done[i]
                 && !taken[i]
                 && plan.jobs[i].after.iter().all(|&a| done[a])
-        })?;
-        taken[id] = true;
-        Some(id)
+        };
+        let id = (0..plan.jobs.len()).find(|&i| ready(i))?;
+        let mut ids = vec![id];
+        ids.extend(
+            (id + 1..plan.jobs.len())
+                .filter(|&i| ready(i) && same_training(&plan, id, i))
+                .take(workers.cohort.max(1) - 1),
+        );
+        for &i in &ids {
+            taken[i] = true;
+        }
+        Some(ids)
     };
     std::thread::scope(|scope| {
         for _ in 0..parallel.max(1) {
@@ -355,7 +409,7 @@ pub fn run(
                     {
                         return;
                     }
-                    let Some(id) = next() else {
+                    let Some(ids) = next() else {
                         // Nothing ready: finished, or waiting on jobs other workers run.
                         let pending = state
                             .lock()
@@ -367,20 +421,35 @@ pub fn run(
                         std::thread::sleep(std::time::Duration::from_millis(50));
                         continue;
                     };
-                    match run_job(&plan, dir, backend, backend_name, id, &cache, stop, events) {
+                    match run_jobs(
+                        &plan,
+                        dir,
+                        backend,
+                        backend_name,
+                        &ids,
+                        &cache,
+                        stop,
+                        events,
+                    ) {
                         Ok(()) => {
                             if let Ok(mut s) = state.lock() {
-                                s.0[id] = true;
+                                for &id in &ids {
+                                    s.0[id] = true;
+                                }
                             }
                         }
                         Err(e) => {
+                            let names: Vec<String> = ids
+                                .iter()
+                                .map(|&id| format!("{id} ({})", plan.jobs[id].name))
+                                .collect();
                             if let Ok(mut f) = failure.lock() {
-                                f.get_or_insert(
-                                    e.context(format!("job {id} ({})", plan.jobs[id].name)),
-                                );
+                                f.get_or_insert(e.context(format!("job {}", names.join(", "))));
                             }
                             if let Ok(mut s) = state.lock() {
-                                s.1[id] = false;
+                                for &id in &ids {
+                                    s.1[id] = false;
+                                }
                             }
                             return;
                         }
@@ -401,33 +470,62 @@ pub fn run(
     Ok(())
 }
 
+/// Runs jobs `ids`: one job, or several trainings of the same sequences trained together
+/// (a cohort, [`train`]).
 #[allow(clippy::too_many_arguments)]
-fn run_job(
+fn run_jobs(
     plan: &Plan,
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
     backend_name: &str,
-    id: usize,
+    ids: &[usize],
     cache: &Cache,
     stop: &AtomicBool,
     events: &(dyn Fn(Event<'_>) + Sync),
 ) -> Result<()> {
-    let job = &plan.jobs[id];
-    events(Event::Started {
-        id,
-        name: &job.name,
-    });
-    let start = Instant::now();
-    match &job.kind {
-        JobKind::Train { .. } => train(plan, dir, backend, backend_name, id, cache, stop, events)?,
-        JobKind::Infer { .. } => infer(plan, dir, backend, backend_name, id, cache, events)?,
+    for &id in ids {
+        events(Event::Started {
+            id,
+            name: &plan.jobs[id].name,
+        });
     }
-    events(Event::Finished {
-        id,
-        name: &job.name,
-        seconds: start.elapsed().as_secs_f64(),
-    });
+    let start = Instant::now();
+    match &plan.jobs[ids[0]].kind {
+        JobKind::Train { .. } => train(plan, dir, backend, backend_name, ids, cache, stop, events)?,
+        JobKind::Infer { .. } => {
+            for &id in ids {
+                infer(plan, dir, backend, backend_name, id, cache, events)?;
+            }
+        }
+    }
+    for &id in ids {
+        events(Event::Finished {
+            id,
+            name: &plan.jobs[id].name,
+            seconds: start.elapsed().as_secs_f64(),
+        });
+    }
     Ok(())
+}
+
+/// Whether jobs `a` and `b` can train together: trainings of the same sequences, neither
+/// reused from another's checkpoint.
+fn same_training(plan: &Plan, a: usize, b: usize) -> bool {
+    match (&plan.jobs[a].kind, &plan.jobs[b].kind) {
+        (
+            JobKind::Train {
+                sequences: sa,
+                reuse: None,
+                ..
+            },
+            JobKind::Train {
+                sequences: sb,
+                reuse: None,
+                ..
+            },
+        ) => sa == sb,
+        _ => false,
+    }
 }
 
 pub use pvrnn_eval::training_log::path_for as log_path;
@@ -445,35 +543,201 @@ pub fn last_tenth_change(values: &[f64]) -> Option<f64> {
     (before != 0.0).then(|| (last - before) / before.abs())
 }
 
+/// One training job in progress: its trainer, log, convergence rule and where it stops.
+struct TrainingRun<'p> {
+    plan: &'p Plan,
+    dir: &'p Path,
+    id: usize,
+    iterations: u64,
+    checkpoint: std::path::PathBuf,
+    log: std::path::PathBuf,
+    trainer: Trainer<f32>,
+    log_file: TrainingLog,
+    rule: Option<ConvergenceRule>,
+    stop_reason: Option<Stop>,
+    /// Whether the run reached its stop (the cap, or the convergence rule's).
+    done: bool,
+}
+
+impl<'p> TrainingRun<'p> {
+    /// Opens job `id` (a training that is not reused) at its checkpoint, or fresh, with its
+    /// data (`data`: the job's sequences as the dataset gives them).
+    fn open(
+        plan: &'p Plan,
+        dir: &'p Path,
+        id: usize,
+        backend: &Arc<dyn Backend<f32>>,
+        dataset: &Dataset,
+        chosen: &[Sequence],
+    ) -> Result<Self> {
+        let JobKind::Train {
+            seed, iterations, ..
+        } = &plan.jobs[id].kind
+        else {
+            unreachable!("a training job")
+        };
+        let checkpoint = plan.checkpoint_path(dir, id);
+        let log = log_path(&checkpoint);
+        let mut trainer = open_trainer(&checkpoint, dataset, chosen, *seed)?
+            .with_backend(Box::new(backend.clone()));
+        let log_file = TrainingLog::resume(&log, trainer.iteration)?;
+        let learned_tasks: std::collections::BTreeSet<&str> =
+            chosen.iter().map(|s| s.info.task.as_str()).collect();
+        let mut rule = ConvergenceRule::open(plan, dir, id, trainer.iteration, &learned_tasks)?;
+        if let Some(rule) = rule.as_mut()
+            && rule.missed(trainer.iteration)
+        {
+            rule.validate(backend, &mut trainer, None)?;
+        }
+        let mut run = Self {
+            plan,
+            dir,
+            id,
+            iterations: *iterations,
+            checkpoint,
+            log,
+            trainer,
+            log_file,
+            rule,
+            stop_reason: None,
+            done: false,
+        };
+        run.check_stop();
+        Ok(run)
+    }
+
+    /// Whether the run stops before its next iteration (its cap, or the convergence rule).
+    fn check_stop(&mut self) {
+        if let Some(rule) = &self.rule {
+            self.stop_reason = rule.check(&self.plan.design, &self.log, self.trainer.iteration);
+        }
+        self.done = self.stop_reason.is_some() || self.trainer.iteration >= self.iterations;
+    }
+
+    /// After an iteration that gave `report`: the log, the progress event, a checkpoint when
+    /// one is due (or the run is being stopped), a validation when due; then whether the
+    /// run goes on.
+    fn after_step(
+        &mut self,
+        it: u64,
+        report: pvrnn_core::FreeEnergy,
+        backend: &Arc<dyn Backend<f32>>,
+        stop: &AtomicBool,
+        events: &(dyn Fn(Event<'_>) + Sync),
+    ) -> Result<()> {
+        let trainer = &mut self.trainer;
+        self.log_file.append(it, &report)?;
+        events(Event::Training {
+            id: self.id,
+            done: trainer.iteration,
+            total: self.iterations,
+            free_energy: report.total,
+        });
+        let stopping = stop.load(Ordering::SeqCst);
+        let validating = self.rule.as_ref().is_some_and(|r| r.due(trainer.iteration)) && !stopping;
+        if trainer
+            .iteration
+            .is_multiple_of(self.plan.design.checkpoint_every.max(1))
+            || trainer.iteration == self.iterations
+            || stopping
+            || validating
+        {
+            self.log_file.flush()?;
+            io::save_checkpoint(&self.checkpoint, trainer, Some(report))?;
+        }
+        if stopping {
+            return Err(Interrupted.into());
+        }
+        if validating && let Some(rule) = self.rule.as_mut() {
+            rule.validate(backend, trainer, Some(report))?;
+        }
+        self.check_stop();
+        Ok(())
+    }
+
+    /// Writes the job's result (the run has stopped).
+    fn finish(self, backend_name: &str) -> Result<()> {
+        let job = &self.plan.jobs[self.id];
+        let JobKind::Train {
+            network,
+            condition,
+            sequences: names,
+            ..
+        } = &job.kind
+        else {
+            unreachable!("a training job")
+        };
+        let iteration = self.trainer.iteration;
+        let mut stop_reason = self.stop_reason;
+        if let Some(rule) = &self.rule
+            && stop_reason.is_none()
+        {
+            // The job's iterations are the cap (the design's, when the plan was made).
+            stop_reason = rule
+                .check(&self.plan.design, &self.log, iteration)
+                .or(Some(Stop::Cap));
+        }
+        let totals = training_log::totals(&self.log, iteration);
+        let seconds = training_log::seconds(&self.log).unwrap_or(0.0);
+        let validations = self.rule.map(|r| r.rows).unwrap_or_default();
+        // The network: the best-validated checkpoint unless the free energy went flat first.
+        let network_iteration = match (stop_reason, validation::best(&validations)) {
+            (Some(Stop::ValidationBest | Stop::Cap), Some(best)) => best.iteration,
+            _ => iteration,
+        };
+        write_train_result(
+            self.plan,
+            self.dir,
+            self.id,
+            TrainResult {
+                job: job.name.clone(),
+                network: *network,
+                condition: condition.clone(),
+                sequences: names.len(),
+                iterations: iteration,
+                final_free_energy: totals.last().copied(),
+                seconds,
+                last_tenth_change: last_tenth_change(&totals),
+                reused: None,
+                backend: Some(backend_name.to_string()),
+                stop: stop_reason,
+                network_iteration: Some(network_iteration),
+                validations,
+            },
+        )
+    }
+}
+
+/// Training jobs `ids` (trainings of the same sequences, not reused: a cohort of seeds)
+/// trained together, every iteration of all of them queued on the device before the host
+/// waits for any (`pvrnn_core::train::step_together`); each stops by its own rule and the
+/// others go on. A cohort of one is a training alone.
 #[allow(clippy::too_many_arguments)]
 fn train(
     plan: &Plan,
     dir: &Path,
     backend: &Arc<dyn Backend<f32>>,
     backend_name: &str,
-    id: usize,
+    ids: &[usize],
     cache: &Cache,
     stop: &AtomicBool,
     events: &(dyn Fn(Event<'_>) + Sync),
 ) -> Result<()> {
-    let job = &plan.jobs[id];
-    let JobKind::Train {
-        network,
-        condition,
+    let Some(JobKind::Train {
         sequences: names,
-        seed,
-        iterations,
         reuse,
-    } = &job.kind
+        ..
+    }) = ids.first().map(|&id| &plan.jobs[id].kind)
     else {
-        unreachable!("a training job")
+        unreachable!("training jobs")
     };
-    let checkpoint = plan.checkpoint_path(dir, id);
-    let log = log_path(&checkpoint);
-    std::fs::create_dir_all(checkpoint.parent().expect("a folder"))
-        .with_context(|| format!("cannot create {}", checkpoint.display()))?;
+    for &id in ids {
+        let checkpoint = plan.checkpoint_path(dir, id);
+        std::fs::create_dir_all(checkpoint.parent().expect("a folder"))
+            .with_context(|| format!("cannot create {}", checkpoint.display()))?;
+    }
     if let Some(source) = reuse {
-        return train_reused(plan, dir, id, source);
+        return train_reused(plan, dir, ids[0], source);
     }
     let dataset = cache.dataset(&plan.dataset)?;
     let chosen: Vec<Sequence> = sequences(&dataset, names)?
@@ -481,89 +745,44 @@ fn train(
         .map(|s| truncated(s, plan.design.train_steps))
         .collect();
     let chosen_refs: Vec<&Sequence> = chosen.iter().collect();
-    let mut trainer = open_trainer(&checkpoint, &dataset, &chosen, *seed)?
-        .with_backend(Box::new(backend.clone()));
-    let data = dataset.observations(&chosen_refs, trainer.config())?;
-    pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
-    let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
-    let learned_tasks: std::collections::BTreeSet<&str> =
-        chosen.iter().map(|s| s.info.task.as_str()).collect();
-    let mut rule = ConvergenceRule::open(plan, dir, id, trainer.iteration, &learned_tasks)?;
-    let mut stop_reason = None;
-    if let Some(rule) = rule.as_mut()
-        && rule.missed(trainer.iteration)
-    {
-        rule.validate(backend, &mut trainer, None)?;
+    let mut runs = ids
+        .iter()
+        .map(|&id| TrainingRun::open(plan, dir, id, backend, &dataset, &chosen))
+        .collect::<Result<Vec<_>>>()?;
+    // One copy of the data for the cohort: its members learn the same sequences, and the
+    // device keeps one copy of its targets.
+    let data = dataset.observations(&chosen_refs, runs[0].trainer.config())?;
+    for run in &mut runs {
+        pvrnn_core::free_energy::check_model_fits_data(run.trainer.model(), &data)?;
     }
-    while trainer.iteration < *iterations {
-        if let Some(rule) = &rule {
-            stop_reason = rule.check(&plan.design, &log, trainer.iteration);
-            if stop_reason.is_some() {
-                break;
+    loop {
+        let mut active: Vec<&mut TrainingRun<'_>> = runs.iter_mut().filter(|r| !r.done).collect();
+        if active.is_empty() {
+            break;
+        }
+        let before: Vec<u64> = active.iter().map(|r| r.trainer.iteration).collect();
+        let reports = {
+            let mut trainers: Vec<&mut Trainer<f32>> =
+                active.iter_mut().map(|r| &mut r.trainer).collect();
+            pvrnn_core::train::step_together(&mut trainers, &vec![&data; before.len()])?
+        };
+        // Every member's iteration is logged and, when due or stopping, checkpointed before
+        // an error (or an interruption) ends the cohort.
+        let mut failed = None;
+        for ((run, it), report) in active.into_iter().zip(before).zip(reports) {
+            let outcome = report
+                .with_context(|| format!("job {}", run.id))
+                .and_then(|report| run.after_step(it, report, backend, stop, events));
+            if let Err(e) = outcome {
+                failed.get_or_insert(e);
             }
         }
-        let it = trainer.iteration;
-        let report = trainer.step(&data)?;
-        log_file.append(it, &report)?;
-        events(Event::Training {
-            id,
-            done: trainer.iteration,
-            total: *iterations,
-            free_energy: report.total,
-        });
-        let stopping = stop.load(Ordering::SeqCst);
-        let validating = rule.as_ref().is_some_and(|r| r.due(trainer.iteration)) && !stopping;
-        if trainer.iteration % plan.design.checkpoint_every.max(1) == 0
-            || trainer.iteration == *iterations
-            || stopping
-            || validating
-        {
-            log_file.flush()?;
-            io::save_checkpoint(&checkpoint, &mut trainer, Some(report))?;
-        }
-        if stopping {
-            return Err(Interrupted.into());
-        }
-        if validating && let Some(rule) = rule.as_mut() {
-            rule.validate(backend, &mut trainer, Some(report))?;
+        if let Some(e) = failed {
+            return Err(e);
         }
     }
-    if let Some(rule) = &rule
-        && stop_reason.is_none()
-    {
-        // The job's iterations are the cap (the design's, when the plan was made).
-        stop_reason = rule
-            .check(&plan.design, &log, trainer.iteration)
-            .or(Some(Stop::Cap));
-    }
-    let totals = training_log::totals(&log, trainer.iteration);
-    let seconds = training_log::seconds(&log).unwrap_or(0.0);
-    let validations = rule.map(|r| r.rows).unwrap_or_default();
-    // The network: the best-validated checkpoint unless the free energy went flat first.
-    let network_iteration = match (stop_reason, validation::best(&validations)) {
-        (Some(Stop::ValidationBest | Stop::Cap), Some(best)) => best.iteration,
-        _ => trainer.iteration,
-    };
-    write_train_result(
-        plan,
-        dir,
-        id,
-        TrainResult {
-            job: job.name.clone(),
-            network: *network,
-            condition: condition.clone(),
-            sequences: names.len(),
-            iterations: trainer.iteration,
-            final_free_energy: totals.last().copied(),
-            seconds,
-            last_tenth_change: last_tenth_change(&totals),
-            reused: None,
-            backend: Some(backend_name.to_string()),
-            stop: stop_reason,
-            network_iteration: Some(network_iteration),
-            validations,
-        },
-    )
+    runs.into_iter()
+        .try_for_each(|run| run.finish(backend_name))
 }
 
 /// The convergence rule's state during one training: the held-out data, the validations

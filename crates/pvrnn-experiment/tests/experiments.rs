@@ -549,3 +549,88 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         trained.validations
     );
 }
+
+/// A condition's networks trained together (a cohort of 2) give the results and the
+/// checkpoints they get trained one by one, are checkpointed together when interrupted,
+/// and resume.
+#[test]
+fn networks_of_one_condition_train_together_as_they_train_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let plan = Plan::new(Experiment::Robustness, Scale::Smoke, &data, None, None).unwrap();
+    let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
+    plan.save(&alone).unwrap();
+    plan.save(&together).unwrap();
+    let go = AtomicBool::new(false);
+    for id in [0, 1] {
+        pvrnn_experiment::run::run(&alone, &cpu(), "cpu", 1, Selection::Job(id), &go, &|_| {})
+            .unwrap();
+    }
+    let workers = pvrnn_experiment::run::Workers { jobs: 1, cohort: 2 };
+    // Interrupted at iteration 7 of network 0: both are checkpointed there.
+    let stop = AtomicBool::new(false);
+    let started = std::sync::Mutex::new(Vec::new());
+    let events = |e: Event<'_>| match e {
+        Event::Started { id, .. } => started.lock().unwrap().push(id),
+        Event::Training { id: 0, done: 7, .. } => stop.store(true, Ordering::SeqCst),
+        _ => {}
+    };
+    let e = pvrnn_experiment::run::run_with(
+        &together,
+        &cpu(),
+        "cpu",
+        workers,
+        Selection::All,
+        &stop,
+        &events,
+    )
+    .unwrap_err();
+    assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
+    assert_eq!(*started.lock().unwrap(), vec![0, 1], "one cohort of both");
+    for id in [0, 1] {
+        let file = pvrnn_core::io::TensorFile::open(&plan.checkpoint_path(&together, id)).unwrap();
+        assert_eq!(
+            pvrnn_core::io::checkpoint_iteration(&file),
+            Some(7),
+            "job {id}"
+        );
+    }
+    pvrnn_experiment::run::run_with(
+        &together,
+        &cpu(),
+        "cpu",
+        workers,
+        Selection::All,
+        &go,
+        &|_| {},
+    )
+    .unwrap();
+    for id in [0, 1] {
+        let (a, b) = (
+            read_train_result(&plan.result_path(&alone, id)).unwrap(),
+            read_train_result(&plan.result_path(&together, id)).unwrap(),
+        );
+        assert_eq!(a.iterations, b.iterations, "job {id}");
+        assert_eq!(
+            a.final_free_energy.map(f64::to_bits),
+            b.final_free_energy.map(f64::to_bits),
+            "job {id}: the same network"
+        );
+        let weights = |dir: &Path| {
+            let model = pvrnn_core::io::load_checkpoint(&plan.checkpoint_path(dir, id))
+                .unwrap()
+                .into_model();
+            model
+                .params
+                .named()
+                .into_iter()
+                .map(|(_, t, _)| t.data().to_vec())
+                .collect::<Vec<_>>()
+        };
+        assert!(
+            weights(&alone) == weights(&together),
+            "job {id}: the same weights"
+        );
+    }
+}

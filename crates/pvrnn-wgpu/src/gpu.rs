@@ -213,6 +213,14 @@ impl Gpu {
         self.resident.lock().map_or(0, |r| r.uploads)
     }
 
+    /// Device memory held by buffers now, in bytes, as wgpu's allocation counter gives it
+    /// (the resident weights, data and moments, and the pool's reusable buffers); `None`
+    /// where the platform does not count (WebGPU).
+    pub fn buffer_memory(&self) -> Option<u64> {
+        let bytes = self.device.get_internal_counters().hal.buffer_memory.read();
+        (bytes > 0).then_some(bytes as u64)
+    }
+
     pub(crate) fn count_read_back(&self) {
         self.read_backs.fetch_add(1, Ordering::Relaxed);
     }

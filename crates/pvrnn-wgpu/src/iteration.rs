@@ -226,6 +226,19 @@ impl DeviceIteration {
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<FreeEnergy> {
+        Ok(pvrnn_core::deferred::now(
+            self.free_energy_later(gpu, data, eps)?,
+        ))
+    }
+
+    /// [`Self::free_energy`] submitted now and waited for when the future is first polled,
+    /// so that a cohort's networks are all queued before the host waits for any.
+    pub(crate) fn free_energy_later<'a>(
+        &'a self,
+        gpu: &Gpu,
+        data: &Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Result<impl std::future::Future<Output = FreeEnergy> + 'a> {
         self.check_fits(data, eps)?;
         let batch = Batch::of(&self.layout, data.lengths());
         let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
@@ -310,15 +323,20 @@ impl DeviceIteration {
         }
         let mut sources = vec![(&*kl, eps_flat.len())];
         sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, batch.total)));
+        let pending = read_back(gpu, encoder, &sources);
         drop(encode_phase);
-        let results = {
-            let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
-            pvrnn_core::deferred::now(read_back(gpu, encoder, &sources))
-        };
         drop((keep, table, eps_buffer, record, back));
         let divisors = [readouts[0].1, readouts[1].1];
         drop(readouts);
-        Ok(self.free_energy_of(&batch, &per_module_at, divisors, results))
+        let total = batch.total;
+        Ok(async move {
+            let results = {
+                let _phase =
+                    pvrnn_core::profile::phase("evaluate on the device: run and read back");
+                pending.await
+            };
+            self.free_energy_of(total, &per_module_at, divisors, results)
+        })
     }
 
     /// Whether `data` and `eps` fit the sequences this learner holds.
@@ -557,7 +575,7 @@ impl DeviceIteration {
     /// F from what came back: the KL terms, then each read-out's row losses.
     fn free_energy_of(
         &self,
-        batch: &Batch<'_>,
+        total: usize,
         per_module_at: &[usize; 4],
         divisors: [usize; 2],
         results: Vec<Vec<f32>>,
@@ -567,7 +585,7 @@ impl DeviceIteration {
         let mut complexity = [0.0; 4];
         for (m, ml) in self.layout.modules().iter().enumerate() {
             let z = ml.z;
-            let terms = &kl[per_module_at[m]..per_module_at[m] + batch.total * z];
+            let terms = &kl[per_module_at[m]..per_module_at[m] + total * z];
             // As the CPU backend: per step the units' terms summed in f64, divided by z.
             complexity[m] = terms
                 .chunks_exact(z.max(1))

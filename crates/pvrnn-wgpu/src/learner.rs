@@ -280,4 +280,17 @@ impl Learner<f32> for GpuLearner {
         let iteration = self.iteration.as_ref()?;
         Some(iteration.free_energy(self.gpu(), data, eps))
     }
+
+    fn begin_free_energy<'a>(
+        &'a self,
+        data: &'a pvrnn_core::Observations<f32>,
+        eps: &'a [[Vec<f32>; 4]],
+    ) -> Option<pvrnn_core::deferred::Deferred<'a, pvrnn_core::Result<pvrnn_core::FreeEnergy>>>
+    {
+        let iteration = self.iteration.as_ref()?;
+        Some(match iteration.free_energy_later(self.gpu(), data, eps) {
+            Ok(later) => Box::pin(async move { Ok(later.await) }),
+            Err(e) => pvrnn_core::deferred::ready(Err(e)),
+        })
+    }
 }

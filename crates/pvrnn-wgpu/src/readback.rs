@@ -1,8 +1,8 @@
 //! Reading results back from the device: one mappable copy per call, as a future.
 //!
-//! Natively the device is polled until the copy is mapped (also when another thread's poll
-//! maps it), so the future is ready at its first poll and synchronous callers finish it
-//! with [`pvrnn_core::deferred::now`]. WebGPU maps
+//! Natively the future's first poll polls the device until the copy is mapped (also when
+//! another thread's poll maps it), so it is ready then and synchronous callers finish it
+//! with [`pvrnn_core::deferred::now`]; until it is polled, the host may queue more work. WebGPU maps
 //! the copy when the browser's event loop runs: the future wakes its task then.
 
 use std::future::Future;
@@ -49,32 +49,15 @@ pub(crate) fn read_back(
                 waker.wake();
             }
         });
-    #[cfg(not(target_arch = "wasm32"))]
-    {
-        let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
-        // This submission only (and those before it), not whatever another thread sharing
-        // the device submitted since (the explorer's renderer draws on it).
-        let ours = wgpu::PollType::Wait {
-            submission_index: Some(submitted),
-            timeout: None,
-        };
-        loop {
-            if let Err(e) = gpu.device.poll(ours.clone()) {
-                panic!("waiting for the GPU failed: {e}");
-            }
-            if state.lock().map_or(true, |s| s.result.is_some()) {
-                break;
-            }
-            // Runs sharing the device (`--jobs N`): another thread's poll took this copy's
-            // mapping and is about to call back; ours returned first, with nothing left.
-            std::thread::yield_now();
-        }
-    }
     ReadBack {
         staging: Some(staging),
         total,
         sizes,
         state,
+        #[cfg(not(target_arch = "wasm32"))]
+        device: gpu.device.clone(),
+        #[cfg(not(target_arch = "wasm32"))]
+        submitted,
     }
 }
 
@@ -90,6 +73,42 @@ pub(crate) struct ReadBack {
     total: usize,
     sizes: Vec<usize>,
     state: Arc<Mutex<MapState>>,
+    /// Natively, the device to poll and the submission to wait for: the wait comes at the
+    /// first poll of the future, so a caller can queue several submissions (a cohort's
+    /// networks, `pvrnn_core::train::step_together`) before it waits for the first.
+    #[cfg(not(target_arch = "wasm32"))]
+    device: wgpu::Device,
+    #[cfg(not(target_arch = "wasm32"))]
+    submitted: wgpu::SubmissionIndex,
+}
+
+impl ReadBack {
+    /// Natively: polls the device until this copy is mapped (also when another thread's
+    /// poll mapped it).
+    #[cfg(not(target_arch = "wasm32"))]
+    fn wait(&self) {
+        if self.state.lock().map_or(true, |s| s.result.is_some()) {
+            return;
+        }
+        let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
+        // This submission only (and those before it), not whatever another thread sharing
+        // the device submitted since (the explorer's renderer draws on it).
+        let ours = wgpu::PollType::Wait {
+            submission_index: Some(self.submitted.clone()),
+            timeout: None,
+        };
+        loop {
+            if let Err(e) = self.device.poll(ours.clone()) {
+                panic!("waiting for the GPU failed: {e}");
+            }
+            if self.state.lock().map_or(true, |s| s.result.is_some()) {
+                break;
+            }
+            // Runs sharing the device (`--jobs N`): another thread's poll took this copy's
+            // mapping and is about to call back; ours returned first, with nothing left.
+            std::thread::yield_now();
+        }
+    }
 }
 
 /// A read-back dropped before it was awaited (a caller that gave up on the results) must
@@ -106,6 +125,8 @@ impl Future for ReadBack {
     type Output = Vec<Vec<f32>>;
 
     fn poll(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Self::Output> {
+        #[cfg(not(target_arch = "wasm32"))]
+        self.wait();
         let result = {
             let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
             match state.result.take() {

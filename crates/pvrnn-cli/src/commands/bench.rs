@@ -13,7 +13,7 @@ use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json\n  pvrnn bench --backend wgpu --only train --profile"
+    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json\n  pvrnn bench --backend wgpu --only train --profile\n  pvrnn bench --backend wgpu --gpu-recurrence --only train --networks 5"
 )]
 pub struct Args {
     /// Print one JSON object instead of a table.
@@ -25,6 +25,11 @@ pub struct Args {
     /// Steps per sequence (paper: ~300).
     #[arg(long, default_value_t = 300)]
     steps: usize,
+    /// Networks trained together (seeds 0, 1, ...), every iteration of all of them queued
+    /// before the host waits for any (`pvrnn_core::train::step_together`); the figures are
+    /// per iteration of all of them, and network-iterations per second.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    networks: u32,
     /// Timed training iterations (after one warm-up iteration).
     #[arg(long, default_value_t = 3)]
     train_iterations: usize,
@@ -57,11 +62,19 @@ struct Report {
     machine: String,
     sequences: usize,
     steps: usize,
-    /// Mean seconds per full-batch training iteration.
+    /// Networks trained together (`--networks`).
+    networks: usize,
+    /// Mean seconds per full-batch training iteration (of all the networks together).
     train_iter_s: Option<f64>,
     train_iter_min_s: Option<f64>,
-    /// Total free energy of the warm-up and each timed iteration: the same seeded data and
-    /// noise on every backend, so two backends' runs can be compared number by number.
+    /// Network-iterations per second: networks / mean seconds per iteration.
+    network_iterations_per_s: Option<f64>,
+    /// Device memory held by buffers after training (wgpu's allocation counter: resident
+    /// weights, moments and data, and the pool's reusable buffers), in MB; null on the CPU.
+    gpu_buffer_mb: Option<f64>,
+    /// Total free energy of the first network at the warm-up and each timed iteration: the
+    /// same seeded data and noise on every backend, so two backends' runs can be compared
+    /// number by number.
     train_free_energy: Vec<f64>,
     /// Online inference steps per second at a full window (H = 30, 50 iterations).
     infer_p16_steps_per_s: Option<f64>,
@@ -166,8 +179,87 @@ fn infer_rate(
     Ok(timed as f64 / start.elapsed().as_secs_f64())
 }
 
+/// What [`train_networks`] measured, and the first network it trained.
+struct Trained {
+    backend_name: String,
+    times: Vec<f64>,
+    free_energies: Vec<f64>,
+    profile: Vec<PartProfile>,
+    train_peak: f64,
+    gpu_buffer_mb: Option<f64>,
+    model: Model<f32>,
+}
+
+/// Trains `--networks` networks together on `data`: the warm-up iteration, then the timed
+/// ones.
+fn train_networks(
+    a: &Args,
+    config: &ModelConfig,
+    data: &Observations<f32>,
+    say: &dyn Fn(&str),
+) -> Result<Trained> {
+    let (s, t) = (a.sequences, a.steps);
+    let networks = a.networks as usize;
+    // One device for all the networks: they share its queue.
+    let (backend, backend_name, gpu) = a.backend.open_with_gpu()?;
+    let backend: Arc<dyn Backend<f32>> = Arc::from(backend);
+    let mut trainers = Vec::with_capacity(networks);
+    for seed in 0..networks as u64 {
+        let model = Model::<f32>::init(config.clone(), s, t, seed)?;
+        trainers.push(
+            Trainer::new(model, NoiseMode::Sampled { seed })
+                .with_backend(Box::new(backend.clone())),
+        );
+    }
+    let data_per_network = vec![data; networks];
+
+    let (mut times, mut free_energies) = (Vec::new(), Vec::new());
+    let step_all = |trainers: &mut [Trainer<f32>]| -> Result<f64> {
+        let mut members: Vec<&mut Trainer<f32>> = trainers.iter_mut().collect();
+        let reports = pvrnn_core::train::step_together(&mut members, &data_per_network)?;
+        let mut first = f64::NAN;
+        for (k, report) in reports.into_iter().enumerate() {
+            let report = report?;
+            if k == 0 {
+                first = report.total;
+            }
+        }
+        Ok(first)
+    };
+    if a.only != Some(Part::Infer) {
+        say(&format!(
+            "training {networks} network(s): 1 warm-up iteration..."
+        ));
+        free_energies.push(step_all(&mut trainers)?);
+        pvrnn_core::profile::enable(a.profile);
+        for i in 0..a.train_iterations {
+            let start = Instant::now();
+            free_energies.push(step_all(&mut trainers)?);
+            times.push(start.elapsed().as_secs_f64());
+            say(&format!("  iteration {}: {:.3} s", i + 1, times[i]));
+        }
+    }
+    let mut profile = Vec::new();
+    if a.profile && a.only != Some(Part::Infer) {
+        profile.push(take_profile("train", a.train_iterations));
+    }
+    let train_peak = peak_rss_mb();
+    let gpu_buffer_mb = gpu
+        .as_ref()
+        .and_then(|device| device.buffer_memory())
+        .map(|bytes| bytes as f64 / 1e6);
+    Ok(Trained {
+        backend_name,
+        times,
+        free_energies,
+        profile,
+        train_peak,
+        gpu_buffer_mb,
+        model: trainers.swap_remove(0).into_model(),
+    })
+}
+
 pub fn run(a: Args) -> Result<()> {
-    let (backend, backend_name) = a.backend.open()?;
     let config = ModelConfig::default();
     let (s, t) = (a.sequences, a.steps);
     let say = |msg: &str| {
@@ -185,29 +277,16 @@ pub fn run(a: Args) -> Result<()> {
         random_tensor(&[s, t, config.proprio_dims], 2),
         None,
     )?;
-    let model = Model::<f32>::init(config.clone(), s, t, 0)?;
-    let trainer = Trainer::new(model, NoiseMode::Sampled { seed: 0 });
     let inference_backend = a.backend.open()?.0;
-    let mut trainer = trainer.with_backend(backend);
-
-    let (mut times, mut free_energies) = (Vec::new(), Vec::new());
-    if a.only != Some(Part::Infer) {
-        say("training: 1 warm-up iteration...");
-        free_energies.push(trainer.step(&data)?.total);
-        pvrnn_core::profile::enable(a.profile);
-        for i in 0..a.train_iterations {
-            let start = Instant::now();
-            free_energies.push(trainer.step(&data)?.total);
-            times.push(start.elapsed().as_secs_f64());
-            say(&format!("  iteration {}: {:.3} s", i + 1, times[i]));
-        }
-    }
-    let mut profile = Vec::new();
-    if a.profile && a.only != Some(Part::Infer) {
-        profile.push(take_profile("train", a.train_iterations));
-    }
-    let train_peak = peak_rss_mb();
-    let model = Arc::new(trainer.into_model());
+    let trained = train_networks(&a, &config, &data, &say)?;
+    let (times, free_energies, mut profile) =
+        (trained.times, trained.free_energies, trained.profile);
+    let (backend_name, train_peak, gpu_buffer_mb) = (
+        trained.backend_name,
+        trained.train_peak,
+        trained.gpu_buffer_mb,
+    );
+    let model = Arc::new(trained.model);
 
     let (mut p16, mut full) = (None, None);
     if a.only != Some(Part::Train) {
@@ -248,8 +327,11 @@ pub fn run(a: Args) -> Result<()> {
         machine: pvrnn_eval::machine::describe(rayon::current_num_threads()),
         sequences: s,
         steps: t,
+        networks: a.networks as usize,
         train_iter_s: mean,
         train_iter_min_s: min,
+        network_iterations_per_s: mean.map(|m| f64::from(a.networks) / m),
+        gpu_buffer_mb,
         train_free_energy: free_energies,
         infer_p16_steps_per_s: p16,
         infer_full_steps_per_s: full,
@@ -271,8 +353,14 @@ fn print_report(report: &Report, config: &ModelConfig) {
     println!("threads                          {}", report.threads);
     println!("machine                          {}", report.machine);
     if let (Some(mean), Some(min)) = (report.train_iter_s, report.train_iter_min_s) {
-        let (s, t) = (report.sequences, report.steps);
+        let (s, t, n) = (report.sequences, report.steps, report.networks);
         println!("training iteration ({s} x {t})     {mean:.3} s (min {min:.3} s)");
+        if n > 1 {
+            println!(
+                "networks together                {n}: {:.1} network-iterations/s",
+                n as f64 / mean
+            );
+        }
         let terms: Vec<String> = report
             .train_free_energy
             .iter()
@@ -295,6 +383,9 @@ fn print_report(report: &Report, config: &ModelConfig) {
         "peak memory                      {:.0} MB",
         report.peak_rss_mb
     );
+    if let Some(mb) = report.gpu_buffer_mb {
+        println!("GPU buffers after training       {mb:.0} MB");
+    }
     for part in &report.profile {
         let unit = if part.part == "train" {
             "iteration"

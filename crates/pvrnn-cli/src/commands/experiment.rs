@@ -34,6 +34,14 @@ pub struct Args {
     /// Jobs run at once (each uses the --threads pool).
     #[arg(long, default_value_t = 1)]
     jobs: usize,
+    /// Train up to this many networks of one condition (the same sequences, other seeds)
+    /// together in one job slot: on a GPU with `--gpu-recurrence` every iteration of all of
+    /// them is queued before the host waits for any, instead of processes competing for
+    /// the device. Each network's result is the one it gets alone. Not with --network
+    /// (a network's jobs are all of other conditions).
+    #[arg(long, default_value_t = 1, conflicts_with = "network",
+          value_parser = clap::value_parser!(u32).range(1..=64))]
+    cohort: u32,
     /// Run only this job of the plan (a cluster array task); its dependencies must be done.
     #[arg(long, conflicts_with_all = ["report", "emit"])]
     job: Option<usize>,
@@ -168,8 +176,12 @@ fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
             format!(" shared by {} jobs at once", a.jobs)
         } else {
             String::new()
-        }
-    );
+        },
+    ) + &if a.cohort > 1 {
+        format!(", trained in cohorts of up to {}", a.cohort)
+    } else {
+        String::new()
+    };
     let stop = Arc::new(AtomicBool::new(false));
     {
         let flag = stop.clone();
@@ -237,11 +249,15 @@ fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
             }
         }
     };
-    let result = pvrnn_experiment::run::run(
+    let workers = pvrnn_experiment::run::Workers {
+        jobs: a.jobs,
+        cohort: a.cohort as usize,
+    };
+    let result = pvrnn_experiment::run::run_with(
         &a.out,
         &backend,
         &computed_by,
-        a.jobs,
+        workers,
         selection,
         &stop,
         &events,

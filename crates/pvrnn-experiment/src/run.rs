@@ -286,6 +286,36 @@ impl Selection {
     }
 }
 
+/// The next ready job of `selection` (its dependencies done; `state` holds which jobs are
+/// done and which taken), with up to `cohort - 1` more ready trainings of its sequences;
+/// marks them taken.
+fn take_next(
+    plan: &Plan,
+    state: &Mutex<(Vec<bool>, Vec<bool>)>,
+    selection: Selection,
+    cohort: usize,
+) -> Option<Vec<usize>> {
+    let mut s = state.lock().ok()?;
+    let (done, taken) = &mut *s;
+    let ready = |i: usize| {
+        selection.includes(plan, i)
+            && !done[i]
+            && !taken[i]
+            && plan.jobs[i].after.iter().all(|&a| done[a])
+    };
+    let id = (0..plan.jobs.len()).find(|&i| ready(i))?;
+    let mut ids = vec![id];
+    ids.extend(
+        (id + 1..plan.jobs.len())
+            .filter(|&i| ready(i) && same_training(plan, id, i))
+            .take(cohort.max(1) - 1),
+    );
+    for &i in &ids {
+        taken[i] = true;
+    }
+    Some(ids)
+}
+
 /// Whether `selection` names a network or a job of `plan`, and a job's dependencies are
 /// done.
 fn check_selection(plan: &Plan, dir: &Path, selection: Selection) -> Result<()> {
@@ -378,28 +408,7 @@ pub fn run_with(
         vec![false; plan.jobs.len()],
     ));
     let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-    // The next ready job, with up to `cohort - 1` more ready trainings of its sequences.
-    let next = || -> Option<Vec<usize>> {
-        let mut s = state.lock().ok()?;
-        let (done, taken) = &mut *s;
-        let ready = |i: usize| {
-            selection.includes(&plan, i)
-                && !done[i]
-                && !taken[i]
-                && plan.jobs[i].after.iter().all(|&a| done[a])
-        };
-        let id = (0..plan.jobs.len()).find(|&i| ready(i))?;
-        let mut ids = vec![id];
-        ids.extend(
-            (id + 1..plan.jobs.len())
-                .filter(|&i| ready(i) && same_training(&plan, id, i))
-                .take(workers.cohort.max(1) - 1),
-        );
-        for &i in &ids {
-            taken[i] = true;
-        }
-        Some(ids)
-    };
+    let next = || take_next(&plan, &state, selection, workers.cohort);
     std::thread::scope(|scope| {
         for _ in 0..parallel.max(1) {
             scope.spawn(|| {

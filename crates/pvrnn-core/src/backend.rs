@@ -141,6 +141,16 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
         let _ = (model, optimizer);
         None
     }
+
+    /// Learners for several runs trained together (a cohort, [`crate::train::step_together`]):
+    /// a device may lay them out side by side so that one dispatch computes all of them.
+    /// The default makes each alone ([`Self::learner`]).
+    #[allow(clippy::type_complexity)]
+    fn learners(&self, runs: &[(&Model<T>, &RAdam<T>)]) -> Vec<Option<Box<dyn Learner<T>>>> {
+        runs.iter()
+            .map(|(model, optimizer)| self.learner(model, optimizer))
+            .collect()
+    }
 }
 
 /// A shared backend is a backend (one GPU serving several trainings and inference runs).
@@ -151,6 +161,10 @@ impl<T: Real> Backend<T> for std::sync::Arc<dyn Backend<T>> {
 
     fn learner(&self, model: &Model<T>, optimizer: &RAdam<T>) -> Option<Box<dyn Learner<T>>> {
         (**self).learner(model, optimizer)
+    }
+
+    fn learners(&self, runs: &[(&Model<T>, &RAdam<T>)]) -> Vec<Option<Box<dyn Learner<T>>>> {
+        (**self).learners(runs)
     }
 }
 

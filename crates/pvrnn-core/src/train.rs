@@ -360,6 +360,7 @@ pub fn step_together<T: Real>(
         )));
     }
     Ok(crate::parallel::in_pool(|| {
+        make_learners_together(members);
         let mut eps: Vec<Result<Option<WindowEps<T>>>> = members
             .iter_mut()
             .zip(data)
@@ -392,6 +393,28 @@ pub fn step_together<T: Real>(
             })
             .collect()
     }))
+}
+
+/// The learners of the runs that have none yet, made together by the first such run's
+/// backend ([`Backend::learners`]: a device may lay a cohort out side by side). The runs of
+/// a cohort compute on one backend.
+fn make_learners_together<T: Real>(members: &mut [&mut Trainer<T>]) {
+    let missing: Vec<usize> = (0..members.len())
+        .filter(|&i| members[i].learner.is_none())
+        .collect();
+    let Some(&first) = missing.first() else {
+        return;
+    };
+    let learners = {
+        let runs: Vec<(&Model<T>, &RAdam<T>)> = missing
+            .iter()
+            .map(|&i| (&members[i].model, &members[i].optimizer))
+            .collect();
+        members[first].backend.learners(&runs)
+    };
+    for (i, learner) in missing.into_iter().zip(learners) {
+        members[i].learner = learner;
+    }
 }
 
 /// The trainable tensors' values, in [`trainable_names`]' order.

@@ -7,8 +7,17 @@
 //! gradients) and reads back only what the free energy needs: the read-outs' row losses
 //! and the KL terms per step and unit (summed on the host in f64, as the CPU backend sums
 //! them). Values move between the kernels' layouts with `shaders/strided_copy.wgsl`.
+//!
+//! Several learning runs of one shape (a cohort: an experiment condition's networks, other
+//! seeds) share a [`Stack`]: their recurrent weights, one network after another in the same
+//! buffers, and the recurrence's buffers likewise, so that one forward and one backward
+//! dispatch run every window of every network (a workgroup each: the recurrence is a
+//! chain of dependent steps, and one network's 18 windows leave most of a GPU idle). Each
+//! run prepares its part of an iteration (its inputs, read-outs and gradients' copies) when
+//! it begins; the first to wait for its result submits every prepared run's at once.
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 use pvrnn_core::data::{Ablation, Observations, Observed};
 use pvrnn_core::free_energy::FreeEnergy;
@@ -22,33 +31,261 @@ use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use crate::recurrence::RecurrenceLayout;
-use crate::resident::{Part, ResidentLayer, ResidentTensor, resident_buffer};
+use crate::recurrence::{RecurrenceLayout, WindowEntry};
+use crate::resident::{Part, ResidentLayer, ResidentTensor, TensorIndex, resident_buffer};
 
-/// The recurrence and the adaptive variables of a learning run, resident (see the module
-/// docs), and the read-outs it feeds.
+/// What the learning runs of a cohort share on the device (see the module docs): `slots`
+/// runs of `sequences` x `steps`, each run's part of every buffer at its slot.
 #[derive(Debug)]
-pub(crate) struct DeviceIteration {
-    config: ModelConfig,
+pub(crate) struct Stack {
+    gpu: Arc<Gpu>,
     layout: RecurrenceLayout,
     kernels: Arc<RecurrenceKernels>,
-    /// The packed recurrent weights (the recurrence's layout), and the same with every
-    /// matrix transposed for the forward kernel, refreshed after each update.
+    slots: usize,
+    sequences: usize,
+    steps: usize,
+    /// The packed recurrent weights (the recurrence's layout), the same with every matrix
+    /// transposed for the forward kernel (refreshed after each update), their gradients
+    /// and RAdam moments.
     weights: wgpu::Buffer,
     weights_t: wgpu::Buffer,
-    /// The recurrent weights' gradients, packed the same way.
     grads: wgpu::Buffer,
+    moments: [wgpu::Buffer; 2],
+    /// The recurrence's inputs, the read-outs' d F / d d in its layout, its forward record
+    /// and its backward record, every sequence at full length.
+    inputs: wgpu::Buffer,
+    grad_d: wgpu::Buffer,
+    record: wgpu::Buffer,
+    back: wgpu::Buffer,
+    queue: Mutex<Queue>,
+}
+
+/// Iterations prepared and not yet submitted, and results not yet taken.
+#[derive(Debug, Default)]
+struct Queue {
+    next_ticket: u64,
+    prepared: Vec<Prepared>,
+    results: HashMap<u64, Vec<Vec<f32>>>,
+}
+
+/// One run's part of an iteration, encoded (see [`DeviceIteration::free_energy_later`]).
+#[derive(Debug)]
+struct Prepared {
+    ticket: u64,
+    slot: usize,
+    /// Clears of what starts from zero (and the read-outs' own), before everything else;
+    /// taken when submitted.
+    clears: Option<wgpu::CommandBuffer>,
+    /// Before the recurrence forward: the inputs; between forward and backward: the
+    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms.
+    inputs: DispatchList,
+    readouts: DispatchList,
+    after: DispatchList,
+    entries: Vec<WindowEntry>,
+    /// What to read back (KL terms, each read-out's row losses) with its length.
+    sources: Vec<(wgpu::Buffer, usize)>,
+    /// Buffers the submission uses, kept from the pool until it has run.
+    _keep: Vec<PooledBuffer>,
+    _readouts: Vec<EncodedReadout>,
+}
+
+impl Stack {
+    /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
+    /// hold them.
+    pub(crate) fn new(gpu: &Arc<Gpu>, model: &Model<f32>, slots: usize) -> Option<Arc<Self>> {
+        let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
+        let (layout, packed) = RecurrenceLayout::new(&model.params, &model.config);
+        let windows = slots * sequences;
+        if slots == 0 || sequences == 0 || steps == 0 || !layout.fits(gpu, windows, windows * steps)
+        {
+            return None;
+        }
+        let s = layout.strides();
+        let rows = slots * sequences * steps;
+        let zeros = |floats: usize, label: &str| resident_buffer(gpu, label, &vec![0f32; floats]);
+        let p = packed.len();
+        Some(Arc::new(Self {
+            gpu: gpu.clone(),
+            kernels: gpu.recurrence_kernels(),
+            slots,
+            sequences,
+            steps,
+            weights: zeros(slots * p, "resident recurrent weights"),
+            weights_t: zeros(slots * p, "resident recurrent weights, transposed"),
+            grads: zeros(slots * p, "resident recurrent gradients"),
+            moments: [
+                zeros(slots * p, "resident recurrent m"),
+                zeros(slots * p, "resident recurrent v"),
+            ],
+            inputs: zeros(
+                slots * sequences * (s.init + steps * s.input),
+                "resident recurrence inputs",
+            ),
+            grad_d: zeros(rows * s.grad_d, "resident read-out gradients"),
+            record: zeros(rows * s.record, "recurrence record"),
+            back: zeros(rows * s.back, "recurrence backward"),
+            layout,
+            queue: Mutex::default(),
+        }))
+    }
+
+    /// Whether `model` has the shapes of the stack's runs.
+    pub(crate) fn holds(&self, model: &Model<f32>) -> bool {
+        let (layout, _) = RecurrenceLayout::new(&model.params, &model.config);
+        model.adaptive.sequences() == self.sequences
+            && model.adaptive.steps() == self.steps
+            && layout.same_shape(&self.layout)
+    }
+
+    fn weight_floats(&self) -> usize {
+        self.layout.weight_floats()
+    }
+
+    /// Where slot `slot`'s part of the inputs, the record, the read-out gradients and the
+    /// backward record start, and its weights: added to a run's own window entries.
+    fn entry_base(&self, slot: usize) -> WindowEntry {
+        let s = self.layout.strides();
+        let rows = slot * self.sequences * self.steps;
+        [
+            0,
+            slot * self.sequences * (s.init + self.steps * s.input),
+            rows * s.record,
+            0,
+            rows * s.grad_d,
+            rows * s.back,
+            slot * self.weight_floats(),
+        ]
+    }
+
+    /// The first row of slot `slot` in the record and the read-out gradients.
+    fn first_row(&self, slot: usize) -> usize {
+        slot * self.sequences * self.steps
+    }
+
+    /// Queues a run's prepared iteration; its ticket claims the result.
+    fn enqueue(&self, mut prepared: Prepared) -> u64 {
+        let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        prepared.ticket = queue.next_ticket;
+        queue.next_ticket += 1;
+        let ticket = prepared.ticket;
+        queue.prepared.push(prepared);
+        ticket
+    }
+
+    /// The read-back of `ticket`'s iteration: submitted with every other prepared one if it
+    /// has not been yet, waited for.
+    fn results_of(&self, ticket: u64) -> Vec<Vec<f32>> {
+        let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(results) = queue.results.remove(&ticket) {
+            return results;
+        }
+        let prepared = std::mem::take(&mut queue.prepared);
+        let tickets: Vec<(u64, Vec<usize>)> = prepared
+            .iter()
+            .map(|p| (p.ticket, p.sources.iter().map(|&(_, n)| n).collect()))
+            .collect();
+        let all = self.submit(prepared);
+        let mut all = all.into_iter();
+        for (t, sizes) in tickets {
+            let results: Vec<Vec<f32>> = sizes.iter().filter_map(|_| all.next()).collect();
+            queue.results.insert(t, results);
+        }
+        queue.results.remove(&ticket).unwrap_or_default()
+    }
+
+    /// Every prepared run's iteration in one submission: their inputs, one forward dispatch
+    /// over all their windows, their read-outs, one backward dispatch, each run's weight
+    /// gradients and copies; then one read-back of every run's free-energy terms.
+    fn submit(&self, mut prepared: Vec<Prepared>) -> Vec<Vec<f32>> {
+        let gpu = &*self.gpu;
+        let clears: Vec<wgpu::CommandBuffer> = prepared
+            .iter_mut()
+            .filter_map(|p| p.clears.take())
+            .collect();
+        let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        let entries: Vec<WindowEntry> = prepared.iter().flat_map(|p| p.entries.clone()).collect();
+        let windows = entries.len();
+        let layout = &self.layout;
+        let table = layout.upload_table(gpu, &Ablation::none(), &entries);
+        let mut keep = Vec::new();
+        let mut forward = DispatchList::default();
+        layout.encode_forward(
+            gpu,
+            &self.kernels,
+            &mut forward,
+            &table,
+            &self.weights_t,
+            &self.inputs,
+            &self.record,
+            windows,
+        );
+        let mut backward = DispatchList::default();
+        keep.push(layout.encode_backward(
+            gpu,
+            &self.kernels,
+            &mut backward,
+            &table,
+            &self.weights,
+            &self.record,
+            &self.grad_d,
+            &self.back,
+            windows,
+        ));
+        let mut first = 0;
+        for p in &prepared {
+            let count = p.entries.len();
+            keep.push(layout.encode_weight_grads(
+                gpu,
+                &self.kernels,
+                &mut backward,
+                &table,
+                &self.inputs,
+                &self.record,
+                &self.back,
+                &self.grads,
+                first..first + count,
+                p.slot * self.weight_floats(),
+            ));
+            first += count;
+        }
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        {
+            // Dispatches in one compute pass (a pass per dispatch costs the host more than
+            // the small kernels).
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            prepared.iter().for_each(|p| p.inputs.replay(&mut pass));
+            forward.replay(&mut pass);
+            prepared.iter().for_each(|p| p.readouts.replay(&mut pass));
+            backward.replay(&mut pass);
+            prepared.iter().for_each(|p| p.after.replay(&mut pass));
+        }
+        let sources: Vec<(&wgpu::Buffer, usize)> = prepared
+            .iter()
+            .flat_map(|p| p.sources.iter().map(|(b, n)| (b, *n)))
+            .collect();
+        // The clears first, then the iteration (queue order), then one wait.
+        gpu.queue.submit(clears);
+        let pending = read_back(gpu, encoder, &sources);
+        drop(encode_phase);
+        drop((keep, table));
+        let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
+        let results = pvrnn_core::deferred::now(pending);
+        drop(prepared);
+        results
+    }
+}
+
+/// One learning run's recurrence and adaptive variables, resident in its [`Stack`] slot
+/// and its own buffers (see the module docs), and the read-outs it feeds.
+#[derive(Debug)]
+pub(crate) struct DeviceIteration {
+    stack: Arc<Stack>,
+    slot: usize,
+    config: ModelConfig,
     /// Per module, a_mu and a_sigma of every sequence, `[sequences, steps, z]`, and their
     /// gradients.
     adaptive: [[wgpu::Buffer; 2]; 4],
     adaptive_grads: [[wgpu::Buffer; 2]; 4],
-    sequences: usize,
-    steps: usize,
-    /// The recurrence's inputs and the read-outs' d F / d d in its layout, sized for every
-    /// sequence at full length (cleared every iteration: initial states are zero, modules
-    /// without a read-out get no gradient from one).
-    inputs: wgpu::Buffer,
-    grad_d: wgpu::Buffer,
     readouts: GpuOutputLayer,
 }
 
@@ -57,8 +294,8 @@ struct Batch<'l> {
     lengths: &'l [usize],
     /// Steps of every sequence together.
     total: usize,
-    /// Each window's table entry (`RecurrenceLayout::entries`).
-    entries: Vec<[usize; 6]>,
+    /// Each window's table entry (`RecurrenceLayout::entries`), at the run's slot.
+    entries: Vec<WindowEntry>,
     /// Steps before each window.
     before: Vec<usize>,
     /// (first window, count): windows of one length are copied in one dispatch each way,
@@ -67,7 +304,7 @@ struct Batch<'l> {
 }
 
 impl<'l> Batch<'l> {
-    fn of(layout: &RecurrenceLayout, lengths: &'l [usize]) -> Self {
+    fn of(layout: &RecurrenceLayout, lengths: &'l [usize], base: WindowEntry) -> Self {
         let mut before = Vec::with_capacity(lengths.len());
         let mut total = 0;
         for &len in lengths {
@@ -79,10 +316,15 @@ impl<'l> Batch<'l> {
         } else {
             (0..lengths.len()).map(|w| (w, 1)).collect()
         };
+        let entries = layout
+            .entries(lengths.iter().map(|&len| (len, false)))
+            .into_iter()
+            .map(|entry| std::array::from_fn(|k| entry[k] + base[k]))
+            .collect();
         Self {
             lengths,
             total,
-            entries: layout.entries(lengths.iter().map(|&len| (len, false))),
+            entries,
             before,
             groups,
         }
@@ -95,39 +337,33 @@ impl<'l> Batch<'l> {
 
 impl DeviceIteration {
     /// Uploads the recurrent weights and the adaptive variables of `model` with their
-    /// moments from `optimizer`, adding them to `tensors`; `None` where the kernels do not
-    /// hold the shapes or a read-out is not resident (`layers`).
+    /// moments from `optimizer` (the weights into `stack`'s slot `slot`; a stack of one when
+    /// `None`), adding them to `tensors`; `None` where the kernels do not hold the shapes
+    /// or a read-out is not resident (`layers`).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         gpu: &Arc<Gpu>,
         tiling: Tiling,
         model: &Model<f32>,
         optimizer: &RAdam<f32>,
         layers: &[Option<Arc<ResidentLayer>>; 2],
-        index_of: &dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usize>,
+        index_of: &TensorIndex<'_>,
         tensors: &mut Vec<ResidentTensor>,
+        in_stack: Option<(Arc<Stack>, usize)>,
     ) -> Option<Self> {
-        let config = &model.config;
-        let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
-        let (layout, packed) = RecurrenceLayout::new(&model.params, config);
-        if layers.iter().any(Option::is_none)
-            || sequences == 0
-            || steps == 0
-            || !layout.fits(gpu, sequences, sequences * steps)
-        {
+        if layers.iter().any(Option::is_none) {
             return None;
         }
-        let weights = resident_buffer(gpu, "resident recurrent weights", &packed);
-        let weights_t = resident_buffer(
-            gpu,
-            "resident recurrent weights, transposed",
-            &layout.transposed(&packed),
-        );
-        let grads = resident_buffer(
-            gpu,
-            "resident recurrent gradients",
-            &vec![0f32; packed.len()],
-        );
-        // The moments share the packed layout; each tensor is a range of the three buffers.
+        let (stack, slot) = match in_stack {
+            Some((stack, slot)) => (stack, slot),
+            None => (Stack::new(gpu, model, 1)?, 0),
+        };
+        if slot >= stack.slots || !stack.holds(model) {
+            return None;
+        }
+        let (layout, packed) = RecurrenceLayout::new(&model.params, &model.config);
+        let base = slot * packed.len();
+        // The moments share the packed layout; each tensor is a range of the buffers.
         let mut moments = [vec![0f32; packed.len()], vec![0f32; packed.len()]];
         let mut ranges = Vec::new();
         for (m, p) in model.params.modules.iter().enumerate() {
@@ -139,202 +375,108 @@ impl DeviceIteration {
                 ranges.push((index, offset, len));
             }
         }
-        let [m_packed, v_packed] =
-            moments.map(|values| resident_buffer(gpu, "resident recurrent moments", &values));
+        let write = |buffer: &wgpu::Buffer, values: &[f32]| {
+            gpu.queue
+                .write_buffer(buffer, (4 * base) as u64, bytemuck::cast_slice(values));
+        };
+        write(&stack.weights, &packed);
+        write(&stack.weights_t, &layout.transposed(&packed));
+        write(&stack.moments[0], &moments[0]);
+        write(&stack.moments[1], &moments[1]);
         for (index, offset, len) in ranges {
             tensors.push(ResidentTensor {
                 index,
-                value: weights.clone(),
-                moments: [m_packed.clone(), v_packed.clone()],
-                grad: grads.clone(),
+                value: stack.weights.clone(),
+                moments: stack.moments.clone(),
+                grad: stack.grads.clone(),
                 len,
-                offset,
+                offset: base + offset,
                 part: Part::Whole,
             });
         }
-        // The adaptive variables follow the parameters in the trainer's order.
-        let first_adaptive = model
-            .params
-            .named()
-            .iter()
-            .filter(|(_, _, role)| *role == pvrnn_core::params::Role::Trainable)
-            .count();
-        let mut adaptive_tensor = |m: usize, k: usize| {
-            let tensor = if k == 0 {
-                &model.adaptive.a_mu[m]
-            } else {
-                &model.adaptive.a_sigma[m]
-            };
-            let index = first_adaptive + 2 * m + k;
-            let value = resident_buffer(gpu, "resident adaptive variables", tensor.data());
-            let grad = resident_buffer(
-                gpu,
-                "resident adaptive gradients",
-                &vec![0f32; tensor.len()],
-            );
-            tensors.push(ResidentTensor {
-                index,
-                value: value.clone(),
-                moments: [
-                    resident_buffer(gpu, "resident m", &optimizer.m[index]),
-                    resident_buffer(gpu, "resident v", &optimizer.v[index]),
-                ],
-                grad: grad.clone(),
-                len: tensor.len(),
-                offset: 0,
-                part: Part::Whole,
-            });
-            (value, grad)
-        };
-        let pairs: [[(wgpu::Buffer, wgpu::Buffer); 2]; 4] =
-            std::array::from_fn(|m| std::array::from_fn(|k| adaptive_tensor(m, k)));
-        let adaptive = pairs.clone().map(|pair| pair.map(|(value, _)| value));
-        let adaptive_grads = pairs.map(|pair| pair.map(|(_, grad)| grad));
-        let s = layout.strides();
-        let inputs = resident_buffer(
-            gpu,
-            "resident recurrence inputs",
-            &vec![0f32; sequences * (s.init + steps * s.input)],
-        );
-        let grad_d = resident_buffer(
-            gpu,
-            "resident read-out gradients",
-            &vec![0f32; sequences * steps * s.grad_d],
-        );
+        let (adaptive, adaptive_grads) = upload_adaptive(gpu, model, optimizer, tensors);
         Some(Self {
-            config: config.clone(),
-            kernels: gpu.recurrence_kernels(),
-            weights,
-            weights_t,
-            grads,
+            stack,
+            slot,
+            config: model.config.clone(),
             adaptive,
             adaptive_grads,
-            sequences,
-            steps,
-            inputs,
-            grad_d,
             readouts: GpuOutputLayer::with_resident(gpu.clone(), tiling, &model.params, layers),
-            layout,
         })
+    }
+
+    fn layout(&self) -> &RecurrenceLayout {
+        &self.stack.layout
     }
 
     /// The free energy of the device's model on `data` with every gradient left in the
     /// resident buffers (see the module docs). `eps` per sequence and module, `[len, z]`.
     pub(crate) fn free_energy(
         &self,
-        gpu: &Gpu,
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<FreeEnergy> {
         Ok(pvrnn_core::deferred::now(
-            self.free_energy_later(gpu, data, eps)?,
+            self.free_energy_later(data, eps)?,
         ))
     }
 
-    /// [`Self::free_energy`] submitted now and waited for when the future is first polled,
-    /// so that a cohort's networks are all queued before the host waits for any.
-    pub(crate) fn free_energy_later<'a>(
-        &'a self,
-        gpu: &Gpu,
+    /// [`Self::free_energy`] prepared now and submitted (with every other run of the stack
+    /// prepared by then) when the future is first polled.
+    pub(crate) fn free_energy_later(
+        &self,
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
-    ) -> Result<impl std::future::Future<Output = FreeEnergy> + 'a> {
+    ) -> Result<impl std::future::Future<Output = FreeEnergy> + '_> {
         self.check_fits(data, eps)?;
-        let batch = Batch::of(&self.layout, data.lengths());
-        let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        let stack = &*self.stack;
+        let gpu = &*stack.gpu;
+        let batch = Batch::of(self.layout(), data.lengths(), stack.entry_base(self.slot));
+        let _phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
         let (eps_flat, per_module_at) = self.flatten_eps(&batch, eps)?;
-        let layout = &self.layout;
-        let table = layout.upload_table(gpu, &Ablation::none(), &batch.entries);
         let eps_buffer = gpu.upload("eps", &eps_flat);
-        let s = layout.strides();
-        let record = gpu.scratch(
-            "recurrence record",
-            batch.total * s.record,
-            wgpu::BufferUsages::empty(),
-        );
-        let back = gpu.scratch(
-            "recurrence backward",
-            batch.total * s.back,
-            wgpu::BufferUsages::empty(),
-        );
         let mut keep: Vec<PooledBuffer> = Vec::new();
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        // Buffers that start from zero are cleared first; the dispatches are recorded and
-        // then run in one compute pass (a pass per dispatch costs the host more than the
-        // small kernels).
-        let mut work = DispatchList::default();
-        self.clear(&mut encoder);
+        let mut clears = gpu.device.create_command_encoder(&Default::default());
+        self.clear(&mut clears);
+        let mut inputs = DispatchList::default();
         self.encode_inputs(
             gpu,
-            &mut work,
+            &mut inputs,
             &batch,
             &eps_buffer,
             &per_module_at,
             &mut keep,
         );
-        layout.encode_forward(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.weights_t,
-            &self.inputs,
-            &record,
-            batch.windows(),
+        let mut readout_work = DispatchList::default();
+        let readouts =
+            self.encode_readouts(gpu, &mut clears, &mut readout_work, &batch, data, &mut keep)?;
+        let mut after = DispatchList::default();
+        self.encode_adaptive_grads(gpu, &mut after, &batch, &mut keep);
+        let kl = self.encode_kl_terms(gpu, &mut after, &batch, &per_module_at, &mut keep);
+        let mut sources = vec![((*kl).clone(), eps_flat.len())];
+        sources.extend(
+            readouts
+                .iter()
+                .map(|(r, _)| ((*r.row_loss).clone(), batch.total)),
         );
-        let readouts = self.encode_readouts(
-            gpu,
-            &mut encoder,
-            &mut work,
-            &batch,
-            data,
-            &record,
-            &mut keep,
-        )?;
-        // Back through the recurrence: the weights' gradients, and d F / d a out to the
-        // adaptive variables' layout.
-        keep.push(layout.encode_backward(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.weights,
-            &record,
-            &self.grad_d,
-            &back,
-            batch.windows(),
-        ));
-        keep.push(layout.encode_weight_grads(
-            gpu,
-            &self.kernels,
-            &mut work,
-            &table,
-            &self.inputs,
-            &record,
-            &back,
-            &self.grads,
-            batch.windows(),
-        ));
-        self.encode_adaptive_grads(gpu, &mut work, &batch, &back, &mut keep);
-        let kl = self.encode_kl_terms(gpu, &mut work, &batch, &record, &per_module_at, &mut keep);
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            work.replay(&mut pass);
-        }
-        let mut sources = vec![(&*kl, eps_flat.len())];
-        sources.extend(readouts.iter().map(|(r, _)| (&*r.row_loss, batch.total)));
-        let pending = read_back(gpu, encoder, &sources);
-        drop(encode_phase);
-        drop((keep, table, eps_buffer, record, back));
         let divisors = [readouts[0].1, readouts[1].1];
-        drop(readouts);
+        keep.push(kl);
+        keep.push(eps_buffer);
+        let ticket = stack.enqueue(Prepared {
+            ticket: 0,
+            slot: self.slot,
+            clears: Some(clears.finish()),
+            inputs,
+            readouts: readout_work,
+            after,
+            entries: batch.entries,
+            sources,
+            _keep: keep,
+            _readouts: readouts.into_iter().map(|(r, _)| r).collect(),
+        });
         let total = batch.total;
         Ok(async move {
-            let results = {
-                let _phase =
-                    pvrnn_core::profile::phase("evaluate on the device: run and read back");
-                pending.await
-            };
+            let results = self.stack.results_of(ticket);
             self.free_energy_of(total, &per_module_at, divisors, results)
         })
     }
@@ -342,11 +484,10 @@ impl DeviceIteration {
     /// Whether `data` and `eps` fit the sequences this learner holds.
     fn check_fits(&self, data: &Observations<f32>, eps: &[[Vec<f32>; 4]]) -> Result<()> {
         let lengths = data.lengths();
-        if data.sequences() != self.sequences || data.steps() > self.steps {
+        let (sequences, steps) = (self.stack.sequences, self.stack.steps);
+        if data.sequences() != sequences || data.steps() > steps {
             return Err(Error::Mismatch(format!(
-                "the learner holds adaptive variables for {} sequences of {} steps, but the data has {} sequences of {} steps",
-                self.sequences,
-                self.steps,
+                "the learner holds adaptive variables for {sequences} sequences of {steps} steps, but the data has {} sequences of {} steps",
                 data.sequences(),
                 data.steps()
             )));
@@ -366,7 +507,7 @@ impl DeviceIteration {
         batch: &Batch<'_>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<(Vec<f32>, [usize; 4])> {
-        let modules = self.layout.modules();
+        let modules = self.layout().modules();
         let mut per_module_at = [0usize; 4];
         let mut flat = Vec::with_capacity(batch.total * modules.iter().map(|m| m.z).sum::<usize>());
         for (m, ml) in modules.iter().enumerate() {
@@ -384,12 +525,25 @@ impl DeviceIteration {
         Ok((flat, per_module_at))
     }
 
-    /// Clears what starts from zero: the inputs (initial states are zero), the read-outs'
-    /// d F / d d (modules without a read-out get none), the adaptive gradients (steps past
-    /// a sequence's length get none).
+    /// Clears what starts from zero: the run's inputs (initial states are zero), its
+    /// read-outs' d F / d d (modules without a read-out get none), its adaptive gradients
+    /// (steps past a sequence's length get none).
     fn clear(&self, encoder: &mut wgpu::CommandEncoder) {
-        encoder.clear_buffer(&self.inputs, 0, None);
-        encoder.clear_buffer(&self.grad_d, 0, None);
+        let stack = &*self.stack;
+        let s = self.layout().strides();
+        let base = stack.entry_base(self.slot);
+        let rows = stack.sequences * stack.steps;
+        let inputs = stack.sequences * (s.init + stack.steps * s.input);
+        encoder.clear_buffer(
+            &stack.inputs,
+            (4 * base[1]) as u64,
+            Some((4 * inputs) as u64),
+        );
+        encoder.clear_buffer(
+            &stack.grad_d,
+            (4 * base[4]) as u64,
+            Some((4 * rows * s.grad_d) as u64),
+        );
         for pair in &self.adaptive_grads {
             for grads in pair {
                 encoder.clear_buffer(grads, 0, None);
@@ -408,10 +562,11 @@ impl DeviceIteration {
         per_module_at: &[usize; 4],
         keep: &mut Vec<PooledBuffer>,
     ) {
-        let s = self.layout.strides();
+        let s = self.layout().strides();
+        let steps = self.stack.steps;
         for &(first, count) in &batch.groups {
             let len = batch.lengths[first];
-            for (m, ml) in self.layout.modules().iter().enumerate() {
+            for (m, ml) in self.layout().modules().iter().enumerate() {
                 let z = ml.z;
                 let slot = |k: usize| Strided {
                     offset: batch.entries[first][1] + s.init + ml.input + k * z,
@@ -419,8 +574,8 @@ impl DeviceIteration {
                     row: s.input,
                 };
                 let adaptive_at = Strided {
-                    offset: first * self.steps * z,
-                    block: self.steps * z,
+                    offset: first * steps * z,
+                    block: steps * z,
                     row: z,
                 };
                 for k in 0..2 {
@@ -429,7 +584,7 @@ impl DeviceIteration {
                         work,
                         &self.adaptive[m][k],
                         adaptive_at,
-                        &self.inputs,
+                        &self.stack.inputs,
                         slot(k),
                         [count, len, z],
                         keep,
@@ -445,7 +600,7 @@ impl DeviceIteration {
                     work,
                     eps_buffer,
                     eps_at,
-                    &self.inputs,
+                    &self.stack.inputs,
                     slot(2),
                     [count, len, z],
                     keep,
@@ -463,7 +618,6 @@ impl DeviceIteration {
         work: &mut DispatchList,
         batch: &Batch<'_>,
         data: &Observations<f32>,
-        record: &wgpu::Buffer,
         keep: &mut Vec<PooledBuffer>,
     ) -> Result<Vec<(EncodedReadout, usize)>> {
         let config = &self.config;
@@ -478,12 +632,13 @@ impl DeviceIteration {
                 gpu,
                 &self.readouts,
                 config,
-                &self.layout,
+                self.layout(),
                 encoder,
                 work,
                 RecordRows {
-                    record,
-                    grad_d: &self.grad_d,
+                    record: &self.stack.record,
+                    grad_d: &self.stack.grad_d,
+                    first: self.stack.first_row(self.slot),
                     rows: batch.total,
                 },
                 modality,
@@ -510,11 +665,11 @@ impl DeviceIteration {
         gpu: &Gpu,
         work: &mut DispatchList,
         batch: &Batch<'_>,
-        back: &wgpu::Buffer,
         keep: &mut Vec<PooledBuffer>,
     ) {
-        let s = self.layout.strides();
-        for (m, ml) in self.layout.modules().iter().enumerate() {
+        let s = self.layout().strides();
+        let steps = self.stack.steps;
+        for (m, ml) in self.layout().modules().iter().enumerate() {
             let z = ml.z;
             for k in 0..2 {
                 for &(first, count) in &batch.groups {
@@ -522,7 +677,7 @@ impl DeviceIteration {
                     encode_copy(
                         gpu,
                         work,
-                        back,
+                        &self.stack.back,
                         Strided {
                             offset: batch.entries[first][5] + ml.back + k * z,
                             block: len * s.back,
@@ -530,8 +685,8 @@ impl DeviceIteration {
                         },
                         &self.adaptive_grads[m][k],
                         Strided {
-                            offset: first * self.steps * z,
-                            block: self.steps * z,
+                            offset: first * steps * z,
+                            block: steps * z,
                             row: z,
                         },
                         [count, len, z],
@@ -549,20 +704,20 @@ impl DeviceIteration {
         gpu: &Gpu,
         work: &mut DispatchList,
         batch: &Batch<'_>,
-        record: &wgpu::Buffer,
         per_module_at: &[usize; 4],
         keep: &mut Vec<PooledBuffer>,
     ) -> PooledBuffer {
-        let modules = self.layout.modules();
+        let modules = self.layout().modules();
         let values = batch.total * modules.iter().map(|m| m.z).sum::<usize>();
         let kl = gpu.scratch("KL terms", values, wgpu::BufferUsages::COPY_SRC);
-        let s = self.layout.strides();
+        let s = self.layout().strides();
+        let first = self.stack.first_row(self.slot) * s.record;
         for (m, ml) in modules.iter().enumerate() {
             encode_copy(
                 gpu,
                 work,
-                record,
-                Strided::rows(ml.record + 2 * ml.d + 8 * ml.z, s.record),
+                &self.stack.record,
+                Strided::rows(first + ml.record + 2 * ml.d + 8 * ml.z, s.record),
                 &kl,
                 Strided::rows(per_module_at[m], ml.z),
                 [1, batch.total, ml.z],
@@ -583,7 +738,7 @@ impl DeviceIteration {
         let mut results = results.into_iter();
         let kl = results.next().unwrap_or_default();
         let mut complexity = [0.0; 4];
-        for (m, ml) in self.layout.modules().iter().enumerate() {
+        for (m, ml) in self.layout().modules().iter().enumerate() {
             let z = ml.z;
             let terms = &kl[per_module_at[m]..per_module_at[m] + total * z];
             // As the CPU backend: per step the units' terms summed in f64, divided by z.
@@ -599,30 +754,39 @@ impl DeviceIteration {
         FreeEnergy::from_terms(accuracy, complexity, self.config.kl_weight)
     }
 
-    /// Encodes the refresh of the forward kernel's copy of the weights after an update of
-    /// the packed ones: every value (the prior biases are read there too), then the
-    /// matrices transposed over theirs.
+    /// Encodes the refresh of the forward kernel's copy of the run's weights after an
+    /// update of the packed ones: every value (the prior biases are read there too), then
+    /// the matrices transposed over theirs.
     pub(crate) fn encode_transposes(
         &self,
         gpu: &Gpu,
         encoder: &mut wgpu::CommandEncoder,
         keep: &mut Vec<PooledBuffer>,
     ) {
-        encoder.copy_buffer_to_buffer(&self.weights, 0, &self.weights_t, 0, self.weights.size());
+        let stack = &*self.stack;
+        let floats = stack.weight_floats();
+        let base = self.slot * floats;
+        encoder.copy_buffer_to_buffer(
+            &stack.weights,
+            (4 * base) as u64,
+            &stack.weights_t,
+            (4 * base) as u64,
+            (4 * floats) as u64,
+        );
         let mut work = DispatchList::default();
-        for (at, rows, cols) in self.layout.matrices() {
+        for (at, rows, cols) in self.layout().matrices() {
             encode_copy(
                 gpu,
                 &mut work,
-                &self.weights,
+                &stack.weights,
                 Strided {
-                    offset: at,
+                    offset: base + at,
                     block: cols,
                     row: 1,
                 },
-                &self.weights_t,
+                &stack.weights_t,
                 Strided {
-                    offset: at,
+                    offset: base + at,
                     block: 1,
                     row: rows,
                 },
@@ -635,11 +799,62 @@ impl DeviceIteration {
     }
 }
 
-/// A recurrence record's rows and the buffer for the read-outs' d F / d d in the
-/// recurrence's layout.
+/// The adaptive variables of `model` uploaded with their moments from `optimizer` (they
+/// follow the parameters in the trainer's order), added to `tensors`: per module, a_mu and
+/// a_sigma, and their gradients.
+#[allow(clippy::type_complexity)]
+fn upload_adaptive(
+    gpu: &Gpu,
+    model: &Model<f32>,
+    optimizer: &RAdam<f32>,
+    tensors: &mut Vec<ResidentTensor>,
+) -> ([[wgpu::Buffer; 2]; 4], [[wgpu::Buffer; 2]; 4]) {
+    let first_adaptive = model
+        .params
+        .named()
+        .iter()
+        .filter(|(_, _, role)| *role == pvrnn_core::params::Role::Trainable)
+        .count();
+    let mut adaptive_tensor = |m: usize, k: usize| {
+        let tensor = if k == 0 {
+            &model.adaptive.a_mu[m]
+        } else {
+            &model.adaptive.a_sigma[m]
+        };
+        let index = first_adaptive + 2 * m + k;
+        let value = resident_buffer(gpu, "resident adaptive variables", tensor.data());
+        let grad = resident_buffer(
+            gpu,
+            "resident adaptive gradients",
+            &vec![0f32; tensor.len()],
+        );
+        tensors.push(ResidentTensor {
+            index,
+            value: value.clone(),
+            moments: [
+                resident_buffer(gpu, "resident m", &optimizer.m[index]),
+                resident_buffer(gpu, "resident v", &optimizer.v[index]),
+            ],
+            grad: grad.clone(),
+            len: tensor.len(),
+            offset: 0,
+            part: Part::Whole,
+        });
+        (value, grad)
+    };
+    let pairs: [[(wgpu::Buffer, wgpu::Buffer); 2]; 4] =
+        std::array::from_fn(|m| std::array::from_fn(|k| adaptive_tensor(m, k)));
+    let adaptive = pairs.clone().map(|pair| pair.map(|(value, _)| value));
+    let grads = pairs.map(|pair| pair.map(|(_, grad)| grad));
+    (adaptive, grads)
+}
+
+/// A recurrence record's rows (`rows` from row `first`) and the buffer for the read-outs'
+/// d F / d d in the recurrence's layout.
 pub(crate) struct RecordRows<'a> {
     pub(crate) record: &'a wgpu::Buffer,
     pub(crate) grad_d: &'a wgpu::Buffer,
+    pub(crate) first: usize,
     pub(crate) rows: usize,
 }
 
@@ -688,7 +903,7 @@ pub(crate) fn encode_readout_of_record(
         gpu,
         work,
         at.record,
-        Strided::rows(ml.record + d, s.record),
+        Strided::rows(at.first * s.record + ml.record + d, s.record),
         &input,
         Strided::rows(0, width),
         [1, at.rows, d],
@@ -711,7 +926,7 @@ pub(crate) fn encode_readout_of_record(
         &readout.grad_d,
         Strided::rows(0, readout.grad_stride),
         at.grad_d,
-        Strided::rows(ml.grad_d, s.grad_d),
+        Strided::rows(at.first * s.grad_d + ml.grad_d, s.grad_d),
         [1, at.rows, d],
         keep,
     );

@@ -23,7 +23,7 @@ use pvrnn_core::params::{Model, Params, Role};
 use crate::WgpuBackend;
 use crate::encode::{DispatchList, Recorder, bind, dispatch, grid, unpad_rows, vec4s};
 use crate::gpu::Gpu;
-use crate::iteration::DeviceIteration;
+use crate::iteration::{DeviceIteration, Stack};
 use crate::readback::read_back;
 use crate::resident::{Part, ResidentLayer, ResidentTensor};
 
@@ -68,6 +68,17 @@ impl GpuLearner {
         model: &Model<f32>,
         optimizer: &RAdam<f32>,
     ) -> Option<Self> {
+        Self::in_stack(backend, model, optimizer, None)
+    }
+
+    /// [`Self::new`] with the recurrence in slot `slot` of a cohort's [`Stack`] (`None`: a
+    /// stack of its own).
+    pub(crate) fn in_stack(
+        backend: &WgpuBackend,
+        model: &Model<f32>,
+        optimizer: &RAdam<f32>,
+        in_stack: Option<(Arc<Stack>, usize)>,
+    ) -> Option<Self> {
         let index_of = trainable_indices(&model.params);
         let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
             ResidentLayer::upload(
@@ -90,6 +101,7 @@ impl GpuLearner {
                     &layers,
                     &index_of,
                     &mut more,
+                    in_stack,
                 )
             })
             .flatten();
@@ -106,6 +118,31 @@ impl GpuLearner {
             more,
             resident,
         })
+    }
+
+    /// Learners for `runs` sharing one [`Stack`] (a cohort); `None` unless they run whole
+    /// iterations on the device (`--gpu-recurrence`, resident learning), are at least two
+    /// and have one shape.
+    pub(crate) fn cohort(
+        backend: &WgpuBackend,
+        runs: &[(&Model<f32>, &RAdam<f32>)],
+    ) -> Option<Vec<Self>> {
+        let (first, _) = runs.first()?;
+        if runs.len() < 2
+            || !backend.recurrence_on_gpu()
+            || !backend.resident_learning()
+            || runs.iter().any(|(model, _)| model.config != first.config)
+        {
+            return None;
+        }
+        let stack = Stack::new(backend.gpu(), first, runs.len())?;
+        runs.iter()
+            .enumerate()
+            .map(|(slot, (model, optimizer))| {
+                Self::in_stack(backend, model, optimizer, Some((stack.clone(), slot)))
+                    .filter(|learner| learner.iteration.is_some())
+            })
+            .collect()
     }
 
     fn gpu(&self) -> &Gpu {
@@ -278,7 +315,7 @@ impl Learner<f32> for GpuLearner {
         eps: &[[Vec<f32>; 4]],
     ) -> Option<pvrnn_core::Result<pvrnn_core::FreeEnergy>> {
         let iteration = self.iteration.as_ref()?;
-        Some(iteration.free_energy(self.gpu(), data, eps))
+        Some(iteration.free_energy(data, eps))
     }
 
     fn begin_free_energy<'a>(
@@ -288,7 +325,7 @@ impl Learner<f32> for GpuLearner {
     ) -> Option<pvrnn_core::deferred::Deferred<'a, pvrnn_core::Result<pvrnn_core::FreeEnergy>>>
     {
         let iteration = self.iteration.as_ref()?;
-        Some(match iteration.free_energy_later(self.gpu(), data, eps) {
+        Some(match iteration.free_energy_later(data, eps) {
             Ok(later) => Box::pin(async move { Ok(later.await) }),
             Err(e) => pvrnn_core::deferred::ready(Err(e)),
         })

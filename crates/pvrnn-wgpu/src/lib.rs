@@ -195,4 +195,19 @@ impl Backend<f32> for WgpuBackend {
         }
         GpuLearner::new(self, model, optimizer).map(|l| Box::new(l) as Box<dyn Learner<f32>>)
     }
+
+    /// With the recurrence on the GPU, runs of one shape share a stack: one forward and one
+    /// backward dispatch compute every window of all of them (`iteration.rs`).
+    fn learners(&self, runs: &[(&Model<f32>, &RAdam<f32>)]) -> Vec<Option<Box<dyn Learner<f32>>>> {
+        match GpuLearner::cohort(self, runs) {
+            Some(learners) => learners
+                .into_iter()
+                .map(|l| Some(Box::new(l) as Box<dyn Learner<f32>>))
+                .collect(),
+            None => runs
+                .iter()
+                .map(|(model, optimizer)| self.learner(model, optimizer))
+                .collect(),
+        }
+    }
 }

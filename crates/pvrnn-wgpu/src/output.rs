@@ -363,6 +363,7 @@ struct EncodedLoss {
 }
 
 /// A learner's whole read-out encoded on the device (see [`GpuOutputLayer::encode_readout`]).
+#[derive(Debug)]
 pub(crate) struct EncodedReadout {
     /// d F / d the module states, `[n, grad_stride]` (the first `d` values of each row).
     pub(crate) grad_d: PooledBuffer,

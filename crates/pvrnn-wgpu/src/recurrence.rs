@@ -92,8 +92,16 @@ struct TableWindow {
     prior: u32,
     grad_d: u32,
     back: u32,
-    pad: [u32; 2],
+    /// Where the window's network's weights start (a cohort's networks in one dispatch).
+    weights: u32,
+    pad: u32,
 }
+
+/// A window's table entry: steps, then where its inputs, record, read-out gradients and
+/// backward record start, whether its posterior is the prior, and where its network's
+/// weights start: `[steps, inputs, record, prior, grad_d, back, weights]`.
+pub(crate) type WindowEntry = [usize; 7];
+
 /// The forward record's z-long rows per module and step.
 const RECORD_ROWS: usize = 9;
 
@@ -140,9 +148,10 @@ struct BackwardParams {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct WeightsParams {
+    first_window: u32,
     windows: u32,
     total: u32,
-    _pad: [u32; 2],
+    base: u32,
 }
 
 /// Where everything lives in the recurrence kernels' buffers: the modules' shapes and
@@ -323,7 +332,7 @@ impl RecurrenceLayout {
     /// The table the kernels read (`Table` in `shaders/recurrence_common.wgsl`): modules,
     /// strides, ablation, then `windows` as (steps, inputs, record, prior posterior,
     /// read-out gradients, backward record) offsets.
-    fn table(&self, ablation: &Ablation, windows: &[[usize; 6]]) -> Vec<u32> {
+    fn table(&self, ablation: &Ablation, windows: &[WindowEntry]) -> Vec<u32> {
         let s = &self.strides;
         let word = |v: usize| v as u32;
         let header = Table {
@@ -369,7 +378,8 @@ impl RecurrenceLayout {
                 prior: word(w[3]),
                 grad_d: word(w[4]),
                 back: word(w[5]),
-                pad: [0; 2],
+                weights: word(w[6]),
+                pad: 0,
             };
             t.extend_from_slice(bytemuck::cast_slice(bytemuck::bytes_of(&entry)));
         }
@@ -398,6 +408,25 @@ impl RecurrenceLayout {
 }
 
 impl RecurrenceLayout {
+    /// The packed weights' length.
+    pub(crate) fn weight_floats(&self) -> usize {
+        self.weight_floats
+    }
+
+    /// Whether `other` lays out the same shapes (so that one dispatch runs both networks'
+    /// windows): the same modules, weights and KL weights.
+    pub(crate) fn same_shape(&self, other: &Self) -> bool {
+        let shape = |l: &Self| {
+            let modules: Vec<[usize; 4]> = l
+                .modules
+                .iter()
+                .map(|m| [m.d, m.z, m.parent.unwrap_or(4), m.w_prior])
+                .collect();
+            (modules, l.weight_floats, l.kl_scale, l.bounded_log_sigma)
+        };
+        shape(self) == shape(other)
+    }
+
     pub(crate) fn modules(&self) -> &[ModuleLayout; 4] {
         &self.modules
     }
@@ -409,7 +438,7 @@ impl RecurrenceLayout {
     /// The table entries of windows of these lengths, in order (see [`Self::table`]): each
     /// window's inputs (its initial states, then its steps) follow the last one's, its
     /// records and gradients continue the last one's steps.
-    pub(crate) fn entries(&self, windows: impl Iterator<Item = (usize, bool)>) -> Vec<[usize; 6]> {
+    pub(crate) fn entries(&self, windows: impl Iterator<Item = (usize, bool)>) -> Vec<WindowEntry> {
         let s = self.strides;
         let (mut before, mut input_at) = (0, 0);
         windows
@@ -421,6 +450,7 @@ impl RecurrenceLayout {
                     prior as usize,
                     before * s.grad_d,
                     before * s.back,
+                    0,
                 ];
                 before += len;
                 input_at += s.init + len * s.input;
@@ -474,7 +504,7 @@ impl RecurrenceLayout {
         &self,
         gpu: &Gpu,
         ablation: &Ablation,
-        entries: &[[usize; 6]],
+        entries: &[WindowEntry],
     ) -> PooledBuffer {
         gpu.upload("recurrence table", &self.table(ablation, entries))
     }
@@ -524,8 +554,8 @@ impl RecurrenceLayout {
         params
     }
 
-    /// Encodes the weight gradients, summed over the table's windows, into `grads` (the
-    /// packed weights' layout). Returns the uniform it used.
+    /// Encodes the weight gradients, summed over the table's `windows` (one network's), into
+    /// `grads` from `base` on (the packed weights' layout). Returns the uniform it used.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_weight_grads(
         &self,
@@ -537,12 +567,14 @@ impl RecurrenceLayout {
         record: &wgpu::Buffer,
         back: &wgpu::Buffer,
         grads: &wgpu::Buffer,
-        windows: usize,
+        windows: std::ops::Range<usize>,
+        base: usize,
     ) -> PooledBuffer {
         let params = gpu.uniform(&WeightsParams {
-            windows: windows as u32,
+            first_window: windows.start as u32,
+            windows: windows.len() as u32,
             total: self.weight_floats as u32,
-            _pad: [0; 2],
+            base: base as u32,
         });
         let group = bind(
             gpu,
@@ -701,7 +733,7 @@ struct GpuPass<'a> {
     record: PooledBuffer,
     traces: Vec<Trace<f32>>,
     /// The windows' table entries (steps, offsets).
-    entries: Vec<[usize; 6]>,
+    entries: Vec<WindowEntry>,
     steps: usize,
 }
 
@@ -768,7 +800,8 @@ impl RecurrencePass<f32> for GpuPass<'_> {
                 &self.record,
                 &back,
                 &grads,
-                windows,
+                0..windows,
+                0,
             )
         });
         let mut sources = vec![(&*back, self.steps * s.back)];

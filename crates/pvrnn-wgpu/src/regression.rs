@@ -362,6 +362,7 @@ fn record_update(
             RecordRows {
                 record: &b.record,
                 grad_d: &b.grad_d,
+                first: 0,
                 rows: len,
             },
             modality,

@@ -46,7 +46,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         let back_t = win.back + t * back_stride;
         for (var mm = 0u; mm < 4u; mm++) {
             let m = 3u - mm;
-            let md = module_at(m);
+            let md = module_in(m, win.weights);
             let dp = m * MAX_UNITS;
             let c = p.kl_scale[m];
             // Phase 1: dF/dh_t and dF/du_t.

@@ -47,7 +47,8 @@ struct Strides {
 }
 
 // A window: its steps, and where its inputs, forward record, read-out gradients and
-// backward record start; `prior` 1 if its posterior is the prior.
+// backward record start; `prior` 1 if its posterior is the prior; `weights` where its
+// network's weights start (several networks' windows run in one dispatch: a cohort).
 struct WindowInfo {
     len: u32,
     inp: u32,
@@ -55,7 +56,7 @@ struct WindowInfo {
     prior: u32,
     grad_d: u32,
     back: u32,
-    pad0: u32,
+    weights: u32,
     pad1: u32,
 }
 
@@ -73,6 +74,20 @@ struct Table {
 
 fn module_at(m: u32) -> Module {
     return table.modules[m];
+}
+
+// Module m with its weight offsets in the network whose weights start at `base`.
+fn module_in(m: u32, base: u32) -> Module {
+    var md = table.modules[m];
+    md.w_prior += base;
+    md.b_prior += base;
+    md.w_dd += base;
+    md.w_dz += base;
+    md.w_dh += base;
+    md.bias += base;
+    md.inv_tau += base;
+    md.decay += base;
+    return md;
 }
 
 // Offsets of the forward record's rows within a module's part of a step.

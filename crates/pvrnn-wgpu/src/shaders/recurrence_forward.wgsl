@@ -45,7 +45,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         let rec_t = win.rec + t * rec_stride;
         let in_t = win.inp + init_stride + t * in_stride;
         for (var m = 0u; m < 4u; m++) {
-            let md = module_at(m);
+            let md = module_in(m, win.weights);
             let dp = m * MAX_UNITS;
             // Phase A: the prior from d_{t-1} (2z outputs) and bias + W_dd d_{t-1} (d outputs).
             for (var o = lid; o < 2u * md.z + md.d; o += WG) {

@@ -12,9 +12,13 @@
 @group(0) @binding(4) var<storage, read_write> grads: array<f32>;
 @group(0) @binding(5) var<uniform> p: WeightsParams;
 
+// The windows first_window .. first_window + windows (one network's), its weights'
+// gradients written from `base` on.
 struct WeightsParams {
+    first_window: u32,
     windows: u32,
     total: u32,
+    base: u32,
 }
 
 // d_{t-1} of module md, unit i, in window win (d_0 from the inputs' initial states).
@@ -42,7 +46,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let rec_stride = table.strides.rec;
     let back_stride = table.strides.back;
     var acc = 0.0;
-    for (var w = 0u; w < p.windows; w++) {
+    for (var w = p.first_window; w < p.first_window + p.windows; w++) {
         let win = window_at(w);
         for (var t = 0u; t < win.len; t++) {
             let back_t = win.back + t * back_stride + md.back;
@@ -69,5 +73,5 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             }
         }
     }
-    grads[g] = acc;
+    grads[p.base + g] = acc;
 }

@@ -144,12 +144,16 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
 
     /// Learners for several runs trained together (a cohort, [`crate::train::step_together`]):
     /// a device may lay them out side by side so that one dispatch computes all of them.
-    /// The default makes each alone ([`Self::learner`]).
-    #[allow(clippy::type_complexity)]
-    fn learners(&self, runs: &[(&Model<T>, &RAdam<T>)]) -> Vec<Option<Box<dyn Learner<T>>>> {
-        runs.iter()
+    /// The default makes each alone ([`Self::learner`]). Fails where the device's memory
+    /// does not hold them all ([`crate::Error::Device`]).
+    fn learners(
+        &self,
+        runs: &[(&Model<T>, &RAdam<T>)],
+    ) -> Result<Vec<Option<Box<dyn Learner<T>>>>> {
+        Ok(runs
+            .iter()
             .map(|(model, optimizer)| self.learner(model, optimizer))
-            .collect()
+            .collect())
     }
 }
 
@@ -163,7 +167,10 @@ impl<T: Real> Backend<T> for std::sync::Arc<dyn Backend<T>> {
         (**self).learner(model, optimizer)
     }
 
-    fn learners(&self, runs: &[(&Model<T>, &RAdam<T>)]) -> Vec<Option<Box<dyn Learner<T>>>> {
+    fn learners(
+        &self,
+        runs: &[(&Model<T>, &RAdam<T>)],
+    ) -> Result<Vec<Option<Box<dyn Learner<T>>>>> {
         (**self).learners(runs)
     }
 }

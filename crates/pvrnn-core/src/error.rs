@@ -57,6 +57,10 @@ pub enum Error {
     /// Learning or inference diverged.
     #[error("{0}")]
     Numerical(String),
+
+    /// The compute device could not do what was asked (its memory ran out).
+    #[error("{0}")]
+    Device(String),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -359,8 +359,8 @@ pub fn step_together<T: Real>(
             data.len()
         )));
     }
-    Ok(crate::parallel::in_pool(|| {
-        make_learners_together(members);
+    crate::parallel::in_pool(|| {
+        make_learners_together(members)?;
         let mut eps: Vec<Result<Option<WindowEps<T>>>> = members
             .iter_mut()
             .zip(data)
@@ -382,7 +382,7 @@ pub fn step_together<T: Real>(
                 .map(|q| q.map(|q| q.and_then(crate::deferred::now)))
                 .collect()
         };
-        members
+        Ok(members
             .iter_mut()
             .zip(data)
             .zip(eps.iter_mut().zip(on_device))
@@ -391,30 +391,31 @@ pub fn step_together<T: Real>(
                 let report = device.transpose()?;
                 m.finish(d, report)
             })
-            .collect()
-    }))
+            .collect())
+    })
 }
 
 /// The learners of the runs that have none yet, made together by the first such run's
 /// backend ([`Backend::learners`]: a device may lay a cohort out side by side). The runs of
 /// a cohort compute on one backend.
-fn make_learners_together<T: Real>(members: &mut [&mut Trainer<T>]) {
+fn make_learners_together<T: Real>(members: &mut [&mut Trainer<T>]) -> Result<()> {
     let missing: Vec<usize> = (0..members.len())
         .filter(|&i| members[i].learner.is_none())
         .collect();
     let Some(&first) = missing.first() else {
-        return;
+        return Ok(());
     };
     let learners = {
         let runs: Vec<(&Model<T>, &RAdam<T>)> = missing
             .iter()
             .map(|&i| (&members[i].model, &members[i].optimizer))
             .collect();
-        members[first].backend.learners(&runs)
+        members[first].backend.learners(&runs)?
     };
     for (i, learner) in missing.into_iter().zip(learners) {
         members[i].learner = learner;
     }
+    Ok(())
 }
 
 /// The trainable tensors' values, in [`trainable_names`]' order.

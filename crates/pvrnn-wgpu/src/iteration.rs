@@ -90,16 +90,22 @@ struct Prepared {
 }
 
 impl Stack {
-    /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
-    /// hold them.
-    pub(crate) fn new(gpu: &Arc<Gpu>, model: &Model<f32>, slots: usize) -> Option<Arc<Self>> {
+    /// Whether the kernels hold `slots` runs of `model`'s shapes in one dispatch.
+    pub(crate) fn fits(gpu: &Gpu, model: &Model<f32>, slots: usize) -> bool {
         let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
-        let (layout, packed) = RecurrenceLayout::new(&model.params, &model.config);
+        let (layout, _) = RecurrenceLayout::new(&model.params, &model.config);
         let windows = slots * sequences;
-        if slots == 0 || sequences == 0 || steps == 0 || !layout.fits(gpu, windows, windows * steps)
-        {
+        slots > 0 && sequences > 0 && steps > 0 && layout.fits(gpu, windows, windows * steps)
+    }
+
+    /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
+    /// hold them ([`Self::fits`]).
+    pub(crate) fn new(gpu: &Arc<Gpu>, model: &Model<f32>, slots: usize) -> Option<Arc<Self>> {
+        if !Self::fits(gpu, model, slots) {
             return None;
         }
+        let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
+        let (layout, packed) = RecurrenceLayout::new(&model.params, &model.config);
         let s = layout.strides();
         let rows = slots * sequences * steps;
         let zeros = |floats: usize, label: &str| resident_buffer(gpu, label, &vec![0f32; floats]);

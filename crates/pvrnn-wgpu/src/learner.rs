@@ -135,14 +135,22 @@ impl GpuLearner {
         {
             return None;
         }
-        let stack = Stack::new(backend.gpu(), first, runs.len())?;
-        runs.iter()
-            .enumerate()
-            .map(|(slot, (model, optimizer))| {
-                Self::in_stack(backend, model, optimizer, Some((stack.clone(), slot)))
-                    .filter(|learner| learner.iteration.is_some())
-            })
-            .collect()
+        // As many runs per stack as one dispatch's buffers hold (the device's binding
+        // limits), the rest in further stacks.
+        let per_stack = (1..=runs.len())
+            .rev()
+            .find(|&slots| Stack::fits(backend.gpu(), first, slots))?;
+        let mut learners = Vec::with_capacity(runs.len());
+        for chunk in runs.chunks(per_stack) {
+            let stack = Stack::new(backend.gpu(), first, chunk.len())?;
+            for (slot, (model, optimizer)) in chunk.iter().enumerate() {
+                let learner =
+                    Self::in_stack(backend, model, optimizer, Some((stack.clone(), slot)))
+                        .filter(|learner| learner.iteration.is_some())?;
+                learners.push(learner);
+            }
+        }
+        Some(learners)
     }
 
     fn gpu(&self) -> &Gpu {

@@ -197,9 +197,21 @@ impl Backend<f32> for WgpuBackend {
     }
 
     /// With the recurrence on the GPU, runs of one shape share a stack: one forward and one
-    /// backward dispatch compute every window of all of them (`iteration.rs`).
-    fn learners(&self, runs: &[(&Model<f32>, &RAdam<f32>)]) -> Vec<Option<Box<dyn Learner<f32>>>> {
-        match GpuLearner::cohort(self, runs) {
+    /// backward dispatch compute every window of all of them (`iteration.rs`). Fails
+    /// naming the cohort's size when the device runs out of memory making their buffers.
+    fn learners(
+        &self,
+        runs: &[(&Model<f32>, &RAdam<f32>)],
+    ) -> pvrnn_core::Result<Vec<Option<Box<dyn Learner<f32>>>>> {
+        if !self.resident_learning() {
+            // No learner here (the browser): nothing to allocate.
+            return Ok(runs.iter().map(|_| None).collect());
+        }
+        let scope = self
+            .gpu
+            .device
+            .push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let learners: Vec<Option<Box<dyn Learner<f32>>>> = match GpuLearner::cohort(self, runs) {
             Some(learners) => learners
                 .into_iter()
                 .map(|l| Some(Box::new(l) as Box<dyn Learner<f32>>))
@@ -208,6 +220,15 @@ impl Backend<f32> for WgpuBackend {
                 .iter()
                 .map(|(model, optimizer)| self.learner(model, optimizer))
                 .collect(),
+        };
+        match pvrnn_core::deferred::now(scope.pop()) {
+            None => Ok(learners),
+            Some(error) => Err(pvrnn_core::Error::Device(format!(
+                "{} ran out of memory making the buffers of {} networks trained together ({error}); \
+                 train fewer at once (`--cohort` / `--networks`; docs/gpu.md gives the memory per network)",
+                self.gpu.describe(),
+                runs.len()
+            ))),
         }
     }
 }

@@ -18,6 +18,13 @@
 #   every-call   the wgpu backend with PVRNN_WGPU_MIN_WORK=0: online inference's small
 #                calls on the GPU too (the path before the threshold); inference only, and
 #                not with --quick
+#   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
+#                condition; NETWORKS overrides): N networks trained together, one
+#                recurrence dispatch for all of them (inference: the first network's)
+#   torch-eager, torch-graph
+#                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
+#                eager and with the whole iteration captured in a CUDA graph; training
+#                only, where python3 imports torch with CUDA
 # `--quick` runs one round of 3 training iterations (a smoke check of the set-up); the
 # default is two rounds of 10 training iterations and 20 inference steps each (not yet
 # run on a GPU: time it with --quick first). BENCH_ARGS adds options to every bench
@@ -78,8 +85,19 @@ for round in $(seq "$rounds"); do
         if [ "$quick" = 0 ]; then
             PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
         fi
+        bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
+            --networks "${NETWORKS:-5}"
         bench cpu "$threads" "$round" --backend cpu
     done
+    if python3 -c 'import torch, sys; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
+        for mode in eager graph; do
+            # shellcheck disable=SC2086 # BENCH_ARGS is a list of options
+            python3 scripts/torch-reference.py time --mode "$mode" --iterations "$iterations" \
+                $(echo " ${BENCH_ARGS:-}" | grep -oE -- '--(sequences|steps) [0-9]+' | tr '\n' ' ') \
+                >>"$out/torch-$mode-round$round.jsonl" 2>>"$out/log.txt" ||
+                echo "FAILED: torch $mode, round $round (see $out/log.txt)" | tee -a "$out/log.txt"
+        done
+    fi
 done
 
 python3 - "$out" <<'EOF' | tee "$out/summary.txt"
@@ -93,9 +111,13 @@ for f in sorted(pathlib.Path(sys.argv[1]).glob("*.jsonl")):
 def mean(xs):
     xs = [x for x in xs if x is not None]
     return f"{statistics.mean(xs):.4f}" if xs else "-"
-print(f"{'variant':36} {'train s/iter':>12} {'p16 steps/s':>12} {'full steps/s':>12}  backend")
+print(f"{'variant':36} {'train s/iter':>12} {'net-iter/s':>10} {'p16 steps/s':>12} "
+      f"{'full steps/s':>12} {'GPU MB':>8}  backend")
 for variant, rs in sorted(rows.items()):
-    print(f"{variant:36} {mean([r.get('train_iter_s') for r in rs]):>12} "
+    rate = [r.get('networks', 1) / r['train_iter_s'] for r in rs if r.get('train_iter_s')]
+    print(f"{variant:36} {mean([r.get('train_iter_s') for r in rs]):>12} {mean(rate):>10} "
           f"{mean([r.get('infer_p16_steps_per_s') for r in rs]):>12} "
-          f"{mean([r.get('infer_full_steps_per_s') for r in rs]):>12}  {rs[0].get('backend')}")
+          f"{mean([r.get('infer_full_steps_per_s') for r in rs]):>12} "
+          f"{mean([r.get('gpu_buffer_mb') or r.get('peak_gpu_mb') for r in rs]):>8}  "
+          f"{rs[0].get('backend')}")
 EOF

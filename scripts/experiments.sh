@@ -18,9 +18,14 @@
 # (data/caresim-seed1, made here if missing). Each step
 # ends with the experiment's report rebuilt from what is done. THREADS (default 2) sets the
 # worker threads, JOBS (default 1) the jobs run at once, BACKEND (cpu or wgpu; default cpu)
-# what computes, PVRNN the executable (default target/release/pvrnn). On a GPU machine:
+# what computes, PVRNN the executable (default target/release/pvrnn). COHORT=N (without a
+# network number) runs every network's jobs at once, training a condition's networks N
+# together (`--cohort`; with BACKEND=wgpu add GPU_RECURRENCE=1 for one recurrence dispatch
+# for all of them). On a GPU machine:
 #
 #   BACKEND=wgpu JOBS=4 THREADS=16 scripts/experiments.sh interference 1
+#   SCALE=converged BACKEND=wgpu GPU_RECURRENCE=1 COHORT=5 JOBS=2 THREADS=16 \
+#       scripts/experiments.sh interference
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -51,14 +56,17 @@ run() {
     local experiment=$1 network=$2 out=$results/$1
     local networks=training/$scale-networks
     [ "$scale/$experiment" != converged/interference ] || networks=training/converged-interference
-    local args=(--scale "$scale" --out "$out" --network "$network" --jobs "$jobs" --backend "$backend")
+    local args=(--scale "$scale" --out "$out" --jobs "$jobs" --backend "$backend")
+    if [ -n "$network" ]; then args+=(--network "$network"); fi
+    if [ -n "${COHORT:-}" ]; then args+=(--cohort "$COHORT"); fi
+    if [ -n "${GPU_RECURRENCE:-}" ]; then args+=(--gpu-recurrence); fi
     [ -f "$out/plan.json" ] || args+=(--dataset "$data" --networks "$networks")
     [ -f "$out/plan.json" ] || [ "$scale" != converged ] || args+=(--validate "$validation")
-    echo "== $experiment, network $network ($(date -u +%H:%M:%S))" >&2
+    echo "== $experiment, network ${network:-all} ($(date -u +%H:%M:%S))" >&2
     local start
     start=$(date +%s)
     "$pvrnn" --threads "$threads" experiment "$experiment" "${args[@]}"
-    echo "   $experiment network $network took $(( $(date +%s) - start )) s" >&2
+    echo "   $experiment network ${network:-all} took $(( $(date +%s) - start )) s" >&2
 }
 
 which=${1:-all}
@@ -72,7 +80,11 @@ if [ "$which" = all ] || [ "$which" = shared ]; then
     done
 fi
 if [ "$which" = all ] || [ "$which" = interference ]; then
-    for network in $(networks_of); do
-        run interference "$network"
-    done
+    if [ -n "${COHORT:-}" ] && [ -z "$only" ]; then
+        run interference "" # every network, a condition's networks trained together
+    else
+        for network in $(networks_of); do
+            run interference "$network"
+        done
+    fi
 fi

@@ -433,6 +433,124 @@ fn sigterm_writes_a_checkpoint_that_resumes() {
 /// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
 /// backend's free energy to f32 summation order, and inference runs; a run says which
 /// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.
+/// `pvrnn train` with several --model / --out pairs trains the networks together, each as
+/// it trains alone (network k's noise seed: --seed + k), on the CPU and, with the
+/// recurrence on the GPU, in one stack on lavapipe (`PVRNN_SKIP_WGPU=1` skips that part).
+#[test]
+fn train_trains_several_networks_together_as_each_alone() {
+    let x = Scratch::new();
+    setup(&x);
+    ok(&[
+        "init",
+        "--config",
+        &x.s("small.toml"),
+        "--sequences",
+        "2",
+        "--steps",
+        "12",
+        "--seed",
+        "4",
+        "--out",
+        &x.s("m2.safetensors"),
+    ]);
+    let common = [
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--iterations",
+        "6",
+        "--seed",
+        "5",
+    ];
+    let train = |pairs: &[(&str, &str)], extra: &[&str]| -> Vec<f64> {
+        let mut args = vec!["train".to_string()];
+        for (model, out) in pairs {
+            args.extend(["--model".into(), x.s(model), "--out".into(), x.s(out)]);
+        }
+        args.extend(common.iter().chain(extra).map(|a| a.to_string()));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        ok(&args)
+            .lines()
+            .map(|l| {
+                serde_json::from_str::<serde_json::Value>(l).unwrap()["total"]
+                    .as_f64()
+                    .unwrap()
+            })
+            .collect()
+    };
+    let weights = |out: &str| io::load_model(&x.path(out)).unwrap();
+    let mut backends: Vec<&[&str]> = vec![&["--backend", "cpu"]];
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_none() {
+        backends.push(&["--backend", "wgpu", "--gpu-recurrence"]);
+    }
+    for (b, backend) in backends.into_iter().enumerate() {
+        let (a0, a1, t0, t1) = (
+            format!("a0-{b}.safetensors"),
+            format!("a1-{b}.safetensors"),
+            format!("t0-{b}.safetensors"),
+            format!("t1-{b}.safetensors"),
+        );
+        let alone0 = train(&[("m.safetensors", &a0)], backend);
+        // Alone, network 1 draws with seed 6 (--seed 5 + 1).
+        let mut seed6: Vec<&str> = backend.to_vec();
+        seed6.extend(["--seed", "6"]);
+        let alone1 = {
+            let mut args = vec!["train".to_string()];
+            args.extend([
+                "--model".into(),
+                x.s("m2.safetensors"),
+                "--out".into(),
+                x.s(&a1),
+            ]);
+            args.extend([
+                "--inputs".into(),
+                x.s("x.safetensors"),
+                "--iterations".into(),
+                "6".into(),
+            ]);
+            args.extend(seed6.iter().map(|a| a.to_string()));
+            let args: Vec<&str> = args.iter().map(String::as_str).collect();
+            let out = ok(&args);
+            serde_json::from_str::<serde_json::Value>(out.trim()).unwrap()["total"]
+                .as_f64()
+                .unwrap()
+        };
+        let together = train(&[("m.safetensors", &t0), ("m2.safetensors", &t1)], backend);
+        assert_eq!(
+            together,
+            vec![alone0[0], alone1],
+            "{backend:?}: final free energies"
+        );
+        assert_eq!(weights(&a0), weights(&t0), "{backend:?}: network 0");
+        assert_eq!(weights(&a1), weights(&t1), "{backend:?}: network 1");
+    }
+    let e = fails(&[
+        "train",
+        "--model",
+        &x.s("m.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &x.s("u.safetensors"),
+        "--out",
+        &x.s("v.safetensors"),
+    ]);
+    assert!(e.contains("1 --model but 2 --out"), "{e}");
+    let e = fails(&[
+        "train",
+        "--model",
+        &x.s("m.safetensors"),
+        "--model",
+        &x.s("m2.safetensors"),
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &x.s("u.safetensors"),
+        "--out",
+        &x.s("u.safetensors"),
+    ]);
+    assert!(e.contains("its own --out"), "{e}");
+}
+
 #[test]
 fn train_and_infer_run_on_the_wgpu_backend() {
     if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {

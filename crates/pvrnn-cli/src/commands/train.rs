@@ -13,12 +13,16 @@ use pvrnn_eval::validation;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn train --model m.safetensors --inputs caresim/ --out run.safetensors --iterations 100000 --checkpoint-every 200 --keep-every 10000\n  pvrnn train --resume --inputs caresim/ --out run.safetensors --iterations 100000"
+    after_help = "Example:\n  pvrnn train --model m.safetensors --inputs caresim/ --out run.safetensors --iterations 100000 --checkpoint-every 200 --keep-every 10000\n  pvrnn train --resume --inputs caresim/ --out run.safetensors --iterations 100000\n  pvrnn train --model m0.safetensors --out run0.safetensors --model m1.safetensors --out run1.safetensors --inputs caresim/ --backend wgpu --gpu-recurrence"
 )]
 pub struct Args {
-    /// Model to start from (from `pvrnn init`); not needed with --resume.
+    /// Model to start from (from `pvrnn init`); not needed with --resume. Given several
+    /// times (with as many --out, in the same order), the networks train together: every
+    /// iteration of all of them is queued before the host waits for any, and with
+    /// `--backend wgpu --gpu-recurrence` their recurrences run in one dispatch (docs/gpu.md).
+    /// Network k draws its noise with seed --seed + k; each result is the one it gets alone.
     #[arg(long, required_unless_present = "resume")]
-    model: Option<PathBuf>,
+    model: Vec<PathBuf>,
     /// Training inputs: a safetensors file (`x_extero`, `x_proprio`, optional `lengths`) or
     /// a dataset folder (its learning split; the model stores the proprioception ranges).
     #[arg(long)]
@@ -28,8 +32,9 @@ pub struct Args {
     split: Option<String>,
     /// The run's checkpoint: written every --checkpoint-every iterations and at the end;
     /// it is also a model file. A CSV log goes next to it (`run.safetensors` -> `run.log.csv`).
-    #[arg(long)]
-    out: PathBuf,
+    /// One per network (see --model; with --resume, every run to continue).
+    #[arg(long, required = true)]
+    out: Vec<PathBuf>,
     /// Total iterations, counted from the start of the run also with --resume (default: the
     /// configuration's `train.iterations`, the paper's 100,000).
     #[arg(long)]
@@ -41,7 +46,7 @@ pub struct Args {
     /// `<out stem>.iter<N>.safetensors` beside --out (for evaluating a run as it goes).
     #[arg(long)]
     keep_every: Option<u64>,
-    /// Seed of the noise draws.
+    /// Seed of the noise draws (network k of several: this + k).
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// eps = 0 (deterministic learning; for debugging).
@@ -192,36 +197,37 @@ impl Validation {
     }
 }
 
+/// One network's run: its trainer, checkpoint, log and early stopping.
+struct Run {
+    out: PathBuf,
+    log: PathBuf,
+    log_file: TrainingLog,
+    trainer: Trainer<f32>,
+    validation: Option<Validation>,
+    last: Option<FreeEnergy>,
+    /// Why it stopped before the last iteration (early stopping), once it has.
+    stopped: Option<String>,
+}
+
 pub fn run(a: Args) -> Result<()> {
+    check_args(&a)?;
     let (backend, backend_name) = a.backend.open()?;
-    let mut trainer = open_trainer(&a)?.with_backend(backend);
+    let backend: Arc<dyn pvrnn_core::backend::Backend<f32>> = Arc::from(backend);
     if a.backend.backend != util::BackendKind::Cpu {
         eprintln!("backend: {backend_name}");
     }
-    let data = inputs::load(
-        &a.inputs,
-        a.split.as_deref(),
-        Split::Learn,
-        trainer.state_mut().0,
-    )?
-    .observations;
-    if let Some(lr) = a.lr {
-        set_lr(&mut trainer, lr)?;
+    let mut trainers = Vec::with_capacity(a.out.len());
+    for k in 0..a.out.len() {
+        trainers.push(open_trainer(&a, k)?.with_backend(Box::new(backend.clone())));
     }
-    pvrnn_core::free_energy::check_model_fits_data(trainer.model(), &data)?;
-    anyhow::ensure!(
-        a.checkpoint_every >= 1,
-        "--checkpoint-every must be at least 1"
-    );
-    anyhow::ensure!(a.keep_every != Some(0), "--keep-every must be at least 1");
-    let total = a.iterations.unwrap_or(trainer.config().train.iterations);
-    let log = log_path(&a.out);
-    let mut log_file = TrainingLog::resume(&log, trainer.iteration)?;
-    let mut validation = a
-        .validate
-        .as_deref()
-        .map(|dir| Validation::open(dir, a.validate_every, a.patience, &a.out, &trainer))
-        .transpose()?;
+    let data = load_data(&a, &mut trainers)?;
+    let total = a
+        .iterations
+        .unwrap_or(trainers[0].config().train.iterations);
+    let mut runs = Vec::with_capacity(trainers.len());
+    for (k, trainer) in trainers.into_iter().enumerate() {
+        runs.push(open_run(&a, &a.out[k], trainer)?);
+    }
     if let Some(dir) = &a.validate
         && std::fs::canonicalize(dir).ok() == std::fs::canonicalize(&a.inputs).ok()
     {
@@ -239,96 +245,266 @@ pub fn run(a: Args) -> Result<()> {
     }
 
     let bar = util::progress(total, "train");
-    bar.set_position(trainer.iteration);
-    let mut last: Option<FreeEnergy> = None;
-    if let Some(v) = validation.as_mut()
-        && v.missed(trainer.iteration)
-    {
-        v.run(&mut trainer, None, &bar)?;
+    bar.set_position(runs.iter().map(|r| r.trainer.iteration).min().unwrap_or(0));
+    for run in &mut runs {
+        if let Some(v) = run.validation.as_mut()
+            && v.missed(run.trainer.iteration)
+        {
+            v.run(&mut run.trainer, None, &bar)?;
+        }
     }
-    while trainer.iteration < total {
-        if let Some(best) = validation.as_ref().and_then(Validation::stalled) {
-            bar.abandon();
-            if last.is_some() {
-                log_file.flush()?;
-                io::save_checkpoint(&a.out, &mut trainer, last)?;
-            }
-            eprintln!(
-                "stopped early at iteration {}: {} validations since iteration {} (error {:.5}, kept as {}) did not beat it",
-                trainer.iteration,
-                a.patience.unwrap_or(0),
-                best.iteration,
-                best.recon_vision_top,
-                validation_paths(&a.out).1.display()
-            );
-            return Ok(());
+    loop {
+        for run in &mut runs {
+            check_stalled(&a, run)?;
         }
-        let it = trainer.iteration;
-        let report = trainer.step(&data)?;
-        let resident = last.is_none().then(|| trainer.resident_tensors().len());
-        if let Some(resident) = resident.filter(|&r| r > 0) {
-            let all = trainer.trainable_tensors();
-            bar.println(if resident == all {
-                format!("on the GPU for the whole run: all {all} trainable tensors, so each iteration runs there whole")
-            } else {
-                format!("on the GPU for the whole run: {resident} of {all} trainable tensors (the rest updated on the CPU)")
-            });
+        let mut active: Vec<&mut Run> = runs
+            .iter_mut()
+            .filter(|r| r.stopped.is_none() && r.trainer.iteration < total)
+            .collect();
+        if active.is_empty() {
+            break;
         }
-        log_file.append(it, &report)?;
-        last = Some(report);
-        bar.set_position(trainer.iteration);
-        bar.set_message(format!("F {:.4}", report.total));
+        let before: Vec<u64> = active.iter().map(|r| r.trainer.iteration).collect();
+        // One dataset for all, or each network's own (another normalisation).
+        let data_of: Vec<&pvrnn_core::Observations<f32>> = active
+            .iter()
+            .map(|r| &*data[runs_index(&a, &r.out).min(data.len() - 1)])
+            .collect();
+        let reports = {
+            let mut trainers: Vec<&mut Trainer<f32>> =
+                active.iter_mut().map(|r| &mut r.trainer).collect();
+            pvrnn_core::train::step_together(&mut trainers, &data_of)?
+        };
         let stop = interrupted.load(Ordering::SeqCst);
-        let keep = a.keep_every.is_some_and(|k| trainer.iteration % k == 0);
-        if trainer.iteration % a.checkpoint_every == 0 || trainer.iteration == total || stop || keep
-        {
-            log_file.flush()?;
-            io::save_checkpoint(&a.out, &mut trainer, last)?;
+        for ((run, it), report) in active.into_iter().zip(before).zip(reports) {
+            let report = report.with_context(|| run.out.display().to_string())?;
+            after_step(&a, run, it, report, total, stop, &bar)?;
         }
-        if keep {
-            let kept = kept_path(&a.out, trainer.iteration);
-            io::save_checkpoint(&kept, &mut trainer, last)?;
-            bar.println(format!("kept {}", kept.display()));
-        }
-        if let Some(v) = validation.as_mut()
-            && !stop
-            && trainer.iteration.is_multiple_of(v.every)
-        {
-            v.run(&mut trainer, last, &bar)?;
-            bar.set_message(format!("F {:.4}", report.total));
-        }
+        bar.set_position(runs.iter().map(|r| r.trainer.iteration).min().unwrap_or(0));
         if stop {
             bar.abandon();
-            eprintln!(
-                "interrupted: checkpoint at iteration {} written to {}; continue with --resume",
-                trainer.iteration,
-                a.out.display()
-            );
+            for run in &runs {
+                eprintln!(
+                    "interrupted: checkpoint at iteration {} written to {}; continue with --resume",
+                    run.trainer.iteration,
+                    run.out.display()
+                );
+            }
             std::process::exit(130);
         }
     }
     bar.finish();
-    finished(&a.out, &log, trainer.iteration, last)
+    runs.into_iter().try_for_each(|run| match run.stopped {
+        Some(why) => {
+            eprintln!("{why}");
+            Ok(())
+        }
+        None => finished(&run.out, &run.log, run.trainer.iteration, run.last),
+    })
 }
 
-/// The run to continue (`--resume`), or a new one from `--model`.
-fn open_trainer(a: &Args) -> Result<Trainer<f32>> {
+/// The arguments' combinations a run cannot take.
+fn check_args(a: &Args) -> Result<()> {
+    anyhow::ensure!(
+        a.resume || a.model.len() == a.out.len(),
+        "{} --model but {} --out: give one --out per network, in the same order",
+        a.model.len(),
+        a.out.len()
+    );
+    anyhow::ensure!(
+        a.checkpoint_every >= 1,
+        "--checkpoint-every must be at least 1"
+    );
+    anyhow::ensure!(a.keep_every != Some(0), "--keep-every must be at least 1");
+    let mut outs: Vec<&PathBuf> = a.out.iter().collect();
+    outs.sort();
+    outs.dedup();
+    anyhow::ensure!(
+        outs.len() == a.out.len(),
+        "every network needs its own --out"
+    );
+    Ok(())
+}
+
+/// Which network `out` is (its place among --out).
+fn runs_index(a: &Args, out: &Path) -> usize {
+    a.out.iter().position(|o| o == out).unwrap_or(0)
+}
+
+/// The training data, loaded once when every network reads it the same way (the same
+/// configuration after the dataset's ranges), else once per network.
+fn load_data(
+    a: &Args,
+    trainers: &mut [Trainer<f32>],
+) -> Result<Vec<Arc<pvrnn_core::Observations<f32>>>> {
+    let had_ranges: Vec<bool> = trainers
+        .iter_mut()
+        .map(|t| t.config().normalisation.is_some())
+        .collect();
+    let first = inputs::load(
+        &a.inputs,
+        a.split.as_deref(),
+        Split::Learn,
+        trainers[0].state_mut().0,
+    )?
+    .observations;
+    let first_config = trainers[0].config().clone();
+    let mut data = vec![Arc::new(first)];
+    let mut shared = true;
+    for (k, trainer) in trainers.iter_mut().enumerate().skip(1) {
+        // Without ranges of its own a network takes the dataset's, as the first did.
+        if !had_ranges[k] && !had_ranges[0] {
+            trainer.state_mut().0.config.normalisation = first_config.normalisation.clone();
+        }
+        shared &= *trainer.config() == first_config;
+    }
+    if !shared {
+        for trainer in trainers.iter_mut().skip(1) {
+            let own = inputs::load(
+                &a.inputs,
+                a.split.as_deref(),
+                Split::Learn,
+                trainer.state_mut().0,
+            )?;
+            data.push(Arc::new(own.observations));
+        }
+    }
+    for (k, trainer) in trainers.iter_mut().enumerate() {
+        if let Some(lr) = a.lr {
+            set_lr(trainer, lr)?;
+        }
+        pvrnn_core::free_energy::check_model_fits_data(
+            trainer.model(),
+            &data[k.min(data.len() - 1)],
+        )?;
+    }
+    Ok(data)
+}
+
+/// A network's log and early stopping, opened at its trainer's iteration.
+fn open_run(a: &Args, out: &Path, trainer: Trainer<f32>) -> Result<Run> {
+    let log = log_path(out);
+    let log_file = TrainingLog::resume(&log, trainer.iteration)?;
+    let validation = a
+        .validate
+        .as_deref()
+        .map(|dir| Validation::open(dir, a.validate_every, a.patience, out, &trainer))
+        .transpose()?;
+    Ok(Run {
+        out: out.to_path_buf(),
+        log,
+        log_file,
+        trainer,
+        validation,
+        last: None,
+        stopped: None,
+    })
+}
+
+/// Early stopping: once --patience validations have not beaten the best, the run stops
+/// (its checkpoint written) and says why.
+fn check_stalled(a: &Args, run: &mut Run) -> Result<()> {
+    if run.stopped.is_some() {
+        return Ok(());
+    }
+    let Some(best) = run.validation.as_ref().and_then(Validation::stalled) else {
+        return Ok(());
+    };
+    let why = format!(
+        "stopped early at iteration {}: {} validations since iteration {} (error {:.5}, kept as {}) did not beat it",
+        run.trainer.iteration,
+        a.patience.unwrap_or(0),
+        best.iteration,
+        best.recon_vision_top,
+        validation_paths(&run.out).1.display()
+    );
+    if run.last.is_some() {
+        run.log_file.flush()?;
+        io::save_checkpoint(&run.out, &mut run.trainer, run.last)?;
+    }
+    run.stopped = Some(why);
+    Ok(())
+}
+
+/// After one iteration of `run` (from iteration `it`): the log, the progress line, a
+/// checkpoint when due (or when stopping), a kept copy, a validation when due.
+fn after_step(
+    a: &Args,
+    run: &mut Run,
+    it: u64,
+    report: FreeEnergy,
+    total: u64,
+    stop: bool,
+    bar: &util::Progress,
+) -> Result<()> {
+    let trainer = &mut run.trainer;
+    if run.last.is_none() && runs_index(a, &run.out) == 0 {
+        say_what_is_resident(trainer, bar);
+    }
+    run.log_file.append(it, &report)?;
+    run.last = Some(report);
+    bar.set_message(format!("F {:.4}", report.total));
+    let keep = a
+        .keep_every
+        .is_some_and(|k| trainer.iteration.is_multiple_of(k));
+    if trainer.iteration.is_multiple_of(a.checkpoint_every)
+        || trainer.iteration == total
+        || stop
+        || keep
+    {
+        run.log_file.flush()?;
+        io::save_checkpoint(&run.out, trainer, run.last)?;
+    }
+    if keep {
+        let kept = kept_path(&run.out, trainer.iteration);
+        io::save_checkpoint(&kept, trainer, run.last)?;
+        bar.println(format!("kept {}", kept.display()));
+    }
+    if let Some(v) = run.validation.as_mut()
+        && !stop
+        && trainer.iteration.is_multiple_of(v.every)
+    {
+        v.run(trainer, run.last, bar)?;
+        bar.set_message(format!("F {:.4}", report.total));
+    }
+    Ok(())
+}
+
+/// After the first iteration: which tensors the backend keeps on its device.
+fn say_what_is_resident(trainer: &Trainer<f32>, bar: &util::Progress) {
+    let resident = trainer.resident_tensors().len();
+    if resident == 0 {
+        return;
+    }
+    let all = trainer.trainable_tensors();
+    bar.println(if resident == all {
+        format!("on the GPU for the whole run: all {all} trainable tensors, so each iteration runs there whole")
+    } else {
+        format!("on the GPU for the whole run: {resident} of {all} trainable tensors (the rest updated on the CPU)")
+    });
+}
+
+/// Network `k`'s run to continue (`--resume`), or a new one from its `--model`.
+fn open_trainer(a: &Args, k: usize) -> Result<Trainer<f32>> {
+    let out = &a.out[k];
     if a.resume {
-        let t = io::load_checkpoint(&a.out).with_context(|| "cannot resume".to_string())?;
-        eprintln!("resuming {} at iteration {}", a.out.display(), t.iteration);
+        let t = io::load_checkpoint(out).with_context(|| "cannot resume".to_string())?;
+        eprintln!("resuming {} at iteration {}", out.display(), t.iteration);
         return Ok(t);
     }
-    if a.out.exists() && !a.overwrite {
+    if out.exists() && !a.overwrite {
         bail!(
             "{} exists: pass --resume to continue that run or --overwrite to start over",
-            a.out.display()
+            out.display()
         );
     }
-    let model = io::load_model(a.model.as_deref().expect("clap requires --model"))?;
+    let model = io::load_model(&a.model[k])?;
     let noise = if a.zero_noise {
         NoiseMode::Zero
     } else {
-        NoiseMode::Sampled { seed: a.seed }
+        NoiseMode::Sampled {
+            seed: a.seed + k as u64,
+        }
     };
     Ok(Trainer::new(model, noise))
 }

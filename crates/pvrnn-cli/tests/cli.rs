@@ -729,28 +729,29 @@ fn an_experiment_runs_on_the_wgpu_backend_with_jobs_sharing_the_device() {
     }
 }
 
+/// `pvrnn bench --json` of one timed training iteration of 1 x 33 steps, with `extra`.
+fn small_train_bench(extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "bench",
+        "--sequences",
+        "1",
+        "--steps",
+        "33",
+        "--train-iterations",
+        "1",
+        "--only",
+        "train",
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    serde_json::from_str(ok(&args).trim()).unwrap()
+}
+
 /// `pvrnn bench --profile` says where a training iteration's time goes: phases that
 /// nest inside `evaluate`, each a non-negative number of milliseconds.
 #[test]
 fn bench_profile_names_the_phases_of_an_iteration() {
-    let bench = |extra: &[&str]| {
-        let mut args = vec![
-            "bench",
-            "--sequences",
-            "1",
-            "--steps",
-            "33",
-            "--train-iterations",
-            "1",
-            "--only",
-            "train",
-            "--json",
-        ];
-        args.extend_from_slice(extra);
-        ok(&args)
-    };
-    let out = bench(&["--profile"]);
-    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    let v = small_train_bench(&["--profile"]);
     assert!(v["train_iter_s"].as_f64().unwrap() > 0.0, "{v}");
     let parts = v["profile"].as_array().expect("a profile");
     assert_eq!(parts.len(), 1, "only training was run: {v}");
@@ -782,8 +783,7 @@ fn bench_profile_names_the_phases_of_an_iteration() {
     assert!(inside <= evaluate * 1.001 + 1e-3, "{phases:?}");
     assert!(ms("optimiser (RAdam)") > 0.0, "{phases:?}");
     // Without --profile there is no profile.
-    let plain = bench(&[]);
-    let plain: serde_json::Value = serde_json::from_str(plain.trim()).unwrap();
+    let plain = small_train_bench(&[]);
     assert!(plain.get("profile").is_none(), "{plain}");
     // The free energy of the warm-up and the timed iteration, from seeded data and noise:
     // two runs (or two backends) can be compared number by number.
@@ -806,22 +806,7 @@ fn bench_profile_names_the_phases_of_an_iteration() {
 /// the device memory its buffers hold grows with N. `PVRNN_SKIP_WGPU=1` skips the GPU part.
 #[test]
 fn bench_trains_several_networks_together() {
-    let bench = |extra: &[&str]| -> serde_json::Value {
-        let mut args = vec![
-            "bench",
-            "--sequences",
-            "1",
-            "--steps",
-            "33",
-            "--train-iterations",
-            "1",
-            "--only",
-            "train",
-            "--json",
-        ];
-        args.extend_from_slice(extra);
-        serde_json::from_str(ok(&args).trim()).unwrap()
-    };
+    let bench = small_train_bench;
     let free_energy = |v: &serde_json::Value| v["train_free_energy"].clone();
     let one = bench(&[]);
     let three = bench(&["--networks", "3"]);

@@ -623,26 +623,32 @@ impl<'p> TrainingRun<'p> {
         self.done = self.stop_reason.is_some() || self.trainer.iteration >= self.iterations;
     }
 
-    /// After an iteration that gave `report`: the log, the progress event, a checkpoint when
-    /// one is due (or the run is being stopped), a validation when due; then whether the
-    /// run goes on.
-    fn after_step(
+    /// After an iteration that gave `report`: the log and the progress event.
+    fn record(
         &mut self,
         it: u64,
         report: pvrnn_core::FreeEnergy,
-        backend: &Arc<dyn Backend<f32>>,
-        stop: &AtomicBool,
         events: &(dyn Fn(Event<'_>) + Sync),
     ) -> Result<()> {
-        let trainer = &mut self.trainer;
         self.log_file.append(it, &report)?;
         events(Event::Training {
             id: self.id,
-            done: trainer.iteration,
+            done: self.trainer.iteration,
             total: self.iterations,
             free_energy: report.total,
         });
-        let stopping = stop.load(Ordering::SeqCst);
+        Ok(())
+    }
+
+    /// Then a checkpoint when one is due (or the run is `stopping`: interrupted), a
+    /// validation when due, and whether the run goes on.
+    fn checkpoint_and_validate(
+        &mut self,
+        report: pvrnn_core::FreeEnergy,
+        backend: &Arc<dyn Backend<f32>>,
+        stopping: bool,
+    ) -> Result<()> {
+        let trainer = &mut self.trainer;
         let validating = self.rule.as_ref().is_some_and(|r| r.due(trainer.iteration)) && !stopping;
         if trainer
             .iteration
@@ -655,7 +661,7 @@ impl<'p> TrainingRun<'p> {
             io::save_checkpoint(&self.checkpoint, trainer, Some(report))?;
         }
         if stopping {
-            return Err(Interrupted.into());
+            return Ok(());
         }
         if validating && let Some(rule) = self.rule.as_mut() {
             rule.validate(backend, trainer, Some(report))?;
@@ -764,10 +770,19 @@ fn train(
     for run in &mut runs {
         pvrnn_core::free_energy::check_model_fits_data(run.trainer.model(), &data)?;
     }
+    // A run's result is written as soon as it stops; the others go on.
+    let mut runs: Vec<Option<TrainingRun<'_>>> = runs.into_iter().map(Some).collect();
     loop {
-        let mut active: Vec<&mut TrainingRun<'_>> = runs.iter_mut().filter(|r| !r.done).collect();
+        for slot in &mut runs {
+            if slot.as_ref().is_some_and(|r| r.done)
+                && let Some(run) = slot.take()
+            {
+                run.finish(backend_name)?;
+            }
+        }
+        let mut active: Vec<&mut TrainingRun<'_>> = runs.iter_mut().flatten().collect();
         if active.is_empty() {
-            break;
+            return Ok(());
         }
         let before: Vec<u64> = active.iter().map(|r| r.trainer.iteration).collect();
         let reports = {
@@ -775,23 +790,35 @@ fn train(
                 active.iter_mut().map(|r| &mut r.trainer).collect();
             pvrnn_core::train::step_together(&mut trainers, &vec![&data; before.len()])?
         };
-        // Every member's iteration is logged and, when due or stopping, checkpointed before
-        // an error (or an interruption) ends the cohort.
+        // Every member's iteration is logged, then (the interruption flag read once for
+        // all of them) checkpointed when due or interrupted, before an error (or the
+        // interruption) ends the cohort.
         let mut failed = None;
+        let mut recorded = Vec::with_capacity(active.len());
         for ((run, it), report) in active.into_iter().zip(before).zip(reports) {
-            let outcome = report
+            match report
                 .with_context(|| format!("job {}", run.id))
-                .and_then(|report| run.after_step(it, report, backend, stop, events));
-            if let Err(e) = outcome {
+                .and_then(|report| run.record(it, report, events).map(|()| report))
+            {
+                Ok(report) => recorded.push((run, report)),
+                Err(e) => {
+                    failed.get_or_insert(e);
+                }
+            }
+        }
+        let stopping = stop.load(Ordering::SeqCst);
+        for (run, report) in recorded {
+            if let Err(e) = run.checkpoint_and_validate(report, backend, stopping) {
                 failed.get_or_insert(e);
             }
+        }
+        if stopping {
+            failed.get_or_insert(Interrupted.into());
         }
         if let Some(e) = failed {
             return Err(e);
         }
     }
-    runs.into_iter()
-        .try_for_each(|run| run.finish(backend_name))
 }
 
 /// The convergence rule's state during one training: the held-out data, the validations

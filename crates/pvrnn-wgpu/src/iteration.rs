@@ -95,7 +95,12 @@ impl Stack {
         let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
         let (layout, _) = RecurrenceLayout::new(&model.params, &model.config);
         let windows = slots * sequences;
-        slots > 0 && sequences > 0 && steps > 0 && layout.fits(gpu, windows, windows * steps)
+        let binding = gpu.limits().max_storage_buffer_binding_size as usize;
+        slots > 0
+            && sequences > 0
+            && steps > 0
+            && layout.fits(gpu, windows, windows * steps)
+            && 4 * slots * layout.weight_floats() <= binding
     }
 
     /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
@@ -278,6 +283,28 @@ impl Stack {
         let results = pvrnn_core::deferred::now(pending);
         drop(prepared);
         results
+    }
+}
+
+/// A run's claim on its prepared iteration's results ([`Stack::enqueue`]). Dropped before
+/// they are taken (a caller that gave up on the future), it withdraws the iteration, or
+/// its results, so that nothing stale is submitted or kept.
+struct Ticket<'s> {
+    stack: &'s Stack,
+    ticket: u64,
+}
+
+impl Ticket<'_> {
+    fn results(&self) -> Vec<Vec<f32>> {
+        self.stack.results_of(self.ticket)
+    }
+}
+
+impl Drop for Ticket<'_> {
+    fn drop(&mut self) {
+        let mut queue = self.stack.queue.lock().unwrap_or_else(|e| e.into_inner());
+        queue.prepared.retain(|p| p.ticket != self.ticket);
+        queue.results.remove(&self.ticket);
     }
 }
 
@@ -481,8 +508,13 @@ impl DeviceIteration {
             _readouts: readouts.into_iter().map(|(r, _)| r).collect(),
         });
         let total = batch.total;
+        // Dropped unawaited, the guard takes the iteration back out of the queue.
+        let ticket = Ticket {
+            stack: &self.stack,
+            ticket,
+        };
         Ok(async move {
-            let results = self.stack.results_of(ticket);
+            let results = ticket.results();
             self.free_energy_of(total, &per_module_at, divisors, results)
         })
     }

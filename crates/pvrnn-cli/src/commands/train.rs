@@ -255,7 +255,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     loop {
         for run in &mut runs {
-            check_stalled(&a, run)?;
+            check_stalled(&a, run, total)?;
         }
         let mut active: Vec<&mut Run> = runs
             .iter_mut()
@@ -401,10 +401,11 @@ fn open_run(a: &Args, out: &Path, trainer: Trainer<f32>) -> Result<Run> {
     })
 }
 
-/// Early stopping: once --patience validations have not beaten the best, the run stops
-/// (its checkpoint written) and says why.
-fn check_stalled(a: &Args, run: &mut Run) -> Result<()> {
-    if run.stopped.is_some() {
+/// Early stopping: once --patience validations have not beaten the best, a run short of
+/// `total` iterations stops (its checkpoint written) and says why.
+fn check_stalled(a: &Args, run: &mut Run, total: u64) -> Result<()> {
+    // A run at its last iteration has finished, whatever its validations say.
+    if run.stopped.is_some() || run.trainer.iteration >= total {
         return Ok(());
     }
     let Some(best) = run.validation.as_ref().and_then(Validation::stalled) else {

@@ -165,6 +165,12 @@ impl Scratch {
 fn setup(x: &Scratch) {
     std::fs::write(x.path("small.toml"), SMALL).unwrap();
     write_inputs(&x.path("x.safetensors"), &small_config(), 2, 12, false);
+    init_small(x, 3, "m.safetensors");
+}
+
+/// A model of the small configuration for 2 x 12 steps, initialised with `seed`, as `name`.
+fn init_small(x: &Scratch, seed: u32, name: &str) {
+    let seed = seed.to_string();
     ok(&[
         "init",
         "--config",
@@ -174,9 +180,9 @@ fn setup(x: &Scratch) {
         "--steps",
         "12",
         "--seed",
-        "3",
+        &seed,
         "--out",
-        &x.s("m.safetensors"),
+        &x.s(name),
     ]);
 }
 
@@ -430,9 +436,6 @@ fn sigterm_writes_a_checkpoint_that_resumes() {
     );
 }
 
-/// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
-/// backend's free energy to f32 summation order, and inference runs; a run says which
-/// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.
 /// `pvrnn train` with several --model / --out pairs trains the networks together, each as
 /// it trains alone (network k's noise seed: --seed + k), on the CPU and, with the
 /// recurrence on the GPU, in one stack on lavapipe (`PVRNN_SKIP_WGPU=1` skips that part).
@@ -440,19 +443,7 @@ fn sigterm_writes_a_checkpoint_that_resumes() {
 fn train_trains_several_networks_together_as_each_alone() {
     let x = Scratch::new();
     setup(&x);
-    ok(&[
-        "init",
-        "--config",
-        &x.s("small.toml"),
-        "--sequences",
-        "2",
-        "--steps",
-        "12",
-        "--seed",
-        "4",
-        "--out",
-        &x.s("m2.safetensors"),
-    ]);
+    init_small(&x, 4, "m2.safetensors");
     let common = [
         "--inputs",
         &x.s("x.safetensors"),
@@ -551,6 +542,9 @@ fn train_trains_several_networks_together_as_each_alone() {
     assert!(e.contains("its own --out"), "{e}");
 }
 
+/// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
+/// backend's free energy to f32 summation order, and inference runs; a run says which
+/// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.
 #[test]
 fn train_and_infer_run_on_the_wgpu_backend() {
     if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {

@@ -444,19 +444,14 @@ fn train_trains_several_networks_together_as_each_alone() {
     let x = Scratch::new();
     setup(&x);
     init_small(&x, 4, "m2.safetensors");
-    let common = [
-        "--inputs",
-        &x.s("x.safetensors"),
-        "--iterations",
-        "6",
-        "--seed",
-        "5",
-    ];
-    let train = |pairs: &[(&str, &str)], extra: &[&str]| -> Vec<f64> {
+    let inputs = x.s("x.safetensors");
+    // Each pair's final free energy; `seed` is --seed (network k draws with seed + k).
+    let train = |pairs: &[(&str, &str)], seed: &str, extra: &[&str]| -> Vec<f64> {
         let mut args = vec!["train".to_string()];
         for (model, out) in pairs {
             args.extend(["--model".into(), x.s(model), "--out".into(), x.s(out)]);
         }
+        let common = ["--inputs", &inputs, "--iterations", "6", "--seed", seed];
         args.extend(common.iter().chain(extra).map(|a| a.to_string()));
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         ok(&args)
@@ -480,35 +475,17 @@ fn train_trains_several_networks_together_as_each_alone() {
             format!("t0-{b}.safetensors"),
             format!("t1-{b}.safetensors"),
         );
-        let alone0 = train(&[("m.safetensors", &a0)], backend);
+        let alone0 = train(&[("m.safetensors", &a0)], "5", backend)[0];
         // Alone, network 1 draws with seed 6 (--seed 5 + 1).
-        let mut seed6: Vec<&str> = backend.to_vec();
-        seed6.extend(["--seed", "6"]);
-        let alone1 = {
-            let mut args = vec!["train".to_string()];
-            args.extend([
-                "--model".into(),
-                x.s("m2.safetensors"),
-                "--out".into(),
-                x.s(&a1),
-            ]);
-            args.extend([
-                "--inputs".into(),
-                x.s("x.safetensors"),
-                "--iterations".into(),
-                "6".into(),
-            ]);
-            args.extend(seed6.iter().map(|a| a.to_string()));
-            let args: Vec<&str> = args.iter().map(String::as_str).collect();
-            let out = ok(&args);
-            serde_json::from_str::<serde_json::Value>(out.trim()).unwrap()["total"]
-                .as_f64()
-                .unwrap()
-        };
-        let together = train(&[("m.safetensors", &t0), ("m2.safetensors", &t1)], backend);
+        let alone1 = train(&[("m2.safetensors", &a1)], "6", backend)[0];
+        let together = train(
+            &[("m.safetensors", &t0), ("m2.safetensors", &t1)],
+            "5",
+            backend,
+        );
         assert_eq!(
             together,
-            vec![alone0[0], alone1],
+            vec![alone0, alone1],
             "{backend:?}: final free energies"
         );
         assert_eq!(weights(&a0), weights(&t0), "{backend:?}: network 0");

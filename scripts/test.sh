@@ -6,6 +6,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/setup.sh
+# A one-off build keeps nothing for a next one: incremental caches only fill the disk.
+export CARGO_INCREMENTAL=${CARGO_INCREMENTAL:-0}
 
 start=$SECONDS
 step() { printf '\n== [%dm%02ds] %s\n' $(((SECONDS - start) / 60)) $(((SECONDS - start) % 60)) "$*" >&2; }

@@ -23,7 +23,7 @@ use pvrnn_eval::training_log::{self, TrainingLog};
 use pvrnn_eval::validation::{self, ValidationRow};
 
 use crate::occlusion::{OcclusionScorer, OcclusionScores};
-use crate::plan::{Design, JobKind, Plan};
+use crate::plan::{Design, Job, JobKind, Plan};
 
 /// What a running experiment reports.
 #[derive(Debug)]
@@ -264,7 +264,7 @@ pub enum Selection {
     All,
     /// This one job (a cluster array task); its dependencies must be done.
     Job(usize),
-    /// One network's jobs: its trainings, then its inference runs. Finishing networks one
+    /// One network's jobs: each training, then its inference runs. Finishing networks one
     /// by one gives complete results early, and splits a run across sessions or machines.
     Network(usize),
 }
@@ -303,7 +303,7 @@ fn take_next(
             && !taken[i]
             && plan.jobs[i].after.iter().all(|&a| done[a])
     };
-    let id = (0..plan.jobs.len()).find(|&i| ready(i))?;
+    let id = first_ready(&plan.jobs, ready)?;
     let mut ids = vec![id];
     ids.extend(
         (id + 1..plan.jobs.len())
@@ -314,6 +314,20 @@ fn take_next(
         taken[i] = true;
     }
     Some(ids)
+}
+
+/// The first ready job, an inference run before any training: a trained network's runs
+/// follow it at once, so its results are complete (and can be committed without the
+/// network) while the next training has not started; an interrupted campaign loses only
+/// the trainings under way.
+fn first_ready(jobs: &[Job], ready: impl Fn(usize) -> bool) -> Option<usize> {
+    let infer = |i: &usize| matches!(jobs[*i].kind, JobKind::Infer { .. });
+    let mut candidates = (0..jobs.len()).filter(|&i| ready(i));
+    let first = candidates.next()?;
+    if infer(&first) {
+        return Some(first);
+    }
+    Some(candidates.find(infer).unwrap_or(first))
 }
 
 /// Whether `selection` names a network or a job of `plan`, and a job's dependencies are
@@ -1529,4 +1543,72 @@ pub fn read_train_result(path: &Path) -> Result<TrainResult> {
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     serde_json::from_str(&text)
         .with_context(|| format!("{}: not a training result", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn train(id: usize) -> Job {
+        Job {
+            id,
+            name: format!("train-{id}"),
+            kind: JobKind::Train {
+                network: id,
+                condition: "all 1".into(),
+                sequences: vec!["a".into()],
+                seed: id as u64,
+                iterations: 1,
+                reuse: None,
+            },
+            after: vec![],
+        }
+    }
+
+    fn infer(id: usize, train_job: usize) -> Job {
+        Job {
+            id,
+            name: format!("infer-{id}"),
+            kind: JobKind::Infer {
+                network: train_job,
+                train_job,
+                training: "all 1".into(),
+                sequence: "a".into(),
+                task: "wiping".into(),
+                trial: 0,
+                vision_levels: 3,
+                proprio: true,
+                maps: false,
+            },
+            after: vec![train_job],
+        }
+    }
+
+    #[test]
+    fn a_trained_networks_inference_runs_before_the_next_training() {
+        // Plans list trainings first: 0 and 1 train, 2 and 3 read network 0, 4 network 1.
+        let jobs = vec![train(0), train(1), infer(2, 0), infer(3, 0), infer(4, 1)];
+        let next = |done: &[usize], taken: &[usize]| {
+            first_ready(&jobs, |i| {
+                !done.contains(&i)
+                    && !taken.contains(&i)
+                    && jobs[i].after.iter().all(|a| done.contains(a))
+            })
+        };
+        assert_eq!(next(&[], &[]), Some(0));
+        assert_eq!(
+            next(&[], &[0]),
+            Some(1),
+            "nothing to infer yet: the next training"
+        );
+        assert_eq!(
+            next(&[0], &[]),
+            Some(2),
+            "network 0 is trained: its runs first"
+        );
+        assert_eq!(next(&[0, 2], &[]), Some(3));
+        assert_eq!(next(&[0, 2, 3], &[]), Some(1));
+        assert_eq!(next(&[0, 1, 2, 3], &[]), Some(4));
+        assert_eq!(next(&[0, 1, 2, 3, 4], &[]), None);
+    }
 }

@@ -45,7 +45,7 @@ pub struct Args {
     /// Run only this job of the plan (a cluster array task); its dependencies must be done.
     #[arg(long, conflicts_with_all = ["report", "emit"])]
     job: Option<usize>,
-    /// Run only this network's jobs (its trainings, then its inference runs), then write the
+    /// Run only this network's jobs (each training, then its inference runs), then write the
     /// report of what is done: networks finish one by one, so a run split across sessions or
     /// machines gives complete networks early.
     #[arg(long, conflicts_with_all = ["job", "report", "emit"])]

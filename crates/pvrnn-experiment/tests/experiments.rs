@@ -548,6 +548,23 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         "{:?}",
         trained.validations
     );
+    // Learning both tasks (the other task's sequences added), an interference network is
+    // still validated on its primary task only: the one its inference runs are scored on.
+    let mixed = single
+        .jobs
+        .iter()
+        .position(
+            |j| matches!(&j.kind, JobKind::Train { condition, .. } if !condition.ends_with(" 0")),
+        )
+        .expect("a condition with the other task added");
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(mixed), &go, &|_| {})
+        .unwrap();
+    let trained = read_train_result(&single.result_path(&out, mixed)).unwrap();
+    assert_eq!(
+        trained.validations[0].trials, 1,
+        "{:?}",
+        trained.validations
+    );
 }
 
 /// A condition's networks trained together (a cohort of 2) give the results and the

@@ -190,6 +190,34 @@ impl Gpu {
         })
     }
 
+    /// Runs `make`, work that allocates device memory, with running out of memory caught:
+    /// an [`pvrnn_core::Error::Device`] saying what could not be done (`what`) on which
+    /// adapter, instead of wgpu's uncaptured-error panic. A failed allocation leaves invalid
+    /// buffers that the rest of `make` then touches: those validation errors are caught too
+    /// (the inner scope). Every allocation of a learning run passes here: the resident
+    /// buffers when its learners are made, the targets and scratch of its first iteration.
+    pub(crate) fn allocating<T>(
+        &self,
+        what: impl FnOnce() -> String,
+        make: impl FnOnce() -> T,
+    ) -> pvrnn_core::Result<T> {
+        let out_of_memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let invalid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let made = make();
+        let invalid = pvrnn_core::deferred::now(invalid.pop());
+        let out_of_memory = pvrnn_core::deferred::now(out_of_memory.pop());
+        let failed =
+            |error: &wgpu::Error| format!("{} could not {} ({error})", self.describe(), what());
+        match (out_of_memory, invalid) {
+            (None, None) => Ok(made),
+            (Some(error), _) => Err(pvrnn_core::Error::Device(format!(
+                "{}: out of memory; train fewer networks at once (`--cohort` / `--networks`; docs/gpu.md gives the memory per network)",
+                failed(&error)
+            ))),
+            (None, Some(error)) => Err(pvrnn_core::Error::Device(failed(&error))),
+        }
+    }
+
     /// "name (driver, API)".
     pub fn describe(&self) -> String {
         describe(&self.info)
@@ -461,5 +489,60 @@ fn describe(i: &wgpu::AdapterInfo) -> String {
         format!("{name} ({:?})", i.backend)
     } else {
         format!("{name} ({driver}, {:?})", i.backend)
+    }
+}
+
+#[cfg(all(test, not(target_arch = "wasm32")))]
+mod tests {
+    use super::*;
+
+    /// A buffer over the device's size limit stands in for one that does not fit its
+    /// memory (lavapipe allocates host memory, which a test cannot exhaust): both leave an
+    /// invalid buffer whose later uses fail validation too.
+    #[test]
+    fn allocations_the_device_refuses_are_an_error_naming_what_failed() {
+        let gpu = match Gpu::new() {
+            Ok(gpu) => gpu,
+            Err(e) if std::env::var_os("PVRNN_SKIP_WGPU").is_some() => {
+                eprintln!("skipped (PVRNN_SKIP_WGPU): {e}");
+                return;
+            }
+            Err(e) => panic!("{e}"),
+        };
+        let small = gpu.allocating(
+            || "make a small buffer".into(),
+            || gpu.scratch("small", 16, wgpu::BufferUsages::empty()),
+        );
+        assert!(small.is_ok());
+        let too_large = gpu.device.limits().max_buffer_size.saturating_add(4);
+        let refused = gpu.allocating(
+            || "make a buffer too large".into(),
+            || {
+                let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("too large"),
+                    size: too_large,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                gpu.queue.write_buffer(&buffer, 0, &[0; 4]);
+                buffer
+            },
+        );
+        match refused {
+            Err(pvrnn_core::Error::Device(message)) => {
+                assert!(
+                    message.contains("could not make a buffer too large")
+                        && message.contains(&gpu.describe()),
+                    "{message}"
+                );
+            }
+            other => panic!("expected a device error, got {other:?}"),
+        }
+        // The device is still usable.
+        let after = gpu.allocating(
+            || "make a small buffer".into(),
+            || gpu.scratch("small", 16, wgpu::BufferUsages::empty()),
+        );
+        assert!(after.is_ok());
     }
 }

@@ -463,6 +463,35 @@ impl DeviceIteration {
     ) -> Result<impl std::future::Future<Output = FreeEnergy> + '_> {
         self.check_fits(data, eps)?;
         let stack = &*self.stack;
+        // The first iteration uploads the targets and makes the read-outs' scratch.
+        let what = || {
+            format!(
+                "prepare a learning iteration of {} networks trained together",
+                stack.slots
+            )
+        };
+        let (prepared, per_module_at, divisors, total) =
+            stack.gpu.allocating(what, || self.prepare(data, eps))??;
+        let ticket = stack.enqueue(prepared);
+        // Dropped unawaited, the guard takes the iteration back out of the queue.
+        let ticket = Ticket {
+            stack: &self.stack,
+            ticket,
+        };
+        Ok(async move {
+            let results = ticket.results();
+            self.free_energy_of(total, &per_module_at, divisors, results)
+        })
+    }
+
+    /// The device work of one iteration of this run, encoded, with what reading its
+    /// results needs: where each module's noise starts, the read-outs' divisors, the rows.
+    fn prepare(
+        &self,
+        data: &Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Result<(Prepared, [usize; 4], [usize; 2], usize)> {
+        let stack = &*self.stack;
         let gpu = &*stack.gpu;
         let batch = Batch::of(self.layout(), data.lengths(), stack.entry_base(self.slot));
         let _phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
@@ -495,7 +524,7 @@ impl DeviceIteration {
         let divisors = [readouts[0].1, readouts[1].1];
         keep.push(kl);
         keep.push(eps_buffer);
-        let ticket = stack.enqueue(Prepared {
+        let prepared = Prepared {
             ticket: 0,
             slot: self.slot,
             clears: Some(clears.finish()),
@@ -506,17 +535,8 @@ impl DeviceIteration {
             sources,
             _keep: keep,
             _readouts: readouts.into_iter().map(|(r, _)| r).collect(),
-        });
-        let total = batch.total;
-        // Dropped unawaited, the guard takes the iteration back out of the queue.
-        let ticket = Ticket {
-            stack: &self.stack,
-            ticket,
         };
-        Ok(async move {
-            let results = ticket.results();
-            self.free_energy_of(total, &per_module_at, divisors, results)
-        })
+        Ok((prepared, per_module_at, divisors, batch.total))
     }
 
     /// Whether `data` and `eps` fit the sequences this learner holds.

@@ -207,38 +207,22 @@ impl Backend<f32> for WgpuBackend {
             // No learner here (the browser): nothing to allocate.
             return Ok(runs.iter().map(|_| None).collect());
         }
-        // A failed allocation leaves invalid buffers that the uploads then touch: those
-        // validation errors are caught too (the inner scope), so that running out of memory
-        // is this error, not a panic.
-        let device = &self.gpu.device;
-        let out_of_memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let invalid = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let learners: Vec<Option<Box<dyn Learner<f32>>>> = match GpuLearner::cohort(self, runs) {
-            Some(learners) => learners
-                .into_iter()
-                .map(|l| Some(Box::new(l) as Box<dyn Learner<f32>>))
-                .collect(),
-            None => runs
-                .iter()
-                .map(|(model, optimizer)| self.learner(model, optimizer))
-                .collect(),
-        };
-        let invalid = pvrnn_core::deferred::now(invalid.pop());
-        let out_of_memory = pvrnn_core::deferred::now(out_of_memory.pop());
-        let what = |error: &wgpu::Error| {
+        let what = || {
             format!(
-                "{} could not make the buffers of {} networks trained together ({error})",
-                self.gpu.describe(),
+                "make the buffers of {} networks trained together",
                 runs.len()
             )
         };
-        match (out_of_memory, invalid) {
-            (None, None) => Ok(learners),
-            (Some(error), _) => Err(pvrnn_core::Error::Device(format!(
-                "{}: out of memory; train fewer at once (`--cohort` / `--networks`; docs/gpu.md gives the memory per network)",
-                what(&error)
-            ))),
-            (None, Some(error)) => Err(pvrnn_core::Error::Device(what(&error))),
-        }
+        self.gpu
+            .allocating(what, || match GpuLearner::cohort(self, runs) {
+                Some(learners) => learners
+                    .into_iter()
+                    .map(|l| Some(Box::new(l) as Box<dyn Learner<f32>>))
+                    .collect(),
+                None => runs
+                    .iter()
+                    .map(|(model, optimizer)| self.learner(model, optimizer))
+                    .collect(),
+            })
     }
 }

@@ -464,11 +464,9 @@ impl DeviceIteration {
         self.check_fits(data, eps)?;
         let stack = &*self.stack;
         // The first iteration uploads the targets and makes the read-outs' scratch.
-        let what = || {
-            format!(
-                "prepare a learning iteration of {} networks trained together",
-                stack.slots
-            )
+        let what = || match stack.slots {
+            1 => "prepare a learning iteration".to_string(),
+            n => format!("prepare a learning iteration of {n} networks trained together"),
         };
         let (prepared, per_module_at, divisors, total) =
             stack.gpu.allocating(what, || self.prepare(data, eps))??;

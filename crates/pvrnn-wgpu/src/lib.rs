@@ -207,11 +207,9 @@ impl Backend<f32> for WgpuBackend {
             // No learner here (the browser): nothing to allocate.
             return Ok(runs.iter().map(|_| None).collect());
         }
-        let what = || {
-            format!(
-                "make the buffers of {} networks trained together",
-                runs.len()
-            )
+        let what = || match runs.len() {
+            1 => "make the buffers of a network's training".to_string(),
+            n => format!("make the buffers of {n} networks trained together"),
         };
         self.gpu
             .allocating(what, || match GpuLearner::cohort(self, runs) {

@@ -21,6 +21,9 @@
 #   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
 #                condition; NETWORKS overrides): N networks trained together, one
 #                recurrence dispatch for all of them (inference: the first network's)
+#   wgpu-blocked, whole-N-blocked
+#                `wgpu` and `whole-N` with the register-blocked output-layer kernels
+#                (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
 #   torch-eager, torch-graph
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
@@ -30,6 +33,10 @@
 # run on a GPU: time it with --quick first). BENCH_ARGS adds options to every bench
 # (`BENCH_ARGS="--sequences 2 --steps 40 --only train"` checks the script on a CPU
 # Vulkan device in a few minutes).
+#
+# OUTPUT_BENCH=PATH (the output-layer kernel benchmark, built with `cargo bench -p
+# pvrnn-wgpu --bench output_layer --no-run`) also times the output layer's kernels alone,
+# fused and blocked, at the paper's shapes: OUT_DIR/output-layer.txt.
 #
 # On a bare host whose image has the NVIDIA driver but no Vulkan loader: put the Debian
 # packages of the loader in .gl/ (`apt-get download libvulkan1`, plus what it needs) and
@@ -87,6 +94,9 @@ for round in $(seq "$rounds"); do
         fi
         bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
             --networks "${NETWORKS:-5}"
+        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench wgpu-blocked "$threads" "$round" --backend wgpu
+        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
+            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}"
         bench cpu "$threads" "$round" --backend cpu
     done
     if python3 -c 'import torch, sys; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
@@ -99,6 +109,12 @@ for round in $(seq "$rounds"); do
         done
     fi
 done
+
+if [ -n "${OUTPUT_BENCH:-}" ]; then
+    # Fused and blocked alternate within the run (the benchmark's own order).
+    "$OUTPUT_BENCH" | tee "$out/output-layer.txt" ||
+        echo "FAILED: the output-layer benchmark (see above)" | tee -a "$out/log.txt"
+fi
 
 python3 - "$out" <<'EOF' | tee "$out/summary.txt"
 import json, pathlib, statistics, sys

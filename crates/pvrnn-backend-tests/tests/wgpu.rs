@@ -1,21 +1,22 @@
 //! The suite on the wgpu backend: the first adapter the machine offers (a GPU, or Mesa's
 //! lavapipe CPU Vulkan device in CI), every call on the device however small, with the
-//! recurrence on the CPU and on the GPU. Without an adapter the tests fail, naming the
+//! recurrence on the CPU and on the GPU, and with the register-blocked output-layer kernels. Without an adapter the tests fail, naming the
 //! problem, unless `PVRNN_SKIP_WGPU` is set.
 #![cfg(not(target_arch = "wasm32"))]
 
 use std::sync::Arc;
 
 use pvrnn_backend_tests::Shared;
-use pvrnn_wgpu::{Tiling, WgpuBackend};
+use pvrnn_wgpu::{OutputKernels, Tiling, WgpuBackend};
 
-fn wgpu(recurrence_on_gpu: bool) -> Option<Shared<f32>> {
+fn wgpu(recurrence_on_gpu: bool, output_kernels: OutputKernels) -> Option<Shared<f32>> {
     match WgpuBackend::new() {
         // Every call on the GPU, however small (the suite's shapes are).
         Ok(backend) => Some(Arc::new(
             backend
                 .with_tiling(Tiling {
                     min_work: 0,
+                    output_kernels,
                     ..Tiling::default()
                 })
                 .with_recurrence_on_gpu(recurrence_on_gpu),
@@ -28,5 +29,14 @@ fn wgpu(recurrence_on_gpu: bool) -> Option<Shared<f32>> {
     }
 }
 
-pvrnn_backend_tests::backend_suite!(wgpu_f32, f32, wgpu(false));
-pvrnn_backend_tests::backend_suite!(wgpu_recurrence_on_gpu_f32, f32, wgpu(true));
+pvrnn_backend_tests::backend_suite!(wgpu_f32, f32, wgpu(false, OutputKernels::Fused));
+pvrnn_backend_tests::backend_suite!(
+    wgpu_recurrence_on_gpu_f32,
+    f32,
+    wgpu(true, OutputKernels::Fused)
+);
+pvrnn_backend_tests::backend_suite!(
+    wgpu_blocked_output_f32,
+    f32,
+    wgpu(false, OutputKernels::Blocked)
+);

@@ -422,6 +422,9 @@ impl BackendArgs {
                 if self.weights_on_host {
                     name.push_str(", weights on the host");
                 }
+                if gpu.tiling().output_kernels == pvrnn_wgpu::OutputKernels::Blocked {
+                    name.push_str(", blocked output kernels");
+                }
                 let device = gpu.gpu().clone();
                 (Box::new(gpu), name, Some(device))
             }

@@ -3,9 +3,10 @@
 //! inference's window (30 rows, everything observed or 16x16 only, input gradient only,
 //! targets resident as online inference keeps them for a step's 50 updates).
 //!
-//! Then inference's everything-observed case again under caps on the column splits
-//! (`Tiling::max_splits`), the knob that trades the row pass's parallelism against the
-//! length of the reduce pass's sums.
+//! Then the first three again with the register-blocked kernels (`OutputKernels::Blocked`,
+//! named "blocked"), and inference's everything-observed case under caps on the column
+//! splits (`Tiling::max_splits`), the knob that trades the row pass's parallelism against
+//! the length of the reduce pass's sums.
 //!
 //! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
 //! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
@@ -18,7 +19,7 @@ use std::time::Instant;
 
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
-use pvrnn_wgpu::{GpuOutputLayer, Tiling, WgpuBackend};
+use pvrnn_wgpu::{GpuOutputLayer, OutputKernels, Tiling, WgpuBackend};
 
 fn values(n: usize, seed: u64) -> Vec<f32> {
     let mut s = seed | 1;
@@ -80,6 +81,17 @@ fn main() {
             default,
         ),
     ];
+    let blocked = Tiling {
+        output_kernels: OutputKernels::Blocked,
+        ..default
+    };
+    let blocked_cases: Vec<_> = cases
+        .iter()
+        .map(|(what, n, k, grads, reps, _)| {
+            (format!("{what}, blocked"), *n, *k, *grads, *reps, blocked)
+        })
+        .collect();
+    cases.extend(blocked_cases);
     for max_splits in [1024, 256, 128, 64, 32, 16] {
         let tiling = Tiling {
             max_splits,

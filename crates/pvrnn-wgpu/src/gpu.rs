@@ -22,10 +22,24 @@ pub enum GpuError {
 /// live in registers and tiles are fixed-size arrays in workgroup memory).
 #[derive(Debug)]
 pub(crate) struct Kernels {
+    hv: usize,
     pub(crate) loss_rows: wgpu::ComputePipeline,
     pub(crate) loss_columns: wgpu::ComputePipeline,
     pub(crate) reduce: wgpu::ComputePipeline,
     pub(crate) predict: wgpu::ComputePipeline,
+    /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), compiled on
+    /// first use.
+    blocked: OnceLock<BlockedKernels>,
+}
+
+/// The register-blocked output layer's kernels for one hidden width: the forward product
+/// with the error gradient written out, then the input and weight gradients from it.
+#[derive(Debug)]
+pub(crate) struct BlockedKernels {
+    pub(crate) forward: wgpu::ComputePipeline,
+    pub(crate) input_grad: wgpu::ComputePipeline,
+    pub(crate) weight_grad: wgpu::ComputePipeline,
+    pub(crate) weight_reduce: wgpu::ComputePipeline,
 }
 
 /// The recurrence's kernels (shapes come from a table at run time, so one set serves every
@@ -328,6 +342,7 @@ impl Gpu {
         ];
         let source = |text: &str| crate::template::expand(text, &constants);
         Kernels {
+            hv,
             loss_rows: self.pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
             loss_columns: self.pipeline(
                 "loss_columns",
@@ -335,7 +350,36 @@ impl Gpu {
             ),
             reduce: self.pipeline("reduce", source(include_str!("shaders/reduce.wgsl"))),
             predict: self.pipeline("predict", source(include_str!("shaders/predict.wgsl"))),
+            blocked: OnceLock::new(),
         }
+    }
+
+    /// The register-blocked kernels of `kernels`' hidden width, compiled on first use.
+    pub(crate) fn blocked_kernels<'k>(&self, kernels: &'k Kernels) -> &'k BlockedKernels {
+        kernels.blocked.get_or_init(|| {
+            let hv = kernels.hv;
+            // Tiles in vec4s: 16 columns of hv (input gradient), 32 rows of hv (weights).
+            let constants = [("HV", hv), ("CT16_HV", 16 * hv), ("RT_HV", 32 * hv)];
+            let source = |text: &str| crate::template::expand(text, &constants);
+            BlockedKernels {
+                forward: self.pipeline(
+                    "blocked forward",
+                    source(include_str!("shaders/blocked_forward.wgsl")),
+                ),
+                input_grad: self.pipeline(
+                    "blocked input gradient",
+                    source(include_str!("shaders/blocked_input_grad.wgsl")),
+                ),
+                weight_grad: self.pipeline(
+                    "blocked weight gradient",
+                    source(include_str!("shaders/blocked_weight_grad.wgsl")),
+                ),
+                weight_reduce: self.pipeline(
+                    "blocked weight reduce",
+                    source(include_str!("shaders/blocked_weight_reduce.wgsl")),
+                ),
+            }
+        })
     }
 
     /// The recurrence's kernels, compiled on first use.

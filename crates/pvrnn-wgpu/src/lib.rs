@@ -52,7 +52,7 @@ use pvrnn_core::params::{Model, Params};
 pub use gpu::probe_now;
 pub use gpu::{Gpu, GpuError, probe};
 pub use learner::GpuLearner;
-pub use output::{GpuOutputLayer, Tiling};
+pub use output::{GpuOutputLayer, OutputKernels, Tiling};
 pub use readout::GpuReadout;
 pub use recurrence::GpuRecurrence;
 
@@ -90,6 +90,17 @@ impl WgpuBackend {
                     "PVRNN_WGPU_MIN_WORK={value} is not a whole number of multiply-adds; \
                      using the default, {}",
                     tiling.min_work
+                ),
+            }
+        }
+        // The output layer's kernels, for comparing them on one GPU
+        // (`PVRNN_WGPU_OUTPUT_KERNELS=blocked`).
+        if let Ok(value) = std::env::var("PVRNN_WGPU_OUTPUT_KERNELS") {
+            match value.parse() {
+                Ok(kernels) => tiling.output_kernels = kernels,
+                Err(e) => eprintln!(
+                    "PVRNN_WGPU_OUTPUT_KERNELS: {e}; using the default, {:?}",
+                    tiling.output_kernels
                 ),
             }
         }
@@ -162,7 +173,7 @@ impl WgpuBackend {
     }
 
     /// How the work is cut (tiles, chunks, the small-call threshold).
-    pub(crate) fn tiling(&self) -> Tiling {
+    pub fn tiling(&self) -> Tiling {
         self.tiling
     }
 

@@ -20,6 +20,47 @@ use crate::resident::ResidentLayer;
 
 /// Columns per tile of `loss_rows.wgsl` (its splits are whole tiles).
 const TILE_COLUMNS: usize = 32;
+/// Columns per tile of `blocked_forward.wgsl` (its splits are whole tiles; a multiple of
+/// `blocked_input_grad.wgsl`'s 16).
+const BLOCKED_TILE_COLUMNS: usize = 64;
+/// Rows per workgroup of `blocked_input_grad.wgsl` (two per thread).
+const BLOCKED_INPUT_ROWS: usize = 128;
+/// Columns per workgroup of `blocked_weight_grad.wgsl` (two per thread), and rows per tile
+/// (its row ranges are whole tiles).
+const BLOCKED_WEIGHT_COLUMNS: usize = 128;
+const BLOCKED_WEIGHT_ROWS: usize = 32;
+
+/// Which kernels compute an output layer's loss and gradients. Both give the CPU's results
+/// to f32 summation order; which is faster is a GPU's question (docs/gpu.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OutputKernels {
+    /// A fused pass by rows (forward product, error, input gradient; each thread one row
+    /// against broadcast weights) and, with weight gradients, a pass by columns that
+    /// recomputes the forward product: the kernels measured on H100 and H200.
+    #[default]
+    Fused,
+    /// Three register-blocked products with the error gradient written out between them:
+    /// the forward product in 4 x 4 blocks of (rows, columns) per thread, then the input
+    /// and the weight gradients two rows (columns) per thread. About twice the
+    /// multiply-adds per workgroup-memory load of `Fused` and no recomputed product, for a
+    /// [rows x columns] error gradient in device memory (one chunk of rows, at most
+    /// `Tiling::max_chunk_bytes`). Not yet timed on a GPU.
+    Blocked,
+}
+
+impl std::str::FromStr for OutputKernels {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim() {
+            "fused" => Ok(Self::Fused),
+            "blocked" => Ok(Self::Blocked),
+            other => Err(format!(
+                "unknown output-layer kernels {other:?}: `fused` or `blocked`"
+            )),
+        }
+    }
+}
 /// Rows per workgroup of `predict.wgsl`.
 const PREDICT_ROWS: usize = 4;
 
@@ -55,6 +96,8 @@ pub struct Tiling {
     /// resident layers always run on the GPU (their weights live there). Tests set 0 to
     /// run their small shapes on the GPU.
     pub min_work: usize,
+    /// The output layer's kernels.
+    pub output_kernels: OutputKernels,
 }
 
 impl Default for Tiling {
@@ -66,6 +109,7 @@ impl Default for Tiling {
             max_chunk_bytes: 64 << 20,
             weight_rows_per_split: 256,
             min_work: 4 << 20,
+            output_kernels: OutputKernels::Fused,
         }
     }
 }
@@ -90,6 +134,33 @@ struct ColumnsParams {
     row_offset: u32,
     accumulate: u32,
     _pad: [u32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BlockedInputParams {
+    rows: u32,
+    k: u32,
+    cols_per_split: u32,
+    _pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BlockedWeightParams {
+    rows: u32,
+    k: u32,
+    rows_per_split: u32,
+    row_offset: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BlockedReduceParams {
+    k: u32,
+    splits: u32,
+    accumulate: u32,
+    _pad: u32,
 }
 
 #[repr(C)]
@@ -323,6 +394,7 @@ struct LossCut {
     chunk: usize,
     splits: usize,
     cols_per_split: usize,
+    kernels: OutputKernels,
 }
 
 /// One chunk's rows: the first, how many, the observed columns, 1 / divisor.
@@ -347,6 +419,16 @@ struct LossBuffers<'b> {
     /// Where the column pass accumulates d W and d b.
     gw: &'b wgpu::Buffer,
     gb: &'b wgpu::Buffer,
+    /// The blocked kernels' scratch, with `OutputKernels::Blocked`.
+    blocked: Option<&'b BlockedScratch>,
+}
+
+/// What `OutputKernels::Blocked` keeps between its products: a chunk's error gradient
+/// `[rows, k]`, and the weight gradient's partial sums per row range `[splits, k, 4 hv]`
+/// and `[splits, k]` (when weight gradients are asked for).
+struct BlockedScratch {
+    g: PooledBuffer,
+    part_w: Option<(PooledBuffer, PooledBuffer)>,
 }
 
 /// The output layer's loss encoded on the device (see [`GpuOutputLayer::encode_loss`]): the
@@ -435,6 +517,7 @@ impl GpuOutputLayer {
         };
         let grad_in = gpu.scratch("d input", n * 4 * hv, wgpu::BufferUsages::COPY_SRC);
         let row_loss = gpu.scratch("row loss", n, wgpu::BufferUsages::COPY_SRC);
+        let blocked = self.blocked_scratch(cut, k, hv, weight_grads);
 
         // Every chunk in one submission; streamed targets and parameters get buffers per
         // chunk, written before the submission runs and kept from the pool until it has.
@@ -459,6 +542,7 @@ impl GpuOutputLayer {
                 row_loss: &row_loss,
                 gw,
                 gb,
+                blocked: blocked.as_ref(),
             };
             let chunk_rows = ChunkRows {
                 start,
@@ -474,6 +558,10 @@ impl GpuOutputLayer {
         }
         in_flight.push(part_in);
         in_flight.push(part_loss);
+        if let Some(BlockedScratch { g, part_w }) = blocked {
+            in_flight.push(g);
+            in_flight.extend(part_w.into_iter().flat_map(|(w, b)| [w, b]));
+        }
         EncodedLoss {
             grad_in,
             row_loss,
@@ -490,7 +578,11 @@ impl GpuOutputLayer {
         let max_groups = self.gpu.limits().max_compute_workgroups_per_dimension as usize;
         let chunk = (limit / (4 * k)).max(1).min(n);
         // Column splits: enough workgroups to fill the GPU, partials within one binding.
-        let tiles = k.div_ceil(TILE_COLUMNS);
+        let tile_columns = match self.tiling.output_kernels {
+            OutputKernels::Fused => TILE_COLUMNS,
+            OutputKernels::Blocked => BLOCKED_TILE_COLUMNS,
+        };
+        let tiles = k.div_ceil(tile_columns);
         let row_blocks = chunk.div_ceil(WORKGROUP);
         let splits = self
             .tiling
@@ -500,13 +592,61 @@ impl GpuOutputLayer {
             .min(max_groups)
             .min(self.tiling.max_splits)
             .clamp(1, tiles);
-        let cols_per_split = tiles.div_ceil(splits) * TILE_COLUMNS;
+        let cols_per_split = tiles.div_ceil(splits) * tile_columns;
         let splits = k.div_ceil(cols_per_split);
         LossCut {
             chunk,
             splits,
             cols_per_split,
+            kernels: self.tiling.output_kernels,
         }
+    }
+
+    /// The scratch of `OutputKernels::Blocked` for a call cut as `cut` (none for `Fused`).
+    fn blocked_scratch(
+        &self,
+        cut: LossCut,
+        k: usize,
+        hv: usize,
+        weight_grads: bool,
+    ) -> Option<BlockedScratch> {
+        if cut.kernels != OutputKernels::Blocked {
+            return None;
+        }
+        let usage = wgpu::BufferUsages::empty();
+        let part_w = weight_grads.then(|| {
+            // A shorter last chunk has no more ranges.
+            let splits = self.weight_splits_at_most(cut.chunk, k, hv);
+            (
+                self.gpu.scratch("partial d W", splits * k * 4 * hv, usage),
+                self.gpu.scratch("partial d b", splits * k, usage),
+            )
+        });
+        Some(BlockedScratch {
+            g: self.gpu.scratch("error gradient", cut.chunk * k, usage),
+            part_w,
+        })
+    }
+
+    /// How `blocked_weight_grad.wgsl` cuts `rows` rows into ranges (each with its own
+    /// partial d W): the ranges and the rows per range.
+    fn weight_cut(&self, rows: usize, k: usize, hv: usize) -> (usize, usize) {
+        let rows_per_split = rows
+            .div_ceil(self.weight_splits_at_most(rows, k, hv))
+            .next_multiple_of(BLOCKED_WEIGHT_ROWS);
+        (rows.div_ceil(rows_per_split), rows_per_split)
+    }
+
+    /// At most this many row ranges for `rows` rows (never more for fewer rows): enough
+    /// workgroups to fill the GPU, partials within one binding.
+    fn weight_splits_at_most(&self, rows: usize, k: usize, hv: usize) -> usize {
+        let column_blocks = k.div_ceil(BLOCKED_WEIGHT_COLUMNS);
+        self.tiling
+            .target_workgroups
+            .div_ceil(column_blocks)
+            .min(self.chunk_limit() / (16 * hv * k))
+            .min(self.gpu.limits().max_compute_workgroups_per_dimension as usize)
+            .clamp(1, rows.div_ceil(BLOCKED_WEIGHT_ROWS))
     }
 
     /// One chunk of rows of a loss call: the row pass (forward, error, partial d input),
@@ -538,26 +678,31 @@ impl GpuOutputLayer {
             row_offset: start as u32,
             _pad: [0; 3],
         });
-        let rows_group = bind(
-            gpu,
-            &layer.kernels.loss_rows,
-            &[
-                &rows_params,
-                b.x,
-                layer.weight(),
-                layer.bias(),
-                b.y,
-                b.part_in,
-                b.part_loss,
-            ],
-        );
-        dispatch(
-            encoder,
-            &layer.kernels.loss_rows,
-            &rows_group,
-            rows.div_ceil(WORKGROUP) as u32,
-            cut.splits as u32,
-        );
+        match b.blocked {
+            None => {
+                let group = bind(
+                    gpu,
+                    &layer.kernels.loss_rows,
+                    &[
+                        &rows_params,
+                        b.x,
+                        layer.weight(),
+                        layer.bias(),
+                        b.y,
+                        b.part_in,
+                        b.part_loss,
+                    ],
+                );
+                let row_blocks = rows.div_ceil(WORKGROUP) as u32;
+                let kernel = &layer.kernels.loss_rows;
+                dispatch(encoder, kernel, &group, row_blocks, cut.splits as u32);
+            }
+            Some(scratch) => {
+                let input_params =
+                    self.encode_blocked_rows(encoder, layer, b, scratch, &rows_params, chunk, cut);
+                params.push(input_params);
+            }
+        }
         let reduce_params = gpu.uniform(&ReduceParams {
             rows: rows as u32,
             splits: cut.splits as u32,
@@ -583,39 +728,158 @@ impl GpuOutputLayer {
             1,
         );
         if weight_grads {
-            let columns_params = gpu.uniform(&ColumnsParams {
-                rows: rows as u32,
-                k: k as u32,
-                scale,
-                row_offset: start as u32,
-                accumulate: (start > 0) as u32,
-                _pad: [0; 3],
-            });
-            let columns_group = bind(
-                gpu,
-                &layer.kernels.loss_columns,
-                &[
-                    &columns_params,
-                    b.x,
-                    layer.weight(),
-                    layer.bias(),
-                    b.y,
-                    b.gw,
-                    b.gb,
-                ],
-            );
-            dispatch(
-                encoder,
-                &layer.kernels.loss_columns,
-                &columns_group,
-                k.div_ceil(WORKGROUP) as u32,
-                1,
-            );
-            params.push(columns_params);
+            match b.blocked {
+                None => params.push(self.encode_columns(encoder, layer, b, chunk)),
+                Some(scratch) => {
+                    params.extend(self.encode_blocked_weights(encoder, layer, b, scratch, chunk));
+                }
+            }
         }
         params.push(rows_params);
         params.push(reduce_params);
         params
+    }
+
+    /// `loss_columns.wgsl` for one chunk: d W and d b, the forward product recomputed.
+    /// Returns its parameters, to keep until the submission has run.
+    fn encode_columns(
+        &self,
+        encoder: &mut dyn Recorder,
+        layer: &Layer,
+        b: &LossBuffers<'_>,
+        chunk: ChunkRows,
+    ) -> PooledBuffer {
+        let gpu = &*self.gpu;
+        let columns_params = gpu.uniform(&ColumnsParams {
+            rows: chunk.rows as u32,
+            k: chunk.k as u32,
+            scale: chunk.scale,
+            row_offset: chunk.start as u32,
+            accumulate: (chunk.start > 0) as u32,
+            _pad: [0; 3],
+        });
+        let columns_group = bind(
+            gpu,
+            &layer.kernels.loss_columns,
+            &[
+                &columns_params,
+                b.x,
+                layer.weight(),
+                layer.bias(),
+                b.y,
+                b.gw,
+                b.gb,
+            ],
+        );
+        dispatch(
+            encoder,
+            &layer.kernels.loss_columns,
+            &columns_group,
+            chunk.k.div_ceil(WORKGROUP) as u32,
+            1,
+        );
+        columns_params
+    }
+
+    /// `OutputKernels::Blocked`'s first two products for one chunk: the forward product
+    /// with the error gradient written to `scratch.g` and the row losses' partials, then
+    /// the input gradient's partials from it (both per column split, as `loss_rows.wgsl`'s).
+    #[allow(clippy::too_many_arguments)]
+    fn encode_blocked_rows(
+        &self,
+        encoder: &mut dyn Recorder,
+        layer: &Layer,
+        b: &LossBuffers<'_>,
+        scratch: &BlockedScratch,
+        rows_params: &wgpu::Buffer,
+        chunk: ChunkRows,
+        cut: LossCut,
+    ) -> PooledBuffer {
+        let gpu = &*self.gpu;
+        let kernels = gpu.blocked_kernels(&layer.kernels);
+        let splits = cut.splits as u32;
+        let forward = bind(
+            gpu,
+            &kernels.forward,
+            &[
+                rows_params,
+                b.x,
+                layer.weight(),
+                layer.bias(),
+                b.y,
+                &scratch.g,
+                b.part_loss,
+            ],
+        );
+        let row_blocks = chunk.rows.div_ceil(WORKGROUP) as u32;
+        dispatch(encoder, &kernels.forward, &forward, row_blocks, splits);
+        let input_params = gpu.uniform(&BlockedInputParams {
+            rows: chunk.rows as u32,
+            k: chunk.k as u32,
+            cols_per_split: cut.cols_per_split as u32,
+            _pad: 0,
+        });
+        let input = bind(
+            gpu,
+            &kernels.input_grad,
+            &[&input_params, layer.weight(), &scratch.g, b.part_in],
+        );
+        let row_blocks = chunk.rows.div_ceil(BLOCKED_INPUT_ROWS) as u32;
+        dispatch(encoder, &kernels.input_grad, &input, row_blocks, splits);
+        input_params
+    }
+
+    /// `OutputKernels::Blocked`'s third product for one chunk: d W and d b from the error
+    /// gradient, per range of rows, then the ranges added into `b.gw`, `b.gb` (after the
+    /// earlier chunks'). Returns the parameters, to keep until the submission has run.
+    fn encode_blocked_weights(
+        &self,
+        encoder: &mut dyn Recorder,
+        layer: &Layer,
+        b: &LossBuffers<'_>,
+        scratch: &BlockedScratch,
+        chunk: ChunkRows,
+    ) -> [PooledBuffer; 2] {
+        let gpu = &*self.gpu;
+        let kernels = gpu.blocked_kernels(&layer.kernels);
+        let hv = vec4s(layer.hidden);
+        let Some((part_w, part_b)) = &scratch.part_w else {
+            unreachable!("weight gradients asked for: their partials were made")
+        };
+        let (splits, rows_per_split) = self.weight_cut(chunk.rows, chunk.k, hv);
+        let weight_params = gpu.uniform(&BlockedWeightParams {
+            rows: chunk.rows as u32,
+            k: chunk.k as u32,
+            rows_per_split: rows_per_split as u32,
+            row_offset: chunk.start as u32,
+        });
+        let weights = bind(
+            gpu,
+            &kernels.weight_grad,
+            &[&weight_params, b.x, &scratch.g, part_w, part_b],
+        );
+        let column_blocks = chunk.k.div_ceil(BLOCKED_WEIGHT_COLUMNS) as u32;
+        dispatch(
+            encoder,
+            &kernels.weight_grad,
+            &weights,
+            column_blocks,
+            splits as u32,
+        );
+        let reduce_params = gpu.uniform(&BlockedReduceParams {
+            k: chunk.k as u32,
+            splits: splits as u32,
+            accumulate: (chunk.start > 0) as u32,
+            _pad: 0,
+        });
+        let reduce = bind(
+            gpu,
+            &kernels.weight_reduce,
+            &[&reduce_params, part_w, part_b, b.gw, b.gb],
+        );
+        let (groups_x, groups_y) = grid(gpu, chunk.k * hv);
+        dispatch(encoder, &kernels.weight_reduce, &reduce, groups_x, groups_y);
+        [weight_params, reduce_params]
     }
 
     /// Encodes a learner's whole read-out of `modality` from the module states in `input`:

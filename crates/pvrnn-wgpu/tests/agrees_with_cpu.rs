@@ -24,7 +24,7 @@ use pvrnn_core::train::Trainer;
 use pvrnn_core::{
     Ablation, AblationMode, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
 };
-use pvrnn_wgpu::{GpuRecurrence, Tiling, WgpuBackend};
+use pvrnn_wgpu::{GpuRecurrence, OutputKernels, Tiling, WgpuBackend};
 
 /// Tiling that sends every call to the GPU, however small (the tests' shapes are).
 fn every_call() -> Tiling {
@@ -102,6 +102,46 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
         3,
         21,
     );
+}
+
+/// The register-blocked output-layer kernels compute what the CPU computes: one chunk
+/// (160 rows: three row blocks of the forward product, the last short; two of the input
+/// gradient), then many small chunks with several column splits and row ranges each, and
+/// learning with the layers resident, with and without hidden read-out layers and biases.
+#[test]
+fn the_blocked_output_kernels_match_the_cpu_backend() {
+    let Some(gpu) = gpu() else { return };
+    let blocked = |tiling: Tiling| {
+        gpu.clone().with_tiling(Tiling {
+            output_kernels: OutputKernels::Blocked,
+            ..tiling
+        })
+    };
+    free_energy_and_gradients_agree(blocked(every_call()), 4, 40);
+    // 4-row chunks of 63 rows (the last short); 8 column tiles of 64 (the last short) in
+    // splits of two, so partial input gradients and row ranges of d W are reduced.
+    free_energy_and_gradients_agree(
+        blocked(Tiling {
+            target_workgroups: 8,
+            max_splits: 64,
+            max_chunk_bytes: 8 << 10,
+            ..every_call()
+        }),
+        3,
+        21,
+    );
+    // Enough rows for several ranges of d W in one chunk: 3 x 60 = 180 rows in ranges of
+    // 32 or more.
+    free_energy_and_gradients_agree(
+        blocked(Tiling {
+            target_workgroups: 64,
+            ..every_call()
+        }),
+        3,
+        60,
+    );
+    learning_with_resident_weights(blocked(every_call()), config(), None);
+    learning_with_resident_weights(blocked(every_call()), other_readouts(), None);
 }
 
 /// Learning with the output layers resident on the GPU (weights, biases and RAdam moments
@@ -312,12 +352,14 @@ fn learning_with_resident_weights(
     // gradient over several chunks, the hidden layers' over several ranges of rows.
     // No call is worth a round trip (`min_work`): the resident read-outs must run on the
     // GPU all the same, or the host would compute with its stale copies.
+    let output_kernels = gpu.tiling().output_kernels;
     let gpu = gpu.with_tiling(Tiling {
         target_workgroups: 4,
         max_splits: 64,
         max_chunk_bytes: 8 << 10,
         weight_rows_per_split: 16,
         min_work: usize::MAX,
+        output_kernels,
     });
     assert!(gpu.resident_learning());
     let gpu_recurrence = gpu.recurrence_on_gpu();

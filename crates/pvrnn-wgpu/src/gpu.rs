@@ -340,7 +340,7 @@ impl Gpu {
             ("RT_HV", 32 * hv),
             ("RB_HV", 4 * hv),
         ];
-        let source = |text: &str| crate::template::expand(text, &constants);
+        let source = |text: &str| output_source(text, &constants);
         Kernels {
             hv,
             loss_rows: self.pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
@@ -360,7 +360,7 @@ impl Gpu {
             let hv = kernels.hv;
             // Tiles in vec4s: 16 columns of hv (input gradient), 32 rows of hv (weights).
             let constants = [("HV", hv), ("CT16_HV", 16 * hv), ("RT_HV", 32 * hv)];
-            let source = |text: &str| crate::template::expand(text, &constants);
+            let source = |text: &str| output_source(text, &constants);
             BlockedKernels {
                 forward: self.pipeline(
                     "blocked forward",
@@ -484,6 +484,12 @@ impl Gpu {
                 cache: None,
             })
     }
+}
+
+/// An output-layer kernel's source, expanded, after the helpers they share.
+fn output_source(text: &str, constants: &[(&str, usize)]) -> String {
+    let common = include_str!("shaders/output_common.wgsl");
+    crate::template::expand(&format!("{common}\n{text}"), constants)
 }
 
 /// The adapter [`Gpu::open`] takes: Vulkan, Metal, DX12 (and WebGPU) unless `WGPU_BACKEND`

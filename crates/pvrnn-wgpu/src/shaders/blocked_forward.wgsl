@@ -42,14 +42,6 @@ var<workgroup> x_tile: array<vec4<f32>, 256>;  // [KC, BM]
 var<workgroup> w_tile: array<vec4<f32>, 256>;  // [KC, BN]
 var<workgroup> loss_tile: array<f32, 1088>;    // [BM, LS]
 
-fn tanh_safe(a: f32) -> f32 {
-    return tanh(clamp(a, -15.0, 15.0));
-}
-
-fn sum4(v: vec4<f32>) -> f32 {
-    return (v.x + v.y) + (v.z + v.w);
-}
-
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let split = wg.y;

@@ -36,14 +36,6 @@ struct Params {
 
 var<workgroup> x_tile: array<vec4<f32>, {{RT_HV}}>;
 
-fn tanh_safe(a: f32) -> f32 {
-    return tanh(clamp(a, -15.0, 15.0));
-}
-
-fn sum4(v: vec4<f32>) -> f32 {
-    return (v.x + v.y) + (v.z + v.w);
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let col = wg.x * CW + t;

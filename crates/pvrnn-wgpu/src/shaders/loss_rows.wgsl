@@ -43,15 +43,6 @@ var<workgroup> w_tile: array<vec4<f32>, {{CT_HV}}>;
 var<workgroup> y_tile: array<f32, 2112>;  // RT * YS
 var<workgroup> b_tile: array<f32, 32>;    // CT
 
-// tanh that stays finite for any input (some implementations overflow exp(2a)).
-fn tanh_safe(a: f32) -> f32 {
-    return tanh(clamp(a, -15.0, 15.0));
-}
-
-fn sum4(v: vec4<f32>) -> f32 {
-    return (v.x + v.y) + (v.z + v.w);
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let split = wg.y;

@@ -79,8 +79,10 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
             }
             w_tile[kk * BN + lane] = wv;
             workgroupBarrier();
+            // The last chunk may run past the hidden width (13 vec4s at the paper's
+            // scale): its zero padding is skipped, not multiplied.
             //#unroll q 4
-            {
+            if (k0 + {q}u < HV) {
             //#unroll i 4
             let a{i} = x_tile[{q}u * BM + ty + 16u * {i}u];
             //#end

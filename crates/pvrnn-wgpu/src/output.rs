@@ -394,7 +394,6 @@ struct LossCut {
     chunk: usize,
     splits: usize,
     cols_per_split: usize,
-    kernels: OutputKernels,
 }
 
 /// One chunk's rows: the first, how many, the observed columns, 1 / divisor.
@@ -598,7 +597,6 @@ impl GpuOutputLayer {
             chunk,
             splits,
             cols_per_split,
-            kernels: self.tiling.output_kernels,
         }
     }
 
@@ -610,7 +608,7 @@ impl GpuOutputLayer {
         hv: usize,
         weight_grads: bool,
     ) -> Option<BlockedScratch> {
-        if cut.kernels != OutputKernels::Blocked {
+        if self.tiling.output_kernels != OutputKernels::Blocked {
             return None;
         }
         let usage = wgpu::BufferUsages::empty();

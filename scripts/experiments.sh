@@ -26,8 +26,45 @@
 #   BACKEND=wgpu JOBS=4 THREADS=16 scripts/experiments.sh interference 1
 #   SCALE=converged BACKEND=wgpu GPU_RECURRENCE=1 COHORT=5 JOBS=2 THREADS=16 \
 #       scripts/experiments.sh interference
+#
+# A converged training takes hours, longer than a session on a fresh machine keeps its
+# files. `scripts/experiments.sh keep` copies the training in flight (the newest checkpoint
+# under training/converged-*/, with its best network and logs) into training/in-flight/,
+# one path per file, to commit; every run here first puts it back where its training
+# resumes from it, unless that checkpoint is already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+kept=training/in-flight
+if [ "${1:-}" = keep ]; then
+    checkpoint=$(ls -t training/converged-*/*.safetensors 2>/dev/null |
+        grep -v '\.best\.safetensors$' | head -n 1 || true)
+    [ -n "$checkpoint" ] || { echo "no converged training has a checkpoint" >&2; exit 1; }
+    stem=${checkpoint%.safetensors}
+    mkdir -p "$kept"
+    # In this order while the training runs: the best network and the validations before
+    # the checkpoint (one validated after them is validated again on resume), the training
+    # log after it (flushed before each checkpoint, it covers the checkpoint's iterations).
+    for part in best.safetensors validation.csv checkpoint log.csv; do
+        source=$stem.$part target=$kept/$part
+        [ "$part" != checkpoint ] || source=$checkpoint target=$kept/checkpoint.safetensors
+        if [ -f "$source" ]; then cp "$source" "$target"; else rm -f "$target"; fi
+    done
+    echo "$stem" > "$kept/stem.txt"
+    echo "kept $stem (iteration $(tail -n 1 "$stem.log.csv" | cut -d, -f1)) in $kept/; commit it" >&2
+    exit 0
+fi
+if [ -f "$kept/stem.txt" ]; then
+    stem=$(cat "$kept/stem.txt")
+    if [ ! -f "$stem.safetensors" ]; then
+        mkdir -p "$(dirname "$stem")"
+        for part in best.safetensors log.csv validation.csv; do
+            [ ! -f "$kept/$part" ] || cp "$kept/$part" "$stem.$part"
+        done
+        cp "$kept/checkpoint.safetensors" "$stem.safetensors"
+        echo "resuming $stem from $kept/" >&2
+    fi
+fi
 
 threads=${THREADS:-2}
 jobs=${JOBS:-1}

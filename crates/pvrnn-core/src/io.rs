@@ -30,6 +30,9 @@ pub const MODEL_FORMAT: &str = "pvrnn-model/1";
 pub const CHECKPOINT_FORMAT: &str = "pvrnn-checkpoint/1";
 pub const RUN_FORMAT: &str = "pvrnn-inference/1";
 const OPTIMIZER_PREFIX: &str = "radam.";
+/// A model file's metadata key for the training iteration it was taken at
+/// ([`save_model_at`]; a checkpoint keeps it in its learning state).
+const TRAINED_ITERATIONS: &str = "trained_iterations";
 
 /// A parsed safetensors file held in memory.
 #[derive(Debug)]
@@ -386,6 +389,15 @@ pub fn save_model<T: Real>(path: &Path, model: &Model<T>) -> Result<()> {
     )
 }
 
+/// [`save_model`] recording the training iteration the network was taken at (read back by
+/// [`checkpoint_iteration`]): a trained network for inference without the optimiser
+/// moments a checkpoint carries, a third of its size.
+pub fn save_model_at<T: Real>(path: &Path, model: &Model<T>, iteration: u64) -> Result<()> {
+    let mut meta = model_metadata(&model.config, MODEL_FORMAT);
+    meta.insert(TRAINED_ITERATIONS.into(), iteration.to_string());
+    save(path, &model_tensors(model, false), meta)
+}
+
 pub fn load_model(path: &Path) -> Result<Model<f32>> {
     model_from_file(&TensorFile::open(path)?)
 }
@@ -502,11 +514,16 @@ pub fn is_checkpoint(file: &TensorFile) -> bool {
     file.metadata("training").is_some()
 }
 
-/// The training iteration a checkpoint was written at (`None` for a plain model file or
-/// unreadable learning state).
+/// The training iteration a checkpoint was written at, or a model saved with
+/// [`save_model_at`] was taken at (`None` for a plain model file or unreadable learning
+/// state).
 pub fn checkpoint_iteration(file: &TensorFile) -> Option<u64> {
-    let state: TrainingState = serde_json::from_str(file.metadata("training")?).ok()?;
-    Some(state.iteration)
+    match file.metadata("training") {
+        Some(text) => serde_json::from_str::<TrainingState>(text)
+            .ok()
+            .map(|state| state.iteration),
+        None => file.metadata(TRAINED_ITERATIONS)?.parse().ok(),
+    }
 }
 
 /// Restores a learning run from a checkpoint, to continue on `backend`.

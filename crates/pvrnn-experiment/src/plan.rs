@@ -374,7 +374,8 @@ impl Plan {
         Ok(())
     }
 
-    /// A training job's best-validated checkpoint (designs with a convergence rule).
+    /// A training job's best-validated network (designs with a convergence rule): a model
+    /// file recording its iteration, without the optimiser state of a checkpoint.
     pub fn best_path(&self, dir: &Path, id: usize) -> PathBuf {
         self.checkpoint_path(dir, id)
             .with_extension("best.safetensors")

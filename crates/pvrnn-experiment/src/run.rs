@@ -614,7 +614,7 @@ impl<'p> TrainingRun<'p> {
         if let Some(rule) = rule.as_mut()
             && rule.missed(trainer.iteration)
         {
-            rule.validate(backend, &mut trainer, None)?;
+            rule.validate(backend, &mut trainer)?;
         }
         let mut run = Self {
             plan,
@@ -682,7 +682,7 @@ impl<'p> TrainingRun<'p> {
             return Ok(());
         }
         if validating && let Some(rule) = self.rule.as_mut() {
-            rule.validate(backend, trainer, Some(report))?;
+            rule.validate(backend, trainer)?;
         }
         self.check_stop();
         Ok(())
@@ -944,20 +944,18 @@ impl ConvergenceRule {
         )
     }
 
+    /// Validates the network; the best so far is kept as a model (inference reads it; the
+    /// run resumes from its own checkpoint), a third of a checkpoint's size.
     fn validate(
         &mut self,
         backend: &Arc<dyn Backend<f32>>,
         trainer: &mut Trainer<f32>,
-        last: Option<pvrnn_core::FreeEnergy>,
     ) -> Result<()> {
-        let row = validation::validate(
-            Arc::new(trainer.model().clone()),
-            backend.as_ref(),
-            &self.dataset,
-            trainer.iteration,
-        )?;
+        let iteration = trainer.iteration;
+        let model = Arc::new(trainer.model().clone());
+        let row = validation::validate(model.clone(), backend.as_ref(), &self.dataset, iteration)?;
         if validation::best(&self.rows).is_none_or(|b| row.better_than(b)) {
-            io::save_checkpoint(&self.best, trainer, last)?;
+            io::save_model_at(&self.best, &model, iteration)?;
         }
         self.rows.push(row);
         validation::write_log(&self.log, &self.rows)?;

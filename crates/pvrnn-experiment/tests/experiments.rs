@@ -521,6 +521,9 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         pvrnn_core::io::checkpoint_iteration(&file),
         trained.network_iteration
     );
+    // The best network is kept without optimiser moments (a third of a checkpoint).
+    let best_file = pvrnn_core::io::TensorFile::open(&plan.best_path(&out, 0)).unwrap();
+    assert!(!pvrnn_core::io::is_checkpoint(&best_file));
     assert!(plan.validation_log_path(&out, 0).is_file());
     // Learning all 18 sequences, the network is validated on both tasks' held-out ones;
     // an interference network that learns one task only, on that task's.

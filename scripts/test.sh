@@ -38,6 +38,9 @@ PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
 step "an experiment's Slurm job arrays on a real one-node Slurm (munge, slurmctld, slurmd)"
 timeout 900 tests/slurm/run.sh target/debug/pvrnn
 
+step "a campaign's training in flight kept for a fresh machine and put back (scripts/experiments.sh keep)"
+tests/scripts/in-flight.sh
+
 step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \

@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# `scripts/experiments.sh keep` and the restore every run of it begins with, on a scratch
+# copy of the script: keep copies the newest converged training's checkpoint (not a newer
+# best network of another one) with its best network and logs into training/in-flight/;
+# on a machine without them, a run puts them back under their own names, and a training
+# whose checkpoint is there is left alone. (The runner's resume itself is tested in
+# crates/pvrnn-experiment.)
+set -euo pipefail
+script=$(realpath "$(dirname "$0")/../../scripts/experiments.sh")
+work=$(mktemp -d /tmp/pvrnn-in-flight.XXXXXX)
+trap 'rm -rf "$work"' EXIT
+mkdir -p "$work/scripts" "$work/training/converged-interference" "$work/training/converged-networks"
+cp "$script" "$work/scripts/"
+cd "$work"
+fail() { echo "in-flight test: $*" >&2; exit 1; }
+
+older=training/converged-networks/converged-train-net0
+stem=training/converged-interference/converged-train-repositioning-plus3-net2
+echo older > "$older.safetensors"
+sleep 1
+echo checkpoint > "$stem.safetensors"
+echo best > "$stem.best.safetensors"
+printf 'iteration,total\n0,1.0\n500,0.5\n' > "$stem.log.csv"
+echo validations > "$stem.validation.csv"
+sleep 1
+echo other > training/converged-networks/converged-train-net1.best.safetensors
+
+scripts/experiments.sh keep 2> keep.log || fail "keep failed: $(cat keep.log)"
+grep -q "iteration 500" keep.log || fail "keep did not name the iteration: $(cat keep.log)"
+[ "$(cat training/in-flight/stem.txt)" = "$stem" ] || fail "kept $(cat training/in-flight/stem.txt), not $stem"
+for part in checkpoint.safetensors:safetensors best.safetensors:best.safetensors \
+    log.csv:log.csv validation.csv:validation.csv; do
+    cmp -s "training/in-flight/${part%%:*}" "$stem.${part#*:}" || fail "training/in-flight/${part%%:*} differs"
+done
+
+# A fresh machine: the kept training is put back (the run then fails at the missing
+# executable, after the restore).
+rm -rf training/converged-interference
+PVRNN=/bin/false scripts/experiments.sh interference 2 2> run.log && fail "the run should stop at /bin/false"
+grep -q "resuming $stem" run.log || fail "no restore: $(cat run.log)"
+for part in safetensors best.safetensors log.csv validation.csv; do
+    [ -f "$stem.$part" ] || fail "$stem.$part was not put back"
+done
+[ "$(cat "$stem.safetensors")" = checkpoint ] || fail "the checkpoint put back is not the kept one"
+
+# A training further along here than what was kept is not overwritten.
+echo later > "$stem.safetensors"
+PVRNN=/bin/false scripts/experiments.sh interference 2 2> run.log || true
+[ "$(cat "$stem.safetensors")" = later ] || fail "a checkpoint already here was overwritten"
+grep -q resuming run.log && fail "restored over an existing checkpoint"
+echo "in-flight keep and restore: ok" >&2

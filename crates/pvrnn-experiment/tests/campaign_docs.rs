@@ -109,44 +109,44 @@ fn doc() -> String {
     std::fs::read_to_string(repo().join("docs/results/experiments.md")).unwrap()
 }
 
-#[test]
-fn the_shared_networks_table_matches_their_results() {
-    let rows = table(&doc(), "| network | stopped at | network used |");
-    let results = results("docs/results/converged/hierarchy");
+/// The table headed `header` against the trainings of `dir`: as many rows as results, and
+/// each result's row (the one whose first cell starts with `row_start(result)`) as it.
+fn check_table(header: &str, dir: &str, row_start: impl Fn(&TrainResult) -> String) {
+    let rows = table(&doc(), header);
+    let results = results(dir);
     assert_eq!(
         rows.len(),
         results.len(),
-        "the shared networks' table has {} rows, and {} trainings are done",
+        "the table `{header}` has {} rows, and {} trainings are done: one row each",
         rows.len(),
         results.len()
     );
     for result in &results {
+        let start = row_start(result);
         let row = rows
             .iter()
-            .find(|r| r[0].starts_with(&format!("{} ", result.network)))
-            .unwrap_or_else(|| panic!("no row for shared network {}", result.network));
+            .find(|r| r[0].starts_with(&start))
+            .unwrap_or_else(|| panic!("no row `{start}...` for {}", result.job));
         check_row(row, result);
     }
 }
 
 #[test]
-fn the_interference_table_has_a_row_for_every_finished_training() {
-    let rows = table(&doc(), "| training | stopped at | network used |");
-    let results = results("docs/results/converged/interference");
-    assert_eq!(
-        rows.len(),
-        results.len(),
-        "the interference table has {} rows, and {} trainings are done: add the new ones",
-        rows.len(),
-        results.len()
+fn the_shared_networks_table_matches_their_results() {
+    // "0 (seed 0)"
+    check_table(
+        "| network | stopped at | network used |",
+        "docs/results/converged/hierarchy",
+        |result| format!("{} ", result.network),
     );
-    for result in &results {
-        // "repositioning 9 + wiping 3, net 1 (seed 1)"
-        let name = format!("{}, net {} ", result.condition, result.network);
-        let row = rows
-            .iter()
-            .find(|r| r[0].starts_with(&name))
-            .unwrap_or_else(|| panic!("no row `{name}...` for {}", result.job));
-        check_row(row, result);
-    }
+}
+
+#[test]
+fn the_interference_table_has_a_row_for_every_finished_training() {
+    // "repositioning 9 + wiping 3, net 1 (seed 1)"
+    check_table(
+        "| training | stopped at | network used |",
+        "docs/results/converged/interference",
+        |result| format!("{}, net {} ", result.condition, result.network),
+    );
 }

@@ -104,6 +104,44 @@ const SIGMA_Q: u32 = 6u;
 const Z: u32 = 7u;
 const KL: u32 = 8u;
 
+// Items handed out over every module at once: each module m has `sizes[m]` (its units, or
+// its outputs of a phase), one after another; item k is (module, index within it).
+fn split(k: u32, sizes: vec4<u32>) -> vec2<u32> {
+    var i = k;
+    var m = 0u;
+    for (; m < 3u && i >= sizes[m]; m++) {
+        i -= sizes[m];
+    }
+    return vec2<u32>(m, i);
+}
+
+fn total(sizes: vec4<u32>) -> u32 {
+    return sizes.x + sizes.y + sizes.z + sizes.w;
+}
+
+// Every module's d and z.
+fn units_d() -> vec4<u32> {
+    return vec4<u32>(table.modules[0].d, table.modules[1].d, table.modules[2].d, table.modules[3].d);
+}
+
+fn units_z() -> vec4<u32> {
+    return vec4<u32>(table.modules[0].z, table.modules[1].z, table.modules[2].z, table.modules[3].z);
+}
+
+// Each module's depth below the top (0: no parent). The modules come top-down (a parent
+// before its children), so the parent's depth is known when its child's is computed.
+fn module_depths() -> array<u32, 4> {
+    var below: array<u32, 4>;
+    for (var m = 0u; m < 4u; m++) {
+        let parent = table.modules[m].parent;
+        below[m] = 0u;
+        if (parent < 4u) {
+            below[m] = below[parent] + 1u;
+        }
+    }
+    return below;
+}
+
 fn window_at(w: u32) -> WindowInfo {
     return table.windows[w];
 }

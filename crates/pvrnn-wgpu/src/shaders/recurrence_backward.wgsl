@@ -30,22 +30,14 @@ var<workgroup> gh_next: array<f32, 512>;
 var<workgroup> gu: array<f32, 512>;
 var<workgroup> gz: array<f32, 512>;
 var<workgroup> gprior: array<f32, 1024>;
-var<workgroup> depth: array<u32, 4>;
 var<workgroup> steps: u32;
-var<workgroup> depths: u32;
 
 @compute @workgroup_size(128)
 fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let win = window_at(wg_id.x);
     if (lid == 0u) {
         steps = win.len;
-        let found = module_depths();
-        var deepest = 0u;
-        for (var m = 0u; m < 4u; m++) {
-            depth[m] = found[m];
-            deepest = max(deepest, found[m]);
-        }
-        depths = deepest + 1u;
+        set_depths();
     }
     for (var i = lid; i < 4u * MAX_UNITS; i += WG) {
         gd_cur[i] = 0.0;

@@ -128,18 +128,25 @@ fn units_z() -> vec4<u32> {
     return vec4<u32>(table.modules[0].z, table.modules[1].z, table.modules[2].z, table.modules[3].z);
 }
 
-// Each module's depth below the top (0: no parent). The modules come top-down (a parent
-// before its children), so the parent's depth is known when its child's is computed.
-fn module_depths() -> array<u32, 4> {
-    var below: array<u32, 4>;
+// Each module's depth below the top (0: no parent) and how many depths there are, set by
+// a window's first thread (`set_depths`) for the kernels that take a step's phases one
+// depth at a time.
+var<workgroup> depth: array<u32, 4>;
+var<workgroup> depths: u32;
+
+// The modules come top-down (a parent before its children), so the parent's depth is
+// known when its child's is set.
+fn set_depths() {
+    var deepest = 0u;
     for (var m = 0u; m < 4u; m++) {
         let parent = table.modules[m].parent;
-        below[m] = 0u;
+        depth[m] = 0u;
         if (parent < 4u) {
-            below[m] = below[parent] + 1u;
+            depth[m] = depth[parent] + 1u;
         }
+        deepest = max(deepest, depth[m]);
     }
-    return below;
+    depths = deepest + 1u;
 }
 
 fn window_at(w: u32) -> WindowInfo {

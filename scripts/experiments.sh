@@ -51,7 +51,7 @@ if [ "${1:-}" = keep ]; then
         if [ -f "$source" ]; then cp "$source" "$target"; else rm -f "$target"; fi
     done
     echo "$stem" > "$kept/stem.txt"
-    echo "kept $stem (iteration $(tail -n 1 "$stem.log.csv" | cut -d, -f1)) in $kept/; commit it" >&2
+    echo "kept $stem in $kept/ (its log reaches iteration $(tail -n 1 "$stem.log.csv" | cut -d, -f1); it resumes from its last checkpoint); commit it" >&2
     exit 0
 fi
 if [ -f "$kept/stem.txt" ]; then

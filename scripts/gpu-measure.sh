@@ -28,6 +28,10 @@
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
 #                only, where python3 imports torch with CUDA
+# ITERATIONS=N and INFER_STEPS=N replace the training iterations and inference steps per
+# bench (10 and 20; 3 and 5 with --quick).
+# THREADS="16" replaces the thread counts (default: all the host's, and 2); VARIANTS="wgpu
+# whole-5 torch-graph ..." runs only the variants it names (a lease too short for all).
 # `--quick` runs one round of 3 training iterations (a smoke check of the set-up); the
 # default is two rounds of 10 training iterations and 20 inference steps each (not yet
 # run on a GPU: time it with --quick first). BENCH_ARGS adds options to every bench
@@ -67,13 +71,18 @@ if [ "$quick" = 1 ]; then
 else
     rounds=2 iterations=10 steps=20
 fi
+iterations=${ITERATIONS:-$iterations} steps=${INFER_STEPS:-$steps}
 all=$(nproc)
 thread_counts=$all
 if [ "$all" != 2 ]; then thread_counts="$all 2"; fi
+thread_counts=${THREADS:-$thread_counts}
+
+wanted() { [ -z "${VARIANTS:-}" ] || [[ " $VARIANTS " == *" $1 "* ]]; }
 
 bench() {
     local variant=$1 threads=$2 round=$3
     shift 3
+    wanted "$variant" || return 0
     local file="$out/$variant-$threads-threads-round$round.jsonl"
     # shellcheck disable=SC2086 # BENCH_ARGS is a list of options
     if ! "$bin" --threads "$threads" bench --json --profile \
@@ -101,6 +110,7 @@ for round in $(seq "$rounds"); do
     done
     if python3 -c 'import torch, sys; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
         for mode in eager graph; do
+            wanted "torch-$mode" || continue
             # shellcheck disable=SC2086 # BENCH_ARGS is a list of options
             python3 scripts/torch-reference.py time --mode "$mode" --iterations "$iterations" \
                 $(echo " ${BENCH_ARGS:-}" | grep -oE -- '--(sequences|steps) [0-9]+' | tr '\n' ' ') \

@@ -6,7 +6,11 @@
 //! Then the first three again with the register-blocked kernels (`OutputKernels::Blocked`,
 //! named "blocked"), and inference's everything-observed case under caps on the column
 //! splits (`Tiling::max_splits`), the knob that trades the row pass's parallelism against
-//! the length of the reduce pass's sums.
+//! the length of the reduce pass's sums. Then learning's full batch without the weight
+//! gradient, in one chunk, and with the row pass's other shapes (`Tiling::row_pass_rows`,
+//! `Tiling::row_pass_step`); with
+//! `PVRNN_WGPU_CHECKS=all` every case runs with wgpu's runtime checks (the fused kernels run
+//! without them by default), with `PVRNN_WGPU_CHECKS=none` no kernel has them.
 //!
 //! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
 //! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
@@ -61,7 +65,7 @@ fn main() {
             5400,
             dims,
             true,
-            5,
+            20,
             default,
         ),
         (
@@ -92,6 +96,40 @@ fn main() {
         })
         .collect();
     cases.extend(blocked_cases);
+    // Learning's full batch without the weight gradient (the row pass and its reduce
+    // alone: the column pass is the difference), in one chunk of 768 MiB instead of 11 of
+    // 64, and with the row pass's other shapes (rows per workgroup, columns per step).
+    cases.push((
+        "learning, full batch, no d W".into(),
+        5400,
+        dims,
+        false,
+        20,
+        default,
+    ));
+    let one_chunk = Tiling {
+        max_chunk_bytes: 768 << 20,
+        ..default
+    };
+    cases.push((
+        "learning, one chunk".into(),
+        5400,
+        dims,
+        true,
+        20,
+        one_chunk,
+    ));
+    for row_pass_rows in [32, 64, 128] {
+        for row_pass_step in [1, 2, 4, 8] {
+            let tiling = Tiling {
+                row_pass_rows,
+                row_pass_step,
+                ..default
+            };
+            let what = format!("learning, row pass {row_pass_rows} rows, {row_pass_step} per step");
+            cases.push((what, 5400, dims, true, 20, tiling));
+        }
+    }
     for max_splits in [1024, 256, 128, 64, 32, 16] {
         let tiling = Tiling {
             max_splits,

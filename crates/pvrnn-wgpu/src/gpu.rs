@@ -23,6 +23,8 @@ pub enum GpuError {
 #[derive(Debug)]
 pub(crate) struct Kernels {
     hv: usize,
+    /// Rows per workgroup of `loss_rows`.
+    pub(crate) row_pass_rows: usize,
     pub(crate) loss_rows: wgpu::ComputePipeline,
     pub(crate) loss_columns: wgpu::ComputePipeline,
     pub(crate) reduce: wgpu::ComputePipeline,
@@ -30,6 +32,57 @@ pub(crate) struct Kernels {
     /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), compiled on
     /// first use.
     blocked: OnceLock<BlockedKernels>,
+}
+
+/// Which kernels keep wgpu's runtime checks (bounds, loop bounding, integer division):
+/// every kernel but the audited fused output-layer ones (the default), every kernel
+/// (`PVRNN_WGPU_CHECKS=all`, to rule the unchecked ones out when something looks wrong), or
+/// none (`PVRNN_WGPU_CHECKS=none`, to measure what the checks cost).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RuntimeChecks {
+    AllButAudited,
+    All,
+    None,
+}
+
+impl RuntimeChecks {
+    fn from_env() -> Self {
+        match std::env::var("PVRNN_WGPU_CHECKS").as_deref() {
+            Err(_) => Self::AllButAudited,
+            Ok("all") => Self::All,
+            Ok("none") => Self::None,
+            Ok(other) => {
+                eprintln!(
+                    "PVRNN_WGPU_CHECKS={other} is neither `all` nor `none`; using the default \
+                     (every kernel checked but the audited output-layer ones)"
+                );
+                Self::AllButAudited
+            }
+        }
+    }
+}
+
+/// What the output layer's kernels are compiled for: the hidden width in vec4s, and the
+/// row pass's rows per workgroup and columns per step (`Tiling::row_pass_rows`,
+/// `Tiling::row_pass_step`, made valid by [`RowPass::new`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub(crate) struct RowPass {
+    pub(crate) hv: usize,
+    pub(crate) rows: usize,
+    pub(crate) step: usize,
+}
+
+impl RowPass {
+    /// `rows` made a multiple of the 32-column tile between 32 and 128 (the tile's biases
+    /// are loaded by its first 32 threads; 128 rows' targets fill 16.9 KiB of workgroup
+    /// memory), `step` a power of two that divides the tile (1 to 8).
+    pub(crate) fn new(hv: usize, rows: usize, step: usize) -> Self {
+        Self {
+            hv,
+            rows: rows.clamp(32, 128).next_multiple_of(32),
+            step: step.clamp(1, 8).next_power_of_two(),
+        }
+    }
 }
 
 /// The register-blocked output layer's kernels for one hidden width: the forward product
@@ -151,7 +204,7 @@ pub struct Gpu {
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
-    kernels: Mutex<HashMap<usize, Arc<Kernels>>>,
+    kernels: Mutex<HashMap<RowPass, Arc<Kernels>>>,
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
@@ -162,6 +215,8 @@ pub struct Gpu {
     pub(crate) resident: Mutex<ResidentTargets>,
     pool: Arc<BufferPool>,
     read_backs: AtomicU64,
+    /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
+    checks: RuntimeChecks,
 }
 
 impl Gpu {
@@ -201,6 +256,7 @@ impl Gpu {
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
+            checks: RuntimeChecks::from_env(),
         })
     }
 
@@ -322,29 +378,37 @@ impl Gpu {
         )
     }
 
-    /// The kernels for a hidden width of `hv` vec4s, compiled on first use.
-    pub(crate) fn kernels(&self, hv: usize) -> Arc<Kernels> {
+    /// The kernels for a hidden width of `hv` vec4s and the row pass's shape, compiled on
+    /// first use.
+    pub(crate) fn kernels(&self, row_pass: RowPass) -> Arc<Kernels> {
         let mut cache = self.kernels.lock().unwrap_or_else(|e| e.into_inner());
         cache
-            .entry(hv)
-            .or_insert_with(|| Arc::new(self.compile(hv)))
+            .entry(row_pass)
+            .or_insert_with(|| Arc::new(self.compile(row_pass)))
             .clone()
     }
 
-    fn compile(&self, hv: usize) -> Kernels {
+    fn compile(&self, row_pass: RowPass) -> Kernels {
+        let RowPass { hv, rows, step } = row_pass;
         // Tile sizes in vec4s: 32 columns (loss_rows), 32 rows (loss_columns), 4 rows
-        // (predict) of hv each.
+        // (predict) of hv each; loss_rows' rows per workgroup and columns per step, and its
+        // target tile (rows x 33 floats).
         let constants = [
             ("HV", hv),
             ("CT_HV", 32 * hv),
             ("RT_HV", 32 * hv),
             ("RB_HV", 4 * hv),
+            ("RT", rows),
+            ("CS", step),
+            ("RT_YS", rows * 33),
         ];
         let source = |text: &str| output_source(text, &constants);
         Kernels {
             hv,
-            loss_rows: self.pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
-            loss_columns: self.pipeline(
+            row_pass_rows: rows,
+            loss_rows: self
+                .audited_pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
+            loss_columns: self.audited_pipeline(
                 "loss_columns",
                 source(include_str!("shaders/loss_columns.wgsl")),
             ),
@@ -467,13 +531,48 @@ impl Gpu {
             .clone()
     }
 
+    /// `source` compiled with wgpu's runtime checks (bounds, loop bounding, division),
+    /// unless `PVRNN_WGPU_CHECKS=none`.
     fn pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
-        let module = self
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
+        self.compile_pipeline(label, source, self.checks == RuntimeChecks::None)
+    }
+
+    /// `source` compiled without wgpu's runtime checks, unless `PVRNN_WGPU_CHECKS=all`:
+    /// for the fused output-layer kernels only, whose every index is bounded by the shapes
+    /// the host sized their buffers with (see their sources). The checks cost them a fourth
+    /// of their time on an H200 (docs/gpu.md).
+    fn audited_pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
+        self.compile_pipeline(label, source, self.checks != RuntimeChecks::All)
+    }
+
+    #[allow(unsafe_code)] // trusted shader modules: see the SAFETY note
+    fn compile_pipeline(
+        &self,
+        label: &str,
+        source: String,
+        unchecked: bool,
+    ) -> wgpu::ComputePipeline {
+        let descriptor = wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        };
+        let module = if unchecked {
+            // SAFETY: by default only the fused output-layer kernels (`audited_pipeline`):
+            // every index they form is bounded by the row, column and split counts the host
+            // sized their buffers and dispatches with (dead threads read index 0 and write
+            // nothing; tile indices stay below the tile sizes, which are multiples of the
+            // steps), their loops are bounded by uniform counts and their divisors are
+            // nonzero constants. Every kernel only with `PVRNN_WGPU_CHECKS=none`, which is
+            // for measuring what the checks cost. The browser's WebGPU checks regardless.
+            unsafe {
+                self.device.create_shader_module_trusted(
+                    descriptor,
+                    wgpu::ShaderRuntimeChecks::unchecked(),
+                )
+            }
+        } else {
+            self.device.create_shader_module(descriptor)
+        };
         self.device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(label),

@@ -13,7 +13,7 @@ use wgpu::util::DeviceExt;
 use crate::encode::{
     Recorder, WORKGROUP, bind, dispatch, fits, grid, pad_rows, row_losses, unpad_rows, vec4s,
 };
-use crate::gpu::{Gpu, Kernels, ResidentKey};
+use crate::gpu::{Gpu, Kernels, ResidentKey, RowPass};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::resident::ResidentLayer;
@@ -44,7 +44,8 @@ pub enum OutputKernels {
     /// and the weight gradients two rows (columns) per thread. About twice the
     /// multiply-adds per workgroup-memory load of `Fused` and no recomputed product, for a
     /// [rows x columns] error gradient in device memory (one chunk of rows, at most
-    /// `Tiling::max_chunk_bytes`). Not yet timed on a GPU.
+    /// `Tiling::max_chunk_bytes`). Slower than `Fused` alone on an H200 (14-24 against
+    /// 13-14 ms per paper-scale learning call), a tie in whole iterations (docs/gpu.md).
     Blocked,
 }
 
@@ -98,6 +99,22 @@ pub struct Tiling {
     pub min_work: usize,
     /// The output layer's kernels.
     pub output_kernels: OutputKernels,
+    /// Rows per workgroup of the fused row pass (`loss_rows.wgsl`, one per thread): 32, 64
+    /// (the default) or 128 (native adapters only: its target tile needs more than
+    /// WebGPU's default 16 KiB of workgroup memory). For measuring per adapter
+    /// (`PVRNN_WGPU_ROW_PASS_ROWS`).
+    pub row_pass_rows: usize,
+    /// Columns per step of the row pass's inner loop: 1, 2 (the default), 4 or 8
+    /// independent dot products in flight per thread, more registers each
+    /// (`PVRNN_WGPU_ROW_PASS_STEP`).
+    pub row_pass_step: usize,
+}
+
+impl Tiling {
+    /// The row pass's shape for a hidden width of `hv` vec4s, made valid.
+    pub(crate) fn row_pass(&self, hv: usize) -> RowPass {
+        RowPass::new(hv, self.row_pass_rows, self.row_pass_step)
+    }
 }
 
 impl Default for Tiling {
@@ -110,6 +127,8 @@ impl Default for Tiling {
             weight_rows_per_split: 256,
             min_work: 4 << 20,
             output_kernels: OutputKernels::Fused,
+            row_pass_rows: 64,
+            row_pass_step: 2,
         }
     }
 }
@@ -316,7 +335,7 @@ impl GpuOutputLayer {
                 }
             };
             Some(Layer {
-                kernels: gpu.kernels(vec4s(hidden)),
+                kernels: gpu.kernels(tiling.row_pass(vec4s(hidden))),
                 hidden,
                 dims,
                 has_bias: out.bias.is_some(),
@@ -582,7 +601,10 @@ impl GpuOutputLayer {
             OutputKernels::Blocked => BLOCKED_TILE_COLUMNS,
         };
         let tiles = k.div_ceil(tile_columns);
-        let row_blocks = chunk.div_ceil(WORKGROUP);
+        let row_blocks = match self.tiling.output_kernels {
+            OutputKernels::Fused => chunk.div_ceil(self.tiling.row_pass(hv).rows),
+            OutputKernels::Blocked => chunk.div_ceil(WORKGROUP),
+        };
         let splits = self
             .tiling
             .target_workgroups
@@ -691,7 +713,7 @@ impl GpuOutputLayer {
                         b.part_loss,
                     ],
                 );
-                let row_blocks = rows.div_ceil(WORKGROUP) as u32;
+                let row_blocks = rows.div_ceil(layer.kernels.row_pass_rows) as u32;
                 let kernel = &layer.kernels.loss_rows;
                 dispatch(encoder, kernel, &group, row_blocks, cut.splits as u32);
             }

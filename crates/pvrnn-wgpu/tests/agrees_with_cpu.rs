@@ -90,6 +90,21 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
         3,
         21,
     );
+    // The row pass's other shapes (`Tiling::row_pass_rows`, `row_pass_step`): 32 and 128
+    // rows per workgroup (160 rows: five blocks, or two of which the second is short), one,
+    // four and eight columns per step (proprioception's 6 columns not a multiple of four
+    // or eight: the columns past a tile's end masked).
+    for (row_pass_rows, row_pass_step) in [(32, 1), (128, 4), (64, 8)] {
+        free_energy_and_gradients_agree(
+            gpu.clone().with_tiling(Tiling {
+                row_pass_rows,
+                row_pass_step,
+                ..every_call()
+            }),
+            4,
+            40,
+        );
+    }
     // The same with the splits capped below what the workgroup target asks for: 3 splits
     // of 5 tiles.
     free_energy_and_gradients_agree(
@@ -360,6 +375,7 @@ fn learning_with_resident_weights(
         weight_rows_per_split: 16,
         min_work: usize::MAX,
         output_kernels,
+        ..Tiling::default()
     });
     assert!(gpu.resident_learning());
     let gpu_recurrence = gpu.recurrence_on_gpu();

@@ -12,11 +12,12 @@
 // gradient is `loss_columns.wgsl`'s, which recomputes the forward product by columns: one
 // more product, but no [columns x rows] partials.
 //
-// Workgroup memory: CT * HV * 16 + RT * YS * 4 + CT * 4 bytes = 15.3 KiB at HV = 13, within
-// WebGPU's default 16 KiB.
+// Workgroup memory: CT * HV * 16 + RT * YS * 4 + CT * 4 bytes = 15.3 KiB at HV = 13 and
+// RT = 64, within WebGPU's default 16 KiB (RT = 128 needs 23.7 KiB: native adapters only).
 
 const HV: u32 = {{HV}}u;  // hidden width in vec4s (zero-padded)
-const RT: u32 = 64u;      // rows per workgroup (one per thread)
+const RT: u32 = {{RT}}u;  // rows per workgroup (one per thread; `Tiling::row_pass_rows`)
+const CS: u32 = {{CS}}u;  // columns per step of the inner loop (`Tiling::row_pass_step`)
 const CT: u32 = 32u;      // columns per tile
 const YS: u32 = 33u;      // row stride of the target tile (odd: no bank conflicts)
 
@@ -40,10 +41,10 @@ struct Params {
 @group(0) @binding(6) var<storage, read_write> part_loss: array<f32>;     // [splits, rows]
 
 var<workgroup> w_tile: array<vec4<f32>, {{CT_HV}}>;
-var<workgroup> y_tile: array<f32, 2112>;  // RT * YS
+var<workgroup> y_tile: array<f32, {{RT_YS}}>;  // RT * YS
 var<workgroup> b_tile: array<f32, 32>;    // CT
 
-@compute @workgroup_size(64)
+@compute @workgroup_size({{RT}})
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let split = wg.y;
     let r0 = wg.x * RT;
@@ -89,27 +90,30 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
         }
         workgroupBarrier();
 
-        // Two columns at a time (the tile's unused columns are zeros: g = 0 there, and
-        // the error is masked): two independent dot products in flight.
-        for (var c = 0u; c < n; c += 2u) {
-            let w0 = c * HV;
-            let w1 = w0 + HV;
-            var a0 = vec4<f32>(0.0);
-            var a1 = vec4<f32>(0.0);
-            //#unroll i HV
-            a0 = fma(xr{i}, w_tile[w0 + {i}u], a0);
-            a1 = fma(xr{i}, w_tile[w1 + {i}u], a1);
+        // CS columns at a time (the tile's unused columns are zeros: g = 0 there, and the
+        // error is masked): CS independent dot products in flight.
+        for (var c = 0u; c < n; c += CS) {
+            //#unroll j CS
+            var a{j} = vec4<f32>(0.0);
             //#end
-            let yhat0 = tanh_safe(sum4(a0) + b_tile[c]);
-            let yhat1 = tanh_safe(sum4(a1) + b_tile[c + 1u]);
-            let e0 = yhat0 - y_tile[t * YS + c];
-            // Column c + 1 may lie past the tile's end (odd n).
-            let e1 = select(0.0, yhat1 - y_tile[t * YS + c + 1u], c + 1u < n);
-            loss += e0 * e0 + e1 * e1;
-            let g0 = vec4<f32>(p.scale * e0 * (1.0 - yhat0 * yhat0));
-            let g1 = vec4<f32>(p.scale * e1 * (1.0 - yhat1 * yhat1));
             //#unroll i HV
-            gx{i} = fma(g1, w_tile[w1 + {i}u], fma(g0, w_tile[w0 + {i}u], gx{i}));
+            //#unroll j CS
+            a{j} = fma(xr{i}, w_tile[(c + {j}u) * HV + {i}u], a{j});
+            //#end
+            //#end
+            var step_loss = 0.0;
+            //#unroll j CS
+            let yhat{j} = tanh_safe(sum4(a{j}) + b_tile[c + {j}u]);
+            // Column c + j may lie past the tile's end (n not a multiple of CS).
+            let e{j} = select(0.0, yhat{j} - y_tile[t * YS + c + {j}u], c + {j}u < n);
+            step_loss += e{j} * e{j};
+            let g{j} = vec4<f32>(p.scale * e{j} * (1.0 - yhat{j} * yhat{j}));
+            //#end
+            loss += step_loss;
+            //#unroll i HV
+            //#unroll j CS
+            gx{i} = fma(g{j}, w_tile[(c + {j}u) * HV + {i}u], gx{i});
+            //#end
             //#end
         }
         workgroupBarrier();

@@ -825,8 +825,33 @@ fn train(
             }
         }
         let stopping = stop.load(Ordering::SeqCst);
-        for (run, report) in recorded {
-            if let Err(e) = run.checkpoint_and_validate(report, backend, stopping) {
+        // A cohort's members checkpoint and validate side by side: a validation is online
+        // inference, latency-bound (round trips on a GPU), and the members reach theirs at
+        // the same iteration. Each member's results are its own, as one after another.
+        let outcomes: Vec<Result<()>> = if recorded.len() > 1 {
+            std::thread::scope(|scope| {
+                let members: Vec<_> = recorded
+                    .into_iter()
+                    .map(|(run, report)| {
+                        scope.spawn(move || run.checkpoint_and_validate(report, backend, stopping))
+                    })
+                    .collect();
+                members
+                    .into_iter()
+                    .map(|m| {
+                        m.join()
+                            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+                    })
+                    .collect()
+            })
+        } else {
+            recorded
+                .into_iter()
+                .map(|(run, report)| run.checkpoint_and_validate(report, backend, stopping))
+                .collect()
+        };
+        for outcome in outcomes {
+            if let Err(e) = outcome {
                 failed.get_or_insert(e);
             }
         }

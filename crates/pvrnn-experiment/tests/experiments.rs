@@ -570,6 +570,81 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
     );
 }
 
+/// A cohort's members validate side by side: the validations, the networks chosen and the
+/// stopping iterations are those of each network trained alone.
+#[test]
+fn a_cohort_validates_as_its_networks_validate_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    dataset(&data);
+    let held_out = tmp.path().join("held-out");
+    pvrnn_dataset::synthetic::caresim_like(&[650], 1, 0, 6)
+        .unwrap()
+        .write(&held_out)
+        .unwrap();
+    let mut plan = Plan::new(
+        Experiment::Robustness,
+        Scale::Smoke,
+        &data,
+        None,
+        Some(&held_out),
+    )
+    .unwrap();
+    plan.design.validate_every = Some(4);
+    plan.design.patience = Some(1);
+    plan.design.flat_change = Some(1e-12);
+    let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
+    plan.save(&alone).unwrap();
+    plan.save(&together).unwrap();
+    let go = AtomicBool::new(false);
+    for id in [0, 1] {
+        pvrnn_experiment::run::run(&alone, &cpu(), "cpu", 1, Selection::Job(id), &go, &|_| {})
+            .unwrap();
+    }
+    let started = std::sync::Mutex::new(Vec::new());
+    let events = |e: Event<'_>| {
+        if let Event::Started { id, .. } = e {
+            started.lock().unwrap().push(id);
+        }
+    };
+    let workers = pvrnn_experiment::run::Workers { jobs: 1, cohort: 2 };
+    pvrnn_experiment::run::run_with(
+        &together,
+        &cpu(),
+        "cpu",
+        workers,
+        Selection::All,
+        &go,
+        &events,
+    )
+    .unwrap();
+    assert_eq!(started.lock().unwrap()[..2], [0, 1], "one cohort of both");
+    for id in [0, 1] {
+        let (a, b) = (
+            read_train_result(&plan.result_path(&alone, id)).unwrap(),
+            read_train_result(&plan.result_path(&together, id)).unwrap(),
+        );
+        assert!(!a.validations.is_empty(), "job {id} validated");
+        let scores = |r: &pvrnn_experiment::run::TrainResult| {
+            r.validations
+                .iter()
+                .map(|v| (v.iteration, v.failed_trials, v.recon_vision_top.to_bits()))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(scores(&a), scores(&b), "job {id}: its validations");
+        assert_eq!(
+            (a.iterations, a.network_iteration, a.stop),
+            (b.iterations, b.network_iteration, b.stop),
+            "job {id}"
+        );
+        assert_eq!(
+            a.final_free_energy.map(f64::to_bits),
+            b.final_free_energy.map(f64::to_bits),
+            "job {id}: the same network"
+        );
+    }
+}
+
 /// A condition's networks trained together (a cohort of 2) give the results and the
 /// checkpoints they get trained one by one, are checkpointed together when interrupted,
 /// and resume.

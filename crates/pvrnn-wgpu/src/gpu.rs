@@ -74,12 +74,19 @@ pub(crate) struct RowPass {
 
 impl RowPass {
     /// `rows` made a multiple of the 32-column tile between 32 and 128 (the tile's biases
-    /// are loaded by its first 32 threads; 128 rows' targets fill 16.9 KiB of workgroup
-    /// memory), `step` a power of two that divides the tile (1 to 8).
-    pub(crate) fn new(hv: usize, rows: usize, step: usize) -> Self {
+    /// are loaded by its first 32 threads) and halved until the kernel's workgroup memory
+    /// fits `workgroup_bytes` (the device's limit: WebGPU's default 16 KiB holds 64 rows at
+    /// the paper's width, not 128); `step` a power of two that divides the tile (1 to 8).
+    pub(crate) fn new(hv: usize, rows: usize, step: usize, workgroup_bytes: usize) -> Self {
+        // loss_rows.wgsl: the weight tile, the target tile (33 floats a row), the biases.
+        let bytes = |rows: usize| 32 * hv * 16 + rows * 33 * 4 + 32 * 4;
+        let mut rows = rows.clamp(32, 128).next_multiple_of(32);
+        while rows > 32 && bytes(rows) > workgroup_bytes {
+            rows /= 2;
+        }
         Self {
             hv,
-            rows: rows.clamp(32, 128).next_multiple_of(32),
+            rows,
             step: step.clamp(1, 8).next_power_of_two(),
         }
     }
@@ -644,6 +651,24 @@ fn describe(i: &wgpu::AdapterInfo) -> String {
 #[cfg(all(test, not(target_arch = "wasm32")))]
 mod tests {
     use super::*;
+
+    /// The row pass's shape is made one its kernel compiles for: rows a multiple of 32
+    /// between 32 and 128 that fit the workgroup memory, columns per step a power of two
+    /// up to 8.
+    #[test]
+    fn the_row_pass_shape_fits_the_tile_and_the_workgroup_memory() {
+        let shape = |rows, step, bytes| {
+            let p = RowPass::new(13, rows, step, bytes);
+            (p.rows, p.step)
+        };
+        assert_eq!(shape(64, 2, 16 << 10), (64, 2));
+        // 128 rows need 23.7 KiB at 13 vec4s: 64 within WebGPU's default 16 KiB.
+        assert_eq!(shape(128, 2, 16 << 10), (64, 2));
+        assert_eq!(shape(128, 2, 48 << 10), (128, 2));
+        assert_eq!(shape(100, 3, 48 << 10), (128, 4));
+        assert_eq!(shape(1, 0, 48 << 10), (32, 1));
+        assert_eq!(shape(4096, 64, 48 << 10), (128, 8));
+    }
 
     /// A buffer over the device's size limit stands in for one that does not fit its
     /// memory (lavapipe allocates host memory, which a test cannot exhaust): both leave an

@@ -100,8 +100,8 @@ pub struct Tiling {
     /// The output layer's kernels.
     pub output_kernels: OutputKernels,
     /// Rows per workgroup of the fused row pass (`loss_rows.wgsl`, one per thread): 32, 64
-    /// (the default) or 128 (native adapters only: its target tile needs more than
-    /// WebGPU's default 16 KiB of workgroup memory). For measuring per adapter
+    /// (the default) or 128 (23.7 KiB of workgroup memory at the paper's width: on an
+    /// adapter with WebGPU's default 16 KiB it runs 64). For measuring per adapter
     /// (`PVRNN_WGPU_ROW_PASS_ROWS`).
     pub row_pass_rows: usize,
     /// Columns per step of the row pass's inner loop: 1, 2 (the default), 4 or 8
@@ -111,9 +111,10 @@ pub struct Tiling {
 }
 
 impl Tiling {
-    /// The row pass's shape for a hidden width of `hv` vec4s, made valid.
-    pub(crate) fn row_pass(&self, hv: usize) -> RowPass {
-        RowPass::new(hv, self.row_pass_rows, self.row_pass_step)
+    /// The row pass's shape for a hidden width of `hv` vec4s on `gpu`, made valid.
+    pub(crate) fn row_pass(&self, hv: usize, gpu: &Gpu) -> RowPass {
+        let workgroup_bytes = gpu.limits().max_compute_workgroup_storage_size as usize;
+        RowPass::new(hv, self.row_pass_rows, self.row_pass_step, workgroup_bytes)
     }
 }
 
@@ -335,7 +336,7 @@ impl GpuOutputLayer {
                 }
             };
             Some(Layer {
-                kernels: gpu.kernels(tiling.row_pass(vec4s(hidden))),
+                kernels: gpu.kernels(tiling.row_pass(vec4s(hidden), &gpu)),
                 hidden,
                 dims,
                 has_bias: out.bias.is_some(),
@@ -602,7 +603,7 @@ impl GpuOutputLayer {
         };
         let tiles = k.div_ceil(tile_columns);
         let row_blocks = match self.tiling.output_kernels {
-            OutputKernels::Fused => chunk.div_ceil(self.tiling.row_pass(hv).rows),
+            OutputKernels::Fused => chunk.div_ceil(self.tiling.row_pass(hv, &self.gpu).rows),
             OutputKernels::Blocked => chunk.div_ceil(WORKGROUP),
         };
         let splits = self

@@ -24,6 +24,10 @@
 #   wgpu-blocked, whole-N-blocked
 #                `wgpu` and `whole-N` with the register-blocked output-layer kernels
 #                (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
+#   whole-N-checked, whole-N-unchecked
+#                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
+#                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
+#                the fused output-layer ones
 #   torch-eager, torch-graph
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
@@ -106,6 +110,11 @@ for round in $(seq "$rounds"); do
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench wgpu-blocked "$threads" "$round" --backend wgpu
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}"
+        for checks in all none; do
+            name=$([ "$checks" = all ] && echo checked || echo unchecked)
+            PVRNN_WGPU_CHECKS=$checks bench "whole-${NETWORKS:-5}-$name" "$threads" "$round" \
+                --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}"
+        done
         bench cpu "$threads" "$round" --backend cpu
     done
     if python3 -c 'import torch, sys; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then

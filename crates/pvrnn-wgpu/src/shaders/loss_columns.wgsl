@@ -9,6 +9,11 @@
 // row. A column belongs to one workgroup, so d W needs no atomics; chunks of rows
 // accumulate in order (`accumulate`).
 //
+// Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`), so every index must
+// stay in bounds by construction: columns below p.k (dead threads read column 0, write
+// nothing), rows below p.rows (row r + 1 only when r + 1 < n), tile indices below RT * HV
+// (RT even, so r + 1 < RT).
+//
 // Workgroup memory: RT * HV * 16 bytes = 6.5 KiB at HV = 13.
 
 const HV: u32 = {{HV}}u;  // hidden width in vec4s (zero-padded)

@@ -12,6 +12,11 @@
 // gradient is `loss_columns.wgsl`'s, which recomputes the forward product by columns: one
 // more product, but no [columns x rows] partials.
 //
+// Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`), so every index must
+// stay in bounds by construction: rows below p.rows (dead threads read row 0, write
+// nothing), columns below c_end <= p.k, splits below the grid's y the host sized part_in
+// and part_loss for; tile indices below CT * HV, RT * YS and CT (c + j < CT: CS divides CT).
+//
 // Workgroup memory: CT * HV * 16 + RT * YS * 4 + CT * 4 bytes = 15.3 KiB at HV = 13 and
 // RT = 64, within WebGPU's default 16 KiB (RT = 128 needs 23.7 KiB: native adapters only).
 

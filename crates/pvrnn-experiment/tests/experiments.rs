@@ -448,18 +448,33 @@ fn convergence_rule_stops_at_the_validation_best_a_flat_curve_or_the_cap() {
     );
 }
 
+/// A learning dataset in `dir`/data and a held-out one (one sequence per task) in
+/// `dir`/held-out.
+fn learning_and_held_out(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let data = dir.join("data");
+    dataset(&data);
+    let held_out = dir.join("held-out");
+    pvrnn_dataset::synthetic::caresim_like(&[650], 1, 0, 6)
+        .unwrap()
+        .write(&held_out)
+        .unwrap();
+    (data, held_out)
+}
+
+/// The convergence rule at a test's scale: a validation every 4 iterations, patience 1, no
+/// flat-curve stop.
+fn validate_every_4_iterations(plan: &mut Plan) {
+    plan.design.validate_every = Some(4);
+    plan.design.patience = Some(1);
+    plan.design.flat_change = Some(1e-12);
+}
+
 /// A training under a validation rule validates, keeps its best checkpoint, stops by the
 /// rule, and its inference runs read the network the rule chose.
 #[test]
 fn a_converged_design_validates_and_reads_the_network_it_chose() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    dataset(&data);
-    let held_out = tmp.path().join("held-out");
-    pvrnn_dataset::synthetic::caresim_like(&[650], 1, 0, 6)
-        .unwrap()
-        .write(&held_out)
-        .unwrap();
+    let (data, held_out) = learning_and_held_out(tmp.path());
     assert!(
         Plan::new(Experiment::Hierarchy, Scale::Converged, &data, None, None)
             .unwrap_err()
@@ -484,9 +499,7 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         Some(&held_out),
     )
     .unwrap();
-    plan.design.validate_every = Some(4);
-    plan.design.patience = Some(1);
-    plan.design.flat_change = Some(1e-12);
+    validate_every_4_iterations(&mut plan);
     // The cap: the smoke design's 20 iterations.
     let out = tmp.path().join("hierarchy");
     plan.save(&out).unwrap();
@@ -575,13 +588,7 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
 #[test]
 fn a_cohort_validates_as_its_networks_validate_alone() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    dataset(&data);
-    let held_out = tmp.path().join("held-out");
-    pvrnn_dataset::synthetic::caresim_like(&[650], 1, 0, 6)
-        .unwrap()
-        .write(&held_out)
-        .unwrap();
+    let (data, held_out) = learning_and_held_out(tmp.path());
     let mut plan = Plan::new(
         Experiment::Robustness,
         Scale::Smoke,
@@ -590,9 +597,7 @@ fn a_cohort_validates_as_its_networks_validate_alone() {
         Some(&held_out),
     )
     .unwrap();
-    plan.design.validate_every = Some(4);
-    plan.design.patience = Some(1);
-    plan.design.flat_change = Some(1e-12);
+    validate_every_4_iterations(&mut plan);
     let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
     plan.save(&alone).unwrap();
     plan.save(&together).unwrap();

@@ -461,12 +461,14 @@ fn learning_and_held_out(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf)
     (data, held_out)
 }
 
-/// The convergence rule at a test's scale: a validation every 4 iterations, patience 1, no
-/// flat-curve stop.
-fn validate_every_4_iterations(plan: &mut Plan) {
+/// `experiment`'s smoke plan on `data` under the convergence rule at a test's scale: a
+/// validation on `held_out` every 4 iterations, patience 1, no flat-curve stop.
+fn validated_smoke_plan(experiment: Experiment, data: &Path, held_out: &Path) -> Plan {
+    let mut plan = Plan::new(experiment, Scale::Smoke, data, None, Some(held_out)).unwrap();
     plan.design.validate_every = Some(4);
     plan.design.patience = Some(1);
     plan.design.flat_change = Some(1e-12);
+    plan
 }
 
 /// A training under a validation rule validates, keeps its best checkpoint, stops by the
@@ -491,15 +493,7 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         )
         .is_err()
     );
-    let mut plan = Plan::new(
-        Experiment::Hierarchy,
-        Scale::Smoke,
-        &data,
-        None,
-        Some(&held_out),
-    )
-    .unwrap();
-    validate_every_4_iterations(&mut plan);
+    let plan = validated_smoke_plan(Experiment::Hierarchy, &data, &held_out);
     // The cap: the smoke design's 20 iterations.
     let out = tmp.path().join("hierarchy");
     plan.save(&out).unwrap();
@@ -589,15 +583,7 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
 fn a_cohort_validates_as_its_networks_validate_alone() {
     let tmp = tempfile::tempdir().unwrap();
     let (data, held_out) = learning_and_held_out(tmp.path());
-    let mut plan = Plan::new(
-        Experiment::Robustness,
-        Scale::Smoke,
-        &data,
-        None,
-        Some(&held_out),
-    )
-    .unwrap();
-    validate_every_4_iterations(&mut plan);
+    let plan = validated_smoke_plan(Experiment::Robustness, &data, &held_out);
     let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
     plan.save(&alone).unwrap();
     plan.save(&together).unwrap();

@@ -577,14 +577,10 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
     );
 }
 
-/// A cohort's members validate side by side: the validations, the networks chosen and the
-/// stopping iterations are those of each network trained alone.
-#[test]
-fn a_cohort_validates_as_its_networks_validate_alone() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (data, held_out) = learning_and_held_out(tmp.path());
-    let plan = validated_smoke_plan(Experiment::Robustness, &data, &held_out);
-    let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
+/// `plan` saved in `dir`/alone and `dir`/together, its jobs 0 and 1 (a condition's first
+/// two networks) trained one by one in the first.
+fn trained_alone(plan: &Plan, dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (alone, together) = (dir.join("alone"), dir.join("together"));
     plan.save(&alone).unwrap();
     plan.save(&together).unwrap();
     let go = AtomicBool::new(false);
@@ -592,6 +588,18 @@ fn a_cohort_validates_as_its_networks_validate_alone() {
         pvrnn_experiment::run::run(&alone, &cpu(), "cpu", 1, Selection::Job(id), &go, &|_| {})
             .unwrap();
     }
+    (alone, together)
+}
+
+/// A cohort's members validate side by side: the validations, the networks chosen and the
+/// stopping iterations are those of each network trained alone.
+#[test]
+fn a_cohort_validates_as_its_networks_validate_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, held_out) = learning_and_held_out(tmp.path());
+    let plan = validated_smoke_plan(Experiment::Robustness, &data, &held_out);
+    let (alone, together) = trained_alone(&plan, tmp.path());
+    let go = AtomicBool::new(false);
     let started = std::sync::Mutex::new(Vec::new());
     let events = |e: Event<'_>| {
         if let Event::Started { id, .. } = e {
@@ -645,14 +653,8 @@ fn networks_of_one_condition_train_together_as_they_train_alone() {
     let data = tmp.path().join("data");
     dataset(&data);
     let plan = Plan::new(Experiment::Robustness, Scale::Smoke, &data, None, None).unwrap();
-    let (alone, together) = (tmp.path().join("alone"), tmp.path().join("together"));
-    plan.save(&alone).unwrap();
-    plan.save(&together).unwrap();
+    let (alone, together) = trained_alone(&plan, tmp.path());
     let go = AtomicBool::new(false);
-    for id in [0, 1] {
-        pvrnn_experiment::run::run(&alone, &cpu(), "cpu", 1, Selection::Job(id), &go, &|_| {})
-            .unwrap();
-    }
     let workers = pvrnn_experiment::run::Workers { jobs: 1, cohort: 2 };
     // Interrupted at iteration 7 of network 0: both are checkpointed there.
     let stop = AtomicBool::new(false);

@@ -666,8 +666,8 @@ impl<'p> TrainingRun<'p> {
         backend: &Arc<dyn Backend<f32>>,
         stopping: bool,
     ) -> Result<()> {
+        let validating = self.validating(stopping);
         let trainer = &mut self.trainer;
-        let validating = self.rule.as_ref().is_some_and(|r| r.due(trainer.iteration)) && !stopping;
         if trainer
             .iteration
             .is_multiple_of(self.plan.design.checkpoint_every.max(1))
@@ -686,6 +686,14 @@ impl<'p> TrainingRun<'p> {
         }
         self.check_stop();
         Ok(())
+    }
+
+    /// Whether the run validates after this iteration (not when it is `stopping`).
+    fn validating(&self, stopping: bool) -> bool {
+        self.rule
+            .as_ref()
+            .is_some_and(|r| r.due(self.trainer.iteration))
+            && !stopping
     }
 
     /// Writes the job's result (the run has stopped).
@@ -828,7 +836,12 @@ fn train(
         // A cohort's members checkpoint and validate side by side: a validation is online
         // inference, latency-bound (round trips on a GPU), and the members reach theirs at
         // the same iteration. Each member's results are its own, as one after another.
-        let outcomes: Vec<Result<()>> = if recorded.len() > 1 {
+        // Threads only then: most iterations validate nothing.
+        let validations = recorded
+            .iter()
+            .filter(|(run, _)| run.validating(stopping))
+            .count();
+        let outcomes: Vec<Result<()>> = if validations > 1 {
             std::thread::scope(|scope| {
                 let members: Vec<_> = recorded
                     .into_iter()

@@ -833,36 +833,7 @@ fn train(
             }
         }
         let stopping = stop.load(Ordering::SeqCst);
-        // A cohort's members checkpoint and validate side by side: a validation is online
-        // inference, latency-bound (round trips on a GPU), and the members reach theirs at
-        // the same iteration. Each member's results are its own, as one after another.
-        // Threads only then: most iterations validate nothing.
-        let validations = recorded
-            .iter()
-            .filter(|(run, _)| run.validating(stopping))
-            .count();
-        let outcomes: Vec<Result<()>> = if validations > 1 {
-            std::thread::scope(|scope| {
-                let members: Vec<_> = recorded
-                    .into_iter()
-                    .map(|(run, report)| {
-                        scope.spawn(move || run.checkpoint_and_validate(report, backend, stopping))
-                    })
-                    .collect();
-                members
-                    .into_iter()
-                    .map(|m| {
-                        m.join()
-                            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-                    })
-                    .collect()
-            })
-        } else {
-            recorded
-                .into_iter()
-                .map(|(run, report)| run.checkpoint_and_validate(report, backend, stopping))
-                .collect()
-        };
+        let outcomes = checkpoint_and_validate_side_by_side(recorded, backend, stopping);
         for outcome in outcomes {
             if let Err(e) = outcome {
                 failed.get_or_insert(e);
@@ -874,6 +845,43 @@ fn train(
         if let Some(e) = failed {
             return Err(e);
         }
+    }
+}
+
+/// A cohort's members checkpoint and validate side by side: a validation is online
+/// inference, latency-bound (round trips on a GPU), and the members reach theirs at the
+/// same iteration. Each member's results are its own, as one after another. Threads only
+/// then: most iterations validate nothing.
+fn checkpoint_and_validate_side_by_side(
+    recorded: Vec<(&mut TrainingRun<'_>, pvrnn_core::FreeEnergy)>,
+    backend: &Arc<dyn Backend<f32>>,
+    stopping: bool,
+) -> Vec<Result<()>> {
+    let validations = recorded
+        .iter()
+        .filter(|(run, _)| run.validating(stopping))
+        .count();
+    if validations > 1 {
+        std::thread::scope(|scope| {
+            let members: Vec<_> = recorded
+                .into_iter()
+                .map(|(run, report)| {
+                    scope.spawn(move || run.checkpoint_and_validate(report, backend, stopping))
+                })
+                .collect();
+            members
+                .into_iter()
+                .map(|m| {
+                    m.join()
+                        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+                })
+                .collect()
+        })
+    } else {
+        recorded
+            .into_iter()
+            .map(|(run, report)| run.checkpoint_and_validate(report, backend, stopping))
+            .collect()
     }
 }
 

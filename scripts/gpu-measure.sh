@@ -12,15 +12,16 @@
 #   wgpu         the wgpu backend as it ships (read-outs and their optimiser resident)
 #   host-weights `--weights-on-host`: weights uploaded and updated on the host every
 #                iteration (the path before the resident learner)
-#   whole        `--gpu-recurrence`: the recurrence on the GPU too, and in learning the
-#                whole iteration there (recurrent weights and adaptive variables resident,
-#                one submission, only the free-energy terms read back)
+#   whole        `--gpu-recurrence`: the recurrence on the GPU too, the whole learning
+#                iteration there (recurrent weights and adaptive variables resident, one
+#                submission, only the free-energy terms read back); training only (online
+#                inference keeps the recurrence on the CPU: it would time `wgpu` again)
 #   every-call   the wgpu backend with PVRNN_WGPU_MIN_WORK=0: online inference's small
 #                calls on the GPU too (the path before the threshold); inference only, and
 #                not with --quick
 #   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
 #                condition; NETWORKS overrides): N networks trained together, one
-#                recurrence dispatch for all of them (inference: the first network's)
+#                recurrence dispatch for all of them; training only
 #   wgpu-blocked, whole-N-blocked
 #                `wgpu` and `whole-N` with the register-blocked output-layer kernels
 #                (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
@@ -81,6 +82,10 @@ thread_counts=$all
 if [ "$all" != 2 ]; then thread_counts="$all 2"; fi
 thread_counts=${THREADS:-$thread_counts}
 
+# The whole-iteration variants time learning alone (BENCH_ARGS may already choose a part).
+train_only="--only train"
+if [[ " ${BENCH_ARGS:-} " == *" --only "* ]]; then train_only=""; fi
+
 wanted() { [ -z "${VARIANTS:-}" ] || [[ " $VARIANTS " == *" $1 "* ]]; }
 
 bench() {
@@ -101,19 +106,19 @@ for round in $(seq "$rounds"); do
     for threads in $thread_counts; do
         bench wgpu "$threads" "$round" --backend wgpu
         bench host-weights "$threads" "$round" --backend wgpu --weights-on-host
-        bench whole "$threads" "$round" --backend wgpu --gpu-recurrence
+        bench whole "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
         if [ "$quick" = 0 ]; then
             PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
         fi
         bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
-            --networks "${NETWORKS:-5}"
+            --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench wgpu-blocked "$threads" "$round" --backend wgpu
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
-            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}"
+            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         for checks in all none; do
             name=$([ "$checks" = all ] && echo checked || echo unchecked)
             PVRNN_WGPU_CHECKS=$checks bench "whole-${NETWORKS:-5}-$name" "$threads" "$round" \
-                --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}"
+                --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         done
         bench cpu "$threads" "$round" --backend cpu
     done

@@ -3,7 +3,6 @@
 import init, { run_worker } from "./pvrnn-explorer.js";
 
 await init();
-// Where runs compute (auto, cpu or webgpu) and the recurrence (cpu or gpu): the page passes
-// its own `?compute=` and `?recurrence=`.
+// Where runs compute (auto, cpu or webgpu): the page passes its own `?compute=`.
 const page = new URLSearchParams(self.location.search);
-run_worker(page.get("compute") ?? "auto", page.get("recurrence") ?? "cpu");
+run_worker(page.get("compute") ?? "auto");

@@ -1,6 +1,6 @@
 // Times one live run of the explorer in headless Chromium with WebGPU (SwiftShader's
 // adapter here), for comparing where the worker computes:
-//   node tests/web/live-run.mjs URL 'compute=webgpu&recurrence=gpu' SECONDS SCREENSHOT.png
+//   node tests/web/live-run.mjs URL 'compute=webgpu' SECONDS SCREENSHOT.png
 // It opens the page with that query, starts the smoke test's live condition (16x16 vision
 // and proprioception, 50 updates per step) and waits up to SECONDS. It prints the run's
 // "computed live" line if it finished; otherwise the screenshot's status bar shows the

@@ -193,8 +193,7 @@ try {
 
 // WebGPU in the worker: a browser with WebGPU (headless Chromium: SwiftShader's adapter,
 // with --enable-unsafe-webgpu) and `?compute=webgpu` must take it; `auto` (the default) says
-// what it chose; `&recurrence=gpu` puts the recurrence on it too. Agreement
-// with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
+// what it chose. Agreement with the CPU is crates/pvrnn-wgpu/tests/webgpu.rs.
 if (webgpu) {
   const gpuBrowser = await chromium.launch({
     executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
@@ -203,13 +202,12 @@ if (webgpu) {
            '--enable-unsafe-swiftshader'],
   });
   try {
-    for (const preference of ['webgpu', 'auto', 'webgpu&recurrence=gpu']) {
+    for (const preference of ['webgpu', 'auto']) {
       const { page, logs } = await openPage(gpuBrowser, `compute=${preference}`);
       const chosen = await waitForLog(page, logs, 'live runs compute on');
       console.log(`?compute=${preference}: ${chosen ?? 'the worker never said where it computes'}`);
       if (!chosen) fail(`?compute=${preference}: the worker never said where it computes`);
-      else if (preference.startsWith('webgpu') && !chosen.includes('WebGPU')) fail(`?compute=${preference} did not take WebGPU: ${chosen}`);
-      else if (preference.includes('recurrence=gpu') !== chosen.includes('recurrence on the GPU')) fail(`?compute=${preference}: the recurrence runs in the wrong place: ${chosen}`);
+      else if (preference === 'webgpu' && !chosen.includes('WebGPU')) fail(`?compute=${preference} did not take WebGPU: ${chosen}`);
       for (const l of logs) if (/panicked|pageerror|validation error|uncaptured|wgpu error/i.test(l)) fail(`console (?compute=${preference}): ${l}`);
       await page.close();
     }

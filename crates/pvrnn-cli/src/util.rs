@@ -341,14 +341,14 @@ pub struct BackendArgs {
     /// picks an adapter.
     #[arg(long, value_enum, default_value_t = BackendKind::Cpu)]
     pub backend: BackendKind,
-    /// With `--backend wgpu`: run the recurrence (forward, back-propagation through time,
-    /// its weight gradients) on the GPU too, one workgroup per window. In learning (unless
-    /// `--weights-on-host`) the whole iteration then stays on the GPU: the recurrent weights
+    /// With `--backend wgpu`, for learning: run the recurrence (forward, back-propagation
+    /// through time, its weight gradients) on the GPU too, one workgroup per window. Unless
+    /// `--weights-on-host` the whole iteration then stays on the GPU: the recurrent weights
     /// and the adaptive variables with their optimiser state too, one submission per
-    /// iteration, only the free-energy terms read back. On an H200: learning faster (0.0256
-    /// against 0.0299 s per paper-scale iteration), online inference slower (21 against 35
-    /// steps/s with 16x16 + proprioception); hence off by default: use it for training
-    /// (docs/gpu.md).
+    /// iteration, only the free-energy terms read back (on an H200 0.0256 against 0.0299 s
+    /// per paper-scale iteration). Online inference (`infer`, `evaluate`, an experiment's
+    /// inference runs) keeps the recurrence on the CPU: there the GPU's made it slower (21
+    /// against 35 steps/s with 16x16 + proprioception; docs/gpu.md).
     #[arg(long)]
     pub gpu_recurrence: bool,
     /// With `--backend wgpu`: upload the weights and read their gradients back every
@@ -387,6 +387,23 @@ impl BackendArgs {
             flags.push_str(" --weights-on-host");
         }
         flags
+    }
+
+    /// [`Self::open`] for a command that only runs online inference (`infer`, `evaluate`),
+    /// which refuses `--gpu-recurrence`: a learning option, since online inference keeps
+    /// the recurrence on the CPU whatever it says.
+    pub fn open_for_inference(
+        &self,
+        command: &str,
+    ) -> Result<(Box<dyn pvrnn_core::backend::Backend<f32>>, String)> {
+        if self.gpu_recurrence {
+            bail!(
+                "--gpu-recurrence is a learning option and `pvrnn {command}` runs online \
+                 inference, which keeps the recurrence on the CPU (on an H200 the GPU's \
+                 recurrence made it slower: docs/gpu.md); leave it out"
+            );
+        }
+        self.open()
     }
 
     /// Opens the backend and says in words what it runs on ("cpu" or the GPU adapter).

@@ -918,6 +918,23 @@ fn bad_inputs_give_clear_errors() {
         "--weights-on-host",
     ]);
     assert!(e.contains("--weights-on-host needs --backend wgpu"), "{e}");
+    // A learning option, refused by the commands that only run online inference.
+    let e = fails(&[
+        "infer",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--out",
+        &x.s("never.safetensors"),
+        "--backend",
+        "wgpu",
+        "--gpu-recurrence",
+    ]);
+    assert!(
+        e.contains("--gpu-recurrence is a learning option and `pvrnn infer`"),
+        "{e}"
+    );
 
     write_inputs(&x.path("nan.safetensors"), &small_config(), 2, 12, true);
     let e = fails(&[

@@ -13,8 +13,7 @@ use std::sync::Arc;
 
 use crate::Real;
 use crate::backend::{
-    BatchResult, FullOutputs, Grads, LoadedModel, Posterior, RegressionRequest, RegressionResult,
-    Request, Trace, Window, WindowResult,
+    BatchResult, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window, WindowResult,
 };
 use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Ablation;
@@ -187,27 +186,11 @@ pub trait Readout<T: Real>: Send + Sync + std::fmt::Debug {
     fn predict<'a>(&'a self, modality: Modality, d: &[T], n: usize) -> Deferred<'a, Vec<T>>;
 }
 
-/// Online inference's updates computed on other hardware, several at once (see
-/// [`LoadedModel::regress`]).
-pub trait ErrorRegression<T: Real>: Send + Sync + std::fmt::Debug {
-    /// Runs `request`'s updates for a model with these weights; `None` leaves them to the
-    /// caller (shapes the device does not hold, for example). The request is read before
-    /// this returns; the result may come later ([`Deferred`]).
-    fn regress<'a>(
-        &'a self,
-        params: &'a Params<T>,
-        config: &'a ModelConfig,
-        request: &RegressionRequest<'_, T>,
-    ) -> Option<Deferred<'a, RegressionResult<T>>>;
-}
-
 /// The pieces a backend assembles a loaded model from.
 #[derive(Debug)]
 pub struct Parts<T: Real> {
     pub recurrence: Box<dyn Recurrence<T>>,
     pub readout: Box<dyn Readout<T>>,
-    /// Online inference's updates in one go, where the backend has them.
-    pub regression: Option<Box<dyn ErrorRegression<T>>>,
 }
 
 /// A loaded model: one set of weights and the pieces that compute with them.
@@ -252,20 +235,6 @@ impl<T: Real> LoadedModel<T> for AssembledModel<T> {
 
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
         crate::deferred::now(self.parts.readout.predict(modality, d, n))
-    }
-
-    fn regress<'a>(
-        &'a self,
-        request: &RegressionRequest<'_, T>,
-    ) -> Option<Deferred<'a, RegressionResult<T>>> {
-        self.parts
-            .regression
-            .as_ref()?
-            .regress(&self.params, &self.config, request)
-    }
-
-    fn regresses(&self) -> bool {
-        self.parts.regression.is_some()
     }
 }
 

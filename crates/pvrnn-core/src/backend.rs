@@ -7,8 +7,7 @@
 //! the sliding window in inference) forward, computes the free energy on the observed
 //! dimensions, and optionally back-propagates through time. Both backends build their
 //! loaded model the same way: [`crate::assembled::AssembledModel`], the backend-neutral
-//! driver, over the pieces each supplies (its recurrence, its read-outs, and optionally
-//! online inference's updates in one go). The CPU's are in [`crate::cpu`], the GPU's in
+//! driver, over the pieces each supplies (its recurrence and its read-outs). The CPU's are in [`crate::cpu`], the GPU's in
 //! the `pvrnn-wgpu` crate; nothing above these traits knows which runs.
 
 use crate::Real;
@@ -134,6 +133,18 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
     /// lifetime: learning loads once per iteration, inference once per run.
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>>;
 
+    /// [`Self::load`] for online inference ([`crate::infer::OnlineInference`]), where a
+    /// backend may put the work elsewhere than for learning: inference evaluates one short
+    /// window at a time, many times per step, so it is bound by round trips where learning
+    /// is bound by arithmetic. The default is [`Self::load`].
+    fn load_for_inference(
+        &self,
+        params: &Params<T>,
+        config: &ModelConfig,
+    ) -> Box<dyn LoadedModel<T>> {
+        self.load(params, config)
+    }
+
     /// A learning run's weights kept on the backend's device between iterations (see
     /// [`Learner`]), starting from `model` and `optimizer`; `None` (the default, and the
     /// CPU's answer) loads the weights every iteration and updates them on the host.
@@ -161,6 +172,14 @@ pub trait Backend<T: Real>: Send + Sync + std::fmt::Debug {
 impl<T: Real> Backend<T> for std::sync::Arc<dyn Backend<T>> {
     fn load(&self, params: &Params<T>, config: &ModelConfig) -> Box<dyn LoadedModel<T>> {
         (**self).load(params, config)
+    }
+
+    fn load_for_inference(
+        &self,
+        params: &Params<T>,
+        config: &ModelConfig,
+    ) -> Box<dyn LoadedModel<T>> {
+        (**self).load_for_inference(params, config)
     }
 
     fn learner(&self, model: &Model<T>, optimizer: &RAdam<T>) -> Option<Box<dyn Learner<T>>> {
@@ -265,60 +284,4 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// dimension of `modality` (`[n, dims]`): how a compact run's images and
     /// proprioception are reconstructed.
     fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T>;
-
-    /// Several of online inference's updates of one window's adaptive variables at once, on
-    /// a device that can run them without coming back to the host in between (see
-    /// [`crate::assembled::ErrorRegression`]). `None` (the default): the caller runs them one
-    /// [`Self::evaluate`] at a time. Whether it runs them is decided at once; the result is
-    /// [`Deferred`] (WebGPU hands it over through the browser's event loop).
-    fn regress<'a>(
-        &'a self,
-        request: &RegressionRequest<'_, T>,
-    ) -> Option<Deferred<'a, RegressionResult<T>>> {
-        let _ = request;
-        None
-    }
-
-    /// Whether [`Self::regress`] may answer (it may still decline a call): lets online
-    /// inference skip preparing a request (every remaining update's eps) that would be
-    /// declined anyway.
-    fn regresses(&self) -> bool {
-        false
-    }
-}
-
-/// Online inference's updates of one window (error regression, eq. 18) to run in one go:
-/// for each update u, the window's free energy with `eps[u]` and the adaptive variables
-/// as the previous update left them, d F / d a, and one RAdam step with `steps[u]`'s
-/// scalars ([`RAdam::begin_step`]) on the eight tensors (a_mu of each module, then
-/// a_sigma: the order of the inference optimiser's moments).
-#[derive(Clone, Debug)]
-pub struct RegressionRequest<'a, T> {
-    /// The window: its state entering, its adaptive variables before the first update
-    /// (`Posterior::Adaptive`), its targets; its `eps` is not read.
-    pub window: Window<'a, T>,
-    /// Per update, eps per module, `[len, z]`.
-    pub eps: &'a [[Vec<T>; 4]],
-    /// Per update, the optimiser step's scalars.
-    pub steps: &'a [RAdamStep],
-    /// The optimiser's moments before the first update, per tensor `[len, z]`.
-    pub m: &'a [Vec<T>],
-    pub v: &'a [Vec<T>],
-    pub observed: Observed,
-    pub ablation: Ablation,
-    /// As [`Request::resident_targets`].
-    pub resident_targets: Option<u64>,
-}
-
-/// What [`LoadedModel::regress`] returns: the adaptive variables and moments after every
-/// update, unless one diverged.
-#[derive(Clone, Debug)]
-pub struct RegressionResult<T> {
-    pub a_mu: [Vec<T>; 4],
-    pub a_sigma: [Vec<T>; 4],
-    pub m: Vec<Vec<T>>,
-    pub v: Vec<Vec<T>>,
-    /// The first update whose free energy terms or gradient were not finite (the host
-    /// then restarts the step as it would have; the values above are meaningless).
-    pub first_non_finite: Option<usize>,
 }

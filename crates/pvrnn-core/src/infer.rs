@@ -203,15 +203,7 @@ pub struct StepOutput<T> {
     /// half the rate (0 almost always; see [`MAX_RATE_HALVINGS`]). The step's result is
     /// then that of a rate of `lr / 2^rate_halvings`.
     pub rate_halvings: u32,
-    /// The backend could have run this step's updates at once on its device but declined
-    /// the window (a shape its kernels do not hold): they ran one at a time (see
-    /// [`OnlineInference::steps_declined_by_device`]).
-    pub declined_by_device: bool,
 }
-
-/// At most this many updates go to [`LoadedModel::regress`] in one call: a device keeps
-/// each update's intermediate buffers until its submission has run.
-pub const UPDATES_PER_REGRESSION: usize = 64;
 
 /// How often a diverged step is restarted at half the rate before online inference gives
 /// up with an error. `lr / 2^30` is in effect no update: the step then keeps the prior it
@@ -257,12 +249,6 @@ pub struct OnlineInference<T: Real> {
     pending: Option<Pending<T>>,
     /// Extra read-outs of every step's final pass (contribution maps in one run).
     readout_ablations: Vec<Ablation>,
-    /// The backend declined this step's window for [`LoadedModel::regress`]: its updates
-    /// run one at a time without asking again (the window's shape holds for the step).
-    regress_declined: bool,
-    /// Steps whose window a backend that runs updates at once declined (see
-    /// [`Self::steps_declined_by_device`]).
-    steps_declined: usize,
 }
 
 impl<T: Real> OnlineInference<T> {
@@ -288,9 +274,7 @@ impl<T: Real> OnlineInference<T> {
             optimizer,
             pending: None,
             readout_ablations: Vec::new(),
-            regress_declined: false,
-            steps_declined: 0,
-            loaded: backend.load(&model.params, config),
+            loaded: backend.load_for_inference(&model.params, config),
             model,
             settings,
         })
@@ -320,14 +304,6 @@ impl<T: Real> OnlineInference<T> {
     /// A step has begun and is not finished yet.
     pub fn in_step(&self) -> bool {
         self.pending.is_some()
-    }
-
-    /// Steps so far whose updates the backend could have run at once on its device
-    /// ([`LoadedModel::regresses`]) but declined (a window its kernels do not hold), so
-    /// that they ran one at a time: how a caller that asked for the device sees that the
-    /// work did not go there.
-    pub fn steps_declined_by_device(&self) -> usize {
-        self.steps_declined
     }
 
     /// Iterations still to run for the step in progress (0 when none is in progress).
@@ -384,7 +360,6 @@ impl<T: Real> OnlineInference<T> {
             rows.push(row);
         }
         self.targets_id = crate::data::next_id();
-        self.regress_declined = false;
         self.latest = [x_extero.to_vec(), x_proprio.to_vec()];
         let sizes: Vec<usize> = (0..8).map(|i| self.a_mu[i % 4].len()).collect();
         if self.settings.reset_moments_each_step || self.steps_done == 0 {
@@ -478,29 +453,9 @@ impl<T: Real> OnlineInference<T> {
             let Some(pending) = self.pending.as_ref() else {
                 return 0;
             };
-            let (done, halvings) = (pending.iterations_done, pending.rate_halvings);
+            let done = pending.iterations_done;
             if done >= self.settings.iterations {
                 break;
-            }
-            // The updates this call may run, at once where the backend can.
-            let count = (self.settings.iterations - done)
-                .min(max - ran)
-                .min(UPDATES_PER_REGRESSION);
-            if let Some(outcome) = self.regress_on_device(t, done, count).await {
-                match outcome {
-                    Ok(()) => ran += count,
-                    Err(failed) => {
-                        ran += failed + 1;
-                        if halvings >= MAX_RATE_HALVINGS && failed > 0 {
-                            // Giving up keeps the state where the host's loop stops: after
-                            // the updates before the diverged one (finite, so they run
-                            // again the same way).
-                            let _ = self.regress_on_device(t, done, failed).await;
-                        }
-                        self.restart_step_at_half_rate();
-                    }
-                }
-                continue;
             }
             let eps = self.eps(Stream::InferIteration, &[t, done as u64], self.window_len());
             let ablation = self.settings.inference_ablation();
@@ -542,55 +497,6 @@ impl<T: Real> OnlineInference<T> {
             }
         }
         self.iterations_left()
-    }
-
-    /// Runs `count` updates of step `t` from update `done` through [`LoadedModel::regress`]
-    /// (the same eps and optimiser steps as one at a time); `None` if the backend runs them
-    /// one at a time, `Err(u)` if update `u` of them diverged (the step must restart).
-    async fn regress_on_device(
-        &mut self,
-        t: u64,
-        done: usize,
-        count: usize,
-    ) -> Option<Result<(), usize>> {
-        if self.regress_declined || !self.loaded.regresses() {
-            return None;
-        }
-        let len = self.window_len();
-        let eps: Vec<[Vec<T>; 4]> = (0..count)
-            .map(|u| self.eps(Stream::InferIteration, &[t, (done + u) as u64], len))
-            .collect();
-        let mut optimizer = self.optimizer.clone();
-        let steps: Vec<_> = (0..count).map(|_| optimizer.begin_step()).collect();
-        let request = crate::backend::RegressionRequest {
-            // The eps are per update, below.
-            window: self.window([&[]; 4]),
-            eps: &eps,
-            steps: &steps,
-            m: &self.optimizer.m,
-            v: &self.optimizer.v,
-            observed: self.settings.observed,
-            ablation: self.settings.inference_ablation(),
-            resident_targets: Some(self.targets_id),
-        };
-        let Some(pending) = self.loaded.regress(&request) else {
-            self.regress_declined = true;
-            self.steps_declined += 1;
-            return None;
-        };
-        let result = pending.await;
-        if let Some(failed) = result.first_non_finite {
-            return Some(Err(failed));
-        }
-        optimizer.m = result.m;
-        optimizer.v = result.v;
-        self.optimizer = optimizer;
-        self.a_mu = result.a_mu;
-        self.a_sigma = result.a_sigma;
-        if let Some(pending) = self.pending.as_mut() {
-            pending.iterations_done += count;
-        }
-        Some(Ok(()))
     }
 
     /// The step's window diverged: back to the step's start with half the rate (the same
@@ -744,7 +650,6 @@ impl<T: Real> OnlineInference<T> {
             step_accuracy,
             ablated_recon,
             rate_halvings,
-            declined_by_device: self.regress_declined,
         })
     }
 
@@ -949,7 +854,6 @@ impl<T: Real> OnlineInference<T> {
         self.optimizer.config = self.settings.optimizer.clone();
         self.steps_done = state.steps_done;
         self.targets_id = crate::data::next_id();
-        self.regress_declined = false;
         Ok(())
     }
 }

@@ -22,15 +22,6 @@ pub fn compute_preference() -> String {
     page_parameter("compute").unwrap_or_else(|| "auto".into())
 }
 
-/// Where a WebGPU engine runs the recurrence, from the page's `?recurrence=` (`gpu`, or
-/// `cpu` when absent or anything else).
-pub fn recurrence_preference() -> &'static str {
-    match page_parameter("recurrence").as_deref() {
-        Some("gpu") => "gpu",
-        _ => "cpu",
-    }
-}
-
 /// The value of `name` in the page's query (`?name=value&...`, before the `#`).
 pub(crate) fn page_parameter(name: &str) -> Option<String> {
     let search = web_sys::window()?.location().search().ok()?;

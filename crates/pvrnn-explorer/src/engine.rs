@@ -127,9 +127,6 @@ pub struct Finished {
     pub steps: usize,
     pub busy: Duration,
     pub wall: Duration,
-    /// Steps whose updates the GPU was asked to run at once but declined, so that they ran
-    /// one at a time (`OnlineInference::steps_declined_by_device`).
-    pub declined_by_device: usize,
     /// Steps that were not computed but replayed (a branch's shared past, known from its
     /// run): `steps - replayed` were computed in `busy`.
     pub replayed: usize,
@@ -384,7 +381,6 @@ impl Engine {
                             steps: job.next,
                             busy: job.busy,
                             wall: job.started.elapsed(),
-                            declined_by_device: job.inference.steps_declined_by_device(),
                             replayed: job.replayed,
                         }));
                         if let Some(mut job) = self.current.take() {

@@ -39,12 +39,6 @@ struct Args {
     /// lavapipe included). The status bar says which.
     #[arg(long, value_enum, default_value_t = Compute::Auto)]
     backend: Compute,
-    /// On a GPU: run the recurrence there too, so that each slice of a live run's updates
-    /// goes to the GPU in one submission instead of round trips per update (as `pvrnn
-    /// --gpu-recurrence`; off by default: on an H200 it was slower than the round trips,
-    /// 21 against 35 steps/s with 16x16 + proprioception, docs/gpu.md).
-    #[arg(long)]
-    gpu_recurrence: bool,
     /// What draws the window: `auto` (wgpu on a GPU, glow's OpenGL where the only Vulkan
     /// device is a CPU implementation or there is none; glow if wgpu fails to open the
     /// window), `wgpu` or `glow`. The status bar says which.
@@ -108,7 +102,6 @@ enum Compute {
 #[cfg(not(target_arch = "wasm32"))]
 fn open_backend(
     compute: Compute,
-    gpu_recurrence: bool,
 ) -> Option<(
     std::sync::Arc<dyn pvrnn_core::backend::Backend<f32>>,
     String,
@@ -118,11 +111,7 @@ fn open_backend(
     }
     match pvrnn_wgpu::WgpuBackend::new() {
         Ok(gpu) if compute == Compute::Wgpu || !gpu.gpu().is_cpu() => {
-            let mut name = format!("wgpu on {}", gpu.adapter_name());
-            if gpu_recurrence {
-                name.push_str(", recurrence on the GPU");
-            }
-            let gpu = gpu.with_recurrence_on_gpu(gpu_recurrence);
+            let name = format!("wgpu on {}", gpu.adapter_name());
             Some((std::sync::Arc::new(gpu), name))
         }
         Ok(_) => None,
@@ -211,12 +200,8 @@ fn main() {
             .take()
             .or_else(|| Bundle::open_dir(&dir).ok());
         let second = args.second.as_ref().map(|dir| Bundle::open_dir(dir));
-        let (screenshot, hash, compute, gpu_recurrence) = (
-            args.screenshot.clone(),
-            args.view.clone(),
-            args.backend,
-            args.gpu_recurrence,
-        );
+        let (screenshot, hash, compute) =
+            (args.screenshot.clone(), args.view.clone(), args.backend);
         let created = created.clone();
         eframe::run_native(
             "PV-RNN explorer",
@@ -232,7 +217,7 @@ fn main() {
                 if let Some(Err(e)) = second.map(|opened| opened.and_then(|b| app.set_second(b))) {
                     eprintln!("the second network: {e}");
                 }
-                app.compute_in_background_on(&cc.egui_ctx, open_backend(compute, gpu_recurrence));
+                app.compute_in_background_on(&cc.egui_ctx, open_backend(compute));
                 match screenshot {
                     Some(path) => app.screenshot_and_close(path),
                     None => app.offer_tour(),

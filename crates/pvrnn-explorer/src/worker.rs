@@ -209,7 +209,6 @@ impl Reply {
                         ("steps", (f.steps as f64).into()),
                         ("busy_ms", (f.busy.as_secs_f64() * 1e3).into()),
                         ("wall_ms", (f.wall.as_secs_f64() * 1e3).into()),
-                        ("declined", (f.declined_by_device as f64).into()),
                         ("replayed", (f.replayed as f64).into()),
                     ],
                 ),
@@ -259,7 +258,6 @@ impl Reply {
                 steps: number_field(m, "steps")? as usize,
                 busy: ms("busy_ms")?,
                 wall: ms("wall_ms")?,
-                declined_by_device: number_field(m, "declined")? as usize,
                 replayed: number_field(m, "replayed")? as usize,
             }),
             "failed" => Event::Failed(key, string_field(m, "message")?),
@@ -300,22 +298,14 @@ impl Ticker {
 /// Where the worker's runs compute, from the page's `?compute=` (`auto`, `cpu`, `webgpu`):
 /// the engine and the status bar's words for it. `auto` takes a WebGPU adapter unless it is
 /// a CPU implementation (SwiftShader, WARP: slower than the CPU backend); `webgpu` takes
-/// any; without an adapter, the CPU. With `recurrence_on_gpu` (the page's
-/// `?recurrence=gpu`), a WebGPU engine runs the recurrence there too, online inference's
-/// updates a slice per submission.
-async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, String) {
+/// any; without an adapter, the CPU.
+async fn open_engine(preference: &str) -> (Engine, String) {
     if preference == "cpu" {
         return (Engine::default(), "CPU (worker)".into());
     }
     match pvrnn_wgpu::WgpuBackend::open().await {
         Ok(gpu) if preference == "webgpu" || !gpu.gpu().is_cpu() => {
-            let recurrence = if recurrence_on_gpu {
-                ", recurrence on the GPU"
-            } else {
-                ""
-            };
-            let name = format!("WebGPU, {}{recurrence} (worker)", gpu.adapter_name());
-            let gpu = gpu.with_recurrence_on_gpu(recurrence_on_gpu);
+            let name = format!("WebGPU, {} (worker)", gpu.adapter_name());
             (Engine::on(Arc::new(gpu)), name)
         }
         Ok(gpu) => (
@@ -333,10 +323,9 @@ async fn open_engine(preference: &str, recurrence_on_gpu: bool) -> (Engine, Stri
 }
 
 /// The worker's entry point (called by `web/worker.js` after the module loaded) with the
-/// page's compute preference and where the recurrence runs (`cpu`, `gpu`; see
-/// [`open_engine`]).
+/// page's compute preference (see [`open_engine`]).
 #[wasm_bindgen]
-pub fn run_worker(compute: String, recurrence: String) -> Result<(), JsValue> {
+pub fn run_worker(compute: String) -> Result<(), JsValue> {
     let scope: web_sys::DedicatedWorkerGlobalScope = js_sys::global().dyn_into()?;
     let side = Rc::new(RefCell::new(WorkerSide {
         engine: None,
@@ -407,7 +396,7 @@ pub fn run_worker(compute: String, recurrence: String) -> Result<(), JsValue> {
     on_message.forget();
 
     wasm_bindgen_futures::spawn_local(async move {
-        let (engine, compute) = open_engine(&compute, recurrence == "gpu").await;
+        let (engine, compute) = open_engine(&compute).await;
         crate::browser::log(&format!("worker: live runs compute on {compute}"));
         side.borrow_mut().engine = Some(engine);
         if let Err(err) = scope.post_message(&Reply::Ready { compute }.encode().0) {

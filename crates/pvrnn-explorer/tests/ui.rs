@@ -639,30 +639,14 @@ fn a_gpu_computes_the_run_and_the_status_bar_says_so() {
     if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
         return;
     }
-    let gpu = pvrnn_wgpu::WgpuBackend::new().unwrap();
-    a_gpu_computes_the_run(gpu, "");
-}
-
-/// `--gpu-recurrence` on the desktop: each slice of the run's updates in one submission
-/// (the error regression), the same run.
-#[test]
-fn a_gpu_with_the_recurrence_computes_the_run() {
-    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
-        return;
-    }
+    // The tiny model's calls are all below the size worth a round trip: send them anyway.
     let gpu = pvrnn_wgpu::WgpuBackend::new()
         .unwrap()
-        .with_recurrence_on_gpu(true);
-    a_gpu_computes_the_run(gpu, ", recurrence on the GPU");
-}
-
-fn a_gpu_computes_the_run(gpu: pvrnn_wgpu::WgpuBackend, suffix: &str) {
-    // The tiny model's calls are all below the size worth a round trip: send them anyway.
-    let gpu = gpu.with_tiling(pvrnn_wgpu::Tiling {
-        min_work: 0,
-        ..pvrnn_wgpu::Tiling::default()
-    });
-    let name = format!("wgpu on {}{suffix}", gpu.adapter_name());
+        .with_tiling(pvrnn_wgpu::Tiling {
+            min_work: 0,
+            ..pvrnn_wgpu::Tiling::default()
+        });
+    let name = format!("wgpu on {}", gpu.adapter_name());
     let device = gpu.gpu().clone();
     let (inline, h) = inline_and_background(Some((std::sync::Arc::new(gpu), name.clone())), 30);
     assert!(

@@ -287,7 +287,6 @@ fn worker_messages_round_trip() {
             steps: 300,
             busy: Duration::from_millis(1500),
             wall: Duration::from_millis(2000),
-            declined_by_device: 3,
             replayed: 40,
         }),
         Event::Failed(key(), "no observations".into()),

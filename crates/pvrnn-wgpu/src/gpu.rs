@@ -215,7 +215,6 @@ pub struct Gpu {
     recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
-    regression_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
     /// Targets kept on the device (learning's data, uploaded once per run; an inference
     /// step's window, once per step).
@@ -258,7 +257,6 @@ impl Gpu {
             recurrence_kernels: OnceLock::new(),
             radam_kernel: OnceLock::new(),
             copy_kernel: OnceLock::new(),
-            regression_kernel: OnceLock::new(),
             dense_kernels: OnceLock::new(),
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
@@ -494,19 +492,6 @@ impl Gpu {
                 Arc::new(self.pipeline(
                     "strided copy",
                     include_str!("shaders/strided_copy.wgsl").into(),
-                ))
-            })
-            .clone()
-    }
-
-    /// Online inference's update of a window's adaptive variables on the device
-    /// (`shaders/regression_update.wgsl`), compiled on first use.
-    pub(crate) fn regression_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        self.regression_kernel
-            .get_or_init(|| {
-                Arc::new(self.pipeline(
-                    "regression update",
-                    include_str!("shaders/regression_update.wgsl").into(),
                 ))
             })
             .clone()

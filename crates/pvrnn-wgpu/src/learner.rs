@@ -216,7 +216,12 @@ impl Backend<f32> for GpuLearner {
     /// takes them from `params` and the windows, the host's stale copies): learning then
     /// evaluates through [`Learner::free_energy`] only, as `Trainer` does.
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
-        self.backend.load_with_layers(params, config, &self.layers)
+        self.backend.load_with_layers(
+            params,
+            config,
+            &self.layers,
+            self.backend.recurrence_on_gpu(),
+        )
     }
 }
 

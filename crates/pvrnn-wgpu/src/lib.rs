@@ -9,8 +9,9 @@
 //! learning iteration's arithmetic, docs/gpu.md), and their hidden layers on the CPU's
 //! read-out. With [`WgpuBackend::with_recurrence_on_gpu`], [`GpuRecurrence`] runs the
 //! recurrence forward and backward with its weight gradients (`shaders/recurrence_*.wgsl`,
-//! one workgroup per window), and online inference runs all the updates of an `iterate`
-//! call in one submission (`regression.rs`). What a GPU piece does not take (shapes its
+//! one workgroup per window) for learning and the free energy; online inference keeps the
+//! recurrence on the CPU ([`Backend::load_for_inference`]: it is bound by round trips,
+//! and on an H200 the GPU's recurrence made it slower, docs/gpu.md). What a GPU piece does not take (shapes its
 //! kernels do not hold, calls too small to pay for a transfer) it hands to the CPU's piece
 //! with the same weights, through that piece's public methods. In learning, [`GpuLearner`]
 //! (pvrnn-core's [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments
@@ -35,14 +36,13 @@ mod pool;
 mod readback;
 mod readout;
 mod recurrence;
-mod regression;
 mod resident;
 mod template;
 
 use std::sync::Arc;
 
 use pvrnn_core::ModelConfig;
-use pvrnn_core::assembled::{AssembledModel, ErrorRegression, Parts, Recurrence};
+use pvrnn_core::assembled::{AssembledModel, Parts, Recurrence};
 use pvrnn_core::backend::{Backend, Learner, LoadedModel};
 use pvrnn_core::cpu::CpuRecurrence;
 use pvrnn_core::optim::RAdam;
@@ -113,10 +113,11 @@ impl WgpuBackend {
 
     /// Runs the recurrence (forward, back-propagation through time and its weight
     /// gradients) on the GPU too, instead of the CPU: a learning iteration then runs there
-    /// whole ([`GpuLearner`]), and online inference a call's updates in one submission. Off
-    /// by default: on an H200 it made learning faster (0.0256 against 0.0299 s per
-    /// paper-scale iteration) but online inference slower (21 against 35 steps/s with 16x16
-    /// and proprioception; docs/gpu.md).
+    /// whole ([`GpuLearner`]). A learning option: online inference keeps the recurrence on
+    /// the CPU whatever this says ([`Backend::load_for_inference`]). Off by default: on an
+    /// H200 it made learning faster (0.0256 against 0.0299 s per paper-scale iteration),
+    /// and online inference, when it ran there too, slower (21 against 35 steps/s with
+    /// 16x16 and proprioception; docs/gpu.md).
     pub fn with_recurrence_on_gpu(mut self, on: bool) -> Self {
         self.recurrence_on_gpu = on;
         self
@@ -147,18 +148,10 @@ impl WgpuBackend {
         params: &Params<f32>,
         config: &ModelConfig,
         resident: &[Option<Arc<resident::ResidentLayer>>; 2],
+        recurrence_on_gpu: bool,
     ) -> Box<dyn LoadedModel<f32>> {
         let layer = GpuOutputLayer::with_resident(self.gpu.clone(), self.tiling, params, resident);
-        // Online inference's updates in one submission per call, where the recurrence is on
-        // the GPU (not for a learner's models: learning never asks).
-        let regression =
-            (self.recurrence_on_gpu && resident.iter().all(Option::is_none)).then(|| {
-                Box::new(regression::GpuRegression::new(
-                    self.gpu.clone(),
-                    self.tiling,
-                )) as Box<dyn ErrorRegression<f32>>
-            });
-        let recurrence: Box<dyn Recurrence<f32>> = if self.recurrence_on_gpu {
+        let recurrence: Box<dyn Recurrence<f32>> = if recurrence_on_gpu {
             Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
         } else {
             Box::new(CpuRecurrence::new(params, config))
@@ -167,7 +160,6 @@ impl WgpuBackend {
         let parts = Parts {
             recurrence,
             readout: Box::new(GpuReadout::new(layer, params.clone())),
-            regression,
         };
         Box::new(AssembledModel::new(params, config, parts))
     }
@@ -195,7 +187,18 @@ impl WgpuBackend {
 
 impl Backend<f32> for WgpuBackend {
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
-        self.load_with_layers(params, config, &[None, None])
+        self.load_with_layers(params, config, &[None, None], self.recurrence_on_gpu)
+    }
+
+    /// The output layers on the GPU, the recurrence always on the CPU: online inference
+    /// evaluates one short window at a time, and the GPU's recurrence (one workgroup per
+    /// window, a round trip per pass) made it slower on an H200 (docs/gpu.md).
+    fn load_for_inference(
+        &self,
+        params: &Params<f32>,
+        config: &ModelConfig,
+    ) -> Box<dyn LoadedModel<f32>> {
+        self.load_with_layers(params, config, &[None, None], false)
     }
 
     /// Natively, a [`GpuLearner`] (unless [`Self::with_resident_learning`] turned it off).

@@ -7,8 +7,8 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// Buffers kept per (size, usage) once returned, at most: enough for a call that holds one
-/// per update of an inference step's 50 (the error regression's submission) to find them
+/// Buffers kept per (size, usage) once returned, at most: enough for a submission that
+/// holds many of one size (a cohort's members, the chunks of an output layer) to find them
 /// all again at its next call. Of large buffers fewer: at most [`KEEP_BYTES_PER_KEY`] in
 /// all, and always [`KEEP_AT_LEAST`]. More are freed.
 const KEEP_PER_KEY: usize = 64;

@@ -55,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
         a.change_threshold.is_finite() && (0.0..255.0).contains(&a.change_threshold),
         "--change-threshold must be in [0, 255) levels"
     );
-    let (backend, backend_name) = a.backend.open()?;
+    let (backend, backend_name) = a.backend.open_for_inference("evaluate")?;
     if a.backend.backend != util::BackendKind::Cpu {
         eprintln!("backend: {backend_name}");
     }

@@ -42,7 +42,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (backend, backend_name) = a.backend.open()?;
+    let (backend, backend_name) = a.backend.open_for_inference("infer")?;
     if a.backend.backend != util::BackendKind::Cpu {
         eprintln!("backend: {backend_name}");
     }
@@ -63,7 +63,6 @@ pub fn run(a: Args) -> Result<()> {
     let bar = util::progress(total as u64, "infer");
     let mut runs = Vec::with_capacity(which.len());
     let mut done_before = 0u64;
-    let mut declined = 0usize;
     for &s in &which {
         bar.set_message(format!("sequence {s}"));
         let run = run_sequence_on(
@@ -74,17 +73,6 @@ pub fn run(a: Args) -> Result<()> {
             s,
             !a.compact,
             &mut |step, _| {
-                if step.declined_by_device {
-                    if declined == 0 {
-                        bar.println(format!(
-                            "sequence {s}, step {}: the GPU cannot run this window's updates \
-                             at once (a module or read-out wider than its kernels hold); they \
-                             run one at a time",
-                            step.t
-                        ));
-                    }
-                    declined += 1;
-                }
                 if step.rate_halvings > 0 {
                     bar.println(format!(
                         "sequence {s}, step {}: the window diverged; restarted at lr / 2^{}",
@@ -103,9 +91,6 @@ pub fn run(a: Args) -> Result<()> {
         runs.push(run);
     }
     bar.finish();
-    if declined > 0 {
-        eprintln!("the GPU declined the updates of {declined} of {total} steps (one at a time)");
-    }
     let chosen_names = names.map(|n| {
         which
             .iter()

@@ -32,7 +32,6 @@ impl<T: Real> Backend<T> for CpuBackend {
         let parts = Parts {
             recurrence: Box::new(CpuRecurrence::new(&params, config)),
             readout: Box::new(CpuReadout::new(params.clone())),
-            regression: None,
         };
         Box::new(AssembledModel::new(params, config, parts))
     }

@@ -223,9 +223,8 @@ impl ExplorerApp {
         let mut app = Self::new(None, ViewState::default());
         // Live inference in a worker beside the page; in the page itself if that fails.
         let worker = format!(
-            "./worker.js?compute={}&recurrence={}",
-            crate::browser::compute_preference(),
-            crate::browser::recurrence_preference()
+            "./worker.js?compute={}",
+            crate::browser::compute_preference()
         );
         match crate::worker::WorkerClient::spawn(&worker, ctx.clone()) {
             Ok(worker) => app.store = RunStore::with_executor(Box::new(worker)),

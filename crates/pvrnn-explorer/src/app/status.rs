@@ -25,20 +25,12 @@ pub(super) fn finished_note(f: &Finished) -> (String, String) {
         );
     }
     let computed = (f.steps - f.replayed) as f64;
-    let mut timing = format!(
+    let timing = format!(
         "in {:.1} s = {:.1} steps/s ({:.1} steps/s of computing time)",
         f.wall.as_secs_f64(),
         computed / f.wall.as_secs_f64().max(1e-9),
         computed / f.busy.as_secs_f64().max(1e-9)
     );
-    if f.declined_by_device > 0 {
-        // The status bar said the recurrence runs on the GPU: say where the updates did not.
-        timing.push_str(&format!(
-            "; the GPU declined the inference updates of {} of its steps (a shape its \
-             kernels do not hold), which ran one at a time",
-            f.declined_by_device
-        ));
-    }
     (what, timing)
 }
 
@@ -98,7 +90,7 @@ impl StatusLine<'_> {
         }
         ui.weak(self.compute)
             .on_hover_text(
-                "where live runs compute (desktop: --backend auto|cpu|wgpu [--gpu-recurrence]; web: ?compute=auto|cpu|webgpu[&recurrence=gpu] before the #)",
+                "where live runs compute (desktop: --backend auto|cpu|wgpu; web: ?compute=auto|cpu|webgpu before the #)",
             );
         if !self.renderer.is_empty() {
             ui.weak(self.renderer).on_hover_text(
@@ -114,7 +106,7 @@ mod tests {
     use crate::condition::{Condition, RunKey};
 
     #[test]
-    fn a_finished_run_says_its_speed_and_where_the_gpu_declined() {
+    fn a_finished_run_says_its_speed() {
         let mut f = Finished {
             key: RunKey::new(
                 "wiping_650mm_test0",
@@ -123,7 +115,6 @@ mod tests {
             steps: 300,
             busy: Duration::from_secs(20),
             wall: Duration::from_secs(30),
-            declined_by_device: 0,
             replayed: 0,
         };
         let (what, timing) = finished_note(&f);
@@ -133,19 +124,13 @@ mod tests {
             timing,
             "in 30.0 s = 10.0 steps/s (15.0 steps/s of computing time)"
         );
-        f.declined_by_device = 12;
-        let (_, timing) = finished_note(&f);
-        assert!(
-            timing.ends_with("; the GPU declined the inference updates of 12 of its steps (a shape its kernels do not hold), which ran one at a time"),
-            "{timing}"
-        );
         // A branch's speed counts the steps it computed, not those it shares.
         let blind = Condition {
             vision_levels: 0,
             ..f.key.condition
         };
         f.key = f.key.branched(150, blind);
-        (f.replayed, f.declined_by_device) = (150, 0);
+        f.replayed = 150;
         let (what, timing) = finished_note(&f);
         assert!(
             what.starts_with("branch of run wiping_650mm_test0 ("),

@@ -81,13 +81,8 @@ impl GpuLearner {
     ) -> Option<Self> {
         let index_of = trainable_indices(&model.params);
         let layers: [Option<Arc<ResidentLayer>>; 2] = std::array::from_fn(|mi| {
-            ResidentLayer::upload(
-                backend.gpu(),
-                &model.params,
-                Some((optimizer, &index_of)),
-                mi,
-            )
-            .map(Arc::new)
+            ResidentLayer::upload(backend.gpu(), &model.params, (optimizer, &index_of), mi)
+                .map(Arc::new)
         });
         let mut more = Vec::new();
         let iteration = backend

@@ -381,12 +381,6 @@ impl GpuOutputLayer {
             .min(self.tiling.max_chunk_bytes)
     }
 
-    /// Whether `modality`'s whole read-out, hidden layers included, is on the device (a
-    /// learner's or a frozen copy), so that [`Self::encode_readout`] takes it.
-    pub(crate) fn has_whole_readout(&self, modality: Modality) -> bool {
-        self.layer(modality).and_then(Layer::resident).is_some()
-    }
-
     fn layer(&self, modality: Modality) -> Option<&Layer> {
         self.layers[modality.index()].as_ref()
     }

@@ -89,20 +89,13 @@ impl ResidentLayer {
         self.hidden_gradients.store(true, Ordering::SeqCst);
     }
 
-    /// Uploads read-out `mi` of `params` for inference: its weights only, no moments and no
-    /// gradients (the hidden layers on the device for online inference's updates); `None`
-    /// if the kernels do not hold it.
-    pub(crate) fn frozen(gpu: &Gpu, params: &Params<f32>, mi: usize) -> Option<Self> {
-        Self::upload(gpu, params, None, mi)
-    }
-
-    /// Uploads read-out `mi` of `params`, for learning (`learning`: the optimiser, whose
-    /// moments go up too, and each tensor's index in its order) or not; `None` if the
-    /// kernels do not hold it or, in learning, one of its tensors is not trainable.
+    /// Uploads read-out `mi` of `params` for learning: each tensor with its moments (from
+    /// `optimizer`, at the tensor's index in its order) and a gradient; `None` if the
+    /// kernels do not hold it or one of its tensors is not trainable.
     pub(crate) fn upload(
         gpu: &Gpu,
         params: &Params<f32>,
-        learning: Option<(&RAdam<f32>, &TensorIndex<'_>)>,
+        (optimizer, index_of): (&RAdam<f32>, &TensorIndex<'_>),
         mi: usize,
     ) -> Option<Self> {
         let readout = &params.readouts[mi];
@@ -118,11 +111,6 @@ impl ResidentLayer {
                        layout: &dyn Fn(&[f32]) -> Vec<f32>|
          -> Option<(wgpu::Buffer, wgpu::Buffer)> {
             let value = layout(tensor.data());
-            let Some((optimizer, index_of)) = learning else {
-                // Never written: kernels that compute no weight gradient do not bind it.
-                let no_gradient = resident_buffer(gpu, "no gradient", &[0.0]);
-                return Some((resident_buffer(gpu, "frozen tensor", &value), no_gradient));
-            };
             let index = index_of(tensor)?;
             let len = value.len();
             let buffer = |label: &str, values: &[f32]| resident_buffer(gpu, label, values);

@@ -22,7 +22,7 @@ use pvrnn_core::free_energy::{NoiseDraw, free_energy};
 use pvrnn_core::infer::{InferenceSettings, OnlineInference, run_sequence_on};
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{
-    Ablation, AblationMode, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
+    Ablation, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
 };
 use pvrnn_wgpu::{GpuRecurrence, OutputKernels, Tiling, WgpuBackend};
 

@@ -41,6 +41,9 @@ timeout 900 tests/slurm/run.sh target/debug/pvrnn
 step "a campaign's training in flight kept for a fresh machine and put back (scripts/experiments.sh keep)"
 tests/scripts/in-flight.sh
 
+step "a GPU loan spent on the campaign: stopped at its deadline, packed, brought back (scripts/lease-campaign.sh)"
+tests/scripts/lease-campaign.sh
+
 step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \

@@ -62,14 +62,8 @@ bin=${1:?usage: scripts/gpu-measure.sh [--quick] PVRNN_BINARY OUT_DIR}
 out=${2:?usage: scripts/gpu-measure.sh [--quick] PVRNN_BINARY OUT_DIR}
 mkdir -p "$out"
 
-if compgen -G ".gl/*.deb" >/dev/null; then
-    for f in .gl/*.deb; do dpkg -x "$f" /; done
-    ldconfig
-fi
-nvidia_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nvidia_icd" ]; then
-    export VK_DRIVER_FILES=$nvidia_icd
-fi
+# shellcheck source=scripts/gpu-host.sh
+source "$(dirname "$0")/gpu-host.sh"
 
 if [ "$quick" = 1 ]; then
     rounds=1 iterations=3 steps=5

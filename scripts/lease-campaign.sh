@@ -61,14 +61,8 @@ out=${2:?usage: scripts/lease-campaign.sh PVRNN_BINARY OUT_DIR SECONDS}
 seconds=${3:?usage: scripts/lease-campaign.sh PVRNN_BINARY OUT_DIR SECONDS}
 mkdir -p "$out"
 
-if compgen -G ".gl/*.deb" >/dev/null; then
-    for f in .gl/*.deb; do dpkg -x "$f" /; done
-    ldconfig
-fi
-nvidia_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nvidia_icd" ]; then
-    export VK_DRIVER_FILES=$nvidia_icd
-fi
+# shellcheck source=scripts/gpu-host.sh
+source scripts/gpu-host.sh
 # The checkout the plan was made in: two folders above its dataset's.
 planned=$(sed -nE 's/^ *"dataset": *"(.*)",?$/\1/p' "$results/plan.json" 2>/dev/null | head -n 1)
 root=$(dirname "$(dirname "${planned:-.}")")

@@ -13,7 +13,7 @@ fail() { echo "lease-campaign test: $*" >&2; exit 1; }
 # leaves two in flight (network 1 further than network 2) and waits to be stopped.
 lent=$work/lent
 mkdir -p "$lent/scripts" "$lent/docs/results/converged/interference/results"
-cp "$scripts/experiments.sh" "$scripts/lease-campaign.sh" "$lent/scripts/"
+cp "$scripts/experiments.sh" "$scripts/lease-campaign.sh" "$scripts/gpu-host.sh" "$lent/scripts/"
 printf '{\n  "dataset": "%s/data/caresim-robotfree",\n  "jobs": []\n}\n' "$lent" \
     > "$lent/docs/results/converged/interference/plan.json"
 cat > "$work/pvrnn" <<'EOF'

@@ -737,16 +737,7 @@ fn online_inference_keeps_the_recurrence_on_the_cpu() {
     settings.iterations = 3;
     let run = |backend: &WgpuBackend| {
         let before = backend.gpu().read_backs();
-        let run = run_sequence_on(
-            backend,
-            model.clone(),
-            settings.clone(),
-            &data,
-            0,
-            true,
-            &mut |_, _| {},
-        )
-        .unwrap();
+        let run = whole_run(backend, &model, &settings, &data);
         (run, backend.gpu().read_backs() - before)
     };
     let (plain, plain_read_backs) = run(&gpu);
@@ -764,6 +755,25 @@ fn online_inference_keeps_the_recurrence_on_the_cpu() {
     }
 }
 
+/// Online inference over the first sequence of `data`, with every output.
+fn whole_run(
+    backend: &dyn Backend<f32>,
+    model: &Arc<Model<f32>>,
+    settings: &InferenceSettings,
+    data: &Observations<f32>,
+) -> pvrnn_core::infer::Run<f32> {
+    run_sequence_on(
+        backend,
+        model.clone(),
+        settings.clone(),
+        data,
+        0,
+        true,
+        &mut |_, _| {},
+    )
+    .unwrap()
+}
+
 fn online_inference_agrees(gpu: WgpuBackend) {
     let config = config();
     let data = observations(&config, 1, 12);
@@ -777,18 +787,7 @@ fn online_inference_agrees(gpu: WgpuBackend) {
         vision_levels: 1,
         proprio: true,
     };
-    let run = |backend: &dyn Backend<f32>| {
-        run_sequence_on(
-            backend,
-            model.clone(),
-            settings.clone(),
-            &data,
-            0,
-            true,
-            &mut |_, _| {},
-        )
-        .unwrap()
-    };
+    let run = |backend: &dyn Backend<f32>| whole_run(backend, &model, &settings, &data);
     let (cpu, gpu_run) = (run(&CpuBackend), run(&gpu));
     for (a, b) in cpu.free_energy.iter().zip(&gpu_run.free_energy) {
         assert!(

@@ -7,8 +7,9 @@
 //! the sliding window in inference) forward, computes the free energy on the observed
 //! dimensions, and optionally back-propagates through time. Both backends build their
 //! loaded model the same way: [`crate::assembled::AssembledModel`], the backend-neutral
-//! driver, over the pieces each supplies (its recurrence and its read-outs). The CPU's are in [`crate::cpu`], the GPU's in
-//! the `pvrnn-wgpu` crate; nothing above these traits knows which runs.
+//! driver, over the pieces each supplies (its recurrence and its read-outs). The CPU's
+//! are in [`crate::cpu`], the GPU's in the `pvrnn-wgpu` crate; nothing above these traits
+//! knows which runs.
 
 use crate::Real;
 use crate::config::{Modality, ModelConfig};

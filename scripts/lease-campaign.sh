@@ -23,8 +23,9 @@
 #                      when what returns is limited (8 files of 16 MiB, for example);
 #                      choose COHORT and SECONDS so that the others finish
 #   summary.txt        what finished, what is in flight, and the runner's last lines
-# --unpack puts the results back and the training in flight into training/in-flight/, from
-# where the next `scripts/experiments.sh` run here resumes it (it replaces a checkpoint of
+# --unpack puts the results back (and clears training/in-flight/ if the loan finished the
+# training kept there) and the training in flight into training/in-flight/, from where the
+# next `scripts/experiments.sh` run here resumes it (it replaces a checkpoint of
 # the same training here only if that is older: the loan's, resumed from it, is newer).
 #
 # The committed plan names its data and networks by absolute paths (under /work/main);
@@ -41,6 +42,14 @@ kept=training/in-flight
 if [ "${1:-}" = --unpack ]; then
     from=${2:?usage: scripts/lease-campaign.sh --unpack DIR}
     tar -xzf "$from/results.tgz"
+    # A training kept here that the loan finished is not resumed again.
+    if [ -f "$kept/stem.txt" ]; then
+        job=$(basename "$(cat "$kept/stem.txt")")
+        if [ -f "$results/results/${job#converged-}.json" ]; then
+            rm -rf "$kept"
+            echo "the kept training ${job#converged-} finished during the loan: $kept/ cleared" >&2
+        fi
+    fi
     if compgen -G "$from/in-flight.tgz.*" >/dev/null; then
         rm -rf "$kept"
         cat "$from"/in-flight.tgz.* | tar -xzf -

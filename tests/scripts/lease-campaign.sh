@@ -71,4 +71,14 @@ cmp -s "$here/training/in-flight/best.safetensors" "$lent/$stem.best.safetensors
 [ -f "$here/docs/results/converged/interference/results/train-repositioning-plus3-net0.json" ] ||
     fail "the finished training's result did not come back"
 cmp -s "$here/$stem.validation.csv" "$lent/$stem.validation.csv" || fail "the validations did not come back"
+# A loan that finished the training kept here and left none in flight: the kept one is
+# cleared, not resumed again.
+again=$work/again
+mkdir -p "$again/scripts" "$again/training/in-flight" "$work/finished"
+cp "$scripts/experiments.sh" "$scripts/lease-campaign.sh" "$again/scripts/"
+cp "$work/out/results.tgz" "$work/out/summary.txt" "$work/finished/"
+echo training/converged-interference/converged-train-repositioning-plus3-net0 > "$again/training/in-flight/stem.txt"
+(cd "$again" && scripts/lease-campaign.sh --unpack "$work/finished" > "$work/again.log" 2>&1) ||
+    fail "--unpack without a training in flight failed: $(cat "$work/again.log")"
+[ ! -e "$again/training/in-flight" ] || fail "the finished training is still kept: $(cat "$work/again.log")"
 echo "lease-campaign test: passed"

@@ -22,9 +22,9 @@
 #   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
 #                condition; NETWORKS overrides): N networks trained together, one
 #                recurrence dispatch for all of them; training only
-#   wgpu-blocked, whole-N-blocked
-#                `wgpu` and `whole-N` with the register-blocked output-layer kernels
-#                (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
+#   wgpu-blocked, whole-blocked, whole-N-blocked
+#                `wgpu`, `whole` and `whole-N` with the register-blocked output-layer
+#                kernels (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
 #   whole-N-checked, whole-N-unchecked
 #                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
 #                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
@@ -107,6 +107,8 @@ for round in $(seq "$rounds"); do
         bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
             --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench wgpu-blocked "$threads" "$round" --backend wgpu
+        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench whole-blocked "$threads" "$round" \
+            --backend wgpu --gpu-recurrence $train_only
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         for checks in all none; do

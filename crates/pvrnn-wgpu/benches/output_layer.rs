@@ -4,7 +4,8 @@
 //! targets resident as online inference keeps them for a step's 50 updates).
 //!
 //! Then the first three again with the register-blocked kernels (`OutputKernels::Blocked`,
-//! named "blocked"), and inference's everything-observed case under caps on the column
+//! named "blocked") and learning's full batch with the blocked kernels' knobs (no weight
+//! gradient, shallow tiles, one chunk, other workgroup targets), and inference's everything-observed case under caps on the column
 //! splits (`Tiling::max_splits`), the knob that trades the row pass's parallelism against
 //! the length of the reduce pass's sums. Then learning's full batch without the weight
 //! gradient, in one chunk, and with the row pass's other shapes (`Tiling::row_pass_rows`,
@@ -15,15 +16,17 @@
 //! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
 //! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
 //! weight gradients, two without; the GPU's column pass recomputes the forward product, which
-//! is not counted). `WGPU_ADAPTER_NAME` / `WGPU_BACKEND` pick the adapter; `-- 16x16` runs only
+//! is not counted), and for each case after the first of its shape how far its loss and
+//! gradients lie from that first (the fused kernels'). `WGPU_ADAPTER_NAME` / `WGPU_BACKEND` pick the adapter; `-- 16x16` runs only
 //! the cases whose name contains `16x16`.
 #![allow(clippy::unwrap_used)] // a benchmark: a failed unwrap is a failed run
 
 use std::time::Instant;
 
+use pvrnn_core::assembled::OutputLoss;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
-use pvrnn_wgpu::{GpuOutputLayer, OutputKernels, Tiling, WgpuBackend};
+use pvrnn_wgpu::{BlockedDepth, GpuOutputLayer, OutputKernels, Tiling, WgpuBackend};
 
 fn values(n: usize, seed: u64) -> Vec<f32> {
     let mut s = seed | 1;
@@ -96,6 +99,32 @@ fn main() {
         })
         .collect();
     cases.extend(blocked_cases);
+    // The blocked kernels' knobs on learning's full batch: without the weight gradient
+    // (the forward and input-gradient products alone), the shallower tiles of a 16 KiB
+    // adapter, one chunk instead of 11, and other workgroup targets (the input gradient's
+    // column splits, the weight gradient's row ranges).
+    let mut blocked_learning = |what: &str, grads: bool, tiling: Tiling| {
+        let what = format!("learning, blocked, {what}");
+        cases.push((what, 5400, dims, grads, 20, tiling));
+    };
+    blocked_learning("no d W", false, blocked);
+    let shallow = Tiling {
+        blocked_depth: Some(BlockedDepth::Shallow),
+        ..blocked
+    };
+    blocked_learning("shallow tiles", true, shallow);
+    let one_chunk = Tiling {
+        max_chunk_bytes: 768 << 20,
+        ..blocked
+    };
+    blocked_learning("one chunk", true, one_chunk);
+    for target_workgroups in [256, 4096] {
+        let tiling = Tiling {
+            target_workgroups,
+            ..blocked
+        };
+        blocked_learning(&format!("{target_workgroups} workgroups"), true, tiling);
+    }
     // Learning's full batch without the weight gradient (the row pass and its reduce
     // alone: the column pass is the difference), in one chunk of 768 MiB instead of 11 of
     // 64, and with the row pass's other shapes (rows per workgroup, columns per step).
@@ -143,6 +172,7 @@ fn main() {
         .skip(1)
         .filter(|a| !a.starts_with("--"))
         .collect();
+    let mut references: Vec<((usize, usize, bool), OutputLoss<f32>)> = Vec::new();
     for (what, n, k, weight_grads, reps, tiling) in cases {
         if !filter.iter().all(|f| what.contains(f.as_str())) {
             continue;
@@ -167,8 +197,17 @@ fn main() {
                 .unwrap();
             pvrnn_core::deferred::now(loss)
         };
-        // Warm-up: compiles the kernels and, for resident targets, uploads them.
-        call();
+        // Warm-up: compiles the kernels and, for resident targets, uploads them; its result
+        // is compared with the first case's of the same shape (the fused kernels').
+        let result = call();
+        let key = (n, k, weight_grads);
+        let agreement = match references.iter().find(|(r, _)| *r == key) {
+            Some((_, reference)) => disagreement(reference, &result),
+            None => {
+                references.push((key, result));
+                String::new()
+            }
+        };
         let start = Instant::now();
         for _ in 0..reps {
             std::hint::black_box(call());
@@ -177,9 +216,29 @@ fn main() {
         let products = if weight_grads { 3.0 } else { 2.0 };
         let flops = products * 2.0 * (n * k * hidden) as f64;
         println!(
-            "{what:44} {n:5} x {k:5}: {:8.3} ms per call, {:8.1} GFLOP/s",
+            "{what:44} {n:5} x {k:5}: {:8.3} ms per call, {:8.1} GFLOP/s{agreement}",
             s * 1e3,
             flops / s / 1e9
         );
     }
+}
+
+/// How far `other` lies from `reference`: the loss's relative difference and each
+/// gradient's largest difference relative to its largest magnitude.
+fn disagreement(reference: &OutputLoss<f32>, other: &OutputLoss<f32>) -> String {
+    let total = |l: &OutputLoss<f32>| l.row_loss.iter().sum::<f64>();
+    let loss = (total(other) - total(reference)).abs() / total(reference).abs().max(1e-30);
+    let relative = |a: &[f32], b: &[f32]| {
+        let scale = a.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-30);
+        let diff = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+        diff / scale
+    };
+    let mut text = format!(
+        ", vs fused: loss {loss:.1e}, d input {:.1e}",
+        relative(&reference.grad_in, &other.grad_in)
+    );
+    if let (Some(a), Some(b)) = (&reference.grad_w, &other.grad_w) {
+        text.push_str(&format!(", d W {:.1e}", relative(a, b)));
+    }
+    text
 }

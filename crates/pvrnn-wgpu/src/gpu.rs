@@ -29,13 +29,13 @@ pub(crate) struct Kernels {
     pub(crate) loss_columns: wgpu::ComputePipeline,
     pub(crate) reduce: wgpu::ComputePipeline,
     pub(crate) predict: wgpu::ComputePipeline,
-    /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), compiled on
-    /// first use.
-    blocked: OnceLock<BlockedKernels>,
+    /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), deep and
+    /// shallow ([`BlockedDepth`]), compiled on first use.
+    blocked: [OnceLock<BlockedKernels>; 2],
 }
 
 /// Which kernels keep wgpu's runtime checks (bounds, loop bounding, integer division):
-/// every kernel but the audited fused output-layer ones (the default), every kernel
+/// every kernel but the audited output-layer ones (the default), every kernel
 /// (`PVRNN_WGPU_CHECKS=all`, to rule the unchecked ones out when something looks wrong), or
 /// none (`PVRNN_WGPU_CHECKS=none`, to measure what the checks cost).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,6 +100,59 @@ pub(crate) struct BlockedKernels {
     pub(crate) input_grad: wgpu::ComputePipeline,
     pub(crate) weight_grad: wgpu::ComputePipeline,
     pub(crate) weight_reduce: wgpu::ComputePipeline,
+}
+
+/// How deep the register-blocked kernels' staged tiles are, each double-buffered: `Deep`
+/// stages 4 vec4s of the hidden width per chunk of the forward product and 16 columns
+/// (rows) per tile of the gradient products, in 32 KiB of workgroup memory (native
+/// adapters: NVIDIA's Vulkan driver offers 48 KiB, lavapipe 32); `Shallow` half that, in
+/// WebGPU's default 16 KiB. The adapter's limit chooses unless `Tiling::blocked_depth` (or
+/// `PVRNN_WGPU_BLOCKED_DEPTH=deep|shallow`) asks for the shallower.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BlockedDepth {
+    Deep,
+    Shallow,
+}
+
+impl BlockedDepth {
+    /// The deepest `limits` allow.
+    pub fn for_limits(limits: &wgpu::Limits) -> Self {
+        if limits.max_compute_workgroup_storage_size >= 32 << 10 {
+            Self::Deep
+        } else {
+            Self::Shallow
+        }
+    }
+
+    /// vec4s of the hidden width per staged chunk of `blocked_forward.wgsl`.
+    fn forward_vec4s(self) -> usize {
+        match self {
+            Self::Deep => 4,
+            Self::Shallow => 2,
+        }
+    }
+
+    /// Columns (rows) per staged tile of `blocked_input_grad.wgsl` (`blocked_weight_grad.wgsl`).
+    fn tile(self) -> usize {
+        match self {
+            Self::Deep => 16,
+            Self::Shallow => 8,
+        }
+    }
+}
+
+impl std::str::FromStr for BlockedDepth {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim() {
+            "deep" => Ok(Self::Deep),
+            "shallow" => Ok(Self::Shallow),
+            other => Err(format!(
+                "unknown blocked tile depth {other:?}: `deep` or `shallow`"
+            )),
+        }
+    }
 }
 
 /// The recurrence's kernels (shapes come from a table at run time, so one set serves every
@@ -419,33 +472,63 @@ impl Gpu {
             ),
             reduce: self.pipeline("reduce", source(include_str!("shaders/reduce.wgsl"))),
             predict: self.pipeline("predict", source(include_str!("shaders/predict.wgsl"))),
-            blocked: OnceLock::new(),
+            blocked: [OnceLock::new(), OnceLock::new()],
         }
     }
 
-    /// The register-blocked kernels of `kernels`' hidden width, compiled on first use.
-    pub(crate) fn blocked_kernels<'k>(&self, kernels: &'k Kernels) -> &'k BlockedKernels {
-        kernels.blocked.get_or_init(|| {
+    /// The register-blocked kernels of `kernels`' hidden width with tiles `depth` deep (at
+    /// most what the adapter's workgroup memory holds), compiled on first use.
+    pub(crate) fn blocked_kernels<'k>(
+        &self,
+        kernels: &'k Kernels,
+        depth: BlockedDepth,
+    ) -> &'k BlockedKernels {
+        let depth = match BlockedDepth::for_limits(&self.limits()) {
+            BlockedDepth::Shallow => BlockedDepth::Shallow,
+            BlockedDepth::Deep => depth,
+        };
+        kernels.blocked[depth as usize].get_or_init(|| {
             let hv = kernels.hv;
-            // Tiles in vec4s: 16 columns of hv (input gradient), 32 rows of hv (weights).
-            let constants = [("HV", hv), ("CT16_HV", 16 * hv), ("RT_HV", 32 * hv)];
-            let source = |text: &str| output_source(text, &constants);
+            let (kc, kt) = (depth.forward_vec4s(), depth.tile());
+            let threads = 16 * hv;
+            let forward = [("HV", hv), ("KC", kc), ("KS", 4 * kc), ("STAGE", 512 * kc)];
+            // The input and weight gradients: two buffers of 32 kt error-gradient vec4s and
+            // kt hv weight (activation) vec4s; each thread loads a fixed number of the
+            // error gradients' 4 x 4 blocks (input) or vec4s (weights).
+            let gradient = |loads: usize| {
+                [
+                    ("HV", hv),
+                    ("KT", kt),
+                    ("NT", threads),
+                    ("STAGE", 2 * (32 * kt + kt * hv)),
+                    ("LOADS", loads),
+                ]
+            };
             BlockedKernels {
-                forward: self.pipeline(
+                forward: self.audited_pipeline(
                     "blocked forward",
-                    source(include_str!("shaders/blocked_forward.wgsl")),
+                    output_source(include_str!("shaders/blocked_forward.wgsl"), &forward),
                 ),
-                input_grad: self.pipeline(
+                input_grad: self.audited_pipeline(
                     "blocked input gradient",
-                    source(include_str!("shaders/blocked_input_grad.wgsl")),
+                    output_source(
+                        include_str!("shaders/blocked_input_grad.wgsl"),
+                        &gradient((8 * kt).div_ceil(threads)),
+                    ),
                 ),
-                weight_grad: self.pipeline(
+                weight_grad: self.audited_pipeline(
                     "blocked weight gradient",
-                    source(include_str!("shaders/blocked_weight_grad.wgsl")),
+                    output_source(
+                        include_str!("shaders/blocked_weight_grad.wgsl"),
+                        &gradient((32 * kt).div_ceil(threads)),
+                    ),
                 ),
                 weight_reduce: self.pipeline(
                     "blocked weight reduce",
-                    source(include_str!("shaders/blocked_weight_reduce.wgsl")),
+                    output_source(
+                        include_str!("shaders/blocked_weight_reduce.wgsl"),
+                        &[("HV", hv)],
+                    ),
                 ),
             }
         })
@@ -530,7 +613,7 @@ impl Gpu {
     }
 
     /// `source` compiled without wgpu's runtime checks, unless `PVRNN_WGPU_CHECKS=all`:
-    /// for the fused output-layer kernels only, whose every index is bounded by the shapes
+    /// for the output-layer kernels only (fused and blocked), whose every index is bounded by the shapes
     /// the host sized their buffers with (see their sources). The checks cost them a fourth
     /// of their time on an H200 (docs/gpu.md).
     fn audited_pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
@@ -549,7 +632,7 @@ impl Gpu {
             source: wgpu::ShaderSource::Wgsl(source.into()),
         };
         let module = if unchecked {
-            // SAFETY: by default only the fused output-layer kernels (`audited_pipeline`):
+            // SAFETY: by default only the output-layer kernels (`audited_pipeline`):
             // every index they form is bounded by the row, column and split counts the host
             // sized their buffers and dispatches with (dead threads read index 0 and write
             // nothing; tile indices stay below the tile sizes, which are multiples of the

@@ -50,7 +50,7 @@ use pvrnn_core::params::{Model, Params};
 
 #[cfg(not(target_arch = "wasm32"))]
 pub use gpu::probe_now;
-pub use gpu::{Gpu, GpuError, probe};
+pub use gpu::{BlockedDepth, Gpu, GpuError, probe};
 pub use learner::GpuLearner;
 pub use output::{GpuOutputLayer, OutputKernels, Tiling};
 pub use readout::GpuReadout;
@@ -101,6 +101,12 @@ impl WgpuBackend {
                     "PVRNN_WGPU_OUTPUT_KERNELS: {e}; using the default, {:?}",
                     tiling.output_kernels
                 ),
+            }
+        }
+        if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
+            match value.parse() {
+                Ok(depth) => tiling.blocked_depth = Some(depth),
+                Err(e) => eprintln!("PVRNN_WGPU_BLOCKED_DEPTH: {e}; as deep as the adapter allows"),
             }
         }
         Self {

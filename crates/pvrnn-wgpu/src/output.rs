@@ -13,22 +13,20 @@ use wgpu::util::DeviceExt;
 use crate::encode::{
     Recorder, WORKGROUP, bind, dispatch, fits, grid, pad_rows, row_losses, unpad_rows, vec4s,
 };
-use crate::gpu::{Gpu, Kernels, ResidentKey, RowPass};
+use crate::gpu::{BlockedDepth, Gpu, Kernels, ResidentKey, RowPass};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::resident::ResidentLayer;
 
 /// Columns per tile of `loss_rows.wgsl` (its splits are whole tiles).
 const TILE_COLUMNS: usize = 32;
-/// Columns per tile of `blocked_forward.wgsl` (its splits are whole tiles; a multiple of
-/// `blocked_input_grad.wgsl`'s 16).
-const BLOCKED_TILE_COLUMNS: usize = 64;
-/// Rows per workgroup of `blocked_input_grad.wgsl` (two per thread).
-const BLOCKED_INPUT_ROWS: usize = 128;
-/// Columns per workgroup of `blocked_weight_grad.wgsl` (two per thread), and rows per tile
-/// (its row ranges are whole tiles).
-const BLOCKED_WEIGHT_COLUMNS: usize = 128;
-const BLOCKED_WEIGHT_ROWS: usize = 32;
+/// Rows and columns per workgroup of `blocked_forward.wgsl` (its splits are whole tiles of
+/// columns), rows per workgroup of `blocked_input_grad.wgsl` and columns per workgroup of
+/// `blocked_weight_grad.wgsl`: 16 x 16 threads of 8 x 8 outputs.
+const BLOCKED_TILE: usize = 128;
+/// The row ranges of `blocked_weight_grad.wgsl` are whole tiles of this many rows (its
+/// tile is 16 or 8 rows deep, `BlockedDepth`).
+const BLOCKED_WEIGHT_ROWS: usize = 16;
 
 /// Which kernels compute an output layer's loss and gradients. Both give the CPU's results
 /// to f32 summation order; which is faster is a GPU's question (docs/gpu.md).
@@ -40,12 +38,13 @@ pub enum OutputKernels {
     #[default]
     Fused,
     /// Three register-blocked products with the error gradient written out between them:
-    /// the forward product in 4 x 4 blocks of (rows, columns) per thread, then the input
-    /// and the weight gradients two rows (columns) per thread. About twice the
-    /// multiply-adds per workgroup-memory load of `Fused` and no recomputed product, for a
-    /// [rows x columns] error gradient in device memory (one chunk of rows, at most
-    /// `Tiling::max_chunk_bytes`). Slower than `Fused` alone on an H200 (14-24 against
-    /// 13-14 ms per paper-scale learning call), a tie in whole iterations (docs/gpu.md).
+    /// the forward product in 8 x 8 blocks of (rows, columns) per thread, then the input
+    /// and the weight gradients eight rows (columns) by one vec4 of the width per thread,
+    /// their tiles double-buffered in workgroup memory and as deep as the adapter allows
+    /// (`BlockedDepth`). 16 (forward) and 10.7 multiply-adds per workgroup-memory load
+    /// against `Fused`'s 4, and no recomputed product, for a [rows x columns] error
+    /// gradient in device memory (one chunk of rows, at most `Tiling::max_chunk_bytes`).
+    /// Not timed on a GPU yet (docs/gpu.md).
     Blocked,
 }
 
@@ -80,7 +79,7 @@ pub struct Tiling {
     /// split per 32-column tile: 1,008) it becomes the slow part, and with too few the row
     /// pass runs out of parallelism. 256 was the fastest cap for inference's window on an
     /// H200 and leaves learning's paper-scale chunks (112 splits) as they were
-    /// (docs/gpu.md has the measurements).
+    /// (docs/results/gpu/notes.md, "Measured figures of earlier paths").
     pub max_splits: usize,
     /// Largest buffer a chunk binds (the device's binding limit applies too).
     pub max_chunk_bytes: usize,
@@ -92,13 +91,17 @@ pub struct Tiling {
     /// hidden width) stay on the CPU, where they take less than the GPU's round trip (a
     /// fixed 0.2-0.3 ms per call on an H200). Online inference makes such calls 50 times a
     /// step: proprioception (30 x 28 x 40 = 34 k) and 16x16 vision (30 x 1,536 x 50 = 2.3 M),
-    /// where 2 CPU threads measured 53.6 steps/s against 25.5 on the GPU (docs/gpu.md).
+    /// where 2 CPU threads measured 53.6 steps/s against 25.5 on the GPU (H200, 2026-11-26:
+    /// docs/results/gpu/notes.md, "Measured figures of earlier paths").
     /// Everything observed (48 M) and learning (87 M and more) stay on the GPU. A learner's
     /// resident layers always run on the GPU (their weights live there). Tests set 0 to
     /// run their small shapes on the GPU.
     pub min_work: usize,
     /// The output layer's kernels.
     pub output_kernels: OutputKernels,
+    /// How deep the blocked kernels' tiles are; `None`: as deep as the adapter allows
+    /// (`PVRNN_WGPU_BLOCKED_DEPTH`).
+    pub blocked_depth: Option<BlockedDepth>,
     /// Rows per workgroup of the fused row pass (`loss_rows.wgsl`, one per thread): 32, 64
     /// (the default) or 128 (23.7 KiB of workgroup memory at the paper's width: on an
     /// adapter with WebGPU's default 16 KiB it runs 64). For measuring per adapter
@@ -128,6 +131,7 @@ impl Default for Tiling {
             weight_rows_per_split: 256,
             min_work: 4 << 20,
             output_kernels: OutputKernels::Fused,
+            blocked_depth: None,
             row_pass_rows: 64,
             row_pass_step: 2,
         }
@@ -584,21 +588,34 @@ impl GpuOutputLayer {
         }
     }
 
+    /// The blocked kernels of `layer`'s width at the depth the tiling asks for.
+    fn blocked_kernels<'l>(&self, layer: &'l Layer) -> &'l crate::gpu::BlockedKernels {
+        let depth = self.tiling.blocked_depth.unwrap_or(BlockedDepth::Deep);
+        self.gpu.blocked_kernels(&layer.kernels, depth)
+    }
+
     /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and
     /// column splits (enough workgroups to fill the GPU, partials within one binding).
     fn loss_cut(&self, n: usize, k: usize, hv: usize) -> LossCut {
         let limit = self.chunk_limit();
         let max_groups = self.gpu.limits().max_compute_workgroups_per_dimension as usize;
-        let chunk = (limit / (4 * k)).max(1).min(n);
+        let mut chunk = (limit / (4 * k)).max(1).min(n);
+        // The blocked kernels' workgroups take 128 rows: a chunk of whole blocks wastes none
+        // (520 rows per chunk at the paper's scale would leave a fifth of the forward
+        // product's threads idle).
+        if self.tiling.output_kernels == OutputKernels::Blocked && chunk < n && chunk > BLOCKED_TILE
+        {
+            chunk -= chunk % BLOCKED_TILE;
+        }
         // Column splits: enough workgroups to fill the GPU, partials within one binding.
         let tile_columns = match self.tiling.output_kernels {
             OutputKernels::Fused => TILE_COLUMNS,
-            OutputKernels::Blocked => BLOCKED_TILE_COLUMNS,
+            OutputKernels::Blocked => BLOCKED_TILE,
         };
         let tiles = k.div_ceil(tile_columns);
         let row_blocks = match self.tiling.output_kernels {
             OutputKernels::Fused => chunk.div_ceil(self.tiling.row_pass(hv, &self.gpu).rows),
-            OutputKernels::Blocked => chunk.div_ceil(WORKGROUP),
+            OutputKernels::Blocked => chunk.div_ceil(BLOCKED_TILE),
         };
         let splits = self
             .tiling
@@ -655,7 +672,7 @@ impl GpuOutputLayer {
     /// At most this many row ranges for `rows` rows (never more for fewer rows): enough
     /// workgroups to fill the GPU, partials within one binding.
     fn weight_splits_at_most(&self, rows: usize, k: usize, hv: usize) -> usize {
-        let column_blocks = k.div_ceil(BLOCKED_WEIGHT_COLUMNS);
+        let column_blocks = k.div_ceil(BLOCKED_TILE);
         self.tiling
             .target_workgroups
             .div_ceil(column_blocks)
@@ -811,7 +828,7 @@ impl GpuOutputLayer {
         cut: LossCut,
     ) -> PooledBuffer {
         let gpu = &*self.gpu;
-        let kernels = gpu.blocked_kernels(&layer.kernels);
+        let kernels = self.blocked_kernels(layer);
         let splits = cut.splits as u32;
         let forward = bind(
             gpu,
@@ -826,7 +843,7 @@ impl GpuOutputLayer {
                 b.part_loss,
             ],
         );
-        let row_blocks = chunk.rows.div_ceil(WORKGROUP) as u32;
+        let row_blocks = chunk.rows.div_ceil(BLOCKED_TILE) as u32;
         dispatch(encoder, &kernels.forward, &forward, row_blocks, splits);
         let input_params = gpu.uniform(&BlockedInputParams {
             rows: chunk.rows as u32,
@@ -839,7 +856,7 @@ impl GpuOutputLayer {
             &kernels.input_grad,
             &[&input_params, layer.weight(), &scratch.g, b.part_in],
         );
-        let row_blocks = chunk.rows.div_ceil(BLOCKED_INPUT_ROWS) as u32;
+        let row_blocks = chunk.rows.div_ceil(BLOCKED_TILE) as u32;
         dispatch(encoder, &kernels.input_grad, &input, row_blocks, splits);
         input_params
     }
@@ -856,7 +873,7 @@ impl GpuOutputLayer {
         chunk: ChunkRows,
     ) -> [PooledBuffer; 2] {
         let gpu = &*self.gpu;
-        let kernels = gpu.blocked_kernels(&layer.kernels);
+        let kernels = self.blocked_kernels(layer);
         let hv = vec4s(layer.hidden);
         let Some((part_w, part_b)) = &scratch.part_w else {
             unreachable!("weight gradients asked for: their partials were made")
@@ -873,7 +890,7 @@ impl GpuOutputLayer {
             &kernels.weight_grad,
             &[&weight_params, b.x, &scratch.g, part_w, part_b],
         );
-        let column_blocks = chunk.k.div_ceil(BLOCKED_WEIGHT_COLUMNS) as u32;
+        let column_blocks = chunk.k.div_ceil(BLOCKED_TILE) as u32;
         dispatch(
             encoder,
             &kernels.weight_grad,

@@ -24,7 +24,7 @@ use pvrnn_core::train::Trainer;
 use pvrnn_core::{
     Ablation, Modality, Model, ModelConfig, NoiseMode, Observations, Observed, Tensor,
 };
-use pvrnn_wgpu::{GpuRecurrence, OutputKernels, Tiling, WgpuBackend};
+use pvrnn_wgpu::{BlockedDepth, GpuRecurrence, OutputKernels, Tiling, WgpuBackend};
 
 /// Tiling that sends every call to the GPU, however small (the tests' shapes are).
 fn every_call() -> Tiling {
@@ -120,9 +120,10 @@ fn many_groups_and_chunks_match_the_cpu_backend() {
 }
 
 /// The register-blocked output-layer kernels compute what the CPU computes: one chunk
-/// (160 rows: three row blocks of the forward product, the last short; two of the input
-/// gradient), then many small chunks with several column splits and row ranges each, and
-/// learning with the layers resident, with and without hidden read-out layers and biases.
+/// (160 rows: two row blocks of 128, the last short; 480 columns: four tiles of 128, the
+/// last short), then many small chunks with several column splits and row ranges each, one
+/// split walking many tiles (both tile depths), and learning with the layers resident,
+/// with and without hidden read-out layers and biases.
 #[test]
 fn the_blocked_output_kernels_match_the_cpu_backend() {
     let Some(gpu) = gpu() else { return };
@@ -133,8 +134,9 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
         })
     };
     free_energy_and_gradients_agree(blocked(every_call()), 4, 40);
-    // 4-row chunks of 63 rows (the last short); 8 column tiles of 64 (the last short) in
-    // splits of two, so partial input gradients and row ranges of d W are reduced.
+    // 4-row chunks of 63 rows (the last short), each chunk's d W added to the earlier
+    // ones'; 4 column tiles of 128 (the last short), one split each, so partial input
+    // gradients are reduced.
     free_energy_and_gradients_agree(
         blocked(Tiling {
             target_workgroups: 8,
@@ -146,7 +148,7 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
         21,
     );
     // Enough rows for several ranges of d W in one chunk: 3 x 60 = 180 rows in ranges of
-    // 32 or more.
+    // 16 or more.
     free_energy_and_gradients_agree(
         blocked(Tiling {
             target_workgroups: 64,
@@ -154,6 +156,40 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
         }),
         3,
         60,
+    );
+    // Chunks cut to whole 128-row blocks: 150 rows of vision fit the chunk's bytes, 128
+    // are taken, so 300 rows run as 128, 128 and 44.
+    free_energy_and_gradients_agree(
+        blocked(Tiling {
+            max_chunk_bytes: 150 * 480 * 4,
+            ..every_call()
+        }),
+        6,
+        50,
+    );
+    // One split and one row range per chunk: each workgroup walks many tiles (four column
+    // tiles of the forward product, 30 of the input gradient, 10 row tiles of d W), so
+    // every double buffer is filled and emptied many times; with both tile depths, and
+    // then the default cut with the shallower tiles of an adapter with 16 KiB of workgroup
+    // memory (lavapipe has 32: the cases above run the deeper).
+    for depth in [BlockedDepth::Deep, BlockedDepth::Shallow] {
+        free_energy_and_gradients_agree(
+            blocked(Tiling {
+                target_workgroups: 1,
+                blocked_depth: Some(depth),
+                ..every_call()
+            }),
+            4,
+            40,
+        );
+    }
+    free_energy_and_gradients_agree(
+        blocked(Tiling {
+            blocked_depth: Some(BlockedDepth::Shallow),
+            ..every_call()
+        }),
+        4,
+        40,
     );
     learning_with_resident_weights(blocked(every_call()), config(), None);
     learning_with_resident_weights(blocked(every_call()), other_readouts(), None);

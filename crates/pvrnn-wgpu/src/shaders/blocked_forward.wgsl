@@ -1,23 +1,36 @@
 // The output layer's forward product and error, register-blocked (`OutputKernels::Blocked`,
-// the first of its three products): x^ = tanh(W h + b) for a 64 x 64 tile of (rows,
+// the first of its three products): x^ = tanh(W h + b) for a 128 x 128 tile of (rows,
 // columns) per workgroup, the error gradient g = (x^ - x)(1 - x^2) / divisor written out for
 // the other two products (`blocked_input_grad.wgsl`, `blocked_weight_grad.wgsl`), and each
 // row's squared error summed over the workgroup's column split.
 //
-// Thread (ty, tx) of the 16 x 16 workgroup owns rows ty + 16 i and columns tx + 16 j
-// (i, j < 4): sixteen dot products, kept as vec4 partial sums (acc{i}{j}) over the hidden
-// width, which is walked in chunks of KC vec4s staged in workgroup memory (transposed, so
-// that consecutive threads read consecutive vec4s). Each chunk step loads 4 + 4 vec4s for
-// 64 multiply-adds, against one vec4 for 4 in `loss_rows.wgsl`.
+// Thread (ty, tx) of the 16 x 16 workgroup owns an 8 x 8 block: rows 4 ty + i and
+// 64 + 4 ty + i, columns 4 tx + j and 64 + 4 tx + j (i, j < 4), as 16 vec4 accumulators
+// (`lo*`: the low four columns, `hi*`: the high; `*_a`: the low four rows, `*_b`: the high).
+// The hidden width is walked one scalar k at a time from workgroup memory, where it is
+// staged transposed in chunks of KC vec4s: per k, 4 vec4 loads (two of rows, two of
+// columns; consecutive threads read consecutive vec4s) for 64 multiply-adds.
 //
-// Workgroup memory: 2 * KC * 64 * 16 + 64 * 17 * 4 bytes = 12.4 KiB, within WebGPU's
-// default 16 KiB; 256 invocations, WebGPU's default maximum.
+// Double-buffered: while a chunk is multiplied, each staging thread already holds the next
+// chunk's 4 x 4 block in registers (loaded before the arithmetic, stored into the other
+// buffer after it), so one barrier per chunk and the device-memory latency under the
+// arithmetic. KC = 4 (32 KiB of workgroup memory) on adapters that allow it, else 2
+// (16 KiB, WebGPU's default); chosen by the host from the adapter's limits.
+//
+// Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`): every index is in
+// bounds by construction. Device memory: rows below p.rows (x: p.row_offset + row, the host
+// bound the chunk's rows), columns below c_end <= p.k, vec4s of the width below HV; loads
+// outside are skipped (zeros), stores outside are skipped. Workgroup memory: stage indices
+// are at most 2 BUF - 1 (buffer offsets 0 or BUF, lanes below 32, q below KS).
 
-const HV: u32 = {{HV}}u;  // hidden width in vec4s (zero-padded)
-const BM: u32 = 64u;      // rows per workgroup
-const BN: u32 = 64u;      // columns per tile
-const KC: u32 = 4u;       // vec4s of the hidden width per staged chunk
-const LS: u32 = 17u;      // row stride of the loss tile (odd: no bank conflicts)
+const HV: u32 = {{HV}}u;       // hidden width in vec4s (zero-padded)
+const KC: u32 = {{KC}}u;       // vec4s of the width per staged chunk
+const KS: u32 = {{KS}}u;       // scalars of the width per staged chunk (4 KC)
+const CHUNKS: u32 = (HV + KC - 1u) / KC;
+const BM: u32 = 128u;          // rows per workgroup
+const BN: u32 = 128u;          // columns per tile
+const HALF: u32 = KS * 32u;    // vec4s of one operand's chunk
+const BUF: u32 = 2u * HALF;    // one buffer: the rows' chunk, then the columns'
 
 struct Params {
     rows: u32,            // rows in this chunk
@@ -38,9 +51,81 @@ struct Params {
 @group(0) @binding(5) var<storage, read_write> g: array<f32>;          // [rows, k]
 @group(0) @binding(6) var<storage, read_write> part_loss: array<f32>;  // [splits, rows]
 
-var<workgroup> x_tile: array<vec4<f32>, 256>;  // [KC, BM]
-var<workgroup> w_tile: array<vec4<f32>, 256>;  // [KC, BN]
-var<workgroup> loss_tile: array<f32, 1088>;    // [BM, LS]
+// Two buffers of [KS, 32] vec4s of rows then [KS, 32] of columns (vec4 = four consecutive
+// rows or columns at one k); after the last tile, the row losses' reduction (512 vec4s).
+var<workgroup> stage: array<vec4<f32>, {{STAGE}}>;
+
+// A staging thread's 4 x 4 block of one chunk, transposed: v{c} holds k = 4 kk + c of its
+// four rows (or columns).
+struct Block {
+    v0: vec4<f32>,
+    v1: vec4<f32>,
+    v2: vec4<f32>,
+    v3: vec4<f32>,
+}
+
+// The block of vec4 `h` of the width for rows (or columns) 4 lane .. 4 lane + 3: threads
+// below 32 KC stage rows, the next 32 KC columns, the others nothing (zeros, never stored).
+fn load_block(t: u32, r0: u32, c0: u32, c_end: u32, h: u32) -> Block {
+    let lane = t % 32u;
+    var v0 = vec4<f32>(0.0);
+    var v1 = vec4<f32>(0.0);
+    var v2 = vec4<f32>(0.0);
+    var v3 = vec4<f32>(0.0);
+    if (h < HV) {
+        if (t < 32u * KC) {
+            let row = r0 + 4u * lane;
+            let at = (p.row_offset + row) * HV + h;
+            if (row < p.rows) { v0 = x[at]; }
+            if (row + 1u < p.rows) { v1 = x[at + HV]; }
+            if (row + 2u < p.rows) { v2 = x[at + 2u * HV]; }
+            if (row + 3u < p.rows) { v3 = x[at + 3u * HV]; }
+        } else if (t < 64u * KC) {
+            let col = c0 + 4u * lane;
+            let at = col * HV + h;
+            if (col < c_end) { v0 = w[at]; }
+            if (col + 1u < c_end) { v1 = w[at + HV]; }
+            if (col + 2u < c_end) { v2 = w[at + 2u * HV]; }
+            if (col + 3u < c_end) { v3 = w[at + 3u * HV]; }
+        }
+    }
+    return Block(
+        vec4<f32>(v0.x, v1.x, v2.x, v3.x),
+        vec4<f32>(v0.y, v1.y, v2.y, v3.y),
+        vec4<f32>(v0.z, v1.z, v2.z, v3.z),
+        vec4<f32>(v0.w, v1.w, v2.w, v3.w),
+    );
+}
+
+fn store_block(t: u32, buffer: u32, block: Block) {
+    if (t < 64u * KC) {
+        let lane = t % 32u;
+        let kk = (t / 32u) % KC;
+        let at = buffer + select(0u, HALF, t >= 32u * KC) + 4u * kk * 32u + lane;
+        stage[at] = block.v0;
+        stage[at + 32u] = block.v1;
+        stage[at + 64u] = block.v2;
+        stage[at + 96u] = block.v3;
+    }
+}
+
+// The error of four columns from `col` of one row: the error gradient written, the squared
+// error returned (columns at or past c_end and rows past the chunk skipped).
+fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>) -> f32 {
+    var loss = 0.0;
+    if (row < p.rows) {
+        let at = row * p.k + col;
+        //#unroll j 4
+        if (col + {j}u < c_end) {
+            let yhat = tanh_safe(acc[{j}] + b[col + {j}u]);
+            let e = yhat - y[at + {j}u];
+            loss += e * e;
+            g[at + {j}u] = p.scale * e * (1.0 - yhat * yhat);
+        }
+        //#end
+    }
+    return loss;
+}
 
 @compute @workgroup_size(256)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
@@ -48,88 +133,81 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
     let r0 = wg.x * BM;
     let tx = t % 16u;
     let ty = t / 16u;
-    // The staging thread's place: chunk vec4 `kk` of row (or column) `lane`.
-    let lane = t / KC;
-    let kk = t % KC;
-    let stage_row = r0 + lane;
+    let kk = (t / 32u) % KC;
 
     //#unroll i 4
-    var loss{i} = 0.0;
+    var loss_a{i} = 0.0;
+    var loss_b{i} = 0.0;
     //#end
 
     let c_begin = split * p.cols_per_split;
     let c_end = min(p.k, c_begin + p.cols_per_split);
     for (var c0 = c_begin; c0 < c_end; c0 += BN) {
         //#unroll i 4
-        //#unroll j 4
-        var acc{i}{j} = vec4<f32>(0.0);
+        var lo_a{i} = vec4<f32>(0.0);
+        var hi_a{i} = vec4<f32>(0.0);
+        var lo_b{i} = vec4<f32>(0.0);
+        var hi_b{i} = vec4<f32>(0.0);
         //#end
-        //#end
-        let stage_col = c0 + lane;
-        for (var k0 = 0u; k0 < HV; k0 += KC) {
-            let h = k0 + kk;
-            var xv = vec4<f32>(0.0);
-            if (stage_row < p.rows && h < HV) {
-                xv = x[(p.row_offset + stage_row) * HV + h];
+        var block = load_block(t, r0, c0, c_end, kk);
+        store_block(t, 0u, block);
+        workgroupBarrier();
+        for (var chunk = 0u; chunk < CHUNKS; chunk++) {
+            let more = chunk + 1u < CHUNKS;
+            if (more) {
+                block = load_block(t, r0, c0, c_end, (chunk + 1u) * KC + kk);
             }
-            x_tile[kk * BM + lane] = xv;
-            var wv = vec4<f32>(0.0);
-            if (stage_col < c_end && h < HV) {
-                wv = w[stage_col * HV + h];
-            }
-            w_tile[kk * BN + lane] = wv;
-            workgroupBarrier();
-            // The last chunk may run past the hidden width (13 vec4s at the paper's
-            // scale): its zero padding is skipped, not multiplied.
-            //#unroll q 4
-            if (k0 + {q}u < HV) {
-            //#unroll i 4
-            let a{i} = x_tile[{q}u * BM + ty + 16u * {i}u];
-            //#end
-            //#unroll j 4
-            let b{j} = w_tile[{q}u * BN + tx + 16u * {j}u];
-            //#end
-            //#unroll i 4
-            //#unroll j 4
-            acc{i}{j} = fma(a{i}, b{j}, acc{i}{j});
-            //#end
-            //#end
+            let xb = (chunk % 2u) * BUF;
+            let wb = xb + HALF;
+            let k0 = chunk * KC;
+            // The last chunk may run past the width (13 vec4s at the paper's scale): its
+            // zero padding is skipped, not multiplied.
+            //#unroll q KS
+            if (k0 + {q}u / 4u < HV) {
+                let ra = stage[xb + {q}u * 32u + ty];
+                let rb = stage[xb + {q}u * 32u + 16u + ty];
+                let cl = stage[wb + {q}u * 32u + tx];
+                let ch = stage[wb + {q}u * 32u + 16u + tx];
+                //#unroll i 4
+                lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
+                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
+                lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
+                hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
+                //#end
             }
             //#end
+            if (more) {
+                store_block(t, ((chunk + 1u) % 2u) * BUF, block);
+            }
             workgroupBarrier();
         }
-        // The epilogue: consecutive threads (tx) read and write consecutive columns.
-        //#unroll j 4
-        let col{j} = c0 + tx + 16u * {j}u;
-        let live_c{j} = col{j} < c_end;
-        let bias{j} = b[select(0u, col{j}, live_c{j})];
-        //#end
+        // Each row's errors: its low columns, then its high ones.
+        let col_lo = c0 + 4u * tx;
+        let col_hi = col_lo + 64u;
         //#unroll i 4
-        let row{i} = r0 + ty + 16u * {i}u;
-        if (row{i} < p.rows) {
-            let at{i} = row{i} * p.k;
-            //#unroll j 4
-            if (live_c{j}) {
-                let yhat = tanh_safe(sum4(acc{i}{j}) + bias{j});
-                let e = yhat - y[at{i} + col{j}];
-                loss{i} += e * e;
-                g[at{i} + col{j}] = p.scale * e * (1.0 - yhat * yhat);
-            }
-            //#end
-        }
+        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_lo, c_end, lo_a{i});
+        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_hi, c_end, hi_a{i});
+        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_lo, c_end, lo_b{i});
+        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_hi, c_end, hi_b{i});
         //#end
     }
 
-    // Each row's loss: its 16 threads' sums, added in order.
-    //#unroll i 4
-    loss_tile[(ty + 16u * {i}u) * LS + tx] = loss{i};
-    //#end
+    // Each row's loss: its 16 threads' sums (one per tx), added in order. Row quad m
+    // (rows 4 m .. 4 m + 3) of thread tx sits at stage[32 tx + m]: quads ty and 16 + ty.
+    stage[32u * tx + ty] = vec4<f32>(loss_a0, loss_a1, loss_a2, loss_a3);
+    stage[32u * tx + 16u + ty] = vec4<f32>(loss_b0, loss_b1, loss_b2, loss_b3);
     workgroupBarrier();
-    if (t < BM && r0 + t < p.rows) {
-        var l = 0.0;
+    if (t < 32u) {
+        var l = vec4<f32>(0.0);
         for (var s = 0u; s < 16u; s++) {
-            l += loss_tile[t * LS + s];
+            l += stage[32u * s + t];
         }
-        part_loss[split * p.rows + r0 + t] = l;
+        let row = r0 + 4u * t;
+        let at = split * p.rows + row;
+        //#unroll i 4
+        if (row + {i}u < p.rows) {
+            part_loss[at + {i}u] = l[{i}];
+        }
+        //#end
     }
 }

@@ -1,97 +1,156 @@
 // The output layer's weight gradient from the error gradient (`OutputKernels::Blocked`, the
-// third of its three products): d W = g^T h and d b = the column sums of g, over a range of
-// rows, one partial per range (`blocked_weight_reduce.wgsl` adds them in order).
+// third of its three products): d W = g^T h and d b = the column sums of g, for 128 columns
+// per workgroup over a range of rows, one partial per range (`blocked_weight_reduce.wgsl`
+// adds them in order).
 //
-// Thread t owns two columns, c0 + t and c0 + t + 64, their gradients in registers (gx{i},
-// gy{i}: HV vec4s each, unrolled), and walks its range's rows in tiles of RT whose hidden
-// activations are staged in workgroup memory (a broadcast). Each activation vec4 serves
-// both columns, 8 multiply-adds per load against 4 in `loss_columns.wgsl`, and the forward
-// product is not recomputed. Consecutive threads read consecutive error gradients of a row.
+// Thread (cy, h) of the 16 x HV workgroup owns vec4 h of the width for eight columns:
+// 4 cy + j and 64 + 4 cy + j (j < 4), eight vec4 accumulators (`a*`, `b*`), and the
+// columns' bias sums (every thread adds them; the h = 0 ones write them). The range's rows
+// are walked in tiles of KT staged in workgroup memory: error gradients as they lie (a
+// vec4 is four consecutive columns of one row; consecutive threads read consecutive
+// columns), hidden activations likewise. Per row, 3 vec4 loads for 32 multiply-adds, and
+// the forward product is not recomputed.
 //
-// Workgroup memory: RT * HV * 16 bytes = 6.5 KiB at HV = 13.
+// Double-buffered as `blocked_forward.wgsl`. KT = 16 where the adapter allows 32 KiB of
+// workgroup memory, else 8.
+//
+// Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`): every index is in
+// bounds by construction. Device memory: rows below r_end <= p.rows (x: p.row_offset + row),
+// columns below p.k, ranges below the grid's y the host sized part_w and part_b for; loads
+// outside are skipped (zeros), stores outside are skipped. Workgroup memory: below 2 BUF.
 
-const HV: u32 = {{HV}}u;  // hidden width in vec4s (zero-padded)
-const CW: u32 = 128u;     // columns per workgroup (two per thread)
-const RT: u32 = 32u;      // rows per tile
+const HV: u32 = {{HV}}u;       // hidden width in vec4s (zero-padded)
+const KT: u32 = {{KT}}u;       // rows per tile
+const NT: u32 = 16u * HV;      // threads
+const BN: u32 = 128u;          // columns per workgroup
+const GH: u32 = KT * 32u;      // vec4s of error gradients per buffer
+const BUF: u32 = GH + KT * HV; // one buffer: error gradients, then activations
 
 struct Params {
     rows: u32,            // rows in this chunk
     k: u32,               // observed columns
-    rows_per_split: u32,  // a multiple of RT
+    rows_per_split: u32,  // a multiple of KT
     row_offset: u32,      // first row of this chunk in `x`
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;          // [all rows, HV]
-@group(0) @binding(2) var<storage, read> g: array<f32>;                // [rows, k]
+@group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;            // [all rows, HV]
+@group(0) @binding(2) var<storage, read> g: array<f32>;                  // [rows, k]
 @group(0) @binding(3) var<storage, read_write> part_w: array<vec4<f32>>; // [splits, k, HV]
-@group(0) @binding(4) var<storage, read_write> part_b: array<f32>;     // [splits, k]
+@group(0) @binding(4) var<storage, read_write> part_b: array<f32>;       // [splits, k]
 
-var<workgroup> x_tile: array<vec4<f32>, {{RT_HV}}>;
+var<workgroup> stage: array<vec4<f32>, {{STAGE}}>;  // 2 BUF
 
-@compute @workgroup_size(64)
+// Error gradients `i` of the tile at r0 (row i / 32, columns 4 (i % 32) ..): zeros past
+// r_end, p.k or the tile's 32 KT vec4s.
+fn load_gradients(i: u32, r0: u32, r_end: u32, c0: u32) -> vec4<f32> {
+    var v = vec4<f32>(0.0);
+    let row = r0 + i / 32u;
+    if (i < 32u * KT && row < r_end) {
+        let col = c0 + 4u * (i % 32u);
+        let at = row * p.k + col;
+        if (col < p.k) { v.x = g[at]; }
+        if (col + 1u < p.k) { v.y = g[at + 1u]; }
+        if (col + 2u < p.k) { v.z = g[at + 2u]; }
+        if (col + 3u < p.k) { v.w = g[at + 3u]; }
+    }
+    return v;
+}
+
+// The activations of the tile at r0 for thread t: row t / HV, vec4 t % HV (zeros past
+// r_end; threads at or past KT HV stage nothing).
+fn load_activations(t: u32, r0: u32, r_end: u32) -> vec4<f32> {
+    let row = r0 + t / HV;
+    var v = vec4<f32>(0.0);
+    if (t < KT * HV && row < r_end) {
+        v = x[(p.row_offset + row) * HV + t % HV];
+    }
+    return v;
+}
+
+fn store(t: u32, buffer: u32, activations: vec4<f32>) {
+    if (t < KT * HV) {
+        stage[buffer + GH + t] = activations;
+    }
+}
+
+@compute @workgroup_size({{NT}})
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let split = wg.y;
-    let col_x = wg.x * CW + t;
-    let col_y = col_x + 64u;
-    let live_x = col_x < p.k;
-    let live_y = col_y < p.k;
-    // A dead thread reads column 0 (always present) and writes nothing.
-    let cx = select(0u, col_x, live_x);
-    let cy = select(0u, col_y, live_y);
+    let c0 = wg.x * BN;
+    let h = t % HV;
+    let cy = t / HV;
 
-    //#unroll i HV
-    var gx{i} = vec4<f32>(0.0);
-    var gy{i} = vec4<f32>(0.0);
+    //#unroll j 4
+    var a{j} = vec4<f32>(0.0);
+    var b{j} = vec4<f32>(0.0);
     //#end
-    var bx = 0.0;
-    var by = 0.0;
+    var bias_a = vec4<f32>(0.0);
+    var bias_b = vec4<f32>(0.0);
 
     let r_begin = split * p.rows_per_split;
     let r_end = min(p.rows, r_begin + p.rows_per_split);
-    for (var r0 = r_begin; r0 < r_end; r0 += RT) {
-        let n = min(RT, r_end - r0);
-        for (var i = t; i < RT * HV; i += 64u) {
-            let r = r0 + i / HV;
-            var v = vec4<f32>(0.0);
-            if (r < r_end) {
-                v = x[(p.row_offset + r) * HV + i % HV];
-            }
-            x_tile[i] = v;
+    let tiles = (r_end - r_begin + KT - 1u) / KT;
+    //#unroll s {{LOADS}}
+    var grads{s} = load_gradients(t + {s}u * NT, r_begin, r_end, c0);
+    if (t + {s}u * NT < GH) {
+        stage[t + {s}u * NT] = grads{s};
+    }
+    //#end
+    var activations = load_activations(t, r_begin, r_end);
+    store(t, 0u, activations);
+    workgroupBarrier();
+    for (var tile = 0u; tile < tiles; tile++) {
+        let more = tile + 1u < tiles;
+        let next = r_begin + (tile + 1u) * KT;
+        if (more) {
+            //#unroll s {{LOADS}}
+            grads{s} = load_gradients(t + {s}u * NT, next, r_end, c0);
+            //#end
+            activations = load_activations(t, next, r_end);
         }
-        workgroupBarrier();
-        for (var r = 0u; r < n; r++) {
-            let at = (r0 + r) * p.k;
-            let s0 = select(0.0, g[at + cx], live_x);
-            let s1 = select(0.0, g[at + cy], live_y);
-            bx += s0;
-            by += s1;
-            let g0 = vec4<f32>(s0);
-            let g1 = vec4<f32>(s1);
-            let base = r * HV;
-            //#unroll i HV
-            {
-                let xv = x_tile[base + {i}u];
-                gx{i} = fma(g0, xv, gx{i});
-                gy{i} = fma(g1, xv, gy{i});
+        let base = (tile % 2u) * BUF;
+        //#unroll r KT
+        {
+            let ga = stage[base + {r}u * 32u + cy];
+            let gb = stage[base + {r}u * 32u + 16u + cy];
+            let xv = stage[base + GH + {r}u * HV + h];
+            bias_a += ga;
+            bias_b += gb;
+            //#unroll j 4
+            a{j} = fma(vec4<f32>(ga[{j}]), xv, a{j});
+            b{j} = fma(vec4<f32>(gb[{j}]), xv, b{j});
+            //#end
+        }
+        //#end
+        if (more) {
+            let other = ((tile + 1u) % 2u) * BUF;
+            //#unroll s {{LOADS}}
+            if (t + {s}u * NT < GH) {
+                stage[other + t + {s}u * NT] = grads{s};
             }
             //#end
+            store(t, other, activations);
         }
         workgroupBarrier();
     }
 
-    if (live_x) {
-        let at = split * p.k + col_x;
-        //#unroll i HV
-        part_w[at * HV + {i}u] = gx{i};
-        //#end
-        part_b[at] = bx;
+    //#unroll j 4
+    {
+        let col_a = c0 + 4u * cy + {j}u;
+        if (col_a < p.k) {
+            part_w[(split * p.k + col_a) * HV + h] = a{j};
+            if (h == 0u) {
+                part_b[split * p.k + col_a] = bias_a[{j}];
+            }
+        }
+        let col_b = col_a + 64u;
+        if (col_b < p.k) {
+            part_w[(split * p.k + col_b) * HV + h] = b{j};
+            if (h == 0u) {
+                part_b[split * p.k + col_b] = bias_b[{j}];
+            }
+        }
     }
-    if (live_y) {
-        let at = split * p.k + col_y;
-        //#unroll i HV
-        part_w[at * HV + {i}u] = gy{i};
-        //#end
-        part_b[at] = by;
-    }
+    //#end
 }

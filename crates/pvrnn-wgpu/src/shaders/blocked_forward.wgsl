@@ -109,15 +109,27 @@ fn store_block(t: u32, buffer: u32, block: Block) {
     }
 }
 
-// The error of four columns from `col` of one row: the error gradient written, the squared
-// error returned (columns at or past c_end and rows past the chunk skipped).
-fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>) -> f32 {
+// The biases of four columns from `col` (zeros at or past c_end).
+fn biases(col: u32, c_end: u32) -> vec4<f32> {
+    var v = vec4<f32>(0.0);
+    //#unroll j 4
+    if (col + {j}u < c_end) {
+        v[{j}] = b[col + {j}u];
+    }
+    //#end
+    return v;
+}
+
+// The error of four columns from `col` of one row, given their forward products `acc` and
+// biases `bias`: the error gradient written, the squared error returned (columns at or past
+// c_end and rows past the chunk skipped).
+fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 {
     var loss = 0.0;
     if (row < p.rows) {
         let at = row * p.k + col;
         //#unroll j 4
         if (col + {j}u < c_end) {
-            let yhat = tanh_safe(acc[{j}] + b[col + {j}u]);
+            let yhat = tanh_safe(acc[{j}] + bias[{j}]);
             let e = yhat - y[at + {j}u];
             loss += e * e;
             g[at + {j}u] = p.scale * e * (1.0 - yhat * yhat);
@@ -184,11 +196,13 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
         // Each row's errors: its low columns, then its high ones.
         let col_lo = c0 + 4u * tx;
         let col_hi = col_lo + 64u;
+        let bias_lo = biases(col_lo, c_end);
+        let bias_hi = biases(col_hi, c_end);
         //#unroll i 4
-        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_lo, c_end, lo_a{i});
-        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_hi, c_end, hi_a{i});
-        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_lo, c_end, lo_b{i});
-        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_hi, c_end, hi_b{i});
+        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_lo, c_end, lo_a{i}, bias_lo);
+        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_hi, c_end, hi_a{i}, bias_hi);
+        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_lo, c_end, lo_b{i}, bias_lo);
+        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_hi, c_end, hi_b{i}, bias_hi);
         //#end
     }
 

@@ -25,6 +25,9 @@
 #   wgpu-blocked, whole-blocked, whole-N-blocked
 #                `wgpu`, `whole` and `whole-N` with the register-blocked output-layer
 #                kernels (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
+#   whole-N-encoded
+#                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
+#                default replays each run's recorded iteration)
 #   whole-N-checked, whole-N-unchecked
 #                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
 #                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
@@ -111,6 +114,8 @@ for round in $(seq "$rounds"); do
             --backend wgpu --gpu-recurrence $train_only
         PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
+            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         for checks in all none; do
             name=$([ "$checks" = all ] && echo checked || echo unchecked)
             PVRNN_WGPU_CHECKS=$checks bench "whole-${NETWORKS:-5}-$name" "$threads" "$round" \

@@ -274,6 +274,8 @@ pub struct Gpu {
     pub(crate) resident: Mutex<ResidentTargets>,
     pool: Arc<BufferPool>,
     read_backs: AtomicU64,
+    /// Learning iterations encoded (not replayed) so far.
+    iterations_encoded: AtomicU64,
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,
 }
@@ -314,6 +316,7 @@ impl Gpu {
             resident: Mutex::new(ResidentTargets::default()),
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
+            iterations_encoded: AtomicU64::new(0),
             checks: RuntimeChecks::from_env(),
         })
     }
@@ -375,6 +378,16 @@ impl Gpu {
     pub fn buffer_memory(&self) -> Option<u64> {
         let bytes = self.device.get_internal_counters().hal.buffer_memory.read();
         (bytes > 0).then_some(bytes as u64)
+    }
+
+    /// A run's part of a whole learning iteration on the device encoded so far, not
+    /// replayed (`Tiling::replay_iterations`): how a test sees that iterations replay.
+    pub fn iterations_encoded(&self) -> u64 {
+        self.iterations_encoded.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn count_iteration_encoded(&self) {
+        self.iterations_encoded.fetch_add(1, Ordering::Relaxed);
     }
 
     pub(crate) fn count_read_back(&self) {

@@ -77,10 +77,11 @@ struct Prepared {
     /// taken when submitted.
     clears: Option<wgpu::CommandBuffer>,
     /// Before the recurrence forward: the inputs; between forward and backward: the
-    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms.
-    inputs: DispatchList,
-    readouts: DispatchList,
-    after: DispatchList,
+    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms
+    /// (shared with the run's [`Recording`] when it replays).
+    inputs: Arc<DispatchList>,
+    readouts: Arc<DispatchList>,
+    after: Arc<DispatchList>,
     entries: Vec<WindowEntry>,
     /// What to read back (KL terms, each read-out's row losses) with its length.
     sources: Vec<(wgpu::Buffer, usize)>,
@@ -320,6 +321,33 @@ pub(crate) struct DeviceIteration {
     adaptive: [[wgpu::Buffer; 2]; 4],
     adaptive_grads: [[wgpu::Buffer; 2]; 4],
     readouts: GpuOutputLayer,
+    /// The run's part of an iteration as last encoded, to replay (`Tiling::replay_iterations`).
+    recording: Option<Mutex<Option<Recording>>>,
+}
+
+/// A run's part of a learning iteration, encoded once and replayed while the data and its
+/// shapes stay: every iteration runs the same dispatches on the same buffers, only eps
+/// differs (uploaded into the recording's buffer). The recording holds every buffer its
+/// dispatches use, so none returns to the pool while it lives.
+#[derive(Debug)]
+struct Recording {
+    /// The data (`Observations::id`), its sequences' lengths and eps's floats.
+    key: (u64, Vec<usize>, usize),
+    eps: PooledBuffer,
+    /// Buffers cleared before each iteration besides the run's own (`DeviceIteration::clear`).
+    clears: Vec<wgpu::Buffer>,
+    inputs: Arc<DispatchList>,
+    readouts: Arc<DispatchList>,
+    after: Arc<DispatchList>,
+    entries: Vec<WindowEntry>,
+    sources: Vec<(wgpu::Buffer, usize)>,
+    per_module_at: [usize; 4],
+    divisors: [usize; 2],
+    total: usize,
+    /// The read-outs' marks for the learner's update ([`GpuOutputLayer::learner_marks`]).
+    marks: [Option<(usize, bool)>; 2],
+    _keep: Vec<PooledBuffer>,
+    _readouts: Vec<EncodedReadout>,
 }
 
 /// A learning iteration's sequences as the kernels see them.
@@ -435,6 +463,7 @@ impl DeviceIteration {
             adaptive,
             adaptive_grads,
             readouts: GpuOutputLayer::with_resident(gpu.clone(), tiling, &model.params, layers),
+            recording: tiling.replay_iterations.then(Mutex::default),
         })
     }
 
@@ -482,8 +511,9 @@ impl DeviceIteration {
         })
     }
 
-    /// The device work of one iteration of this run, encoded, with what reading its
-    /// results needs: where each module's noise starts, the read-outs' divisors, the rows.
+    /// The device work of one iteration of this run, encoded (or replayed from its
+    /// [`Recording`]), with what reading its results needs: where each module's noise
+    /// starts, the read-outs' divisors, the rows.
     fn prepare(
         &self,
         data: &Observations<f32>,
@@ -492,12 +522,44 @@ impl DeviceIteration {
         let stack = &*self.stack;
         let gpu = &*stack.gpu;
         let batch = Batch::of(self.layout(), data.lengths(), stack.entry_base(self.slot));
-        let _phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        let _phase =
+            pvrnn_core::profile::phase("evaluate on the device: a run's part, encoded or replayed");
         let (eps_flat, per_module_at) = self.flatten_eps(&batch, eps)?;
-        let eps_buffer = gpu.upload("eps", &eps_flat);
-        let mut keep: Vec<PooledBuffer> = Vec::new();
+        let key = (data.id(), batch.lengths.to_vec(), eps_flat.len());
         let mut clears = gpu.device.create_command_encoder(&Default::default());
         self.clear(&mut clears);
+        let mut recording = self
+            .recording
+            .as_ref()
+            .map(|r| r.lock().unwrap_or_else(|e| e.into_inner()));
+        if let Some(Some(r)) = recording
+            .as_deref()
+            .filter(|r| r.as_ref().is_some_and(|r| r.key == key))
+        {
+            // Written before the submission that uses it runs (queue order).
+            gpu.queue
+                .write_buffer(&r.eps, 0, bytemuck::cast_slice(&eps_flat));
+            for buffer in &r.clears {
+                clears.clear_buffer(buffer, 0, None);
+            }
+            self.readouts.set_learner_marks(r.marks);
+            let prepared = Prepared {
+                ticket: 0,
+                slot: self.slot,
+                clears: Some(clears.finish()),
+                inputs: r.inputs.clone(),
+                readouts: r.readouts.clone(),
+                after: r.after.clone(),
+                entries: r.entries.clone(),
+                sources: r.sources.clone(),
+                _keep: Vec::new(),
+                _readouts: Vec::new(),
+            };
+            return Ok((prepared, r.per_module_at, r.divisors, r.total));
+        }
+        gpu.count_iteration_encoded();
+        let eps_buffer = gpu.upload("eps", &eps_flat);
+        let mut keep: Vec<PooledBuffer> = Vec::new();
         let mut inputs = DispatchList::default();
         self.encode_inputs(
             gpu,
@@ -508,8 +570,18 @@ impl DeviceIteration {
             &mut keep,
         );
         let mut readout_work = DispatchList::default();
-        let readouts =
-            self.encode_readouts(gpu, &mut clears, &mut readout_work, &batch, data, &mut keep)?;
+        let mut readout_clears = Vec::new();
+        let readouts = self.encode_readouts(
+            gpu,
+            &mut readout_clears,
+            &mut readout_work,
+            &batch,
+            data,
+            &mut keep,
+        )?;
+        for buffer in &readout_clears {
+            clears.clear_buffer(buffer, 0, None);
+        }
         let mut after = DispatchList::default();
         self.encode_adaptive_grads(gpu, &mut after, &batch, &mut keep);
         let kl = self.encode_kl_terms(gpu, &mut after, &batch, &per_module_at, &mut keep);
@@ -521,19 +593,47 @@ impl DeviceIteration {
         );
         let divisors = [readouts[0].1, readouts[1].1];
         keep.push(kl);
-        keep.push(eps_buffer);
-        let prepared = Prepared {
+        let readouts: Vec<EncodedReadout> = readouts.into_iter().map(|(r, _)| r).collect();
+        let (inputs, readout_work, after) =
+            (Arc::new(inputs), Arc::new(readout_work), Arc::new(after));
+        let mut prepared = Prepared {
             ticket: 0,
             slot: self.slot,
             clears: Some(clears.finish()),
-            inputs,
-            readouts: readout_work,
-            after,
-            entries: batch.entries,
-            sources,
-            _keep: keep,
-            _readouts: readouts.into_iter().map(|(r, _)| r).collect(),
+            inputs: inputs.clone(),
+            readouts: readout_work.clone(),
+            after: after.clone(),
+            entries: batch.entries.clone(),
+            sources: sources.clone(),
+            _keep: Vec::new(),
+            _readouts: Vec::new(),
         };
+        match recording.as_deref_mut() {
+            // The buffers stay with the recording, for the next iterations.
+            Some(slot) => {
+                *slot = Some(Recording {
+                    key,
+                    eps: eps_buffer,
+                    clears: readout_clears,
+                    inputs,
+                    readouts: readout_work,
+                    after,
+                    entries: batch.entries,
+                    sources,
+                    per_module_at,
+                    divisors,
+                    total: batch.total,
+                    marks: self.readouts.learner_marks(),
+                    _keep: keep,
+                    _readouts: readouts,
+                })
+            }
+            None => {
+                keep.push(eps_buffer);
+                prepared._keep = keep;
+                prepared._readouts = readouts;
+            }
+        }
         Ok((prepared, per_module_at, divisors, batch.total))
     }
 
@@ -670,7 +770,7 @@ impl DeviceIteration {
     fn encode_readouts(
         &self,
         gpu: &Gpu,
-        encoder: &mut wgpu::CommandEncoder,
+        clears: &mut Vec<wgpu::Buffer>,
         work: &mut DispatchList,
         batch: &Batch<'_>,
         data: &Observations<f32>,
@@ -689,7 +789,7 @@ impl DeviceIteration {
                 &self.readouts,
                 config,
                 self.layout(),
-                encoder,
+                clears,
                 work,
                 RecordRows {
                     record: &self.stack.record,
@@ -810,25 +910,16 @@ impl DeviceIteration {
         FreeEnergy::from_terms(accuracy, complexity, self.config.kl_weight)
     }
 
-    /// Encodes the refresh of the forward kernel's copy of the run's weights after an
-    /// update of the packed ones: every value (the prior biases are read there too), then
-    /// the matrices transposed over theirs.
-    pub(crate) fn encode_transposes(
+    /// Records the refresh of the forward kernel's copy of the run's weights after an
+    /// update of the packed ones (the matrices transposed over the copy), for
+    /// [`Self::encode_transposes`].
+    pub(crate) fn record_transposes(
         &self,
         gpu: &Gpu,
-        encoder: &mut wgpu::CommandEncoder,
         keep: &mut Vec<PooledBuffer>,
-    ) {
+    ) -> DispatchList {
         let stack = &*self.stack;
-        let floats = stack.weight_floats();
-        let base = self.slot * floats;
-        encoder.copy_buffer_to_buffer(
-            &stack.weights,
-            (4 * base) as u64,
-            &stack.weights_t,
-            (4 * base) as u64,
-            (4 * floats) as u64,
-        );
+        let base = self.slot * stack.weight_floats();
         let mut work = DispatchList::default();
         for (at, rows, cols) in self.layout().matrices() {
             encode_copy(
@@ -850,8 +941,28 @@ impl DeviceIteration {
                 keep,
             );
         }
+        work
+    }
+
+    /// Encodes the refresh: every value copied (the prior biases are read there too), then
+    /// the matrices transposed over theirs (`transposes`, from [`Self::record_transposes`]).
+    pub(crate) fn encode_transposes(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        transposes: &DispatchList,
+    ) {
+        let stack = &*self.stack;
+        let floats = stack.weight_floats();
+        let base = self.slot * floats;
+        encoder.copy_buffer_to_buffer(
+            &stack.weights,
+            (4 * base) as u64,
+            &stack.weights_t,
+            (4 * base) as u64,
+            (4 * floats) as u64,
+        );
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-        work.replay(&mut pass);
+        transposes.replay(&mut pass);
     }
 }
 
@@ -916,7 +1027,8 @@ pub(crate) struct RecordRows<'a> {
 
 /// Encodes the whole read-out of `modality` (its first `k` dimensions observed) from the
 /// module states in a recurrence record: the states copied out into the read-out's input
-/// (the output layer's padded rows, cleared first, for a read-out without hidden layers),
+/// (the output layer's padded rows, for a read-out without hidden layers: the buffer goes
+/// into `clears`, for the caller to clear before the submission),
 /// the read-out ([`GpuOutputLayer::encode_readout`]) and its d F / d d copied into the
 /// recurrence's layout. Returns the read-out and its accuracy divisor; `None` unless the
 /// read-out is on the device whole. Buffers the submission uses go into `keep`.
@@ -926,7 +1038,7 @@ pub(crate) fn encode_readout_of_record(
     readouts: &GpuOutputLayer,
     config: &ModelConfig,
     layout: &RecurrenceLayout,
-    encoder: &mut wgpu::CommandEncoder,
+    clears: &mut Vec<wgpu::Buffer>,
     work: &mut DispatchList,
     at: RecordRows<'_>,
     modality: Modality,
@@ -953,7 +1065,7 @@ pub(crate) fn encode_readout_of_record(
         wgpu::BufferUsages::empty(),
     );
     if width != d {
-        encoder.clear_buffer(&input, 0, None);
+        clears.push((*input).clone());
     }
     encode_copy(
         gpu,

@@ -11,8 +11,8 @@
 //! ([`DeviceIteration`]). A learner's loaded models serve learning's evaluation only:
 //! the host's copies of the resident weights are stale until downloaded.
 
-use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
 
 use bytemuck::{Pod, Zeroable};
 use pvrnn_core::ModelConfig;
@@ -24,6 +24,7 @@ use crate::WgpuBackend;
 use crate::encode::{DispatchList, Recorder, bind, dispatch, grid, unpad_rows, vec4s};
 use crate::gpu::Gpu;
 use crate::iteration::{DeviceIteration, Stack};
+use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::resident::{Part, ResidentLayer, ResidentTensor};
 
@@ -58,6 +59,22 @@ pub struct GpuLearner {
     /// Their tensors (ranges of the packed recurrent weights, the adaptive variables).
     more: Vec<ResidentTensor>,
     resident: Vec<usize>,
+    /// The update as first encoded, to replay with each step's scalars
+    /// (`Tiling::replay_iterations`; `None`: encoded every time).
+    recorded_update: Option<Mutex<Option<RecordedUpdate>>>,
+}
+
+/// A learner's update as first encoded: the RAdam dispatches with their uniform buffers
+/// (rewritten with each step's scalars), and with the recurrence on the device the
+/// refresh of its transposed weights. Every tensor's update is the same dispatch each
+/// step; only the scalars and how many of its values have a gradient change.
+#[derive(Debug)]
+struct RecordedUpdate {
+    radam: DispatchList,
+    /// The uniforms of `radam`'s dispatches, in the order of [`GpuLearner::updates`].
+    params: Vec<PooledBuffer>,
+    transposes: Option<DispatchList>,
+    _keep: Vec<PooledBuffer>,
 }
 
 impl GpuLearner {
@@ -112,6 +129,7 @@ impl GpuLearner {
             iteration,
             more,
             resident,
+            recorded_update: backend.tiling().replay_iterations.then(Mutex::default),
         })
     }
 
@@ -152,43 +170,88 @@ impl GpuLearner {
         self.backend.gpu()
     }
 
-    /// Encodes one RAdam step of `t`: its first `live` elements with their gradient, the
+    /// Every resident tensor with its RAdam step's parameters: its first `live` elements
+    /// with their gradient (what the last evaluation wrote, whose marks this takes), the
     /// rest without.
+    fn updates(&self, step: &RAdamStep) -> Vec<(&ResidentTensor, RAdamParams)> {
+        let gpu = self.gpu();
+        let params = |t: &ResidentTensor, live: usize| {
+            let (groups_x, _) = grid(gpu, t.len);
+            RAdamParams {
+                count: t.len as u32,
+                live: live as u32,
+                groups_x,
+                rectified: step.rectified.is_some() as u32,
+                b1: step.beta1 as f32,
+                b2: step.beta2 as f32,
+                one_b1: (1.0 - step.beta1) as f32,
+                one_b2: (1.0 - step.beta2) as f32,
+                wd: step.weight_decay as f32,
+                eps: step.eps as f32,
+                sqrt_bias2: step.sqrt_bias2 as f32,
+                lr: step.rectified.unwrap_or(step.plain) as f32,
+                offset: t.offset as u32,
+                _pad: [0; 3],
+            }
+        };
+        let mut updates = Vec::new();
+        for layer in self.layers.iter().flatten() {
+            let k = layer.rows_with_gradient.swap(0, Ordering::SeqCst);
+            let hidden = layer.hidden_gradients.swap(false, Ordering::SeqCst);
+            for t in &layer.tensors {
+                let live = match t.part {
+                    Part::OutputWeight => k * 4 * vec4s(layer.hidden_width),
+                    Part::OutputBias => k,
+                    Part::Hidden if hidden => t.len,
+                    Part::Hidden => 0,
+                    Part::Whole => t.len,
+                };
+                updates.push((t, params(t, live)));
+            }
+        }
+        updates.extend(self.more.iter().map(|t| (t, params(t, t.len))));
+        updates
+    }
+
+    /// Encodes one RAdam step of `t` with `params`; returns the uniform buffer holding them.
     fn encode_update(
         &self,
         encoder: &mut dyn Recorder,
-        step: &RAdamStep,
         t: &ResidentTensor,
-        live: usize,
-        keep: &mut Vec<crate::pool::PooledBuffer>,
-    ) {
+        params: &RAdamParams,
+    ) -> PooledBuffer {
         let gpu = self.gpu();
-        let count = t.len;
-        let (groups_x, groups_y) = grid(gpu, count);
-        let params = gpu.uniform(&RAdamParams {
-            count: count as u32,
-            live: live as u32,
-            groups_x,
-            rectified: step.rectified.is_some() as u32,
-            b1: step.beta1 as f32,
-            b2: step.beta2 as f32,
-            one_b1: (1.0 - step.beta1) as f32,
-            one_b2: (1.0 - step.beta2) as f32,
-            wd: step.weight_decay as f32,
-            eps: step.eps as f32,
-            sqrt_bias2: step.sqrt_bias2 as f32,
-            lr: step.rectified.unwrap_or(step.plain) as f32,
-            offset: t.offset as u32,
-            _pad: [0; 3],
-        });
+        let (groups_x, groups_y) = grid(gpu, t.len);
+        let uniform = gpu.uniform(params);
         let kernel = gpu.radam_kernel();
         let group = bind(
             gpu,
             &kernel,
-            &[&params, &t.value, &t.moments[0], &t.moments[1], &t.grad],
+            &[&uniform, &t.value, &t.moments[0], &t.moments[1], &t.grad],
         );
         dispatch(encoder, &kernel, &group, groups_x, groups_y);
-        keep.push(params);
+        uniform
+    }
+
+    /// The update encoded: every tensor's RAdam dispatch with its parameters' uniform, and
+    /// the transposes' dispatches (with the buffers they keep).
+    fn record_update(&self, updates: &[(&ResidentTensor, RAdamParams)]) -> RecordedUpdate {
+        let mut radam = DispatchList::default();
+        let params = updates
+            .iter()
+            .map(|(t, p)| self.encode_update(&mut radam, t, p))
+            .collect();
+        let mut keep = Vec::new();
+        let transposes = self
+            .iteration
+            .as_ref()
+            .map(|iteration| iteration.record_transposes(self.gpu(), &mut keep));
+        RecordedUpdate {
+            radam,
+            params,
+            transposes,
+            _keep: keep,
+        }
     }
 }
 
@@ -227,39 +290,41 @@ impl Learner<f32> for GpuLearner {
 
     fn update(&self, step: &RAdamStep) {
         let gpu = self.gpu();
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let mut keep = Vec::new();
-        // Every tensor's update in one compute pass.
-        let mut work = DispatchList::default();
-        for layer in self.layers.iter().flatten() {
-            let k = layer.rows_with_gradient.swap(0, Ordering::SeqCst);
-            let hidden = layer.hidden_gradients.swap(false, Ordering::SeqCst);
-            for t in &layer.tensors {
-                let live = match t.part {
-                    Part::OutputWeight => k * 4 * vec4s(layer.hidden_width),
-                    Part::OutputBias => k,
-                    Part::Hidden if hidden => t.len,
-                    Part::Hidden => 0,
-                    Part::Whole => t.len,
-                };
-                self.encode_update(&mut work, step, t, live, &mut keep);
+        let updates = self.updates(step);
+        let mut recorded = self
+            .recorded_update
+            .as_ref()
+            .map(|r| r.lock().unwrap_or_else(|e| e.into_inner()));
+        let fresh;
+        let update: &RecordedUpdate = match recorded.as_deref_mut() {
+            Some(Some(r)) if r.params.len() == updates.len() => {
+                // The same dispatches: only their parameters change (written before the
+                // submission below runs: queue order).
+                for (uniform, (_, params)) in r.params.iter().zip(&updates) {
+                    gpu.queue
+                        .write_buffer(uniform, 0, bytemuck::bytes_of(params));
+                }
+                r
             }
-        }
-        for t in &self.more {
-            self.encode_update(&mut work, step, t, t.len, &mut keep);
-        }
+            Some(slot) => slot.insert(self.record_update(&updates)),
+            None => {
+                fresh = self.record_update(&updates);
+                &fresh
+            }
+        };
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
         {
+            // Every tensor's update in one compute pass.
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            work.replay(&mut pass);
+            update.radam.replay(&mut pass);
         }
-        if let Some(iteration) = &self.iteration {
-            iteration.encode_transposes(gpu, &mut encoder, &mut keep);
+        if let (Some(iteration), Some(transposes)) = (&self.iteration, &update.transposes) {
+            iteration.encode_transposes(&mut encoder, transposes);
         }
-        // Queued, not waited for: the next iteration's submissions run after it. The
-        // uniforms may go back to the pool at once: a later user writes them through the
-        // queue, which orders that write after this submission.
+        // Queued, not waited for: the next iteration's submissions run after it. A fresh
+        // update's uniforms may go back to the pool at once: a later user writes them
+        // through the queue, which orders that write after this submission.
         gpu.queue.submit([encoder.finish()]);
-        drop(keep);
     }
 
     fn download(&self, index: usize, value: &mut [f32], m: &mut [f32], v: &mut [f32]) {

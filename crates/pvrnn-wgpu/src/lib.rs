@@ -103,6 +103,13 @@ impl WgpuBackend {
                 ),
             }
         }
+        if let Ok(value) = std::env::var("PVRNN_WGPU_REPLAY") {
+            match value.as_str() {
+                "off" => tiling.replay_iterations = false,
+                "on" => tiling.replay_iterations = true,
+                other => eprintln!("PVRNN_WGPU_REPLAY={other} is neither `on` nor `off`; on"),
+            }
+        }
         if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
             match value.parse() {
                 Ok(depth) => tiling.blocked_depth = Some(depth),

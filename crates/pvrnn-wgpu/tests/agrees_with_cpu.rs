@@ -431,11 +431,19 @@ fn learning_with_resident_weights(
     let noise = NoiseMode::Sampled { seed: 3 };
     let mut cpu = Trainer::new(model.clone(), noise);
     let mut on_gpu = Trainer::new(model.clone(), noise).with_backend(Box::new(gpu.clone()));
-    let mut synced = Trainer::new(model, noise).with_backend(Box::new(gpu.clone()));
+    let mut synced = Trainer::new(model.clone(), noise).with_backend(Box::new(gpu.clone()));
+    // With the recurrence on the device, an iteration is encoded once and replayed after
+    // (`Tiling::replay_iterations`); this one encodes every iteration.
+    let encoding = gpu.clone().with_tiling(Tiling {
+        replay_iterations: false,
+        ..gpu.tiling()
+    });
+    let mut encoded = Trainer::new(model, noise).with_backend(Box::new(encoding));
     let iterations = 10;
     for i in 0..iterations {
         let a = cpu.step(&data).unwrap().total;
         let read_backs = gpu.gpu().read_backs();
+        let encodings = gpu.gpu().iterations_encoded();
         let b = on_gpu.step(&data).unwrap().total;
         if gpu_recurrence {
             // One submission's results: the free-energy terms.
@@ -444,6 +452,15 @@ fn learning_with_resident_weights(
                 1,
                 "read-backs per iteration"
             );
+            assert_eq!(
+                gpu.gpu().iterations_encoded() - encodings,
+                u64::from(i == 0),
+                "iteration {i}: encoded only the first time"
+            );
+            let encodings = gpu.gpu().iterations_encoded();
+            let d = encoded.step(&data).unwrap().total;
+            assert_eq!(gpu.gpu().iterations_encoded() - encodings, 1);
+            assert_eq!(b, d, "iteration {i}: F replayed and encoded anew");
         }
         let c = synced.step(&data).unwrap().total;
         assert!(

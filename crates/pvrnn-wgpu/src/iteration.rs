@@ -536,26 +536,7 @@ impl DeviceIteration {
             .as_deref()
             .filter(|r| r.as_ref().is_some_and(|r| r.key == key))
         {
-            // Written before the submission that uses it runs (queue order).
-            gpu.queue
-                .write_buffer(&r.eps, 0, bytemuck::cast_slice(&eps_flat));
-            for buffer in &r.clears {
-                clears.clear_buffer(buffer, 0, None);
-            }
-            self.readouts.set_learner_marks(r.marks);
-            let prepared = Prepared {
-                ticket: 0,
-                slot: self.slot,
-                clears: Some(clears.finish()),
-                inputs: r.inputs.clone(),
-                readouts: r.readouts.clone(),
-                after: r.after.clone(),
-                entries: r.entries.clone(),
-                sources: r.sources.clone(),
-                _keep: Vec::new(),
-                _readouts: Vec::new(),
-            };
-            return Ok((prepared, r.per_module_at, r.divisors, r.total));
+            return Ok(self.replay(r, &eps_flat, clears));
         }
         gpu.count_iteration_encoded();
         let eps_buffer = gpu.upload("eps", &eps_flat);
@@ -635,6 +616,36 @@ impl DeviceIteration {
             }
         }
         Ok((prepared, per_module_at, divisors, batch.total))
+    }
+
+    /// `r` prepared again: eps written into its buffer (before the submission that uses
+    /// it runs: queue order), its clears added to `clears`, the learner's marks set again.
+    fn replay(
+        &self,
+        r: &Recording,
+        eps_flat: &[f32],
+        mut clears: wgpu::CommandEncoder,
+    ) -> (Prepared, [usize; 4], [usize; 2], usize) {
+        let gpu = &*self.stack.gpu;
+        gpu.queue
+            .write_buffer(&r.eps, 0, bytemuck::cast_slice(eps_flat));
+        for buffer in &r.clears {
+            clears.clear_buffer(buffer, 0, None);
+        }
+        self.readouts.set_learner_marks(r.marks);
+        let prepared = Prepared {
+            ticket: 0,
+            slot: self.slot,
+            clears: Some(clears.finish()),
+            inputs: r.inputs.clone(),
+            readouts: r.readouts.clone(),
+            after: r.after.clone(),
+            entries: r.entries.clone(),
+            sources: r.sources.clone(),
+            _keep: Vec::new(),
+            _readouts: Vec::new(),
+        };
+        (prepared, r.per_module_at, r.divisors, r.total)
     }
 
     /// Whether `data` and `eps` fit the sequences this learner holds.

@@ -444,6 +444,9 @@ impl BackendArgs {
                 if gpu.tiling().output_kernels == pvrnn_wgpu::OutputKernels::Blocked {
                     name.push_str(", blocked output kernels");
                 }
+                if self.gpu_recurrence && !gpu.tiling().replay_iterations {
+                    name.push_str(", every iteration encoded");
+                }
                 let device = gpu.gpu().clone();
                 (Box::new(gpu), name, Some(device))
             }

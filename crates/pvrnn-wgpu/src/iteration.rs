@@ -76,18 +76,29 @@ struct Prepared {
     /// Clears of what starts from zero (and the read-outs' own), before everything else;
     /// taken when submitted.
     clears: Option<wgpu::CommandBuffer>,
+    work: RunWork,
+    /// Buffers the submission uses, kept from the pool until it has run (none when the
+    /// run's [`Recording`] keeps them).
+    _keep: Vec<PooledBuffer>,
+    _readouts: Vec<EncodedReadout>,
+}
+
+/// A run's dispatches of one iteration and what reading its results needs (shared by a
+/// [`Prepared`] iteration and the run's [`Recording`]).
+#[derive(Clone, Debug)]
+struct RunWork {
     /// Before the recurrence forward: the inputs; between forward and backward: the
-    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms
-    /// (shared with the run's [`Recording`] when it replays).
+    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms.
     inputs: Arc<DispatchList>,
     readouts: Arc<DispatchList>,
     after: Arc<DispatchList>,
     entries: Vec<WindowEntry>,
     /// What to read back (KL terms, each read-out's row losses) with its length.
     sources: Vec<(wgpu::Buffer, usize)>,
-    /// Buffers the submission uses, kept from the pool until it has run.
-    _keep: Vec<PooledBuffer>,
-    _readouts: Vec<EncodedReadout>,
+    /// Where each module's noise starts, the read-outs' divisors, the rows.
+    per_module_at: [usize; 4],
+    divisors: [usize; 2],
+    total: usize,
 }
 
 impl Stack {
@@ -194,7 +205,7 @@ impl Stack {
         let prepared = std::mem::take(&mut queue.prepared);
         let tickets: Vec<(u64, Vec<usize>)> = prepared
             .iter()
-            .map(|p| (p.ticket, p.sources.iter().map(|&(_, n)| n).collect()))
+            .map(|p| (p.ticket, p.work.sources.iter().map(|&(_, n)| n).collect()))
             .collect();
         let all = self.submit(prepared);
         let mut all = all.into_iter();
@@ -215,7 +226,10 @@ impl Stack {
             .filter_map(|p| p.clears.take())
             .collect();
         let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
-        let entries: Vec<WindowEntry> = prepared.iter().flat_map(|p| p.entries.clone()).collect();
+        let entries: Vec<WindowEntry> = prepared
+            .iter()
+            .flat_map(|p| p.work.entries.clone())
+            .collect();
         let windows = entries.len();
         let layout = &self.layout;
         let table = layout.upload_table(gpu, &Ablation::none(), &entries);
@@ -245,7 +259,7 @@ impl Stack {
         ));
         let mut first = 0;
         for p in &prepared {
-            let count = p.entries.len();
+            let count = p.work.entries.len();
             keep.push(layout.encode_weight_grads(
                 gpu,
                 &self.kernels,
@@ -265,15 +279,19 @@ impl Stack {
             // Dispatches in one compute pass (a pass per dispatch costs the host more than
             // the small kernels).
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            prepared.iter().for_each(|p| p.inputs.replay(&mut pass));
+            prepared
+                .iter()
+                .for_each(|p| p.work.inputs.replay(&mut pass));
             forward.replay(&mut pass);
-            prepared.iter().for_each(|p| p.readouts.replay(&mut pass));
+            prepared
+                .iter()
+                .for_each(|p| p.work.readouts.replay(&mut pass));
             backward.replay(&mut pass);
-            prepared.iter().for_each(|p| p.after.replay(&mut pass));
+            prepared.iter().for_each(|p| p.work.after.replay(&mut pass));
         }
         let sources: Vec<(&wgpu::Buffer, usize)> = prepared
             .iter()
-            .flat_map(|p| p.sources.iter().map(|(b, n)| (b, *n)))
+            .flat_map(|p| p.work.sources.iter().map(|(b, n)| (b, *n)))
             .collect();
         // The clears first, then the iteration (queue order), then one wait.
         gpu.queue.submit(clears);
@@ -336,14 +354,7 @@ struct Recording {
     eps: PooledBuffer,
     /// Buffers cleared before each iteration besides the run's own (`DeviceIteration::clear`).
     clears: Vec<wgpu::Buffer>,
-    inputs: Arc<DispatchList>,
-    readouts: Arc<DispatchList>,
-    after: Arc<DispatchList>,
-    entries: Vec<WindowEntry>,
-    sources: Vec<(wgpu::Buffer, usize)>,
-    per_module_at: [usize; 4],
-    divisors: [usize; 2],
-    total: usize,
+    work: RunWork,
     /// The read-outs' marks for the learner's update ([`GpuOutputLayer::learner_marks`]).
     marks: [Option<(usize, bool)>; 2],
     _keep: Vec<PooledBuffer>,
@@ -497,8 +508,13 @@ impl DeviceIteration {
             1 => "prepare a learning iteration".to_string(),
             n => format!("prepare a learning iteration of {n} networks trained together"),
         };
-        let (prepared, per_module_at, divisors, total) =
-            stack.gpu.allocating(what, || self.prepare(data, eps))??;
+        let prepared = stack.gpu.allocating(what, || self.prepare(data, eps))??;
+        let RunWork {
+            per_module_at,
+            divisors,
+            total,
+            ..
+        } = prepared.work;
         let ticket = stack.enqueue(prepared);
         // Dropped unawaited, the guard takes the iteration back out of the queue.
         let ticket = Ticket {
@@ -512,13 +528,8 @@ impl DeviceIteration {
     }
 
     /// The device work of one iteration of this run, encoded (or replayed from its
-    /// [`Recording`]), with what reading its results needs: where each module's noise
-    /// starts, the read-outs' divisors, the rows.
-    fn prepare(
-        &self,
-        data: &Observations<f32>,
-        eps: &[[Vec<f32>; 4]],
-    ) -> Result<(Prepared, [usize; 4], [usize; 2], usize)> {
+    /// [`Recording`]), with what reading its results needs ([`RunWork`]).
+    fn prepare(&self, data: &Observations<f32>, eps: &[[Vec<f32>; 4]]) -> Result<Prepared> {
         let stack = &*self.stack;
         let gpu = &*stack.gpu;
         let batch = Batch::of(self.layout(), data.lengths(), stack.entry_base(self.slot));
@@ -575,17 +586,21 @@ impl DeviceIteration {
         let divisors = [readouts[0].1, readouts[1].1];
         keep.push(kl);
         let readouts: Vec<EncodedReadout> = readouts.into_iter().map(|(r, _)| r).collect();
-        let (inputs, readout_work, after) =
-            (Arc::new(inputs), Arc::new(readout_work), Arc::new(after));
+        let work = RunWork {
+            inputs: Arc::new(inputs),
+            readouts: Arc::new(readout_work),
+            after: Arc::new(after),
+            entries: batch.entries,
+            sources,
+            per_module_at,
+            divisors,
+            total: batch.total,
+        };
         let mut prepared = Prepared {
             ticket: 0,
             slot: self.slot,
             clears: Some(clears.finish()),
-            inputs: inputs.clone(),
-            readouts: readout_work.clone(),
-            after: after.clone(),
-            entries: batch.entries.clone(),
-            sources: sources.clone(),
+            work: work.clone(),
             _keep: Vec::new(),
             _readouts: Vec::new(),
         };
@@ -596,14 +611,7 @@ impl DeviceIteration {
                     key,
                     eps: eps_buffer,
                     clears: readout_clears,
-                    inputs,
-                    readouts: readout_work,
-                    after,
-                    entries: batch.entries,
-                    sources,
-                    per_module_at,
-                    divisors,
-                    total: batch.total,
+                    work,
                     marks: self.readouts.learner_marks(),
                     _keep: keep,
                     _readouts: readouts,
@@ -615,7 +623,7 @@ impl DeviceIteration {
                 prepared._readouts = readouts;
             }
         }
-        Ok((prepared, per_module_at, divisors, batch.total))
+        Ok(prepared)
     }
 
     /// `r` prepared again: eps written into its buffer (before the submission that uses
@@ -625,7 +633,7 @@ impl DeviceIteration {
         r: &Recording,
         eps_flat: &[f32],
         mut clears: wgpu::CommandEncoder,
-    ) -> (Prepared, [usize; 4], [usize; 2], usize) {
+    ) -> Prepared {
         let gpu = &*self.stack.gpu;
         gpu.queue
             .write_buffer(&r.eps, 0, bytemuck::cast_slice(eps_flat));
@@ -633,19 +641,14 @@ impl DeviceIteration {
             clears.clear_buffer(buffer, 0, None);
         }
         self.readouts.set_learner_marks(r.marks);
-        let prepared = Prepared {
+        Prepared {
             ticket: 0,
             slot: self.slot,
             clears: Some(clears.finish()),
-            inputs: r.inputs.clone(),
-            readouts: r.readouts.clone(),
-            after: r.after.clone(),
-            entries: r.entries.clone(),
-            sources: r.sources.clone(),
+            work: r.work.clone(),
             _keep: Vec::new(),
             _readouts: Vec::new(),
-        };
-        (prepared, r.per_module_at, r.divisors, r.total)
+        }
     }
 
     /// Whether `data` and `eps` fit the sequences this learner holds.

@@ -155,8 +155,8 @@ impl std::str::FromStr for BlockedDepth {
     }
 }
 
-/// The recurrence's kernels (shapes come from a table at run time, so one set serves every
-/// model).
+/// The recurrence's kernels (shapes come from a table at run time, so one set per workgroup
+/// width serves every model).
 #[derive(Debug)]
 pub(crate) struct RecurrenceKernels {
     pub(crate) forward: wgpu::ComputePipeline,
@@ -265,7 +265,7 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<RowPass, Arc<Kernels>>>,
-    recurrence_kernels: OnceLock<Arc<RecurrenceKernels>>,
+    recurrence_kernels: Mutex<HashMap<u32, Arc<RecurrenceKernels>>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
@@ -309,7 +309,7 @@ impl Gpu {
             queue,
             info,
             kernels: Mutex::new(HashMap::new()),
-            recurrence_kernels: OnceLock::new(),
+            recurrence_kernels: Mutex::default(),
             radam_kernel: OnceLock::new(),
             copy_kernel: OnceLock::new(),
             dense_kernels: OnceLock::new(),
@@ -547,13 +547,23 @@ impl Gpu {
         })
     }
 
-    /// The recurrence's kernels, compiled on first use.
-    pub(crate) fn recurrence_kernels(&self) -> Arc<RecurrenceKernels> {
-        self.recurrence_kernels
-            .get_or_init(|| {
+    /// The recurrence's kernels with `threads` per window's workgroup
+    /// (`RecurrenceLayout::threads`), compiled on first use.
+    pub(crate) fn recurrence_kernels(&self, threads: u32) -> Arc<RecurrenceKernels> {
+        let mut compiled = self
+            .recurrence_kernels
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        compiled
+            .entry(threads)
+            .or_insert_with(|| {
                 let common = include_str!("shaders/recurrence_common.wgsl");
-                let source =
-                    |text: &str| crate::template::expand(&format!("{common}\n{text}"), &[]);
+                let source = |text: &str| {
+                    crate::template::expand(
+                        &format!("{common}\n{text}"),
+                        &[("WG", threads as usize)],
+                    )
+                };
                 Arc::new(RecurrenceKernels {
                     forward: self.pipeline(
                         "recurrence forward",

@@ -117,19 +117,25 @@ impl Stack {
 
     /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
     /// hold them ([`Self::fits`]).
-    pub(crate) fn new(gpu: &Arc<Gpu>, model: &Model<f32>, slots: usize) -> Option<Arc<Self>> {
+    pub(crate) fn new(
+        gpu: &Arc<Gpu>,
+        tiling: Tiling,
+        model: &Model<f32>,
+        slots: usize,
+    ) -> Option<Arc<Self>> {
         if !Self::fits(gpu, model, slots) {
             return None;
         }
         let (sequences, steps) = (model.adaptive.sequences(), model.adaptive.steps());
         let (layout, packed) = RecurrenceLayout::new(&model.params, &model.config);
+        let threads = layout.threads(gpu, tiling.recurrence_threads);
         let s = layout.strides();
         let rows = slots * sequences * steps;
         let zeros = |floats: usize, label: &str| resident_buffer(gpu, label, &vec![0f32; floats]);
         let p = packed.len();
         Some(Arc::new(Self {
             gpu: gpu.clone(),
-            kernels: gpu.recurrence_kernels(),
+            kernels: gpu.recurrence_kernels(threads),
             slots,
             sequences,
             steps,
@@ -428,7 +434,7 @@ impl DeviceIteration {
         }
         let (stack, slot) = match in_stack {
             Some((stack, slot)) => (stack, slot),
-            None => (Stack::new(gpu, model, 1)?, 0),
+            None => (Stack::new(gpu, tiling, model, 1)?, 0),
         };
         if slot >= stack.slots || !stack.holds(model) {
             return None;

@@ -155,7 +155,7 @@ impl GpuLearner {
             .find(|&slots| Stack::fits(backend.gpu(), first, slots))?;
         let mut learners = Vec::with_capacity(runs.len());
         for chunk in runs.chunks(per_stack) {
-            let stack = Stack::new(backend.gpu(), first, chunk.len())?;
+            let stack = Stack::new(backend.gpu(), backend.tiling(), first, chunk.len())?;
             for (slot, (model, optimizer)) in chunk.iter().enumerate() {
                 let learner =
                     Self::in_stack(backend, model, optimizer, Some((stack.clone(), slot)))

@@ -92,6 +92,9 @@ impl WgpuBackend {
         env_number("PVRNN_WGPU_MAX_SPLITS", &mut tiling.max_splits);
         env_number("PVRNN_WGPU_ROW_PASS_ROWS", &mut tiling.row_pass_rows);
         env_number("PVRNN_WGPU_ROW_PASS_STEP", &mut tiling.row_pass_step);
+        let mut recurrence_threads = 0;
+        env_number("PVRNN_WGPU_RECURRENCE_THREADS", &mut recurrence_threads);
+        tiling.recurrence_threads = (recurrence_threads > 0).then_some(recurrence_threads);
         // The output layer's kernels, for comparing them on one GPU
         // (`PVRNN_WGPU_OUTPUT_KERNELS=blocked`).
         if let Ok(value) = std::env::var("PVRNN_WGPU_OUTPUT_KERNELS") {
@@ -165,7 +168,12 @@ impl WgpuBackend {
     ) -> Box<dyn LoadedModel<f32>> {
         let layer = GpuOutputLayer::with_resident(self.gpu.clone(), self.tiling, params, resident);
         let recurrence: Box<dyn Recurrence<f32>> = if recurrence_on_gpu {
-            Box::new(GpuRecurrence::upload(self.gpu.clone(), params, config))
+            Box::new(GpuRecurrence::upload(
+                self.gpu.clone(),
+                self.tiling,
+                params,
+                config,
+            ))
         } else {
             Box::new(CpuRecurrence::new(params, config))
         };

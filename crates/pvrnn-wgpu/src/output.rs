@@ -116,6 +116,10 @@ pub struct Tiling {
     /// independent dot products in flight per thread, more registers each
     /// (`PVRNN_WGPU_ROW_PASS_STEP`).
     pub row_pass_step: usize,
+    /// Threads per window's workgroup of the recurrence kernels; `None`: one per item of a
+    /// step's widest phase, as the adapter allows (384 at the paper's shapes; 128 before
+    /// 2026-11-28). For measuring (`PVRNN_WGPU_RECURRENCE_THREADS`).
+    pub recurrence_threads: Option<usize>,
 }
 
 impl Tiling {
@@ -140,6 +144,7 @@ impl Default for Tiling {
             blocked_depth: None,
             row_pass_rows: 64,
             row_pass_step: 2,
+            recurrence_threads: None,
         }
     }
 }

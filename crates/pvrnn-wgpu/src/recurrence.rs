@@ -18,6 +18,7 @@ use pvrnn_core::params::{ModuleParams, Params};
 
 use crate::encode::{Recorder, bind, dispatch};
 use crate::gpu::{Gpu, RecurrenceKernels};
+use crate::output::Tiling;
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use pvrnn_core::deferred::Deferred;
@@ -314,11 +315,16 @@ pub struct GpuRecurrence {
 impl GpuRecurrence {
     /// Uploads the modules' weights. A module wider than the kernels hold leaves every
     /// call to the CPU.
-    pub fn upload(gpu: Arc<Gpu>, params: &Params<f32>, config: &ModelConfig) -> Self {
+    pub fn upload(
+        gpu: Arc<Gpu>,
+        tiling: Tiling,
+        params: &Params<f32>,
+        config: &ModelConfig,
+    ) -> Self {
         let (layout, weights) = RecurrenceLayout::new(params, config);
         let weights_t = layout.transposed(&weights);
         Self {
-            kernels: gpu.recurrence_kernels(),
+            kernels: gpu.recurrence_kernels(layout.threads(&gpu, tiling.recurrence_threads)),
             weights: gpu.upload("recurrent weights", &weights),
             weights_t: gpu.upload("recurrent weights, transposed", &weights_t),
             gpu,
@@ -408,6 +414,24 @@ impl RecurrenceLayout {
 }
 
 impl RecurrenceLayout {
+    /// Threads per window's workgroup of the forward and backward kernels: `wanted`
+    /// (`Tiling::recurrence_threads`), else one per item of a step's widest phase (the
+    /// forward's priors and recurrent sums, 2z + d per module; the backward's W_dd^T, W_dz^T
+    /// and W_dh^T sums, 2d + z), in whole 64-thread groups, at most what the adapter allows.
+    /// A step's phases are chains of dependent loads, so a thread walking three dot
+    /// products in turn (the paper's 380 items on 128 threads) takes three times as long
+    /// as three threads walking one each; the sums are the same either way (each is one
+    /// thread's, in the CPU's order).
+    pub(crate) fn threads(&self, gpu: &Gpu, wanted: Option<usize>) -> u32 {
+        let sum = |item: fn(&ModuleLayout) -> usize| self.modules.iter().map(item).sum::<usize>();
+        let widest = sum(|m| 2 * m.z + m.d).max(sum(|m| 2 * m.d + m.z));
+        let limits = gpu.limits();
+        let allowed = (limits.max_compute_invocations_per_workgroup)
+            .min(limits.max_compute_workgroup_size_x) as usize;
+        let threads = wanted.unwrap_or_else(|| widest.div_ceil(64) * 64);
+        threads.clamp(32, allowed.max(32)) as u32
+    }
+
     /// The packed weights' length.
     pub(crate) fn weight_floats(&self) -> usize {
         self.weight_floats

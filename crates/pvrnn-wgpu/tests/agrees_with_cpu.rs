@@ -630,6 +630,56 @@ fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
     free_energy_and_gradients_agree_with(gpu.with_recurrence_on_gpu(true), config, 3, 30);
 }
 
+/// The recurrence kernels' workgroup width (`Tiling::recurrence_threads`) changes which
+/// thread computes a sum, not the sum: with the paper's modules, the default width (one
+/// thread per item of a step's widest phase: 384), the width before it (128: up to three
+/// dot products per thread) and 32 give bit for bit the same free energy and gradients
+/// for one call, and the same whole learning iterations on the device.
+#[test]
+fn the_recurrence_kernels_give_the_same_sums_at_any_width() {
+    let Some(gpu) = gpu() else { return };
+    let wide = gpu.with_recurrence_on_gpu(true);
+    let mut config = config();
+    config.prior_bias = true;
+    let paper = ModelConfig::default();
+    (config.executive, config.associative) = (paper.executive, paper.associative);
+    (config.exteroceptive, config.proprioceptive) = (paper.exteroceptive, paper.proprioceptive);
+    let data = observations(&config, 3, 21);
+    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
+    let noise = NoiseMode::Sampled { seed: 3 };
+    let (f_wide, g_wide) = free_energy(&wide, &model, &data, draw, true).unwrap();
+    let g_wide = g_wide.unwrap();
+    let mut wide_learner = Trainer::new(model.clone(), noise).with_backend(Box::new(wide.clone()));
+    let wide_steps: Vec<f64> = (0..3)
+        .map(|_| wide_learner.step(&data).unwrap().total)
+        .collect();
+    for threads in [128, 32] {
+        let narrow = wide.clone().with_tiling(Tiling {
+            recurrence_threads: Some(threads),
+            ..wide.tiling()
+        });
+        let (f, g) = free_energy(&narrow, &model, &data, draw, true).unwrap();
+        assert_eq!(f_wide.total, f.total, "{threads} threads");
+        let g = g.unwrap();
+        for ((name, a, _), (_, b, _)) in g_wide.params.named().into_iter().zip(g.params.named()) {
+            assert_eq!(a.data(), b.data(), "{threads} threads: {name}");
+        }
+        for m in 0..4 {
+            assert_eq!(g_wide.adaptive.a_mu[m].data(), g.adaptive.a_mu[m].data());
+            assert_eq!(
+                g_wide.adaptive.a_sigma[m].data(),
+                g.adaptive.a_sigma[m].data()
+            );
+        }
+        let mut learner = Trainer::new(model.clone(), noise).with_backend(Box::new(narrow));
+        for (i, &expected) in wide_steps.iter().enumerate() {
+            let total = learner.step(&data).unwrap().total;
+            assert_eq!(expected, total, "{threads} threads, iteration {i}");
+        }
+    }
+}
+
 /// Every field of every window's states and the adaptive variables' gradients, from the
 /// recurrence kernels against `cpu::recurrent`: windows of different lengths in one
 /// dispatch, one starting from a held state, one whose posterior is the prior, and an
@@ -708,7 +758,7 @@ fn the_recurrence_kernels_match_the_cpu_state_by_state() {
     };
     // The kernels take this batch (a `None` would leave it to the CPU, and the comparison
     // below would compare the CPU with itself).
-    let direct = GpuRecurrence::upload(gpu.gpu().clone(), &model.params, &config);
+    let direct = GpuRecurrence::upload(gpu.gpu().clone(), gpu.tiling(), &model.params, &config);
     assert!(direct.forward_on_gpu(&windows, &request.ablation).is_some());
     let on_cpu = CpuBackend
         .load(&model.params, &config)

@@ -32,7 +32,7 @@ var<workgroup> gz: array<f32, 512>;
 var<workgroup> gprior: array<f32, 1024>;
 var<workgroup> steps: u32;
 
-@compute @workgroup_size(128)
+@compute @workgroup_size({{WG}})
 fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let win = window_at(wg_id.x);
     if (lid == 0u) {

@@ -12,7 +12,9 @@
 // dF/da_mu, dF/da_sigma (z each), dF/du (d) and dF/d prior pre-activations (2z).
 
 const MAX_UNITS: u32 = 128u;
-const WG: u32 = 128u;
+// Threads per window's workgroup (`RecurrenceLayout::threads`): one per item of a step's
+// widest phase where the adapter allows, so that no thread walks two dot products in turn.
+const WG: u32 = {{WG}}u;
 
 // A module: its sizes (parent 4 = none), its offsets into the weights, and its offsets
 // within a step of the forward record, the inputs, the initial states and the backward

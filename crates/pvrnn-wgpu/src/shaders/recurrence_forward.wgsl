@@ -25,7 +25,7 @@ var<workgroup> u: array<f32, 512>;
 var<workgroup> zs: array<f32, 512>;
 var<workgroup> steps: u32;
 
-@compute @workgroup_size(128)
+@compute @workgroup_size({{WG}})
 fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let win = window_at(wg_id.x);
     if (lid == 0u) {

@@ -20,6 +20,27 @@ pub fn take() -> Vec<(&'static str, f64, u64)> {
     std::mem::take(&mut *TOTALS.lock().unwrap_or_else(|e| e.into_inner()))
 }
 
+/// Whether profiling is on (for work that costs something to time, such as a device's
+/// timestamp queries).
+pub fn enabled() -> bool {
+    ENABLED.load(Ordering::Relaxed)
+}
+
+/// Adds `seconds` measured elsewhere (a device's own clock) to phase `name`, as one entry.
+pub fn add(name: &'static str, seconds: f64) {
+    if !enabled() {
+        return;
+    }
+    let mut totals = TOTALS.lock().unwrap_or_else(|e| e.into_inner());
+    match totals.iter_mut().find(|(n, _, _)| *n == name) {
+        Some(entry) => {
+            entry.1 += seconds;
+            entry.2 += 1;
+        }
+        None => totals.push((name, seconds, 1)),
+    }
+}
+
 /// A running phase: its time is added when it is dropped.
 #[derive(Debug)]
 #[must_use = "a phase is timed until it is dropped"]

@@ -16,6 +16,8 @@ pub enum GpuError {
     NoAdapter(String),
     #[error("the GPU adapter {adapter} refused a device: {reason}")]
     NoDevice { adapter: String, reason: String },
+    #[error("waiting for the GPU adapter {adapter} failed: {reason}")]
+    Wait { adapter: String, reason: String },
 }
 
 /// Kernels compiled for one hidden width in vec4s (a constant of the WGSL source, so rows
@@ -297,6 +299,8 @@ impl Gpu {
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("pvrnn"),
                 required_limits: adapter.limits(),
+                // For the profile's device times (`timing.rs`), where the adapter has them.
+                required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
                 ..Default::default()
             })
             .await
@@ -378,6 +382,26 @@ impl Gpu {
     pub fn buffer_memory(&self) -> Option<u64> {
         let bytes = self.device.get_internal_counters().hal.buffer_memory.read();
         (bytes > 0).then_some(bytes as u64)
+    }
+
+    /// Whether the device has timestamp queries (the profile's device times, `timing.rs`).
+    pub fn has_timestamps(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// Waits until the device has run everything submitted so far, and with it every
+    /// callback of a mapping (the profile's device times arrive in those).
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn wait_idle(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(drop)
+            .map_err(|e| GpuError::Wait {
+                adapter: self.info.name.clone(),
+                reason: e.to_string(),
+            })
     }
 
     /// A run's part of a whole learning iteration on the device encoded so far, not

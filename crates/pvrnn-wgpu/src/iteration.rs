@@ -33,6 +33,7 @@ use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::recurrence::{RecurrenceLayout, WindowEntry};
 use crate::resident::{Part, ResidentLayer, ResidentTensor, TensorIndex, resident_buffer};
+use crate::timing::{PassTimes, begin_pass};
 
 /// What the learning runs of a cohort share on the device (see the module docs): `slots`
 /// runs of `sequences` x `steps`, each run's part of every buffer at its slot.
@@ -281,20 +282,48 @@ impl Stack {
             first += count;
         }
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        {
-            // Dispatches in one compute pass (a pass per dispatch costs the host more than
-            // the small kernels).
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            prepared
-                .iter()
-                .for_each(|p| p.work.inputs.replay(&mut pass));
-            forward.replay(&mut pass);
-            prepared
-                .iter()
-                .for_each(|p| p.work.readouts.replay(&mut pass));
-            backward.replay(&mut pass);
-            prepared.iter().for_each(|p| p.work.after.replay(&mut pass));
+        // Dispatches in one compute pass (a pass per dispatch costs the host more than the
+        // small kernels); while profiling, a pass per part, each timed on the device.
+        let parts: [(&'static str, Vec<&DispatchList>); 5] = [
+            (
+                "device: inputs into the recurrence's layout",
+                prepared.iter().map(|p| &*p.work.inputs).collect(),
+            ),
+            ("device: recurrence forward", vec![&forward]),
+            (
+                "device: read-outs (hidden and output layers, forward and backward)",
+                prepared.iter().map(|p| &*p.work.readouts).collect(),
+            ),
+            (
+                "device: recurrence backward and its weight gradients",
+                vec![&backward],
+            ),
+            (
+                "device: gradients into the optimiser's layout",
+                prepared.iter().map(|p| &*p.work.after).collect(),
+            ),
+        ];
+        let times = PassTimes::new(
+            gpu,
+            &parts.iter().map(|(name, _)| *name).collect::<Vec<_>>(),
+        );
+        match &times {
+            None => {
+                let mut pass = begin_pass(&mut encoder, None, 0);
+                parts
+                    .iter()
+                    .flat_map(|(_, lists)| lists)
+                    .for_each(|list| list.replay(&mut pass));
+            }
+            Some(times) => {
+                for (part, (_, lists)) in parts.iter().enumerate() {
+                    let mut pass = begin_pass(&mut encoder, Some(times), part);
+                    lists.iter().for_each(|list| list.replay(&mut pass));
+                }
+                times.resolve(&mut encoder);
+            }
         }
+        drop(parts);
         let sources: Vec<(&wgpu::Buffer, usize)> = prepared
             .iter()
             .flat_map(|p| p.work.sources.iter().map(|(b, n)| (b, *n)))
@@ -302,6 +331,9 @@ impl Stack {
         // The clears first, then the iteration (queue order), then one wait.
         gpu.queue.submit(clears);
         let pending = read_back(gpu, encoder, &sources);
+        if let Some(times) = times {
+            times.collect(gpu);
+        }
         drop(encode_phase);
         drop((keep, table));
         let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
@@ -965,11 +997,13 @@ impl DeviceIteration {
     }
 
     /// Encodes the refresh: every value copied (the prior biases are read there too), then
-    /// the matrices transposed over theirs (`transposes`, from [`Self::record_transposes`]).
+    /// the matrices transposed over theirs (`transposes`, from [`Self::record_transposes`]),
+    /// their pass timed as `times`' part `part` where given.
     pub(crate) fn encode_transposes(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         transposes: &DispatchList,
+        (times, part): (Option<&PassTimes>, usize),
     ) {
         let stack = &*self.stack;
         let floats = stack.weight_floats();
@@ -981,7 +1015,7 @@ impl DeviceIteration {
             (4 * base) as u64,
             (4 * floats) as u64,
         );
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        let mut pass = begin_pass(encoder, times, part);
         transposes.replay(&mut pass);
     }
 }

@@ -27,6 +27,7 @@ use crate::iteration::{DeviceIteration, Stack};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
 use crate::resident::{Part, ResidentLayer, ResidentTensor};
+use crate::timing::{PassTimes, begin_pass};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -313,18 +314,30 @@ impl Learner<f32> for GpuLearner {
             }
         };
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        let transposes = self.iteration.as_ref().zip(update.transposes.as_ref());
+        let names = [
+            "device: optimiser (RAdam)",
+            "device: recurrent weights transposed for the forward kernel",
+        ];
+        let times = PassTimes::new(gpu, &names[..1 + usize::from(transposes.is_some())]);
         {
             // Every tensor's update in one compute pass.
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            let mut pass = begin_pass(&mut encoder, times.as_ref(), 0);
             update.radam.replay(&mut pass);
         }
-        if let (Some(iteration), Some(transposes)) = (&self.iteration, &update.transposes) {
-            iteration.encode_transposes(&mut encoder, transposes);
+        if let Some((iteration, transposes)) = transposes {
+            iteration.encode_transposes(&mut encoder, transposes, (times.as_ref(), 1));
+        }
+        if let Some(times) = &times {
+            times.resolve(&mut encoder);
         }
         // Queued, not waited for: the next iteration's submissions run after it. A fresh
         // update's uniforms may go back to the pool at once: a later user writes them
         // through the queue, which orders that write after this submission.
         gpu.queue.submit([encoder.finish()]);
+        if let Some(times) = times {
+            times.collect(gpu);
+        }
     }
 
     fn download(&self, index: usize, value: &mut [f32], m: &mut [f32], v: &mut [f32]) {

@@ -38,6 +38,7 @@ mod readout;
 mod recurrence;
 mod resident;
 mod template;
+mod timing;
 
 use std::sync::Arc;
 

@@ -40,7 +40,9 @@ pub struct Args {
     #[arg(long)]
     only: Option<Part>,
     /// Also say where the time goes: milliseconds per phase (noise, weights, recurrence,
-    /// read-outs, optimiser) per training iteration and per inference step.
+    /// read-outs, optimiser) per training iteration and per inference step; with
+    /// `--backend wgpu --gpu-recurrence`, also the device's own time per part of an
+    /// iteration ("device: ...", from timestamp queries where the GPU has them).
     #[arg(long)]
     profile: bool,
     #[command(flatten)]
@@ -241,6 +243,10 @@ fn train_networks(
     }
     let mut profile = Vec::new();
     if a.profile && a.only != Some(Part::Infer) {
+        // The device's own times arrive when it has run the last iteration's update.
+        if let Some(device) = &gpu {
+            device.wait_idle()?;
+        }
         profile.push(take_profile("train", a.train_iterations));
     }
     let train_peak = peak_rss_mb();

@@ -267,7 +267,7 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<RowPass, Arc<Kernels>>>,
-    recurrence_kernels: Mutex<HashMap<u32, Arc<RecurrenceKernels>>>,
+    recurrence_kernels: Mutex<HashMap<(u32, usize), Arc<RecurrenceKernels>>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
@@ -572,20 +572,22 @@ impl Gpu {
     }
 
     /// The recurrence's kernels with `threads` per window's workgroup
-    /// (`RecurrenceLayout::threads`), compiled on first use.
-    pub(crate) fn recurrence_kernels(&self, threads: u32) -> Arc<RecurrenceKernels> {
+    /// (`RecurrenceLayout::threads`) and `loads` loads in flight per dot product
+    /// (`Tiling::recurrence_loads`), compiled on first use.
+    pub(crate) fn recurrence_kernels(&self, threads: u32, loads: usize) -> Arc<RecurrenceKernels> {
+        let loads = loads.clamp(1, 32);
         let mut compiled = self
             .recurrence_kernels
             .lock()
             .unwrap_or_else(|e| e.into_inner());
         compiled
-            .entry(threads)
+            .entry((threads, loads))
             .or_insert_with(|| {
                 let common = include_str!("shaders/recurrence_common.wgsl");
                 let source = |text: &str| {
                     crate::template::expand(
                         &format!("{common}\n{text}"),
-                        &[("WG", threads as usize)],
+                        &[("WG", threads as usize), ("LOADS", loads)],
                     )
                 };
                 Arc::new(RecurrenceKernels {

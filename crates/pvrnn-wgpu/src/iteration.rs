@@ -136,7 +136,7 @@ impl Stack {
         let p = packed.len();
         Some(Arc::new(Self {
             gpu: gpu.clone(),
-            kernels: gpu.recurrence_kernels(threads),
+            kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
             slots,
             sequences,
             steps,

@@ -120,6 +120,11 @@ pub struct Tiling {
     /// step's widest phase, as the adapter allows (384 at the paper's shapes; 128 before
     /// 2026-11-28). For measuring (`PVRNN_WGPU_RECURRENCE_THREADS`).
     pub recurrence_threads: Option<usize>,
+    /// Loads the recurrence kernels issue before their multiply-adds in each dot product
+    /// (1 to 32): a step's phases are chains of dependent loads, and a 30-long sum takes 4
+    /// round trips at 8 against 8 at 4 (the width before 2026-11-28). For measuring
+    /// (`PVRNN_WGPU_RECURRENCE_LOADS`).
+    pub recurrence_loads: usize,
 }
 
 impl Tiling {
@@ -145,6 +150,7 @@ impl Default for Tiling {
             row_pass_rows: 64,
             row_pass_step: 2,
             recurrence_threads: None,
+            recurrence_loads: 8,
         }
     }
 }

@@ -324,7 +324,10 @@ impl GpuRecurrence {
         let (layout, weights) = RecurrenceLayout::new(params, config);
         let weights_t = layout.transposed(&weights);
         Self {
-            kernels: gpu.recurrence_kernels(layout.threads(&gpu, tiling.recurrence_threads)),
+            kernels: gpu.recurrence_kernels(
+                layout.threads(&gpu, tiling.recurrence_threads),
+                tiling.recurrence_loads,
+            ),
             weights: gpu.upload("recurrent weights", &weights),
             weights_t: gpu.upload("recurrent weights, transposed", &weights_t),
             gpu,

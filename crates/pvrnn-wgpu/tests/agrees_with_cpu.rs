@@ -630,13 +630,15 @@ fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
     free_energy_and_gradients_agree_with(gpu.with_recurrence_on_gpu(true), config, 3, 30);
 }
 
-/// The recurrence kernels' workgroup width (`Tiling::recurrence_threads`) changes which
-/// thread computes a sum, not the sum: with the paper's modules, the default width (one
-/// thread per item of a step's widest phase: 384), the width before it (128: up to three
-/// dot products per thread) and 32 give bit for bit the same free energy and gradients
-/// for one call, and the same whole learning iterations on the device.
+/// The recurrence kernels' workgroup width (`Tiling::recurrence_threads`) and the loads they
+/// batch per dot product (`Tiling::recurrence_loads`) change which thread computes a sum and
+/// how its loads are issued, not the sum: with the paper's modules, the defaults (one
+/// thread per item of a step's widest phase, 384; 8 loads), the kernels' shape before
+/// (128 threads: up to three dot products per thread; 4 loads), 32 threads with 1 load,
+/// and 16 loads give bit for bit the same free energy and gradients for one call, and the
+/// same whole learning iterations on the device.
 #[test]
-fn the_recurrence_kernels_give_the_same_sums_at_any_width() {
+fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
     let Some(gpu) = gpu() else { return };
     let wide = gpu.with_recurrence_on_gpu(true);
     let mut config = config();
@@ -654,16 +656,18 @@ fn the_recurrence_kernels_give_the_same_sums_at_any_width() {
     let wide_steps: Vec<f64> = (0..3)
         .map(|_| wide_learner.step(&data).unwrap().total)
         .collect();
-    for threads in [128, 32] {
+    for (threads, loads) in [(Some(128), 4), (Some(32), 1), (None, 16)] {
         let narrow = wide.clone().with_tiling(Tiling {
-            recurrence_threads: Some(threads),
+            recurrence_threads: threads,
+            recurrence_loads: loads,
             ..wide.tiling()
         });
+        let threads = format!("{threads:?} threads, {loads} loads");
         let (f, g) = free_energy(&narrow, &model, &data, draw, true).unwrap();
-        assert_eq!(f_wide.total, f.total, "{threads} threads");
+        assert_eq!(f_wide.total, f.total, "{threads}");
         let g = g.unwrap();
         for ((name, a, _), (_, b, _)) in g_wide.params.named().into_iter().zip(g.params.named()) {
-            assert_eq!(a.data(), b.data(), "{threads} threads: {name}");
+            assert_eq!(a.data(), b.data(), "{threads}: {name}");
         }
         for m in 0..4 {
             assert_eq!(g_wide.adaptive.a_mu[m].data(), g.adaptive.a_mu[m].data());
@@ -675,7 +679,7 @@ fn the_recurrence_kernels_give_the_same_sums_at_any_width() {
         let mut learner = Trainer::new(model.clone(), noise).with_backend(Box::new(narrow));
         for (i, &expected) in wide_steps.iter().enumerate() {
             let total = learner.step(&data).unwrap().total;
-            assert_eq!(expected, total, "{threads} threads, iteration {i}");
+            assert_eq!(expected, total, "{threads}, iteration {i}");
         }
     }
 }

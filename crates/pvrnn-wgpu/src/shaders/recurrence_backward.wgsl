@@ -9,7 +9,8 @@
 // CPU visits them). Writes dF/da per step and, for the weight-gradient kernel, dF/du and
 // dF/d prior.
 // Its threads own columns of the weight matrices, so their loads are coalesced as stored;
-// four are issued before their four multiply-adds (the sums keep the CPU's order).
+// LOADS are issued before their multiply-adds (`dot_gu`, `dot_gprior`: the sums keep the
+// CPU's order).
 
 @group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights: array<f32>;
@@ -93,36 +94,13 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                         continue;
                     }
                     if (o < md.d) {
-                        var acc = gd_prev[dp + o];
-                        var i = 0u;
-                        for (; i + 4u <= md.d; i += 4u) {
-                            //#unroll K 4
-                            let w{K} = weights[md.w_dd + (i + {K}u) * md.d + o];
-                            //#end
-                            //#unroll K 4
-                            acc = fma(gu[dp + i + {K}u], w{K}, acc);
-                            //#end
-                        }
-                        for (; i < md.d; i++) {
-                            acc = fma(gu[dp + i], weights[md.w_dd + i * md.d + o], acc);
-                        }
+                        let acc = dot_gu(gd_prev[dp + o], md.w_dd + o, md.d, dp, md.d);
                         gd_prev[dp + o] = acc;
                     } else {
                         let j = o - md.d;
                         var acc = 0.0;
                         if (table.ablated[m] == 0u) {
-                            var i = 0u;
-                            for (; i + 4u <= md.d; i += 4u) {
-                                //#unroll K 4
-                                let w{K} = weights[md.w_dz + (i + {K}u) * md.z + j];
-                                //#end
-                                //#unroll K 4
-                                acc = fma(gu[dp + i + {K}u], w{K}, acc);
-                                //#end
-                            }
-                            for (; i < md.d; i++) {
-                                acc = fma(gu[dp + i], weights[md.w_dz + i * md.z + j], acc);
-                            }
+                            acc = dot_gu(0.0, md.w_dz + j, md.z, dp, md.d);
                         }
                         gz[dp + j] = acc;
                     }
@@ -141,18 +119,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                             continue;
                         }
                         let cp = c * MAX_UNITS;
-                        var i = 0u;
-                        for (; i + 4u <= cd.d; i += 4u) {
-                            //#unroll K 4
-                            let w{K} = weights[cd.w_dh + (i + {K}u) * cd.parent_d + k2];
-                            //#end
-                            //#unroll K 4
-                            acc = fma(gu[cp + i + {K}u], w{K}, acc);
-                            //#end
-                        }
-                        for (; i < cd.d; i++) {
-                            acc = fma(gu[cp + i], weights[cd.w_dh + i * cd.parent_d + k2], acc);
-                        }
+                        acc = dot_gu(acc, cd.w_dh + k2, cd.parent_d, cp, cd.d);
                     }
                     gd_cur[dp + k2] = acc;
                 }
@@ -196,22 +163,45 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let o = mo.y;
             let md = module_in(m, win.weights);
             let dp = m * MAX_UNITS;
-            var acc = gd_prev[dp + o];
-            var j = 0u;
-            for (; j + 4u <= 2u * md.z; j += 4u) {
-                //#unroll K 4
-                let w{K} = weights[md.w_prior + (j + {K}u) * md.d + o];
-                //#end
-                //#unroll K 4
-                acc = fma(gprior[2u * dp + j + {K}u], w{K}, acc);
-                //#end
-            }
-            for (; j < 2u * md.z; j++) {
-                acc = fma(gprior[2u * dp + j], weights[md.w_prior + j * md.d + o], acc);
-            }
+            let acc = dot_gprior(gd_prev[dp + o], md.w_prior + o, md.d, 2u * dp, 2u * md.z);
             gd_cur[dp + o] = acc;
             gd_prev[dp + o] = 0.0;
         }
         workgroupBarrier();
     }
+}
+
+// acc plus the sum over i < n of weights[w_at + i * w_step] * gu[x_at + i], added in i's
+// order (the CPU's). {{LOADS}} pairs of loads are issued before their multiply-adds; in
+// the last batch the loads past n - 1 read element n - 1 again and their multiply-adds
+// are skipped (`select` keeps acc bit for bit), so every batch is whole.
+fn dot_gu(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
+    var acc = acc_in;
+    for (var i = 0u; i < n; i += {{LOADS}}u) {
+        //#unroll K {{LOADS}}
+        let k{K} = min(i + {K}u, n - 1u);
+        let w{K} = weights[w_at + k{K} * w_step];
+        let x{K} = gu[x_at + k{K}];
+        //#end
+        //#unroll K {{LOADS}}
+        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
+        //#end
+    }
+    return acc;
+}
+
+// `dot_gu` over the prior's gradients.
+fn dot_gprior(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
+    var acc = acc_in;
+    for (var i = 0u; i < n; i += {{LOADS}}u) {
+        //#unroll K {{LOADS}}
+        let k{K} = min(i + {K}u, n - 1u);
+        let w{K} = weights[w_at + k{K} * w_step];
+        let x{K} = gprior[x_at + k{K}];
+        //#end
+        //#unroll K {{LOADS}}
+        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
+        //#end
+    }
+    return acc;
 }

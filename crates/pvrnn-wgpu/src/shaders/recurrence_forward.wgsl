@@ -8,8 +8,8 @@
 //
 // The loops are latency-bound (a few dozen dependent multiply-adds per thread and phase),
 // so the weights come transposed (`weights_t`: each matrix column-major, at the offsets
-// the table gives) to make a warp's loads one coalesced read, and four loads are issued
-// before their four multiply-adds, which keep the CPU's order.
+// the table gives) to make a warp's loads one coalesced read, and LOADS loads are issued
+// before their multiply-adds, which keep the CPU's order (`dot_d_prev`, `dot_zs`).
 
 @group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights_t: array<f32>;
@@ -76,18 +76,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                 at = md.w_dd;
                 rows = md.d;
             }
-            var i = 0u;
-            for (; i + 4u <= md.d; i += 4u) {
-                //#unroll K 4
-                let w{K} = weights_t[at + (i + {K}u) * rows + col];
-                //#end
-                //#unroll K 4
-                acc = fma(w{K}, d_prev[dp + i + {K}u], acc);
-                //#end
-            }
-            for (; i < md.d; i++) {
-                acc = fma(weights_t[at + i * rows + col], d_prev[dp + i], acc);
-            }
+            acc = dot_d_prev(acc, at + col, rows, dp, md.d);
             if (o < 2u * md.z) {
                 prior[2u * dp + o] = acc;
             } else {
@@ -144,18 +133,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let md = module_in(m, win.weights);
             let dp = m * MAX_UNITS;
             var acc = u[dp + r];
-            var j = 0u;
-            for (; j + 4u <= md.z; j += 4u) {
-                //#unroll K 4
-                let w{K} = weights_t[md.w_dz + (j + {K}u) * md.d + r];
-                //#end
-                //#unroll K 4
-                acc = fma(w{K}, zs[dp + j + {K}u], acc);
-                //#end
-            }
-            for (; j < md.z; j++) {
-                acc = fma(weights_t[md.w_dz + j * md.d + r], zs[dp + j], acc);
-            }
+            acc = dot_zs(acc, md.w_dz + r, md.d, dp, md.z);
             if (md.parent < 4u) {
                 u[dp + r] = acc;
             } else {
@@ -177,18 +155,7 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                 let dp = m * MAX_UNITS;
                 var acc = u[dp + r];
                 let pp = md.parent * MAX_UNITS;
-                var k2 = 0u;
-                for (; k2 + 4u <= md.parent_d; k2 += 4u) {
-                    //#unroll K 4
-                    let w{K} = weights_t[md.w_dh + (k2 + {K}u) * md.d + r];
-                    //#end
-                    //#unroll K 4
-                    acc = fma(w{K}, d_prev[pp + k2 + {K}u], acc);
-                    //#end
-                }
-                for (; k2 < md.parent_d; k2++) {
-                    acc = fma(weights_t[md.w_dh + k2 * md.d + r], d_prev[pp + k2], acc);
-                }
+                acc = dot_d_prev(acc, md.w_dh + r, md.d, pp, md.parent_d);
                 take_step(md, dp + r, r, rec_t, acc);
             }
             workgroupBarrier();
@@ -204,4 +171,39 @@ fn take_step(md: Module, at: u32, r: u32, rec_t: u32, acc: f32) {
     d_prev[at] = d;
     record[rec_t + rec_h(md) + r] = h;
     record[rec_t + rec_d(md) + r] = d;
+}
+
+// acc plus the sum over i < n of weights_t[w_at + i * w_step] * d_prev[x_at + i], added in
+// i's order (the CPU's). {{LOADS}} pairs of loads are issued before their multiply-adds;
+// in the last batch the loads past n - 1 read element n - 1 again and their multiply-adds
+// are skipped (`select` keeps acc bit for bit), so every batch is whole.
+fn dot_d_prev(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
+    var acc = acc_in;
+    for (var i = 0u; i < n; i += {{LOADS}}u) {
+        //#unroll K {{LOADS}}
+        let k{K} = min(i + {K}u, n - 1u);
+        let w{K} = weights_t[w_at + k{K} * w_step];
+        let x{K} = d_prev[x_at + k{K}];
+        //#end
+        //#unroll K {{LOADS}}
+        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
+        //#end
+    }
+    return acc;
+}
+
+// `dot_d_prev` over the samples z.
+fn dot_zs(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
+    var acc = acc_in;
+    for (var i = 0u; i < n; i += {{LOADS}}u) {
+        //#unroll K {{LOADS}}
+        let k{K} = min(i + {K}u, n - 1u);
+        let w{K} = weights_t[w_at + k{K} * w_step];
+        let x{K} = zs[x_at + k{K}];
+        //#end
+        //#unroll K {{LOADS}}
+        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
+        //#end
+    }
+    return acc;
 }

@@ -29,9 +29,10 @@
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
 #   whole-rec128, whole-N-rec128
-#                `whole` and `whole-N` with the recurrence kernels at 128 threads per
-#                window (PVRNN_WGPU_RECURRENCE_THREADS=128, the width before 2026-11-28;
-#                the default is one thread per item of a step's widest phase)
+#                `whole` and `whole-N` with the recurrence kernels as before 2026-11-28:
+#                128 threads per window and 4 loads per batch
+#                (PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4; the
+#                default is one thread per item of a step's widest phase, 8 loads)
 #   whole-N-checked, whole-N-unchecked
 #                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
 #                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
@@ -120,9 +121,10 @@ for round in $(seq "$rounds"); do
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_RECURRENCE_THREADS=128 bench whole-rec128 "$threads" "$round" \
-            --backend wgpu --gpu-recurrence $train_only
-        PVRNN_WGPU_RECURRENCE_THREADS=128 bench "whole-${NETWORKS:-5}-rec128" "$threads" \
+        PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \
+            "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
+        PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 \
+            bench "whole-${NETWORKS:-5}-rec128" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         for checks in all none; do
             name=$([ "$checks" = all ] && echo checked || echo unchecked)

@@ -171,4 +171,23 @@ for variant, rs in sorted(rows.items()):
           f"{mean([r.get('infer_full_steps_per_s') for r in rs]):>12} "
           f"{mean([r.get('gpu_buffer_mb') or r.get('peak_gpu_mb') for r in rs]):>8}  "
           f"{rs[0].get('backend')}")
+# The device's own time per part of a training iteration (`--profile` with
+# `--gpu-recurrence`: timestamp queries), mean over rounds, where the variant has them.
+device = {}
+for variant, rs in sorted(rows.items()):
+    for r in rs:
+        for part in r.get('profile') or []:
+            if part.get('part') != 'train':
+                continue
+            for p in part['phases']:
+                if p['phase'].startswith('device: '):
+                    device.setdefault(variant, {}).setdefault(p['phase'][8:], []).append(p['ms'])
+if device:
+    print()
+    print("device ms per training iteration (timestamp queries)")
+    for variant, phases in device.items():
+        total = sum(statistics.mean(v) for v in phases.values())
+        print(f"{variant:36} total {total:9.3f}")
+        for phase, v in phases.items():
+            print(f"    {phase:70} {statistics.mean(v):9.3f}")
 EOF

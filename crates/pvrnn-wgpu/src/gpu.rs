@@ -584,24 +584,45 @@ impl Gpu {
             .entry((threads, loads))
             .or_insert_with(|| {
                 let common = include_str!("shaders/recurrence_common.wgsl");
-                let source = |text: &str| {
-                    crate::template::expand(
-                        &format!("{common}\n{text}"),
-                        &[("WG", threads as usize), ("LOADS", loads)],
-                    )
+                // A kernel's source: the common part, its own, and its dot products
+                // (`recurrence_dot.wgsl` once per function name, weights and values).
+                let source = |text: &str, dots: &[[&str; 3]]| {
+                    let mut full = format!("{common}\n{text}");
+                    for [name, weights, values] in dots {
+                        let dot = include_str!("shaders/recurrence_dot.wgsl");
+                        full.push('\n');
+                        full.push_str(
+                            &dot.replace("DOT", name)
+                                .replace("WEIGHTS", weights)
+                                .replace("VALUES", values),
+                        );
+                    }
+                    crate::template::expand(&full, &[("WG", threads as usize), ("LOADS", loads)])
                 };
                 Arc::new(RecurrenceKernels {
                     forward: self.pipeline(
                         "recurrence forward",
-                        source(include_str!("shaders/recurrence_forward.wgsl")),
+                        source(
+                            include_str!("shaders/recurrence_forward.wgsl"),
+                            &[
+                                ["dot_d_prev", "weights_t", "d_prev"],
+                                ["dot_zs", "weights_t", "zs"],
+                            ],
+                        ),
                     ),
                     backward: self.pipeline(
                         "recurrence backward",
-                        source(include_str!("shaders/recurrence_backward.wgsl")),
+                        source(
+                            include_str!("shaders/recurrence_backward.wgsl"),
+                            &[
+                                ["dot_gu", "weights", "gu"],
+                                ["dot_gprior", "weights", "gprior"],
+                            ],
+                        ),
                     ),
                     weights: self.pipeline(
                         "recurrence weights",
-                        source(include_str!("shaders/recurrence_weights.wgsl")),
+                        source(include_str!("shaders/recurrence_weights.wgsl"), &[]),
                     ),
                 })
             })

@@ -9,8 +9,8 @@
 // CPU visits them). Writes dF/da per step and, for the weight-gradient kernel, dF/du and
 // dF/d prior.
 // Its threads own columns of the weight matrices, so their loads are coalesced as stored;
-// LOADS are issued before their multiply-adds (`dot_gu`, `dot_gprior`: the sums keep the
-// CPU's order).
+// LOADS are issued before their multiply-adds (`dot_gu`, `dot_gprior`:
+// `recurrence_dot.wgsl`; the sums keep the CPU's order).
 
 @group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights: array<f32>;
@@ -169,39 +169,4 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         }
         workgroupBarrier();
     }
-}
-
-// acc plus the sum over i < n of weights[w_at + i * w_step] * gu[x_at + i], added in i's
-// order (the CPU's). {{LOADS}} pairs of loads are issued before their multiply-adds; in
-// the last batch the loads past n - 1 read element n - 1 again and their multiply-adds
-// are skipped (`select` keeps acc bit for bit), so every batch is whole.
-fn dot_gu(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
-    var acc = acc_in;
-    for (var i = 0u; i < n; i += {{LOADS}}u) {
-        //#unroll K {{LOADS}}
-        let k{K} = min(i + {K}u, n - 1u);
-        let w{K} = weights[w_at + k{K} * w_step];
-        let x{K} = gu[x_at + k{K}];
-        //#end
-        //#unroll K {{LOADS}}
-        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
-        //#end
-    }
-    return acc;
-}
-
-// `dot_gu` over the prior's gradients.
-fn dot_gprior(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
-    var acc = acc_in;
-    for (var i = 0u; i < n; i += {{LOADS}}u) {
-        //#unroll K {{LOADS}}
-        let k{K} = min(i + {K}u, n - 1u);
-        let w{K} = weights[w_at + k{K} * w_step];
-        let x{K} = gprior[x_at + k{K}];
-        //#end
-        //#unroll K {{LOADS}}
-        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
-        //#end
-    }
-    return acc;
 }

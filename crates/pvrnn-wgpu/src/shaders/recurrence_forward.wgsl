@@ -9,7 +9,8 @@
 // The loops are latency-bound (a few dozen dependent multiply-adds per thread and phase),
 // so the weights come transposed (`weights_t`: each matrix column-major, at the offsets
 // the table gives) to make a warp's loads one coalesced read, and LOADS loads are issued
-// before their multiply-adds, which keep the CPU's order (`dot_d_prev`, `dot_zs`).
+// before their multiply-adds, which keep the CPU's order (`dot_d_prev`, `dot_zs`:
+// `recurrence_dot.wgsl`).
 
 @group(0) @binding(0) var<storage, read> table: Table;
 @group(0) @binding(1) var<storage, read> weights_t: array<f32>;
@@ -171,39 +172,4 @@ fn take_step(md: Module, at: u32, r: u32, rec_t: u32, acc: f32) {
     d_prev[at] = d;
     record[rec_t + rec_h(md) + r] = h;
     record[rec_t + rec_d(md) + r] = d;
-}
-
-// acc plus the sum over i < n of weights_t[w_at + i * w_step] * d_prev[x_at + i], added in
-// i's order (the CPU's). {{LOADS}} pairs of loads are issued before their multiply-adds;
-// in the last batch the loads past n - 1 read element n - 1 again and their multiply-adds
-// are skipped (`select` keeps acc bit for bit), so every batch is whole.
-fn dot_d_prev(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
-    var acc = acc_in;
-    for (var i = 0u; i < n; i += {{LOADS}}u) {
-        //#unroll K {{LOADS}}
-        let k{K} = min(i + {K}u, n - 1u);
-        let w{K} = weights_t[w_at + k{K} * w_step];
-        let x{K} = d_prev[x_at + k{K}];
-        //#end
-        //#unroll K {{LOADS}}
-        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
-        //#end
-    }
-    return acc;
-}
-
-// `dot_d_prev` over the samples z.
-fn dot_zs(acc_in: f32, w_at: u32, w_step: u32, x_at: u32, n: u32) -> f32 {
-    var acc = acc_in;
-    for (var i = 0u; i < n; i += {{LOADS}}u) {
-        //#unroll K {{LOADS}}
-        let k{K} = min(i + {K}u, n - 1u);
-        let w{K} = weights_t[w_at + k{K} * w_step];
-        let x{K} = zs[x_at + k{K}];
-        //#end
-        //#unroll K {{LOADS}}
-        acc = select(acc, fma(w{K}, x{K}, acc), i + {K}u < n);
-        //#end
-    }
-    return acc;
 }

@@ -166,6 +166,9 @@ pub(crate) struct RecurrenceKernels {
     pub(crate) weights: wgpu::ComputePipeline,
 }
 
+/// The recurrence kernels' compiled shape: threads per workgroup, loads per batch.
+type RecurrenceShape = (u32, usize);
+
 /// The hidden read-out layers' kernels (shapes are parameters, so one set serves every
 /// layer).
 #[derive(Debug)]
@@ -267,7 +270,9 @@ pub struct Gpu {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     kernels: Mutex<HashMap<RowPass, Arc<Kernels>>>,
-    recurrence_kernels: Mutex<HashMap<(u32, usize), Arc<RecurrenceKernels>>>,
+    /// By (threads per workgroup, loads per batch); a few at most (a linear search: a map
+    /// of its own costs the web site's download more than it saves).
+    recurrence_kernels: Mutex<Vec<(RecurrenceShape, Arc<RecurrenceKernels>)>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
@@ -299,8 +304,13 @@ impl Gpu {
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("pvrnn"),
                 required_limits: adapter.limits(),
-                // For the profile's device times (`timing.rs`), where the adapter has them.
-                required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+                // For the profile's device times (`timing.rs`, native only), where the
+                // adapter has them.
+                required_features: if cfg!(target_arch = "wasm32") {
+                    wgpu::Features::empty()
+                } else {
+                    adapter.features() & wgpu::Features::TIMESTAMP_QUERY
+                },
                 ..Default::default()
             })
             .await
@@ -580,53 +590,55 @@ impl Gpu {
             .recurrence_kernels
             .lock()
             .unwrap_or_else(|e| e.into_inner());
-        compiled
-            .entry((threads, loads))
-            .or_insert_with(|| {
-                let common = include_str!("shaders/recurrence_common.wgsl");
-                // A kernel's source: the common part, its own, and its dot products
-                // (`recurrence_dot.wgsl` once per function name, weights and values).
-                let source = |text: &str, dots: &[[&str; 3]]| {
-                    let mut full = format!("{common}\n{text}");
-                    for [name, weights, values] in dots {
-                        let dot = include_str!("shaders/recurrence_dot.wgsl");
-                        full.push('\n');
-                        full.push_str(
-                            &dot.replace("DOT", name)
-                                .replace("WEIGHTS", weights)
-                                .replace("VALUES", values),
-                        );
-                    }
-                    crate::template::expand(&full, &[("WG", threads as usize), ("LOADS", loads)])
-                };
-                Arc::new(RecurrenceKernels {
-                    forward: self.pipeline(
-                        "recurrence forward",
-                        source(
-                            include_str!("shaders/recurrence_forward.wgsl"),
-                            &[
-                                ["dot_d_prev", "weights_t", "d_prev"],
-                                ["dot_zs", "weights_t", "zs"],
-                            ],
-                        ),
+        if let Some((_, kernels)) = compiled.iter().find(|(key, _)| *key == (threads, loads)) {
+            return kernels.clone();
+        }
+        let kernels = {
+            let common = include_str!("shaders/recurrence_common.wgsl");
+            // A kernel's source: the common part, its own, and its dot products
+            // (`recurrence_dot.wgsl` once per function name, weights and values).
+            let source = |text: &str, dots: &[[&str; 3]]| {
+                let mut full = format!("{common}\n{text}");
+                for [name, weights, values] in dots {
+                    let dot = include_str!("shaders/recurrence_dot.wgsl");
+                    full.push('\n');
+                    full.push_str(
+                        &dot.replace("DOT", name)
+                            .replace("WEIGHTS", weights)
+                            .replace("VALUES", values),
+                    );
+                }
+                crate::template::expand(&full, &[("WG", threads as usize), ("LOADS", loads)])
+            };
+            Arc::new(RecurrenceKernels {
+                forward: self.pipeline(
+                    "recurrence forward",
+                    source(
+                        include_str!("shaders/recurrence_forward.wgsl"),
+                        &[
+                            ["dot_d_prev", "weights_t", "d_prev"],
+                            ["dot_zs", "weights_t", "zs"],
+                        ],
                     ),
-                    backward: self.pipeline(
-                        "recurrence backward",
-                        source(
-                            include_str!("shaders/recurrence_backward.wgsl"),
-                            &[
-                                ["dot_gu", "weights", "gu"],
-                                ["dot_gprior", "weights", "gprior"],
-                            ],
-                        ),
+                ),
+                backward: self.pipeline(
+                    "recurrence backward",
+                    source(
+                        include_str!("shaders/recurrence_backward.wgsl"),
+                        &[
+                            ["dot_gu", "weights", "gu"],
+                            ["dot_gprior", "weights", "gprior"],
+                        ],
                     ),
-                    weights: self.pipeline(
-                        "recurrence weights",
-                        source(include_str!("shaders/recurrence_weights.wgsl"), &[]),
-                    ),
-                })
+                ),
+                weights: self.pipeline(
+                    "recurrence weights",
+                    source(include_str!("shaders/recurrence_weights.wgsl"), &[]),
+                ),
             })
-            .clone()
+        };
+        compiled.push(((threads, loads), kernels.clone()));
+        kernels
     }
 
     /// The RAdam update of a resident tensor (`shaders/radam.wgsl`), compiled on first use.

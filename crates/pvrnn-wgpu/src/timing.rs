@@ -5,12 +5,14 @@
 //! host waited; these say which kernels the device spent that time in.
 //!
 //! Off (and the parts in one pass, as without profiling) where the device has no
-//! timestamps. A pass boundary lets the driver drain the work before it, so the parts add
+//! timestamps, and in the browser (profiling is native only; leaving the queries out keeps
+//! the site's download as it was). A pass boundary lets the driver drain the work before it, so the parts add
 //! up to a little more than the one pass they replace.
 
 use crate::gpu::Gpu;
 
 /// A submission's timed parts: their names, the queries, and where they are resolved.
+#[cfg(not(target_arch = "wasm32"))]
 pub(crate) struct PassTimes {
     names: Vec<&'static str>,
     queries: wgpu::QuerySet,
@@ -18,6 +20,7 @@ pub(crate) struct PassTimes {
     staging: wgpu::Buffer,
 }
 
+#[cfg(not(target_arch = "wasm32"))]
 impl PassTimes {
     /// Queries for `names` (one part each, in the order their passes will be begun);
     /// `None` unless profiling is on and `gpu` has timestamps.
@@ -99,6 +102,29 @@ impl PassTimes {
                 }
                 mapped.unmap();
             });
+    }
+}
+
+/// In the browser: never made (profiling is native only).
+#[cfg(target_arch = "wasm32")]
+pub(crate) enum PassTimes {}
+
+#[cfg(target_arch = "wasm32")]
+impl PassTimes {
+    pub(crate) fn new(_gpu: &Gpu, _names: &[&'static str]) -> Option<Self> {
+        None
+    }
+
+    pub(crate) fn writes(&self, _part: usize) -> wgpu::ComputePassTimestampWrites<'_> {
+        match *self {}
+    }
+
+    pub(crate) fn resolve(&self, _encoder: &mut wgpu::CommandEncoder) {
+        match *self {}
+    }
+
+    pub(crate) fn collect(self, _gpu: &Gpu) {
+        match self {}
     }
 }
 

@@ -630,6 +630,17 @@ fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
     free_energy_and_gradients_agree_with(gpu.with_recurrence_on_gpu(true), config, 3, 30);
 }
 
+/// The tests' small read-outs with the paper's four modules (and prior biases): the
+/// recurrence kernels' shapes at the paper's scale.
+fn paper_modules() -> ModelConfig {
+    let mut config = config();
+    config.prior_bias = true;
+    let paper = ModelConfig::default();
+    (config.executive, config.associative) = (paper.executive, paper.associative);
+    (config.exteroceptive, config.proprioceptive) = (paper.exteroceptive, paper.proprioceptive);
+    config
+}
+
 /// The recurrence kernels' workgroup width (`Tiling::recurrence_threads`) and the loads they
 /// batch per dot product (`Tiling::recurrence_loads`) change which thread computes a sum and
 /// how its loads are issued, not the sum: with the paper's modules, the defaults (one
@@ -641,11 +652,7 @@ fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
 fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
     let Some(gpu) = gpu() else { return };
     let wide = gpu.with_recurrence_on_gpu(true);
-    let mut config = config();
-    config.prior_bias = true;
-    let paper = ModelConfig::default();
-    (config.executive, config.associative) = (paper.executive, paper.associative);
-    (config.exteroceptive, config.proprioceptive) = (paper.exteroceptive, paper.proprioceptive);
+    let config = paper_modules();
     let data = observations(&config, 3, 21);
     let model = Model::<f32>::init_on(&CpuBackend, config, 3, 21, 7).unwrap();
     let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
@@ -695,11 +702,7 @@ fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
 #[test]
 fn the_recurrence_kernels_match_the_cpu_over_long_windows() {
     let Some(gpu) = gpu() else { return };
-    let mut config = config();
-    config.prior_bias = true;
-    let paper = ModelConfig::default();
-    (config.executive, config.associative) = (paper.executive, paper.associative);
-    (config.exteroceptive, config.proprioceptive) = (paper.exteroceptive, paper.proprioceptive);
+    let config = paper_modules();
     let data = observations(&config, 1, 300);
     let model = Model::<f32>::init_on(&CpuBackend, config, 1, 300, 7).unwrap();
     let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);

@@ -167,6 +167,42 @@ fn model_bits<T: Real>(trainer: &mut Trainer<T>) -> Vec<u64> {
         .collect()
 }
 
+/// A run's noise changed between iterations takes effect at the next one, though the
+/// trainer drew that iteration's eps ahead while its device ran the last one: the run
+/// equals one whose learner was made afresh after the change, and differs from one whose
+/// noise stayed.
+pub fn a_changed_noise_takes_effect_at_the_next_iteration<T: SuiteReal>(backend: &Shared<T>) {
+    let changed = NoiseMode::Sampled { seed: 9 };
+    let second = |trainer: &mut Trainer<T>, data: &Observations<T>| {
+        let total = trainer.step(data).unwrap().total.to_bits();
+        (total, model_bits(trainer))
+    };
+    // Changed in place, the first iteration stepped as a cohort of one.
+    let (mut run, data) = fresh_run(backend, 1);
+    step_together(&mut [&mut run], &[&data]).unwrap()[0]
+        .as_ref()
+        .unwrap();
+    run.noise = changed;
+    let in_place = second(&mut run, &data);
+    // Changed after the learner was dropped (`state_mut`).
+    let (mut run, data) = fresh_run(backend, 1);
+    run.step(&data).unwrap();
+    run.state_mut();
+    run.noise = changed;
+    let afresh = second(&mut run, &data);
+    assert!(
+        in_place == afresh,
+        "the noise changed in place was not the noise of the next iteration"
+    );
+    let (mut run, data) = fresh_run(backend, 1);
+    run.step(&data).unwrap();
+    let unchanged = second(&mut run, &data);
+    assert_ne!(
+        in_place.0, unchanged.0,
+        "the changed noise should change the free energy"
+    );
+}
+
 /// Three runs (seeds 1-3) stepped together (`step_together`, a cohort; on a device that
 /// lays them out side by side, one dispatch for all), then runs 1 and 3 without run 2 (a
 /// member that stopped), give each run's free energies and weights bit for bit as the run

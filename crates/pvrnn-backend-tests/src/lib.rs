@@ -97,6 +97,7 @@ macro_rules! backend_suite {
                 gradients::full_accuracy_normalisation_scales_by_the_observed_fraction,
                 learning::learning_lowers_free_energy_and_online_inference_tracks_the_sequence,
                 learning::learning_runs_stepped_together_equal_each_run_alone,
+                learning::a_changed_noise_takes_effect_at_the_next_iteration,
             );
         }
     };

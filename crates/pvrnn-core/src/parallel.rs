@@ -56,6 +56,34 @@ pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     }
 }
 
+/// `(wait(), work())`, with `work` handed to another worker of the pool while this thread
+/// waits (for a device, say): host work hidden behind the device's. With one thread, or on
+/// wasm, `work` runs after `wait`.
+pub(crate) fn while_waiting<A, B: Send>(
+    wait: impl FnOnce() -> A,
+    work: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    #[cfg(not(target_arch = "wasm32"))]
+    {
+        let mut done = None;
+        // `in_place_scope` keeps `wait` on this thread (it need not be `Send`) and returns
+        // only once the spawned `work` has run, so `done` is set by then.
+        let waited = rayon::in_place_scope(|scope| {
+            scope.spawn(|_| done = Some(work()));
+            wait()
+        });
+        match done {
+            Some(worked) => (waited, worked),
+            None => unreachable!("rayon's scope returned before its spawned work ran"),
+        }
+    }
+    #[cfg(target_arch = "wasm32")]
+    {
+        let waited = wait();
+        (waited, work())
+    }
+}
+
 /// Elements below which an element-wise pass stays on one thread.
 #[cfg(not(target_arch = "wasm32"))]
 const ELEMENTWISE_MIN: usize = 1 << 16;
@@ -83,4 +111,35 @@ pub(crate) fn for_each_chunk4<T: Send + Sync>(
         }
     }
     f(a, b, c, d);
+}
+
+#[cfg(all(test, not(target_arch = "wasm32")))]
+mod tests {
+    use super::*;
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    #[test]
+    fn work_runs_on_another_thread_while_this_one_waits() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let (sender, receiver) = mpsc::channel();
+        // `wait` can only receive if `work` runs meanwhile, on the pool's other thread.
+        let (received, sent) = pool.install(move || {
+            while_waiting(
+                || receiver.recv_timeout(Duration::from_secs(10)),
+                move || sender.send(7).is_ok(),
+            )
+        });
+        assert_eq!(received, Ok(7));
+        assert!(sent);
+        // With one thread the work runs after the wait, and both results come back.
+        let single = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        assert_eq!(single.install(|| while_waiting(|| 1, || 2)), (1, 2));
+    }
 }

@@ -29,6 +29,43 @@ pub struct Trainer<T: Real> {
     learner: Option<Box<dyn Learner<T>>>,
     /// Whether the learner updated its resident tensors since the host last copied them.
     host_stale: bool,
+    /// The next iteration's eps, drawn while the device ran this one.
+    drawn_ahead: Option<DrawnAhead<T>>,
+}
+
+/// eps drawn for a future iteration, with what they were drawn for: used only if the
+/// iteration, noise mode and sequence lengths still match when it comes.
+#[derive(Debug)]
+struct DrawnAhead<T> {
+    iteration: u64,
+    noise: NoiseMode,
+    lengths: Vec<usize>,
+    eps: WindowEps<T>,
+}
+
+/// What drawing an iteration's eps ahead needs, apart from the trainer (so that another
+/// thread can draw them while the trainer's device runs).
+struct AheadDraw<'a> {
+    config: &'a ModelConfig,
+    lengths: &'a [usize],
+    iteration: u64,
+    noise: NoiseMode,
+}
+
+impl AheadDraw<'_> {
+    fn draw<T: Real>(self) -> DrawnAhead<T> {
+        let _phase = crate::profile::phase("noise of the next iteration, while the device runs");
+        DrawnAhead {
+            iteration: self.iteration,
+            noise: self.noise,
+            lengths: self.lengths.to_vec(),
+            eps: window_eps(
+                self.config,
+                self.lengths,
+                NoiseDraw::training(self.noise, self.iteration),
+            ),
+        }
+    }
 }
 
 /// Names of the tensors the optimiser updates, in its order.
@@ -112,6 +149,7 @@ impl<T: Real> Trainer<T> {
             backend,
             learner: None,
             host_stale: false,
+            drawn_ahead: None,
         }
     }
 
@@ -146,6 +184,7 @@ impl<T: Real> Trainer<T> {
             backend,
             learner: None,
             host_stale: false,
+            drawn_ahead: None,
         })
     }
 
@@ -184,6 +223,7 @@ impl<T: Real> Trainer<T> {
     pub fn state_mut(&mut self) -> (&mut Model<T>, &mut RAdam<T>) {
         self.sync();
         self.learner = None;
+        self.drawn_ahead = None;
         (&mut self.model, &mut self.optimizer)
     }
 
@@ -233,10 +273,47 @@ impl<T: Real> Trainer<T> {
 
     fn step_here(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
         let on_device = match self.begin(data)? {
-            Some(eps) => Some(crate::deferred::now(self.device_iteration(data, &eps)?)?),
+            Some(eps) => {
+                let queued = self.device_iteration(data, &eps)?;
+                let next = self.next_draw(data);
+                let (report, ahead) = crate::parallel::while_waiting(
+                    || crate::deferred::now(queued),
+                    move || next.draw(),
+                );
+                self.drawn_ahead = Some(ahead);
+                Some(report?)
+            }
             None => None,
         };
         self.finish(data, on_device)
+    }
+
+    /// The draw of the iteration after this one.
+    fn next_draw<'a>(&'a self, data: &'a Observations<T>) -> AheadDraw<'a> {
+        AheadDraw {
+            config: &self.model.config,
+            lengths: data.lengths(),
+            iteration: self.iteration + 1,
+            noise: self.noise,
+        }
+    }
+
+    /// This iteration's eps: drawn ahead while the device ran the last one, if they were
+    /// drawn for it, or drawn now.
+    fn this_iterations_eps(&mut self, data: &Observations<T>) -> WindowEps<T> {
+        match self.drawn_ahead.take() {
+            Some(ahead)
+                if ahead.iteration == self.iteration
+                    && ahead.noise == self.noise
+                    && ahead.lengths == data.lengths() =>
+            {
+                ahead.eps
+            }
+            _ => {
+                let draw = NoiseDraw::training(self.noise, self.iteration);
+                window_eps(&self.model.config, data.lengths(), draw)
+            }
+        }
     }
 
     /// Makes the learner at the first step; where it evaluates whole iterations on its
@@ -259,8 +336,7 @@ impl<T: Real> Trainer<T> {
             return Ok(None);
         }
         check_model_fits_data(&self.model, data)?;
-        let draw = NoiseDraw::training(self.noise, self.iteration);
-        Ok(Some(window_eps(&self.model.config, data.lengths(), draw)))
+        Ok(Some(self.this_iterations_eps(data)))
     }
 
     /// The iteration evaluated on the learner's device (after [`Self::begin`] gave `eps`),
@@ -366,8 +442,9 @@ pub fn step_together<T: Real>(
             .zip(data)
             .map(|(m, d)| m.begin(d))
             .collect();
-        // Queued on the device, all of them, then awaited in order.
-        let on_device: Vec<Option<Result<FreeEnergy>>> = {
+        // Queued on the device, all of them, then awaited in order, while the next
+        // iteration's eps of the runs on the device are drawn.
+        let (on_device, ahead): (Vec<Option<Result<FreeEnergy>>>, Vec<Option<_>>) = {
             let queued: Vec<Option<Result<_>>> = members
                 .iter()
                 .zip(data)
@@ -377,11 +454,27 @@ pub fn step_together<T: Real>(
                     _ => None,
                 })
                 .collect();
-            queued
-                .into_iter()
-                .map(|q| q.map(|q| q.and_then(crate::deferred::now)))
-                .collect()
+            let next: Vec<Option<AheadDraw<'_>>> = members
+                .iter()
+                .zip(data)
+                .zip(&queued)
+                .map(|((m, d), q)| q.as_ref().map(|_| m.next_draw(d)))
+                .collect();
+            crate::parallel::while_waiting(
+                || {
+                    queued
+                        .into_iter()
+                        .map(|q| q.map(|q| q.and_then(crate::deferred::now)))
+                        .collect()
+                },
+                move || next.into_iter().map(|n| n.map(AheadDraw::draw)).collect(),
+            )
         };
+        for (member, ahead) in members.iter_mut().zip(ahead) {
+            if ahead.is_some() {
+                member.drawn_ahead = ahead;
+            }
+        }
         Ok(members
             .iter_mut()
             .zip(data)

@@ -471,9 +471,7 @@ pub fn step_together<T: Real>(
             )
         };
         for (member, ahead) in members.iter_mut().zip(ahead) {
-            if ahead.is_some() {
-                member.drawn_ahead = ahead;
-            }
+            member.drawn_ahead = ahead;
         }
         Ok(members
             .iter_mut()

@@ -2,7 +2,9 @@
 //! hand as trainings finish; this test holds them to the committed result files, so that
 //! they cannot drift: one row per finished training (no more, no fewer), and each row's
 //! iterations, network used, validation error, last-tenth change and training time as its
-//! `train-*.json` records them.
+//! `train-*.json` records them; and the interference status's prose to the same files (how
+//! many of the plan's trainings are done and remain, and by how much every finished
+//! network beats the best baseline).
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
@@ -148,5 +150,115 @@ fn the_interference_table_has_a_row_for_every_finished_training() {
         "| training | stopped at | network used |",
         "docs/results/converged/interference",
         |result| format!("{}, net {} ", result.condition, result.network),
+    );
+}
+
+/// The document with every run of white space (line breaks included) made one space, so
+/// that a phrase matches wherever the text was wrapped.
+fn flat_doc() -> String {
+    doc().split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// The number written right before each occurrence of `phrase` (`"10 of its 40"`: 10 for
+/// `" of its 40"`); fails if the phrase is not there.
+fn numbers_before(doc: &str, phrase: &str) -> Vec<usize> {
+    let found: Vec<usize> = doc
+        .match_indices(phrase)
+        .map(|(at, _)| {
+            let digits: String = doc[..at]
+                .chars()
+                .rev()
+                .take_while(char::is_ascii_digit)
+                .collect::<Vec<_>>()
+                .into_iter()
+                .rev()
+                .collect();
+            digits
+                .parse()
+                .unwrap_or_else(|_| panic!("no number right before `{phrase}`"))
+        })
+        .collect();
+    assert!(
+        !found.is_empty(),
+        "docs/results/experiments.md no longer says `{phrase}`"
+    );
+    found
+}
+
+/// The interference plan's trainings (`plan.json`'s jobs of kind `train`).
+fn planned_trainings(dir: &str) -> usize {
+    let text = std::fs::read_to_string(repo().join(dir).join("plan.json")).unwrap();
+    let plan: serde_json::Value = serde_json::from_str(&text).unwrap();
+    plan["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|job| job["kind"] == "train")
+        .count()
+}
+
+#[test]
+fn the_interference_counts_in_the_prose_match_the_results() {
+    let dir = "docs/results/converged/interference";
+    let done = results(dir).len();
+    let planned = planned_trainings(dir);
+    let doc = flat_doc();
+    for (phrase, expected) in [
+        (format!(" of its {planned} trainings are done"), done),
+        (format!(" of {planned} done)"), done),
+        (" networks beat all three baselines".to_string(), done),
+    ] {
+        for number in numbers_before(&doc, &phrase) {
+            assert_eq!(
+                number, expected,
+                "`{number}{phrase}`: {done} of {planned} are done"
+            );
+        }
+    }
+    let remain = planned - done;
+    let stated = format!("**What remains, and where it runs.** {remain} trainings:");
+    assert!(
+        doc.contains(&stated),
+        "the status should say `{stated}` ({done} of {planned} are done)"
+    );
+}
+
+#[test]
+fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_stated_range() {
+    // "... upsampling with the mean image's detail 0.004588, ... All 10 networks beat all
+    // three baselines (by 19-25% the best of them)"
+    let doc = flat_doc();
+    let baseline_at = doc
+        .find("The baselines on the same 12 held-out repositioning sequences")
+        .expect("the interference baselines' paragraph");
+    let paragraph = &doc[baseline_at..];
+    let detail = "upsampling with the mean image's detail ";
+    let best = leading_number(&paragraph[paragraph.find(detail).unwrap() + detail.len()..]);
+    let range = &paragraph[paragraph.find("(by ").unwrap() + 4..];
+    let (low, high) = range.split_once('-').unwrap();
+    let (low, high) = (leading_number(low), leading_number(high));
+    let margins: Vec<f64> = results("docs/results/converged/interference")
+        .iter()
+        .map(|result| {
+            let used = result.network_iteration.unwrap();
+            let error = result
+                .validations
+                .iter()
+                .find(|v| v.iteration == used)
+                .unwrap()
+                .recon_vision_top;
+            100.0 * (1.0 - error / best)
+        })
+        .collect();
+    let smallest = margins.iter().copied().fold(f64::INFINITY, f64::min);
+    let largest = margins.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert!(
+        smallest > 0.0,
+        "a network does not beat the best baseline ({best})"
+    );
+    assert_eq!(
+        (smallest.round(), largest.round()),
+        (low, high),
+        "the networks beat the best baseline by {smallest:.1}-{largest:.1}%"
     );
 }

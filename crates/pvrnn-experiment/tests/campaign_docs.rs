@@ -49,6 +49,19 @@ fn leading_number(cell: &str) -> f64 {
         .unwrap_or_else(|_| panic!("no number at the start of `{cell}`"))
 }
 
+/// The validation error of the network a training's inference runs read.
+fn used_network_error(result: &TrainResult) -> f64 {
+    let used = result
+        .network_iteration
+        .expect("a converged training names its network");
+    result
+        .validations
+        .iter()
+        .find(|v| v.iteration == used)
+        .unwrap_or_else(|| panic!("{}: no validation at iteration {used}", result.job))
+        .recon_vision_top
+}
+
 /// Checks one row (`cells[1..]`: stopped at, network used, validation error, last-tenth
 /// change, training time) against its result, as the table rounds them.
 fn check_row(cells: &[String], result: &TrainResult) {
@@ -66,16 +79,11 @@ fn check_row(cells: &[String], result: &TrainResult) {
         used as f64,
         "{what}: network used"
     );
-    let validation = result
-        .validations
-        .iter()
-        .find(|v| v.iteration == used)
-        .unwrap_or_else(|| panic!("{what}: no validation at iteration {used}"));
+    let validated = used_network_error(result);
     let error = leading_number(&cells[3]);
     assert!(
-        (error - validation.recon_vision_top).abs() <= 0.5e-6,
-        "{what}: validation error {error} in the table, {} in the result",
-        validation.recon_vision_top
+        (error - validated).abs() <= 0.5e-6,
+        "{what}: validation error {error} in the table, {validated} in the result"
     );
     let change = 100.0 * result.last_tenth_change.expect("a last-tenth change");
     assert!(
@@ -239,16 +247,7 @@ fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_sta
     let (low, high) = (leading_number(low), leading_number(high));
     let margins: Vec<f64> = results("docs/results/converged/interference")
         .iter()
-        .map(|result| {
-            let used = result.network_iteration.unwrap();
-            let error = result
-                .validations
-                .iter()
-                .find(|v| v.iteration == used)
-                .unwrap()
-                .recon_vision_top;
-            100.0 * (1.0 - error / best)
-        })
+        .map(|result| 100.0 * (1.0 - used_network_error(result) / best))
         .collect();
     let smallest = margins.iter().copied().fold(f64::INFINITY, f64::min);
     let largest = margins.iter().copied().fold(f64::NEG_INFINITY, f64::max);

@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 
 use pvrnn_experiment::run::{TrainResult, read_train_result};
 
+/// The converged interference campaign's folder.
+const INTERFERENCE: &str = "docs/results/converged/interference";
+
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
@@ -156,7 +159,7 @@ fn the_interference_table_has_a_row_for_every_finished_training() {
     // "repositioning 9 + wiping 3, net 1 (seed 1)"
     check_table(
         "| training | stopped at | network used |",
-        "docs/results/converged/interference",
+        INTERFERENCE,
         |result| format!("{}, net {} ", result.condition, result.network),
     );
 }
@@ -207,7 +210,7 @@ fn planned_trainings(dir: &str) -> usize {
 
 #[test]
 fn the_interference_counts_in_the_prose_match_the_results() {
-    let dir = "docs/results/converged/interference";
+    let dir = INTERFERENCE;
     let done = results(dir).len();
     let planned = planned_trainings(dir);
     let doc = flat_doc();
@@ -245,7 +248,7 @@ fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_sta
     let range = &paragraph[paragraph.find("(by ").unwrap() + 4..];
     let (low, high) = range.split_once('-').unwrap();
     let (low, high) = (leading_number(low), leading_number(high));
-    let margins: Vec<f64> = results("docs/results/converged/interference")
+    let margins: Vec<f64> = results(INTERFERENCE)
         .iter()
         .map(|result| 100.0 * (1.0 - used_network_error(result) / best))
         .collect();

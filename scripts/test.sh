@@ -12,6 +12,22 @@ export CARGO_INCREMENTAL=${CARGO_INCREMENTAL:-0}
 start=$SECONDS
 step() { printf '\n== [%dm%02ds] %s\n' $(((SECONDS - start) / 60)) $(((SECONDS - start) % 60)) "$*" >&2; }
 
+# Runs a browser test (built beforehand) under a time limit, and once more if it ran out: CI
+# once saw chromedriver never bring up the browser, and the run hung until CI's own limit.
+in_browser() {
+    local limit=$1 attempt rc
+    shift
+    for attempt in 1 2; do
+        rc=0
+        timeout --kill-after=10 "$limit" "$@" || rc=$?
+        [ "$rc" -eq 124 ] || [ "$rc" -eq 137 ] || return "$rc"
+        echo "no result within $limit s (attempt $attempt of 2): stopping the browser" >&2
+        pkill -f chromedriver || true
+        pkill -f 'chromium.*--headless' || true
+    done
+    return 1
+}
+
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
@@ -55,13 +71,15 @@ cargo test -p pvrnn-core -p pvrnn-backend-tests --target wasm32-unknown-unknown
 
 step "WebGPU in a browser worker (SwiftShader's adapter): online inference agrees with the CPU"
 # SwiftShader is slow: the runner's default 20 s for the whole run is not enough.
+cargo test -p pvrnn-wgpu --target wasm32-unknown-unknown --test webgpu --no-run
 WASM_BINDGEN_TEST_TIMEOUT=300 \
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webgpu-webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
-    cargo test -p pvrnn-wgpu --target wasm32-unknown-unknown --test webgpu
+    in_browser 420 cargo test -p pvrnn-wgpu --target wasm32-unknown-unknown --test webgpu
 
 step "the explorer's web entry and browser glue in headless Chromium"
+cargo test -p pvrnn-explorer --target wasm32-unknown-unknown --no-run
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
-    cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
+    in_browser 300 cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
 
 step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture; with each renderer"
 mkdir -p target
@@ -103,6 +121,6 @@ for _ in $(seq 50); do
     sleep 0.2
 done
 mkdir -p target
-node tests/web/smoke.mjs "http://127.0.0.1:$port/index.html" target/web-smoke.png --live-seconds 240 --webgpu
+in_browser 900 node tests/web/smoke.mjs "http://127.0.0.1:$port/index.html" target/web-smoke.png --live-seconds 240 --webgpu
 
 step "all tests passed"

@@ -36,10 +36,10 @@ cargo clippy --workspace --all-targets -- -D warnings
 
 # (also the check that the dataset crate and the simulator compile for WebAssembly)
 step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels, WebGPU)"
+# One invocation: apart, the GPU crate's features differ and faer, web-sys and wgpu were
+# checked twice. Every target but the GPU crate's benchmark (native only; the only one).
 cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-backend-tests -p pvrnn-dataset -p caresim \
-    --target wasm32-unknown-unknown --all-targets -- -D warnings
-# The GPU crate's library and its browser test (its benchmark and native tests are native).
-cargo clippy -p pvrnn-wgpu --target wasm32-unknown-unknown --lib --tests -- -D warnings
+    -p pvrnn-wgpu --target wasm32-unknown-unknown --lib --bins --tests --examples -- -D warnings
 
 step "cargo doc with warnings denied"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
@@ -61,9 +61,11 @@ step "a GPU loan spent on the campaign: stopped at its deadline, packed, brought
 tests/scripts/lease-campaign.sh
 
 step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
+# The test profile (caresim itself at opt-level 3): --release spent 11 of this step's 15
+# minutes building its dependencies.
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \
-    cargo test --release --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
+    cargo test --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
     the_default_output_is_the_one_the_shipped_model_learned
 
 step "core tests and the CPU backend's suite as WebAssembly under Node"

@@ -1,7 +1,8 @@
 //! Every crate's modules stay layered (ARCHITECTURE.md): no module imports another that
 //! imports it back; in the core the CPU backend is named only by itself and by `defaults`,
 //! the one place a default backend is chosen; and no function is longer than a newcomer
-//! reads at once (120 lines). Read from the sources, so that the rules cannot drift.
+//! reads at once (120 lines). Read from the sources, so that the rules cannot drift. And
+//! test builds leave the crates that only run while building unoptimised (Cargo.toml).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -272,4 +273,106 @@ fn no_function_is_longer_than_a_newcomer_reads_at_once() {
 fn the_function_reader_measures_bodies_and_skips_declarations() {
     let text = "trait T {\n    fn declared(\n        &self,\n    ) -> u32;\n}\n\npub(crate) fn body(x: u32) -> u32 {\n    let y = x;\n    y\n}\n";
     assert_eq!(functions(text), vec![("body".to_string(), 7, 4)]);
+}
+
+/// The crates of Cargo.lock that only run while building: proc macros, and what only they
+/// and build scripts use (read with `cargo metadata`, every target).
+fn build_only_crates() -> BTreeSet<String> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let output = std::process::Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
+        .current_dir(crates_dir())
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        output.status.success(),
+        "cargo metadata failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let metadata: serde_json::Value =
+        serde_json::from_slice(&output.stdout).expect("cargo metadata's JSON");
+    let packages: BTreeMap<&str, &serde_json::Value> = metadata["packages"]
+        .as_array()
+        .expect("packages")
+        .iter()
+        .map(|p| (p["id"].as_str().expect("an id"), p))
+        .collect();
+    let is_proc_macro = |id: &str| {
+        packages[id]["targets"]
+            .as_array()
+            .expect("targets")
+            .iter()
+            .any(|t| {
+                t["kind"]
+                    .as_array()
+                    .expect("kinds")
+                    .iter()
+                    .any(|k| k == "proc-macro")
+            })
+    };
+    let nodes: BTreeMap<&str, &serde_json::Value> = metadata["resolve"]["nodes"]
+        .as_array()
+        .expect("the resolved graph")
+        .iter()
+        .map(|n| (n["id"].as_str().expect("an id"), n))
+        .collect();
+    // Everything reachable from the workspace without a build-dependency edge or a proc
+    // macro is compiled into some program; the rest only runs while building.
+    let mut runtime = BTreeSet::new();
+    let mut stack: Vec<&str> = metadata["workspace_members"]
+        .as_array()
+        .expect("workspace members")
+        .iter()
+        .map(|m| m.as_str().expect("a member id"))
+        .collect();
+    while let Some(id) = stack.pop() {
+        if !runtime.insert(id) {
+            continue;
+        }
+        for dep in nodes[id]["deps"].as_array().expect("deps") {
+            let target = dep["pkg"].as_str().expect("a dependency id");
+            let build_only = dep["dep_kinds"]
+                .as_array()
+                .expect("dependency kinds")
+                .iter()
+                .all(|k| k["kind"] == "build");
+            if !build_only && !is_proc_macro(target) {
+                stack.push(target);
+            }
+        }
+    }
+    let name = |id: &str| packages[id]["name"].as_str().expect("a name").to_string();
+    let runtime_names: BTreeSet<String> = runtime.iter().map(|id| name(id)).collect();
+    nodes
+        .keys()
+        .filter(|id| !runtime.contains(*id))
+        .map(|id| name(id))
+        .filter(|n| !runtime_names.contains(n))
+        .collect()
+}
+
+#[test]
+fn test_builds_leave_the_build_only_crates_unoptimised() {
+    let manifest: toml::Table = std::fs::read_to_string(crates_dir().join("../Cargo.toml"))
+        .expect("the workspace manifest")
+        .parse()
+        .expect("the workspace manifest parses");
+    let named: BTreeSet<String> = manifest["profile"]["dev"]["package"]
+        .as_table()
+        .expect("[profile.dev.package]")
+        .iter()
+        .filter(|(_, settings)| settings.get("opt-level").and_then(|l| l.as_integer()) == Some(0))
+        .map(|(name, _)| name.clone())
+        .collect();
+    let build_only = build_only_crates();
+    assert!(
+        build_only.contains("syn"),
+        "the build-only crates were not found: {build_only:?}"
+    );
+    assert_eq!(
+        named, build_only,
+        "Cargo.toml's opt-level-0 list under [profile.dev.package] must name exactly the \
+         build-only crates (else \"*\" compiles them at opt-level 2, or a runtime crate runs \
+         unoptimised)"
+    );
 }

@@ -61,11 +61,9 @@ step "a GPU loan spent on the campaign: stopped at its deadline, packed, brought
 tests/scripts/lease-campaign.sh
 
 step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
-# The test profile (caresim itself at opt-level 3): --release spent 11 of this step's 15
-# minutes building its dependencies.
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \
-    cargo test --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
+    cargo test --release --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
     the_default_output_is_the_one_the_shipped_model_learned
 
 step "core tests and the CPU backend's suite as WebAssembly under Node"

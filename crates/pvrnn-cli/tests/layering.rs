@@ -279,8 +279,9 @@ fn the_function_reader_measures_bodies_and_skips_declarations() {
 /// and build scripts use (read with `cargo metadata`, every target).
 fn build_only_crates() -> BTreeSet<String> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    // Not --offline: a build fetches only its own platforms' crates, metadata reads them all.
     let output = std::process::Command::new(cargo)
-        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
+        .args(["metadata", "--format-version", "1", "--locked"])
         .current_dir(crates_dir())
         .output()
         .expect("cargo metadata runs");

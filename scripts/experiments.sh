@@ -7,6 +7,7 @@
 #   scripts/experiments.sh shared 1                     # network 1 of the shared experiments
 #   scripts/experiments.sh interference 2               # network 2 of interference
 #   SCALE=converged scripts/experiments.sh shared 0     # converged scale, network 0
+#   SCALE=converged scripts/experiments.sh interference # converged interference, plan order
 #
 # Reduced results go to docs/results/<experiment>/, converged ones to
 # docs/results/converged/<experiment>/. hierarchy, uncertainty and robustness share their
@@ -117,8 +118,10 @@ if [ "$which" = all ] || [ "$which" = shared ]; then
     done
 fi
 if [ "$which" = all ] || [ "$which" = interference ]; then
-    if [ -n "${COHORT:-}" ] && [ -z "$only" ]; then
-        run interference "" # every network, a condition's networks trained together
+    if [ -z "$only" ] && { [ -n "${COHORT:-}" ] || [ "$scale" = converged ]; }; then
+        # Plan order: a condition's networks one after another (or together with COHORT),
+        # so that a direction's trainings, which its test needs, finish first.
+        run interference ""
     else
         for network in $(networks_of); do
             run interference "$network"

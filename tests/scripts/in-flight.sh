@@ -3,8 +3,8 @@
 # copy of the script: keep copies the newest converged training's checkpoint (not a newer
 # best network of another one) with its best network and logs into training/in-flight/;
 # on a machine without them, a run puts them back under their own names, and a training
-# whose checkpoint is there is left alone. (The runner's resume itself is tested in
-# crates/pvrnn-experiment.)
+# whose checkpoint is there is left alone; the converged interference campaign runs in its
+# plan's order. (The runner's resume itself is tested in crates/pvrnn-experiment.)
 set -euo pipefail
 script=$(realpath "$(dirname "$0")/../../scripts/experiments.sh")
 work=$(mktemp -d /tmp/pvrnn-in-flight.XXXXXX)
@@ -48,4 +48,17 @@ echo later > "$stem.safetensors"
 PVRNN=/bin/false scripts/experiments.sh interference 2 2> run.log || true
 [ "$(cat "$stem.safetensors")" = later ] || fail "a checkpoint already here was overwritten"
 grep -q resuming run.log && fail "restored over an existing checkpoint"
-echo "in-flight keep and restore: ok" >&2
+# The converged interference campaign without a network number runs in the plan's order
+# (no --network: a condition's networks before the next condition), every other call
+# network by network.
+mkdir -p data/caresim-robotfree data/caresim-seed1 docs/results/converged/interference
+touch data/caresim-robotfree/dataset.json data/caresim-seed1/dataset.json \
+    docs/results/converged/interference/plan.json
+printf '#!/bin/sh\necho "$@" >> %s/calls.txt\n' "$work" > record && chmod +x record
+SCALE=converged PVRNN=./record scripts/experiments.sh interference 2> run.log || fail "$(cat run.log)"
+[ "$(grep -c ' experiment interference ' calls.txt)" = 1 ] || fail "not one plan-order run: $(cat calls.txt)"
+grep -q -- --network calls.txt && fail "the plan-order run named a network: $(cat calls.txt)"
+rm calls.txt
+SCALE=converged PVRNN=./record scripts/experiments.sh shared 2> run.log || fail "$(cat run.log)"
+[ "$(grep -c -- '--network' calls.txt)" = 15 ] || fail "shared: not network by network: $(cat calls.txt)"
+echo "in-flight keep and restore, interference in plan order: ok" >&2

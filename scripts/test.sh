@@ -54,7 +54,7 @@ PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
 step "an experiment's Slurm job arrays on a real one-node Slurm (munge, slurmctld, slurmd)"
 timeout 900 tests/slurm/run.sh target/debug/pvrnn
 
-step "a campaign's training in flight kept for a fresh machine and put back (scripts/experiments.sh keep)"
+step "a campaign's training in flight kept for a fresh machine and put back (scripts/experiments.sh keep); interference in plan order"
 tests/scripts/in-flight.sh
 
 step "a GPU loan spent on the campaign: stopped at its deadline, packed, brought back (scripts/lease-campaign.sh)"

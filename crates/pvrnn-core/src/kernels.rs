@@ -291,8 +291,10 @@ pub(crate) fn tanh_in_place_f32(xs: &mut [f32]) {
 }
 
 /// See [`crate::Real::output_error`]. Sixteen partial sums keep the reduction vectorised and
-/// identical on every instruction set.
-pub(crate) fn output_error_f32(pre: &mut [f32], target: &[f32], scale: f32) -> f64 {
+/// identical on every instruction set. `ahead` is fetched a cache line per 16 values
+/// computed: issued at once, the fetches of a whole run stall on the CPU's few outstanding
+/// misses.
+pub(crate) fn output_error_f32(pre: &mut [f32], target: &[f32], ahead: &[f32], scale: f32) -> f64 {
     debug_assert_eq!(pre.len(), target.len());
     simd(
         #[inline(always)]
@@ -301,7 +303,10 @@ pub(crate) fn output_error_f32(pre: &mut [f32], target: &[f32], scale: f32) -> f
             let mut acc = [0f32; LANES];
             let mut pre_chunks = pre.chunks_exact_mut(LANES);
             let mut target_chunks = target.chunks_exact(LANES);
-            for (p, x) in (&mut pre_chunks).zip(&mut target_chunks) {
+            for (c, (p, x)) in (&mut pre_chunks).zip(&mut target_chunks).enumerate() {
+                if let Some(line) = ahead.get(c * LANES..c * LANES + 1) {
+                    prefetch(line);
+                }
                 for j in 0..LANES {
                     let y = tanh_f32(p[j]);
                     let e = y - x[j];
@@ -410,7 +415,7 @@ mod tests {
         let pre: Vec<f32> = (0..37).map(|i| (i as f32 - 18.0) * 0.21).collect();
         let target: Vec<f32> = (0..37).map(|i| ((i * 7) % 11) as f32 * 0.1 - 0.5).collect();
         let mut got = pre.clone();
-        let sum = output_error_f32(&mut got, &target, 0.25);
+        let sum = output_error_f32(&mut got, &target, &target, 0.25);
         let mut want_sum = 0f64;
         for i in 0..37 {
             let y = (pre[i] as f64).tanh();

@@ -39,8 +39,9 @@ pub trait Real:
     ///
     /// On entry `pre` holds output pre-activations; on exit it holds
     /// `d loss / d pre = scale * (y - x) * (1 - y^2)` with `y = tanh(pre)`.
-    /// Returns `sum (y - x)^2` (unscaled).
-    fn output_error(pre: &mut [Self], target: &[Self], scale: Self) -> f64;
+    /// Returns `sum (y - x)^2` (unscaled). `ahead` (possibly empty) is a later row's
+    /// targets, fetched into cache while this runs (a hint: no effect on the results).
+    fn output_error(pre: &mut [Self], target: &[Self], ahead: &[Self], scale: Self) -> f64;
 }
 
 impl Real for f32 {
@@ -92,8 +93,8 @@ impl Real for f32 {
     fn tanh_in_place(xs: &mut [Self]) {
         kernels::tanh_in_place_f32(xs)
     }
-    fn output_error(pre: &mut [Self], target: &[Self], scale: Self) -> f64 {
-        kernels::output_error_f32(pre, target, scale)
+    fn output_error(pre: &mut [Self], target: &[Self], ahead: &[Self], scale: Self) -> f64 {
+        kernels::output_error_f32(pre, target, ahead, scale)
     }
     fn normals_from_bits(bits: &[u32], out: &mut [Self]) {
         kernels::box_muller_f32(bits, out)
@@ -171,7 +172,8 @@ impl Real for f64 {
         }
     }
 
-    fn output_error(pre: &mut [Self], target: &[Self], scale: Self) -> f64 {
+    fn output_error(pre: &mut [Self], target: &[Self], ahead: &[Self], scale: Self) -> f64 {
+        kernels::prefetch(ahead);
         let mut sum = 0.0;
         for (p, &x) in pre.iter_mut().zip(target) {
             let y = p.tanh();

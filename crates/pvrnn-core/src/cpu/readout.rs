@@ -11,7 +11,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::Real;
 use crate::assembled::{DenseGrads, OutputLoss};
-use crate::kernels::{LANES, prefetch, simd};
+use crate::kernels::{LANES, simd};
 use crate::parallel;
 use crate::params::{Dense, ReadoutParams};
 
@@ -292,16 +292,17 @@ impl<T: Real> FusedLayer<'_, T> {
         for i in 0..rw {
             // The targets are read once per pass, a short run of each distant row: fetch a
             // later row's run while this one computes, or the loads stall.
-            if let Some(ahead) = targets.get(r0 + i + TARGET_PREFETCH_ROWS) {
-                prefetch(&ahead[c0..c0 + cw]);
-            }
+            let ahead = targets
+                .get(r0 + i + TARGET_PREFETCH_ROWS)
+                .map_or(&[][..], |t| &t[c0..c0 + cw]);
             let row = &mut tile[i * cw..(i + 1) * cw];
             if let Some(bias) = self.bias {
                 for (v, &bi) in row.iter_mut().zip(&bias[c0..c0 + cw]) {
                     *v += bi;
                 }
             }
-            acc.sse[r0 + i] += T::output_error(row, &targets[r0 + i][c0..c0 + cw], self.scale);
+            acc.sse[r0 + i] +=
+                T::output_error(row, &targets[r0 + i][c0..c0 + cw], ahead, self.scale);
         }
         let g_pre = MatRef::from_row_major_slice(tile, rw, cw);
         if self.weight_grads {

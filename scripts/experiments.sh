@@ -109,6 +109,11 @@ run() {
 
 which=${1:-all}
 only=${2:-}
+# `--cohort` trains a condition's networks together, so pvrnn refuses it beside `--network`.
+if [ -n "${COHORT:-}" ] && { [ -n "$only" ] || [ "$which" != interference ]; }; then
+    echo "COHORT=$COHORT trains a condition's networks together: use it with \`interference\` and no network number" >&2
+    exit 2
+fi
 networks_of() { if [ -n "$only" ]; then echo "$only"; else seq 0 $((count - 1)); fi; }
 if [ "$which" = all ] || [ "$which" = shared ]; then
     for network in $(networks_of); do

@@ -61,4 +61,13 @@ grep -q -- --network calls.txt && fail "the plan-order run named a network: $(ca
 rm calls.txt
 SCALE=converged PVRNN=./record scripts/experiments.sh shared 2> run.log || fail "$(cat run.log)"
 [ "$(grep -c -- '--network' calls.txt)" = 15 ] || fail "shared: not network by network: $(cat calls.txt)"
-echo "in-flight keep and restore, interference in plan order: ok" >&2
+rm calls.txt
+# COHORT with a network number, or for the shared networks, is refused before pvrnn runs.
+for call in "interference 1" "shared"; do
+    # shellcheck disable=SC2086 # the call is a list of words
+    SCALE=converged COHORT=5 PVRNN=./record scripts/experiments.sh $call 2> run.log &&
+        fail "COHORT=5 $call should be refused"
+    grep -q "no network number" run.log || fail "COHORT=5 $call: $(cat run.log)"
+    [ ! -f calls.txt ] || fail "COHORT=5 $call ran pvrnn: $(cat calls.txt)"
+done
+echo "in-flight keep and restore, interference in plan order, COHORT's refusals: ok" >&2

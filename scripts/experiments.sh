@@ -67,6 +67,14 @@ if [ -f "$kept/stem.txt" ]; then
     fi
 fi
 
+which=${1:-all}
+only=${2:-}
+# `--cohort` trains a condition's networks together, so pvrnn refuses it beside `--network`.
+if [ -n "${COHORT:-}" ] && { [ -n "$only" ] || [ "$which" != interference ]; }; then
+    echo "COHORT=$COHORT trains a condition's networks together: use it with \`interference\` and no network number" >&2
+    exit 2
+fi
+
 threads=${THREADS:-2}
 jobs=${JOBS:-1}
 backend=${BACKEND:-cpu}
@@ -107,13 +115,6 @@ run() {
     echo "   $experiment network ${network:-all} took $(( $(date +%s) - start )) s" >&2
 }
 
-which=${1:-all}
-only=${2:-}
-# `--cohort` trains a condition's networks together, so pvrnn refuses it beside `--network`.
-if [ -n "${COHORT:-}" ] && { [ -n "$only" ] || [ "$which" != interference ]; }; then
-    echo "COHORT=$COHORT trains a condition's networks together: use it with \`interference\` and no network number" >&2
-    exit 2
-fi
 networks_of() { if [ -n "$only" ]; then echo "$only"; else seq 0 $((count - 1)); fi; }
 if [ "$which" = all ] || [ "$which" = shared ]; then
     for network in $(networks_of); do

@@ -1,8 +1,9 @@
 //! Every crate's modules stay layered (ARCHITECTURE.md): no module imports another that
 //! imports it back; in the core the CPU backend is named only by itself and by `defaults`,
 //! the one place a default backend is chosen; and no function is longer than a newcomer
-//! reads at once (120 lines). Read from the sources, so that the rules cannot drift. And
-//! test builds leave the crates that only run while building unoptimised (Cargo.toml).
+//! reads at once (120 lines); the CPU backend's float helpers run inside its SIMD dispatch.
+//! Read from the sources, so that the rules cannot drift. And test builds leave the crates
+//! that only run while building unoptimised (Cargo.toml).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -273,6 +274,75 @@ fn no_function_is_longer_than_a_newcomer_reads_at_once() {
 fn the_function_reader_measures_bodies_and_skips_declarations() {
     let text = "trait T {\n    fn declared(\n        &self,\n    ) -> u32;\n}\n\npub(crate) fn body(x: u32) -> u32 {\n    let y = x;\n    y\n}\n";
     assert_eq!(functions(text), vec![("body".to_string(), 7, 4)]);
+}
+
+/// The functions of `text` that do float maths through `Real` (`madd`, `tanh`, `exp`, `ln`)
+/// yet are neither inlined always, nor wrap their body in the kernels' SIMD dispatch
+/// (`simd(`), nor enable target features themselves: (name, first line).
+///
+/// On x86-64 such a function is compiled for the baseline CPU even when it is called from
+/// inside the dispatch: every `madd` becomes a call to libm's `fmaf` and nothing
+/// vectorises. That made online inference with 16x16 + proprioception a quarter slower
+/// (`latent_grads`, 2026-11-29, docs/speed.md); the results are the same either way.
+fn float_helpers_outside_the_dispatch(text: &str) -> Vec<(String, usize)> {
+    let text = text.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
+    let lines: Vec<&str> = text.lines().collect();
+    let maths = [".madd(", ".tanh(", ".exp(", ".ln("];
+    let mut found = Vec::new();
+    for (name, first, count) in functions(text) {
+        let body = lines[first - 1..(first - 1 + count).min(lines.len())].join("\n");
+        if !maths.iter().any(|m| body.contains(m)) || body.contains("simd(") {
+            continue;
+        }
+        let attributes = lines[..first - 1]
+            .iter()
+            .rev()
+            .take_while(|l| {
+                let l = l.trim_start();
+                l.starts_with("#[") || l.starts_with("//")
+            })
+            .any(|l| l.contains("#[inline(always)]") || l.contains("#[target_feature"));
+        if !attributes {
+            found.push((name, first));
+        }
+    }
+    found
+}
+
+#[test]
+fn the_cpu_backend_s_float_helpers_run_inside_its_simd_dispatch() {
+    let core = crates_dir().join("pvrnn-core").join("src");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(core.join("cpu"))
+        .expect("the CPU backend's sources")
+        .map(|e| e.expect("an entry").path())
+        .collect();
+    files.extend(["kernels.rs", "optim.rs"].map(|f| core.join(f)));
+    let mut outside = Vec::new();
+    for path in &files {
+        let text = std::fs::read_to_string(path).expect("a readable source");
+        for (name, line) in float_helpers_outside_the_dispatch(&text) {
+            outside.push(format!("{}:{line} {name}", path.display()));
+        }
+    }
+    assert!(files.len() >= 5, "the sources were not found: {files:?}");
+    assert!(
+        outside.is_empty(),
+        "float helpers compiled outside the SIMD dispatch (mark them #[inline(always)] or \
+         wrap their body in `simd(`):\n{}",
+        outside.join("\n")
+    );
+}
+
+#[test]
+fn the_dispatch_reader_flags_a_helper_that_is_only_hinted_inline() {
+    let text = "#[inline]\nfn hinted<T: Real>(x: T) -> T {\n    x.exp()\n}\n\n\
+        #[inline(always)] // inside the dispatch\nfn always<T: Real>(x: T) -> T {\n    x.tanh()\n}\n\n\
+        pub(crate) fn entry<T: Real>(x: T) -> T {\n    simd(|| x.madd(x, x))\n}\n\n\
+        fn plain(x: u32) -> u32 {\n    x + 1\n}\n";
+    assert_eq!(
+        float_helpers_outside_the_dispatch(text),
+        vec![("hinted".to_string(), 2)]
+    );
 }
 
 /// The crates of Cargo.lock that only run while building: proc macros, and what only they

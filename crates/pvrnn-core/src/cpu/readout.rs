@@ -422,34 +422,46 @@ fn forward_tile<T: Real, const R: usize, const C: usize>(
 /// column order per output, as `small_forward`.
 fn small_backward<T: Real>(gx: &mut [T], e: &[T], n: usize, hl: usize, w: &[T], cw: usize) {
     const R: usize = BACKWARD_TILE.0;
-    const C: usize = BACKWARD_TILE.1;
     simd(
         #[inline(always)]
         || {
-            let rows = |gx: &mut [T], i: usize, count: usize| {
-                let mut j = 0;
-                while j + C <= hl {
-                    backward_tile::<T, C>(gx, e, hl, w, cw, i, count, j);
-                    j += C;
-                }
-                while j + 4 <= hl {
-                    backward_tile::<T, 4>(gx, e, hl, w, cw, i, count, j);
-                    j += 4;
-                }
-                for j in j..hl {
-                    backward_tile::<T, 1>(gx, e, hl, w, cw, i, count, j);
-                }
-            };
             let mut i = 0;
             while i + R <= n {
-                rows(gx, i, R);
+                backward_rows(gx, e, hl, w, cw, i, R);
                 i += R;
             }
             for i in i..n {
-                rows(gx, i, 1);
+                backward_rows(gx, e, hl, w, cw, i, 1);
             }
         },
     )
+}
+
+/// Rows `i..i + count` of `gx`, every hidden unit. Inlined into the kernels' SIMD dispatch:
+/// compiled apart from it, every `madd` would be a call to libm's `fmaf`.
+#[inline(always)]
+fn backward_rows<T: Real>(
+    gx: &mut [T],
+    e: &[T],
+    hl: usize,
+    w: &[T],
+    cw: usize,
+    i: usize,
+    count: usize,
+) {
+    const C: usize = BACKWARD_TILE.1;
+    let mut j = 0;
+    while j + C <= hl {
+        backward_tile::<T, C>(gx, e, hl, w, cw, i, count, j);
+        j += C;
+    }
+    while j + 4 <= hl {
+        backward_tile::<T, 4>(gx, e, hl, w, cw, i, count, j);
+        j += 4;
+    }
+    for j in j..hl {
+        backward_tile::<T, 1>(gx, e, hl, w, cw, i, count, j);
+    }
 }
 
 /// Rows `i..i + count` (`count` <= 2) of `gx`, hidden units `j..j + C`.

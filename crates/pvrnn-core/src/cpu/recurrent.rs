@@ -116,6 +116,7 @@ impl<T: Real> Prepared<T> {
     }
 }
 
+#[inline(always)] // inside the kernels' SIMD dispatch: `tanh` needs its FMA
 fn empty_trace<T: Real>(p: &PreparedModule<T>, len: usize, h0: Option<&[T]>) -> ModuleTrace<T> {
     let h0 = h0.map(<[T]>::to_vec).unwrap_or_else(|| vec![T::ZERO; p.d]);
     let d0 = h0.iter().map(|&h| h.tanh()).collect();
@@ -138,6 +139,7 @@ fn empty_trace<T: Real>(p: &PreparedModule<T>, len: usize, h0: Option<&[T]>) -> 
 
 /// `out` = the log sigmas of `pre` (pre-activations): themselves, or B tanh(pre / B) under
 /// a bound B (a departure from the paper: sigma stays within [e^-B, e^B]).
+#[inline(always)] // inside the kernels' SIMD dispatch: `tanh` needs its FMA
 fn bounded_log_sigma<T: Real>(out: &mut Vec<T>, pre: &[T], bound: Option<T>) {
     out.clear();
     match bound {
@@ -416,7 +418,7 @@ fn backward_impl<T: Real>(
 /// (`gz`) and the KL term (weighted by `c`) to d F / d the adaptive variables a_mu,
 /// a_sigma of the posterior (`ga_mu`, `ga_sigma`) and d F / d the prior's
 /// pre-activations (`gprior`: mean, then log sigma).
-#[inline]
+#[inline(always)] // inside the kernels' SIMD dispatch: `exp` needs its FMA
 fn latent_grads<T: Real>(
     mt: &ModuleTrace<T>,
     row: std::ops::Range<usize>,

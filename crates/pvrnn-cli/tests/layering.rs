@@ -278,7 +278,8 @@ fn the_function_reader_measures_bodies_and_skips_declarations() {
 
 /// The functions of `text` that do float maths through `Real` (`madd`, `tanh`, `exp`, `ln`)
 /// yet are neither inlined always, nor wrap their body in the kernels' SIMD dispatch
-/// (`simd(`), nor enable target features themselves: (name, first line).
+/// (`simd(`), nor enable target features themselves, and the closures bound to a name that
+/// do such maths: (name, first line).
 ///
 /// On x86-64 such a function is compiled for the baseline CPU even when it is called from
 /// inside the dispatch: every `madd` becomes a call to libm's `fmaf` and nothing
@@ -288,9 +289,20 @@ fn float_helpers_outside_the_dispatch(text: &str) -> Vec<(String, usize)> {
     let text = text.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
     let lines: Vec<&str> = text.lines().collect();
     let maths = [".madd(", ".tanh(", ".exp(", ".ln("];
+    let body_of = |first: usize, count: usize| {
+        lines[first - 1..(first - 1 + count).min(lines.len())].join("\n")
+    };
+    let functions = functions(text);
+    // What does float maths: the methods above, and the functions of `text` that use them.
+    let mut calls: Vec<String> = maths.iter().map(|m| m.to_string()).collect();
+    for (name, first, count) in &functions {
+        if maths.iter().any(|m| body_of(*first, *count).contains(m)) {
+            calls.extend([format!("{name}("), format!("{name}::<")]);
+        }
+    }
     let mut found = Vec::new();
-    for (name, first, count) in functions(text) {
-        let body = lines[first - 1..(first - 1 + count).min(lines.len())].join("\n");
+    for (name, first, count) in functions {
+        let body = body_of(first, count);
         if !maths.iter().any(|m| body.contains(m)) || body.contains("simd(") {
             continue;
         }
@@ -304,6 +316,29 @@ fn float_helpers_outside_the_dispatch(text: &str) -> Vec<(String, usize)> {
             .any(|l| l.contains("#[inline(always)]") || l.contains("#[target_feature"));
         if !attributes {
             found.push((name, first));
+        }
+    }
+    // A closure bound to a name (`let rows = |..| {`) is a function of its own that the
+    // compiler may leave apart, and it cannot be marked `#[inline(always)]`: none may do
+    // float maths, itself or through a function of this file.
+    for (i, line) in lines.iter().enumerate() {
+        let code = line.trim_start();
+        let Some(name) = code
+            .strip_prefix("let ")
+            .and_then(|rest| rest.split_once(" = "))
+            .filter(|(_, value)| value.starts_with('|') || value.starts_with("move |"))
+            .filter(|_| code.ends_with('{'))
+            .map(|(name, _)| name.trim_start_matches("mut ").to_string())
+        else {
+            continue;
+        };
+        let close = " ".repeat(line.len() - code.len()) + "};";
+        let end = (i + 1..lines.len())
+            .find(|&k| lines[k].starts_with(&close))
+            .unwrap_or(lines.len() - 1);
+        let closure = lines[i..=end].join("\n");
+        if calls.iter().any(|c| closure.contains(c.as_str())) {
+            found.push((name, i + 1));
         }
     }
     found
@@ -328,20 +363,26 @@ fn the_cpu_backend_s_float_helpers_run_inside_its_simd_dispatch() {
     assert!(
         outside.is_empty(),
         "float helpers compiled outside the SIMD dispatch (mark them #[inline(always)] or \
-         wrap their body in `simd(`):\n{}",
+         wrap their body in `simd(`; make a named closure such a function):\n{}",
         outside.join("\n")
     );
 }
 
 #[test]
-fn the_dispatch_reader_flags_a_helper_that_is_only_hinted_inline() {
+fn the_dispatch_reader_flags_helpers_only_hinted_inline_and_named_closures() {
     let text = "#[inline]\nfn hinted<T: Real>(x: T) -> T {\n    x.exp()\n}\n\n\
         #[inline(always)] // inside the dispatch\nfn always<T: Real>(x: T) -> T {\n    x.tanh()\n}\n\n\
         pub(crate) fn entry<T: Real>(x: T) -> T {\n    simd(|| x.madd(x, x))\n}\n\n\
-        fn plain(x: u32) -> u32 {\n    x + 1\n}\n";
+        fn plain(x: u32) -> u32 {\n    x + 1\n}\n\n\
+        #[inline(always)]\nfn rows<T: Real>(x: T) -> T {\n    let step = |y: T| {\n        y.madd(x, y)\n    };\n    \
+        let index = |k: usize| {\n        k + 1\n    };\n    let tile = |y: T| {\n        always::<T>(y)\n    };\n    step(x)\n}\n";
     assert_eq!(
         float_helpers_outside_the_dispatch(text),
-        vec![("hinted".to_string(), 2)]
+        vec![
+            ("hinted".to_string(), 2),
+            ("step".to_string(), 21),
+            ("tile".to_string(), 27)
+        ]
     );
 }
 

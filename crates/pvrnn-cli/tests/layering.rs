@@ -289,21 +289,23 @@ fn float_helpers_outside_the_dispatch(text: &str) -> Vec<(String, usize)> {
     let text = text.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
     let lines: Vec<&str> = text.lines().collect();
     let maths = [".madd(", ".tanh(", ".exp(", ".ln("];
-    let body_of = |first: usize, count: usize| {
-        lines[first - 1..(first - 1 + count).min(lines.len())].join("\n")
-    };
-    let functions = functions(text);
-    // What does float maths: the methods above, and the functions of `text` that use them.
+    // The functions of `text` that do float maths themselves: (name, first line, body).
+    let doing_maths: Vec<(String, usize, String)> = functions(text)
+        .into_iter()
+        .map(|(name, first, count)| {
+            let body = lines[first - 1..(first - 1 + count).min(lines.len())].join("\n");
+            (name, first, body)
+        })
+        .filter(|(_, _, body)| maths.iter().any(|m| body.contains(m)))
+        .collect();
+    // What a closure must not call: the methods above and those functions.
     let mut calls: Vec<String> = maths.iter().map(|m| m.to_string()).collect();
-    for (name, first, count) in &functions {
-        if maths.iter().any(|m| body_of(*first, *count).contains(m)) {
-            calls.extend([format!("{name}("), format!("{name}::<")]);
-        }
+    for (name, _, _) in &doing_maths {
+        calls.extend([format!("{name}("), format!("{name}::<")]);
     }
     let mut found = Vec::new();
-    for (name, first, count) in functions {
-        let body = body_of(first, count);
-        if !maths.iter().any(|m| body.contains(m)) || body.contains("simd(") {
+    for (name, first, body) in doing_maths {
+        if body.contains("simd(") {
             continue;
         }
         let attributes = lines[..first - 1]

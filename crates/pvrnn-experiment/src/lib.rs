@@ -7,12 +7,15 @@
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
 //! - [`paper`]: the paper's findings beside ours (the table every report ends with).
+//! - [`reporting`]: running jobs with the report rebuilt when a part of the design (an
+//!   interference direction) is complete.
 //! - [`slurm`]: the same plan as Slurm job arrays.
 
 pub mod occlusion;
 pub mod paper;
 pub mod plan;
 pub mod report;
+pub mod reporting;
 pub mod run;
 pub mod slurm;
 pub mod stats;

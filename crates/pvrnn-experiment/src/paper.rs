@@ -243,29 +243,18 @@ fn uncertainty(r: &Value) -> Vec<Finding> {
     let level = pick("prior sigma");
     let change = pick("mean absolute change of prior sigma");
     let tost = &level["equivalence"];
-    let (agrees, note) = match (tost["equivalent"].as_bool(), num(&level["paired_t"]["p"])) {
-        (Some(true), _) => (Some(true), String::new()),
-        (Some(false), Some(p)) if p < ALPHA => (
-            Some(false),
-            "the tasks differ (paired t significant)".into(),
-        ),
-        (Some(false), _) => (
-            None,
-            "undecided: neither a difference nor equivalence within the margin is shown".into(),
-        ),
-        (None, _) => (None, "no test: too few complete networks".into()),
-    };
+    let (agrees, note) = no_difference_verdict(
+        tost,
+        num(&level["paired_t"]["p"]),
+        "the tasks differ (paired t significant)",
+    );
     vec![
         finding(
             "Mean prior σ (all modules) does not differ between repositioning and wiping (Fig 4A): tested as equivalence",
             "t(4) = 1.67, p = 0.17 (n.s., read as no difference)",
-            match (num(&tost["mean"]), num(&tost["ci90"][0]), num(&tost["ci90"][1]), num(&tost["margin"])) {
-                (Some(m), Some(lo), Some(hi), Some(margin)) => format!(
-                    "TOST: difference {m:.3e}, 90% CI [{lo:.3e}, {hi:.3e}] vs margin ±{margin:.3e}, {}; paired {}",
-                    p_text(num(&tost["p"])),
-                    t_text(&level["paired_t"])
-                ),
-                _ => t_text(&level["paired_t"]),
+            match tost_text(tost) {
+                Some(t) => format!("{t}; paired {}", t_text(&level["paired_t"])),
+                None => t_text(&level["paired_t"]),
             },
             (agrees, note),
         )
@@ -388,105 +377,201 @@ fn robustness(r: &Value) -> Vec<Finding> {
     ]
 }
 
+/// The verdict on a "no difference" claim tested as equivalence (TOST JSON `tost`), with
+/// the omnibus or paired test's p beside it: equivalent agrees; a significant difference
+/// disagrees; neither is undecided.
+fn no_difference_verdict(tost: &Value, p: Option<f64>, differ: &str) -> (Option<bool>, String) {
+    match (tost["equivalent"].as_bool(), p) {
+        (Some(true), _) => (Some(true), String::new()),
+        (Some(false), Some(p)) if p < ALPHA => (Some(false), differ.into()),
+        (Some(false), _) => (
+            None,
+            "undecided: neither a difference nor equivalence within the margin is shown".into(),
+        ),
+        (None, _) => (None, "no test: too few complete networks".into()),
+    }
+}
+
+/// A TOST result as "TOST: difference m, 90% CI [lo, hi] vs margin ±x, p".
+fn tost_text(tost: &Value) -> Option<String> {
+    Some(format!(
+        "TOST: difference {:.3e}, 90% CI [{:.3e}, {:.3e}] vs margin ±{:.3e}, {}",
+        num(&tost["mean"])?,
+        num(&tost["ci90"][0])?,
+        num(&tost["ci90"][1])?,
+        num(&tost["margin"])?,
+        p_text(num(&tost["p"]))
+    ))
+}
+
 fn interference(r: &Value) -> Vec<Finding> {
     let mut out = Vec::new();
     let Some(primaries) = r.as_object() else {
         return out;
     };
     for (primary, v) in primaries {
-        let art = &v["art"]["pooled"];
-        let effect = &art["effect"];
-        let most_minus_none = effect_text(&v["most_minus_none"]["pooled"]);
-        if primary == "repositioning" {
-            out.push(
-                finding(
-                    "Adding wiping data does not change repositioning's error (Fig 6A)",
-                    "F(3, 16) = 0.62, p = 0.61 (n.s.)",
-                    f_text(effect),
-                    verdict(num(&effect["p"]), false, true),
-                )
-                .with_effect(format!("9 added − none, pooled: {most_minus_none}")),
+        let mut findings = if primary == "repositioning" {
+            vec![no_change_finding(v)]
+        } else {
+            let mut f = vec![rise_finding(v)];
+            f.extend(holm_findings(v));
+            f
+        };
+        // A direction is tested on its complete design only (reports from before this
+        // field was written had every direction complete): until then its findings say
+        // so, with no statistic and no effect from the partial data.
+        if v["complete"] == false {
+            untested(
+                &mut findings,
+                &format!(
+                    "no test yet: {} of the direction's {} trainings done",
+                    v["trainings_done"], v["trainings_planned"]
+                ),
             );
-            continue;
         }
-        // Wiping: errors rise with added repositioning data.
-        let means: Vec<Option<f64>> = v["per_network"][0]
-            .as_array()
-            .map(|c| c.iter().map(mean_of).collect())
-            .unwrap_or_default();
-        let rising = means
-            .first()
-            .copied()
-            .flatten()
-            .zip(means.last().copied().flatten());
-        out.push(
-            finding(
-                "Adding repositioning data raises wiping's error (Fig 6B)",
-                "F(3, 16) = 19.16, p < 0.001",
-                format!(
-                    "{}; pooled error with 0 / 3 / 6 / 9 added: {}",
-                    f_text(effect),
-                    means
-                        .iter()
-                        .map(|m| m.map_or("–".into(), |m| format!("{m:.3e}")))
-                        .collect::<Vec<_>>()
-                        .join(" / ")
-                ),
-                verdict(
-                    num(&effect["p"]),
-                    true,
-                    rising.is_none_or(|(first, last)| first < last),
-                ),
-            )
-            .with_effect(format!("9 added − none, pooled: {most_minus_none}")),
-        );
-        let added = |label: &str| label.rsplit(' ').next().unwrap_or("").to_string();
-        for (few, many, paper_p) in [
-            ("0", "6", "p < 0.001"),
-            ("0", "9", "p < 0.001"),
-            ("3", "6", "p = 0.0033"),
-            ("3", "9", "p = 0.0033"),
-        ] {
-            let contrast = art["contrasts"].as_array().and_then(|c| {
-                c.iter().find(|x| {
-                    let (a, b) = (
-                        added(x["a"].as_str().unwrap_or("")),
-                        added(x["b"].as_str().unwrap_or("")),
-                    );
-                    (a == few && b == many) || (a == many && b == few)
-                })
-            });
-            let p = contrast.and_then(|x| num(&x["p_holm"]));
-            // Lower error (rank) with fewer added sequences.
-            let lower = contrast.is_none_or(|x| {
-                let d = num(&x["rank_difference"]).unwrap_or(0.0);
-                if added(x["a"].as_str().unwrap_or("")) == few {
-                    d < 0.0
-                } else {
-                    d > 0.0
-                }
-            });
-            out.push(finding(
-                &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
-                paper_p,
-                format!("ART-C, Holm over the 6 pairs: {}", p_text(p)),
-                verdict(p, true, lower),
-            ));
-        }
+        out.extend(findings);
     }
     out
 }
 
-/// The findings as a Markdown section.
-/// `networks`: how many networks the results cover, of the design's `design_networks`.
-pub fn markdown(
-    findings: &[Finding],
-    stamp: &str,
-    networks: usize,
-    design_networks: usize,
-) -> String {
+/// Fig 6A: "did not affect" is a claim of no change, tested as equivalence of the most
+/// added and none, beside the omnibus test.
+fn no_change_finding(v: &Value) -> Finding {
+    let effect = &v["art"]["pooled"]["effect"];
+    let tost = &v["equivalence"]["pooled"];
+    let ours = match tost_text(tost) {
+        Some(t) => format!("{t}; {}", f_text(effect)),
+        None => f_text(effect),
+    };
+    finding(
+        "Adding wiping data does not change repositioning's error (Fig 6A): tested as equivalence of 9 added and none",
+        "F(3, 16) = 0.62, p = 0.61 (n.s., read as no change)",
+        ours,
+        no_difference_verdict(
+            tost,
+            num(&effect["p"]),
+            "adding wiping changes repositioning's error (ANOVA significant)",
+        ),
+    )
+    .with_effect(format!(
+        "9 added − none, pooled: {}",
+        effect_text(&v["most_minus_none"]["pooled"])
+    ))
+}
+
+/// Fig 6B: wiping's errors rise with added repositioning data.
+fn rise_finding(v: &Value) -> Finding {
+    let effect = &v["art"]["pooled"]["effect"];
+    let means: Vec<Option<f64>> = v["per_network"][0]
+        .as_array()
+        .map(|c| c.iter().map(mean_of).collect())
+        .unwrap_or_default();
+    let rising = means
+        .first()
+        .copied()
+        .flatten()
+        .zip(means.last().copied().flatten());
+    finding(
+        "Adding repositioning data raises wiping's error (Fig 6B)",
+        "F(3, 16) = 19.16, p < 0.001",
+        format!(
+            "{}; pooled error with 0 / 3 / 6 / 9 added: {}",
+            f_text(effect),
+            means
+                .iter()
+                .map(|m| m.map_or("–".into(), |m| format!("{m:.3e}")))
+                .collect::<Vec<_>>()
+                .join(" / ")
+        ),
+        verdict(
+            num(&effect["p"]),
+            true,
+            rising.is_none_or(|(first, last)| first < last),
+        ),
+    )
+    .with_effect(format!(
+        "9 added − none, pooled: {}",
+        effect_text(&v["most_minus_none"]["pooled"])
+    ))
+}
+
+/// The number of sequences a condition adds (`wiping 9 + repositioning 3` → `3`).
+fn added(label: &str) -> String {
+    label.rsplit(' ').next().unwrap_or("").to_string()
+}
+
+/// Fig 6B's Holm contrasts the paper reports, each with the raw difference of the
+/// conditions' per-network pooled errors (independent groups) beside its p.
+fn holm_findings(v: &Value) -> Vec<Finding> {
+    let contrasts = v["art"]["pooled"]["contrasts"].as_array();
+    // A condition's per-network pooled errors, by how many sequences it adds.
+    let group = |count: &str| -> Vec<f64> {
+        let index = v["conditions"].as_array().and_then(|c| {
+            c.iter()
+                .position(|x| added(x.as_str().unwrap_or("")) == count)
+        });
+        index
+            .and_then(|i| v["per_network"][0].get(i)?.as_array().cloned())
+            .map(|values| values.iter().filter_map(num).collect())
+            .unwrap_or_default()
+    };
+    let mut out = Vec::new();
+    for (few, many, paper_p) in [
+        ("0", "6", "p < 0.001"),
+        ("0", "9", "p < 0.001"),
+        ("3", "6", "p = 0.0033"),
+        ("3", "9", "p = 0.0033"),
+    ] {
+        let contrast = contrasts.and_then(|c| {
+            c.iter().find(|x| {
+                let (a, b) = (
+                    added(x["a"].as_str().unwrap_or("")),
+                    added(x["b"].as_str().unwrap_or("")),
+                );
+                (a == few && b == many) || (a == many && b == few)
+            })
+        });
+        let p = contrast.and_then(|x| num(&x["p_holm"]));
+        // Lower error (rank) with fewer added sequences.
+        let lower = contrast.is_none_or(|x| {
+            let d = num(&x["rank_difference"]).unwrap_or(0.0);
+            if added(x["a"].as_str().unwrap_or("")) == few {
+                d < 0.0
+            } else {
+                d > 0.0
+            }
+        });
+        let difference =
+            serde_json::to_value(crate::stats::difference(&group(many), &group(few), false))
+                .unwrap_or(Value::Null);
+        out.push(
+            finding(
+                &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
+                paper_p,
+                format!("ART-C, Holm over the 6 pairs: {}", p_text(p)),
+                verdict(p, true, lower),
+            )
+            .with_effect(format!("{many} added − {few}, pooled: {}", effect_text(&difference))),
+        );
+    }
+    out
+}
+
+/// Findings of a direction not yet complete: no statistic, no effect, no verdict.
+fn untested(findings: &mut [Finding], note: &str) {
+    for f in findings {
+        f.ours = "not tested: the direction is not complete".into();
+        f.effect = "–".into();
+        f.agrees = None;
+        f.note = note.into();
+    }
+}
+
+/// The findings as a Markdown section; `coverage` says how much of the design the results
+/// cover ("5 of the design's 5 networks").
+pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({networks} of the design's {design_networks} networks). Agrees = same direction and same verdict at p < 0.05 (Fig 4A's \"no difference\": equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d, and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d, and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -587,13 +672,12 @@ mod tests {
 
     #[test]
     fn interference_reads_the_pooled_contrasts() {
-        let contrast = |a: &str, b: &str, d: f64, p: f64| {
-            json!({"a": format!("wiping 9 + repositioning {a}"),
-                   "b": format!("wiping 9 + repositioning {b}"),
-                   "rank_difference": d, "p_holm": p})
-        };
+        let label = |k: &str| format!("wiping 9 + repositioning {k}");
+        let contrast = |a: &str, b: &str, d: f64, p: f64| json!({"a": label(a), "b": label(b), "rank_difference": d, "p_holm": p});
         let r = json!({"wiping": {
-            "per_network": [[[1.0, 1.0], [2.0], [3.0], [4.0]], [], [], []],
+            "conditions": [label("0"), label("3"), label("6"), label("9")],
+            "per_network": [[[1.0, 1.2], [2.0, 2.2], [3.0, 3.2], [4.0, 4.2]], [], [], []],
+            "complete": true,
             "art": {"pooled": {
                 "effect": {"f": 9.0, "df1": 3.0, "df2": 8.0, "p": 0.006},
                 "contrasts": [
@@ -607,11 +691,65 @@ mod tests {
         let f = findings(Experiment::Interference, &r);
         assert_eq!(f.len(), 5);
         assert_eq!(f[0].agrees, Some(true), "{:?}", f[0]);
-        assert!(f[0].ours.contains("1.000e0 / 2.000e0"), "{}", f[0].ours);
+        assert!(f[0].ours.contains("1.100e0 / 2.100e0"), "{}", f[0].ours);
         assert_eq!(f[1].agrees, Some(true));
         assert_eq!(f[2].agrees, Some(false));
         assert_eq!(f[3].agrees, Some(false));
         assert!(f[3].note.contains("opposite"));
         assert_eq!(f[4].agrees, Some(true));
+        // Every Holm contrast has its raw difference with its interval beside its p:
+        // 6 added − 0 = 2 (independent groups, SD 0.1414 each).
+        assert!(
+            f[1].effect
+                .starts_with("6 added − 0, pooled: Δ = 2.000e0 ["),
+            "{}",
+            f[1].effect
+        );
+        assert!(
+            f[1..].iter().all(|x| x.effect.contains("detectable")),
+            "{f:?}"
+        );
+
+        // An incomplete direction is not tested, whatever its partial numbers say.
+        let mut partial = r.clone();
+        partial["wiping"]["complete"] = json!(false);
+        partial["wiping"]["trainings_done"] = json!(7);
+        partial["wiping"]["trainings_planned"] = json!(20);
+        let f = findings(Experiment::Interference, &partial);
+        assert!(
+            f.iter().all(|x| x.agrees.is_none() && x.effect == "–"),
+            "{f:?}"
+        );
+        assert!(
+            f[0].note.contains("7 of the direction's 20"),
+            "{}",
+            f[0].note
+        );
+    }
+
+    #[test]
+    fn repositioning_no_change_is_tested_as_equivalence() {
+        let r = |equivalent: bool, p: f64| {
+            json!({"repositioning": {
+                "complete": true,
+                "art": {"pooled": {"effect": {"f": 1.0, "df1": 3.0, "df2": 16.0, "p": p}}},
+                "equivalence": {"pooled": {"mean": 1e-5, "ci90": [-2e-5, 4e-5], "margin": 3e-4,
+                    "p": if equivalent { 0.01 } else { 0.3 }, "equivalent": equivalent}},
+            }})
+        };
+        let agrees =
+            |equivalent: bool, p: f64| findings(Experiment::Interference, &r(equivalent, p));
+        let f = agrees(true, 0.6);
+        assert_eq!(f[0].agrees, Some(true), "{:?}", f[0]);
+        assert!(
+            f[0].ours.starts_with("TOST: difference 1.000e-5"),
+            "{}",
+            f[0].ours
+        );
+        // Not significant is not enough: without equivalence it is undecided.
+        let f = agrees(false, 0.6);
+        assert_eq!(f[0].agrees, None, "{:?}", f[0]);
+        assert!(f[0].note.contains("undecided"), "{}", f[0].note);
+        assert_eq!(agrees(false, 0.01)[0].agrees, Some(false));
     }
 }

@@ -25,6 +25,8 @@ pub const BOUNDARY_HALF_WIDTH: usize = 3;
 pub const PERMUTATIONS: usize = 2000;
 
 struct Results {
+    /// The experiment's folder.
+    dir: PathBuf,
     trains: Vec<TrainResult>,
     /// The inference runs every analysis uses.
     infers: Vec<(InferResult, Option<Vec<Vec<f32>>>)>,
@@ -38,6 +40,7 @@ struct Results {
 
 fn collect(plan: &Plan, dir: &Path) -> Result<Results> {
     let mut r = Results {
+        dir: dir.to_path_buf(),
         trains: Vec::new(),
         infers: Vec::new(),
         paths: BTreeMap::new(),
@@ -139,11 +142,11 @@ fn effects_table(out: &mut String, effects: &[Effect]) {
 }
 
 fn contrasts_table(out: &mut String, contrasts: &[Contrast]) {
-    out.push_str("| contrast | rank difference | t | df | p | p (Holm) | Cohen's d |\n|---|---|---|---|---|---|---|\n");
+    out.push_str("| contrast | rank difference | t | df | p | p (Holm) | Cohen's d | raw difference [95% CI] |\n|---|---|---|---|---|---|---|---|\n");
     for c in contrasts {
         let _ = writeln!(
             out,
-            "| {} vs {} | {} | {} | {} | {} | {} | {} |",
+            "| {} vs {} | {} | {} | {} | {} | {} | {} | {} |",
             c.a,
             c.b,
             sig(c.rank_difference),
@@ -151,13 +154,26 @@ fn contrasts_table(out: &mut String, contrasts: &[Contrast]) {
             c.df,
             p_text(c.p),
             p_text(c.p_holm),
-            sig(c.cohen_d)
+            sig(c.cohen_d),
+            difference_text(c.difference.as_ref()),
         );
     }
 }
 
-/// Rebuilds `DIR/report/` (report.md, summary.json, figures) from the results.
+/// "m [lo, hi]", or "–" without one.
+fn difference_text(d: Option<&stats::Difference>) -> String {
+    d.map_or("–".into(), |d| {
+        format!("{} [{}, {}]", sig(d.mean), sig(d.ci95[0]), sig(d.ci95[1]))
+    })
+}
+
+/// Rebuilds `DIR/report/` (report.md, summary.json, figures) from the results. One at a
+/// time in a process: jobs finishing together may each complete a part of the design.
 pub fn write(dir: &Path) -> Result<PathBuf> {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let plan = Plan::load(dir)?;
     let results = collect(&plan, dir)?;
     let out_dir = dir.join("report");
@@ -185,17 +201,10 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
     let findings = crate::paper::findings(plan.experiment, &body);
-    let networks_in_results = results
-        .infers
-        .iter()
-        .map(|(x, _)| x.network)
-        .collect::<std::collections::BTreeSet<_>>()
-        .len();
     md.push_str(&crate::paper::markdown(
         &findings,
         &stamp,
-        networks_in_results,
-        plan.design.networks,
+        &coverage(&plan, &results),
     ));
     summary["results"] = body;
     summary["paper"] = serde_json::to_value(&findings)?;
@@ -232,6 +241,33 @@ Every inference run (one row per network, test sequence, condition and trial; er
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(out_dir)
+}
+
+/// How much of the design the results cover: networks, or for interference (one network
+/// per training) trainings of the design's.
+fn coverage(plan: &Plan, results: &Results) -> String {
+    let covered = results
+        .infers
+        .iter()
+        .map(|(x, _)| (x.training.as_str(), x.network))
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    if plan.experiment == Experiment::Interference {
+        let planned = plan
+            .jobs
+            .iter()
+            .filter(|j| matches!(j.kind, JobKind::Train { .. }))
+            .count();
+        format!(
+            "{covered} of the design's {planned} trainings, {} networks per condition",
+            plan.design.networks
+        )
+    } else {
+        format!(
+            "{covered} of the design's {} networks",
+            plan.design.networks
+        )
+    }
 }
 
 /// The report's opening: the design at its scale, and what is missing or diverged.
@@ -1008,8 +1044,10 @@ struct TaskComparison {
     equivalence: Option<stats::Equivalence>,
 }
 
-/// The equivalence margin of the uncertainty experiment's "no difference" (Fig 4A):
-/// ±10% of the mean prior sigma of the two tasks, fixed before the runs.
+/// The equivalence margin of a "no difference" claim, relative to the level compared:
+/// Fig 4A's (±10% of the mean prior sigma of the two tasks, fixed before the runs) and
+/// Fig 6A's (±10% of the none-added condition's mean error; the same rule, fixed on
+/// 2026-11-29 before either interference direction was complete, docs/experiments.md).
 pub const EQUIVALENCE_MARGIN: f64 = 0.10;
 
 fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<Value> {
@@ -1053,7 +1091,7 @@ fn uncertainty(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<
             let t = stats::paired_t(&av, &bv);
             let level = (mean_se(&av).0 + mean_se(&bv).0) / 2.0;
             let equivalence = (measure == 0)
-                .then(|| stats::equivalence(&av, &bv, EQUIVALENCE_MARGIN * level.abs()))
+                .then(|| stats::equivalence(&av, &bv, EQUIVALENCE_MARGIN * level.abs(), true))
                 .flatten();
             let _ = writeln!(
                 md,
@@ -1219,7 +1257,7 @@ fn robustness(r: &Results, out: &Path, stamp: &str, md: &mut String) -> Result<V
                 e.effect = name.into();
             }
             effects_table(md, &effects);
-            md.push_str("\n### ART-C contrasts (Holm within each family)\n\nVision levels:\n\n");
+            md.push_str("\n### ART-C contrasts (Holm within each family)\n\nRaw difference: over networks, paired (each network's mean of the level or cell), with its 95% CI.\n\nVision levels:\n\n");
             contrasts_table(md, &a.a_contrasts);
             md.push_str("\nCells:\n\n");
             contrasts_table(md, &a.cell_contrasts);
@@ -1265,26 +1303,49 @@ fn pooled_error(x: &InferResult) -> Option<f64> {
 }
 
 /// The table of the difference most added − none per measure (independent networks),
-/// with its 95% CI and the detectable difference; the same as JSON.
+/// with its 95% CI and the detectable difference, and the equivalence test of "no change"
+/// (Fig 6A) against ±`EQUIVALENCE_MARGIN` of the none condition's mean; both as JSON.
 fn most_minus_none(
     names: &[&str],
     per_measure: &[Vec<Vec<f64>>],
     md: &mut String,
-) -> serde_json::Map<String, Value> {
+) -> (
+    serde_json::Map<String, Value>,
+    serde_json::Map<String, Value>,
+) {
     let mut differences = serde_json::Map::new();
+    let mut equivalences = serde_json::Map::new();
     md.push_str(
-        "| measure | most added − none | 95% CI | d | detectable |\n|---|---|---|---|---|\n",
+        "| measure | most added − none | 95% CI | d | detectable | equivalence margin | 90% CI | TOST p | equivalent |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for (name, groups) in names.iter().zip(per_measure) {
-        let d = match (groups.first(), groups.last()) {
-            (Some(none), Some(most)) if groups.len() > 1 => stats::difference(most, none, false),
-            _ => None,
+        let (d, e) = match (groups.first(), groups.last()) {
+            (Some(none), Some(most)) if groups.len() > 1 => (
+                stats::difference(most, none, false),
+                stats::equivalence(
+                    most,
+                    none,
+                    EQUIVALENCE_MARGIN * mean_se(none).0.abs(),
+                    false,
+                ),
+            ),
+            _ => (None, None),
         };
+        let equivalence_cells = e.as_ref().map_or("| | | |".to_string(), |e| {
+            format!(
+                "±{} | [{}, {}] | {} | {} |",
+                sig(e.margin),
+                sig(e.ci90[0]),
+                sig(e.ci90[1]),
+                p_text(e.p),
+                if e.equivalent { "yes" } else { "no" }
+            )
+        });
         match &d {
             Some(d) => {
                 let _ = writeln!(
                     md,
-                    "| {name} | {} | [{}, {}] | {} | ±{} |",
+                    "| {name} | {} | [{}, {}] | {} | ±{} | {equivalence_cells}",
                     sig(d.mean),
                     sig(d.ci95[0]),
                     sig(d.ci95[1]),
@@ -1293,12 +1354,106 @@ fn most_minus_none(
                 );
             }
             None => {
-                let _ = writeln!(md, "| {name} | – | | | |");
+                let _ = writeln!(md, "| {name} | – | | | | {equivalence_cells}");
             }
         }
         differences.insert(name.to_string(), json!(d));
+        equivalences.insert(name.to_string(), json!(e));
     }
-    differences
+    (differences, equivalences)
+}
+
+/// The primary task of an interference training condition or of a job that reads one
+/// (`repositioning 9 + wiping 3` → `repositioning`).
+fn primary_of<'a>(plan: &'a Plan, job: &crate::plan::Job) -> Option<&'a str> {
+    let condition = match &job.kind {
+        JobKind::Train { condition, .. } => condition,
+        JobKind::Infer { training, .. } => training,
+    };
+    plan.design
+        .primary_tasks
+        .iter()
+        .find(|p| condition.starts_with(p.as_str()))
+        .map(String::as_str)
+}
+
+/// The jobs of one direction of the interference experiment: its trainings and their
+/// inference runs.
+fn direction_jobs(plan: &Plan, primary: &str) -> Vec<usize> {
+    plan.jobs
+        .iter()
+        .filter(|j| primary_of(plan, j) == Some(primary))
+        .map(|j| j.id)
+        .collect()
+}
+
+/// The part of the design job `id` belongs to whose analysis runs before the whole plan
+/// is done (an interference direction of a two-direction plan), once every training and
+/// inference run of it is done: its name (`the repositioning direction`). The runner asks
+/// after each job it finishes and rebuilds the report when a part is named.
+pub fn completed_by(plan: &Plan, dir: &Path, id: usize) -> Option<String> {
+    if plan.experiment != Experiment::Interference || plan.design.primary_tasks.len() < 2 {
+        return None;
+    }
+    let primary = primary_of(plan, plan.jobs.get(id)?)?;
+    direction_jobs(plan, primary)
+        .iter()
+        .all(|&j| plan.is_done(dir, j))
+        .then(|| format!("the {primary} direction"))
+}
+
+/// A direction's conditions in plan order, and how many networks each plans (the
+/// design, not what is done so far).
+fn planned_conditions(plan: &Plan, primary: &str) -> (Vec<String>, BTreeMap<String, usize>) {
+    let mut conditions: Vec<String> = Vec::new();
+    let mut planned: BTreeMap<String, usize> = BTreeMap::new();
+    for job in &plan.jobs {
+        if let JobKind::Train { condition, .. } = &job.kind
+            && primary_of(plan, job) == Some(primary)
+        {
+            if !conditions.contains(condition) {
+                conditions.push(condition.clone());
+            }
+            *planned.entry(condition.clone()).or_default() += 1;
+        }
+    }
+    (conditions, planned)
+}
+
+/// A complete direction's tests, per measure: most added − none with the equivalence
+/// test, and the one-way ART ANOVA with its contrasts; into the report and `direction`.
+fn direction_tests(
+    names: &[&str],
+    conditions: &[String],
+    per_measure: &[Vec<Vec<f64>>],
+    direction: &mut Value,
+    md: &mut String,
+) -> Result<()> {
+    let mut tests = serde_json::Map::new();
+    let (differences, equivalences) = most_minus_none(names, per_measure, md);
+    md.push('\n');
+    for (name, groups) in names.iter().zip(per_measure) {
+        match stats::art_one_way(conditions, groups) {
+            Some(a) => {
+                let _ = writeln!(md, "{name}:\n");
+                effects_table(md, std::slice::from_ref(&a.effect));
+                md.push('\n');
+                contrasts_table(md, &a.contrasts);
+                md.push('\n');
+                tests.insert(name.to_string(), serde_json::to_value(&a)?);
+            }
+            None => {
+                let _ = writeln!(
+                    md,
+                    "{name}: too few networks per condition for the ANOVA.\n"
+                );
+            }
+        }
+    }
+    direction["art"] = Value::Object(tests);
+    direction["most_minus_none"] = Value::Object(differences);
+    direction["equivalence"] = Value::Object(equivalences);
+    Ok(())
 }
 
 fn interference(
@@ -1331,25 +1486,34 @@ fn interference(
     ];
     let _ = writeln!(
         md,
-        "## Multitask interference ({stamp})\n\nEach primary task's 9 learning sequences plus 0 / 3 / 6 / 9 of the other task's (3 = one per bed height, 6 = two), one normalisation for all; errors of the primary task's test sequences (reconstruction MSE, everything observed). Pre-specified measures: **pooled** = the paper's, the mean squared error over all {all_dims} sensory dimensions (every vision resolution and proprioception; vision dominates by dimension count); beside it vision (the {top}x{top} images), proprioception, and the equal-weight mean of the two. Per network, mean ± SE over networks; one-way ART ANOVA over the conditions (independent networks), Holm-corrected ART-C contrasts, Cohen's d of the raw errors; and the difference most added − none with its 95% CI and the smallest difference the design detects (80% power, two-sided t-test from the observed variance).\n"
+        "## Multitask interference ({stamp})\n\nEach primary task's 9 learning sequences plus 0 / 3 / 6 / 9 of the other task's (3 = one per bed height, 6 = two), one normalisation for all; errors of the primary task's test sequences (reconstruction MSE, everything observed). Pre-specified measures: **pooled** = the paper's, the mean squared error over all {all_dims} sensory dimensions (every vision resolution and proprioception; vision dominates by dimension count); beside it vision (the {top}x{top} images), proprioception, and the equal-weight mean of the two. Per network, mean ± SE over networks; one-way ART ANOVA over the conditions (independent groups, as the paper's one-way ANOVA: each condition's network k starts from seed k but learns other data, and the pre-specified analysis does not pair networks by seed, which is conservative if same-seed networks err alike), Holm-corrected ART-C contrasts, Cohen's d and the raw difference with its 95% CI; the difference most added − none with its 95% CI and the smallest difference the design detects (80% power, two-sided t-test from the observed variance); and \"no change\" (Fig 6A) tested as equivalence of most added and none: two one-sided tests against ±{:.0}% of the none condition's mean, equivalent when the 90% CI lies inside. A direction is tested only when every training and inference run of its plan is done.\n",
+        EQUIVALENCE_MARGIN * 100.0
     );
     let mut json_out = serde_json::Map::new();
     for primary in &plan.design.primary_tasks {
-        let conditions: Vec<String> = {
-            let mut c: Vec<String> = r
-                .trains
-                .iter()
-                .filter(|t| t.condition.starts_with(primary.as_str()))
-                .map(|t| t.condition.clone())
-                .collect();
-            c.dedup();
-            c
-        };
+        let (conditions, planned) = planned_conditions(plan, primary);
+        let jobs = direction_jobs(plan, primary);
+        let jobs_done = jobs.iter().filter(|&&j| plan.is_done(&r.dir, j)).count();
+        let complete = !jobs.is_empty() && jobs_done == jobs.len();
+        let trainings_done = r
+            .trains
+            .iter()
+            .filter(|t| t.condition.starts_with(primary.as_str()))
+            .count();
+        let trainings_planned: usize = planned.values().sum();
         let _ = writeln!(md, "### Primary task: {primary}\n");
-        md.push_str("| training | pooled | vision | proprioception | equal weight |\n|---|---|---|---|---|\n");
+        if !complete {
+            let _ = writeln!(
+                md,
+                "**No test yet**: {trainings_done} of this direction's {trainings_planned} trainings and {jobs_done} of its {} jobs are done. The tests run on the complete design only; the means below are descriptive.\n",
+                jobs.len()
+            );
+        }
+        md.push_str("| training | networks | pooled | vision | proprioception | equal weight |\n|---|---|---|---|---|---|\n");
         let mut per_measure: Vec<Vec<Vec<f64>>> = vec![Vec::new(); measures.len()];
         for c in &conditions {
-            let mut row = format!("| {c} |");
+            let done = r.trains.iter().filter(|t| &t.condition == c).count();
+            let mut row = format!("| {c} | {done} of {} |", planned[c]);
             for (k, (_, f)) in measures.iter().enumerate() {
                 let nets: Vec<f64> = per_network(&r.infers, &|x| &x.training == c, *f)
                     .into_values()
@@ -1375,46 +1539,28 @@ fn interference(
             })
             .collect();
         let file = format!("interference_{primary}.png");
-        bar_chart(
-            &out.join(&file),
-            &format!("{primary}: error by training condition ({stamp})"),
-            "MSE",
-            &conditions,
-            &groups,
-        )?;
+        let title = if complete {
+            format!("{primary}: error by training condition ({stamp})")
+        } else {
+            format!(
+                "{primary}: error by training condition ({stamp}; {trainings_done} of {trainings_planned} trainings, no test yet)"
+            )
+        };
+        bar_chart(&out.join(&file), &title, "MSE", &conditions, &groups)?;
         let _ = writeln!(md, "\n![{primary}]({file})\n");
-        let mut tests = serde_json::Map::new();
-        let names: Vec<&str> = measures.iter().map(|(n, _)| *n).collect();
-        let differences = most_minus_none(&names, &per_measure, md);
-        md.push('\n');
-        for (k, (name, _)) in measures.iter().enumerate() {
-            match stats::art_one_way(&conditions, &per_measure[k]) {
-                Some(a) => {
-                    let _ = writeln!(md, "{name}:\n");
-                    effects_table(md, std::slice::from_ref(&a.effect));
-                    md.push('\n');
-                    contrasts_table(md, &a.contrasts);
-                    md.push('\n');
-                    tests.insert(name.to_string(), serde_json::to_value(&a)?);
-                }
-                None => {
-                    let _ = writeln!(
-                        md,
-                        "{name}: too few networks per condition for the ANOVA.\n"
-                    );
-                }
-            }
+        let mut direction = json!({
+            "conditions": conditions,
+            "measures": measures.iter().map(|(n, _)| *n).collect::<Vec<_>>(),
+            "per_network": per_measure,
+            "complete": complete,
+            "trainings_done": trainings_done,
+            "trainings_planned": trainings_planned,
+        });
+        if complete {
+            let names: Vec<&str> = measures.iter().map(|(n, _)| *n).collect();
+            direction_tests(&names, &conditions, &per_measure, &mut direction, md)?;
         }
-        json_out.insert(
-            primary.clone(),
-            json!({
-                "conditions": conditions,
-                "measures": measures.iter().map(|(n, _)| *n).collect::<Vec<_>>(),
-                "per_network": per_measure,
-                "art": tests,
-                "most_minus_none": differences,
-            }),
-        );
+        json_out.insert(primary.clone(), direction);
     }
     Ok(Value::Object(json_out))
 }

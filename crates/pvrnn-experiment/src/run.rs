@@ -56,6 +56,15 @@ pub enum Event<'a> {
         name: &'a str,
         step: usize,
     },
+    /// Job `id` completed `part` of the design whose analysis runs before the whole plan
+    /// is done (an interference direction, [`crate::report::completed_by`]): the report was
+    /// rebuilt (its `report.md`), or could not be (why). Sent by
+    /// [`crate::reporting::run_with`].
+    Reported {
+        id: usize,
+        part: &'a str,
+        report: std::result::Result<&'a Path, &'a str>,
+    },
 }
 
 /// Stopped on request (Ctrl-C, SIGTERM); checkpoints are written.
@@ -1090,13 +1099,30 @@ fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()>
 }
 
 /// The trained network a training job's inference runs read: its best-validated
-/// checkpoint when the convergence rule chose it, else the final checkpoint.
+/// checkpoint when the convergence rule chose it, else the final checkpoint. A file that
+/// holds the network of another iteration than the training's result names (a stale best
+/// network left beside a checkpoint resumed from before it) is an error, not a silent
+/// substitute.
 pub fn network_path(plan: &Plan, dir: &Path, train_job: usize) -> Result<std::path::PathBuf> {
     let trained = read_train_result(&plan.result_path(dir, train_job))?;
-    Ok(match trained.network_iteration {
-        Some(n) if n != trained.iterations => plan.best_path(dir, train_job),
-        _ => plan.checkpoint_path(dir, train_job),
-    })
+    let used = trained.network_iteration.unwrap_or(trained.iterations);
+    let path = if used != trained.iterations {
+        plan.best_path(dir, train_job)
+    } else {
+        plan.checkpoint_path(dir, train_job)
+    };
+    let file = io::TensorFile::open(&path)
+        .with_context(|| format!("{}: the trained network of job {train_job}", path.display()))?;
+    if let Some(held) = io::checkpoint_iteration(&file)
+        && held != used
+    {
+        bail!(
+            "{} holds the network of iteration {held}, but job {train_job}'s result ({}) uses iteration {used}: the file is stale; train the job again (remove its result and checkpoints)",
+            path.display(),
+            plan.result_path(dir, train_job).display()
+        );
+    }
+    Ok(path)
 }
 
 fn write_train_result(plan: &Plan, dir: &Path, id: usize, result: TrainResult) -> Result<()> {

@@ -111,34 +111,40 @@ fn t_quantile(q: f64, df: f64) -> Option<f64> {
     Some(StudentsT::new(0.0, 1.0, df).ok()?.inverse_cdf(q))
 }
 
-/// `a` − `b`: paired (same networks, same order) or independent groups.
-pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
+/// The mean difference `a` − `b` with the SD it is scaled by (of the differences when
+/// paired, pooled when independent), its standard error and degrees of freedom.
+fn spread(a: &[f64], b: &[f64], paired: bool) -> Option<(f64, f64, f64, f64)> {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let var = |v: &[f64]| {
         let m = mean(v);
         v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() as f64 - 1.0)
     };
-    let (diff, sd, se, df) = if paired {
+    if paired {
         if a.len() != b.len() || a.len() < 2 {
             return None;
         }
         let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
         let n = d.len() as f64;
         let sd = var(&d).sqrt();
-        (mean(&d), sd, sd / n.sqrt(), n - 1.0)
+        Some((mean(&d), sd, sd / n.sqrt(), n - 1.0))
     } else {
         if a.len() < 2 || b.len() < 2 {
             return None;
         }
         let (na, nb) = (a.len() as f64, b.len() as f64);
         let pooled = (((na - 1.0) * var(a) + (nb - 1.0) * var(b)) / (na + nb - 2.0)).sqrt();
-        (
+        Some((
             mean(a) - mean(b),
             pooled,
             pooled * (1.0 / na + 1.0 / nb).sqrt(),
             na + nb - 2.0,
-        )
-    };
+        ))
+    }
+}
+
+/// `a` − `b`: paired (same networks, same order) or independent groups.
+pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
+    let (diff, sd, se, df) = spread(a, b, paired)?;
     let t975 = t_quantile(1.0 - ALPHA / 2.0, df)?;
     let t80 = t_quantile(POWER, df)?;
     let t = t_statistic(diff, se);
@@ -153,12 +159,13 @@ pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
     })
 }
 
-/// Two one-sided tests (TOST) of the paired difference a − b against the equivalence
-/// margin ±`margin`: equivalent when both one-sided tests reject at 0.05, i.e. the 90%
-/// confidence interval lies inside the margin.
+/// Two one-sided tests (TOST) of the difference a − b (paired, or independent groups)
+/// against the equivalence margin ±`margin`: equivalent when both one-sided tests reject
+/// at 0.05, i.e. the 90% confidence interval lies inside the margin.
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct Equivalence {
-    pub n: usize,
+    pub paired: bool,
+    pub n: [usize; 2],
     pub margin: f64,
     pub mean: f64,
     pub ci90: [f64; 2],
@@ -167,16 +174,11 @@ pub struct Equivalence {
     pub equivalent: bool,
 }
 
-pub fn equivalence(a: &[f64], b: &[f64], margin: f64) -> Option<Equivalence> {
-    if a.len() != b.len() || a.len() < 2 || margin.is_nan() || margin <= 0.0 {
+pub fn equivalence(a: &[f64], b: &[f64], margin: f64, paired: bool) -> Option<Equivalence> {
+    if margin.is_nan() || margin <= 0.0 {
         return None;
     }
-    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
-    let n = d.len() as f64;
-    let mean = d.iter().sum::<f64>() / n;
-    let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-    let se = sd / n.sqrt();
-    let df = n - 1.0;
+    let (mean, _, se, df) = spread(a, b, paired)?;
     let dist = StudentsT::new(0.0, 1.0, df).ok()?;
     let t95 = dist.inverse_cdf(1.0 - ALPHA);
     let (p_lower, p_upper) = if se > 0.0 {
@@ -193,7 +195,8 @@ pub fn equivalence(a: &[f64], b: &[f64], margin: f64) -> Option<Equivalence> {
     };
     let p = p_lower.max(p_upper);
     Some(Equivalence {
-        n: d.len(),
+        paired,
+        n: [a.len(), b.len()],
         margin,
         mean,
         ci90: [mean - t95 * se, mean + t95 * se],
@@ -267,6 +270,9 @@ pub struct Contrast {
     pub p_holm: Option<f64>,
     /// Cohen's d of the raw values (a - b over their pooled SD).
     pub cohen_d: f64,
+    /// The raw difference a − b with its 95% CI: over networks, paired in a design blocked
+    /// by network (each network's mean of the level), independent between groups.
+    pub difference: Option<Difference>,
 }
 
 /// Values of a blocked two-factor design: `y[block][i][j]`, one value per block and cell.
@@ -439,15 +445,23 @@ fn cohen_d(a: &[f64], b: &[f64]) -> f64 {
     if pooled > 0.0 { diff / pooled } else { 0.0 }
 }
 
+/// The raw values of the levels compared: `values[i]` for Cohen's d; `units[i]`, one per
+/// network (in block order when `paired`), for the difference and its interval.
+struct Raw<'a> {
+    values: &'a [Vec<f64>],
+    units: &'a [Vec<f64>],
+    paired: bool,
+}
+
 /// Pairwise contrasts of `means` (mean ranks) with `count` values each, error `ms`, `df`,
-/// Holm-adjusted together; `raw[i]` are level i's raw values for Cohen's d.
+/// Holm-adjusted together.
 fn pairwise(
     labels: &[String],
     means: &[f64],
     count: &[usize],
     ms: f64,
     df: f64,
-    raw: &[Vec<f64>],
+    raw: &Raw<'_>,
 ) -> Vec<Contrast> {
     let mut out = Vec::new();
     for i in 0..means.len() {
@@ -463,7 +477,8 @@ fn pairwise(
                 df,
                 p: t_p_value(t, df),
                 p_holm: None,
-                cohen_d: cohen_d(&raw[i], &raw[j]),
+                cohen_d: cohen_d(&raw.values[i], &raw.values[j]),
+                difference: difference(&raw.units[i], &raw.units[j], raw.paired),
             });
         }
     }
@@ -574,6 +589,20 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
                 .collect()
         })
         .collect();
+    // Each network's mean of a level, for the paired differences.
+    let block_means = |level: &dyn Fn(&[Vec<f64>]) -> Vec<f64>| -> Vec<Vec<f64>> {
+        let per_block: Vec<Vec<f64>> = y.iter().map(|blk| level(blk)).collect();
+        let levels = per_block.first().map_or(0, Vec::len);
+        (0..levels)
+            .map(|l| per_block.iter().map(|m| m[l]).collect())
+            .collect()
+    };
+    let units_a = block_means(&|blk| blk.iter().map(|r| mean_se(r).0).collect());
+    let units_b = block_means(&|blk| {
+        (0..b)
+            .map(|j| blk.iter().map(|r| r[j]).sum::<f64>() / a as f64)
+            .collect()
+    });
     let (ms_a, df_a) = ranked[0].error_ms(0);
     let a_contrasts = pairwise(
         &design.a_levels,
@@ -581,7 +610,11 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
         &vec![n * b; a],
         ms_a,
         df_a,
-        &raw_a,
+        &Raw {
+            values: &raw_a,
+            units: &units_a,
+            paired: true,
+        },
     );
     let b_contrasts = if b > 1 {
         let (ms_b, df_b) = ranked[1].error_ms(1);
@@ -591,7 +624,11 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
             &vec![n * a; b],
             ms_b,
             df_b,
-            &raw_b,
+            &Raw {
+                values: &raw_b,
+                units: &units_b,
+                paired: true,
+            },
         )
     } else {
         Vec::new()
@@ -620,7 +657,11 @@ pub fn art_two_way(design: &Blocked2) -> Option<ArtTwoWay> {
             &vec![n; cells],
             ms_cells,
             df_cells,
-            &raw_cells,
+            &Raw {
+                values: &raw_cells,
+                units: &raw_cells,
+                paired: true,
+            },
         )
     } else {
         Vec::new()
@@ -678,7 +719,12 @@ pub fn art_one_way(labels: &[String], groups: &[Vec<f64>]) -> Option<ArtOneWay> 
         0.0
     };
     let counts: Vec<usize> = groups.iter().map(Vec::len).collect();
-    let contrasts = pairwise(labels, &means, &counts, ss_within / df2, df2, groups);
+    let raw = Raw {
+        values: groups,
+        units: groups,
+        paired: false,
+    };
+    let contrasts = pairwise(labels, &means, &counts, ss_within / df2, df2, &raw);
     Some(ArtOneWay { effect, contrasts })
 }
 
@@ -709,15 +755,30 @@ mod tests {
         assert!((i.mean + 3.0).abs() < 1e-12 && (i.cohen_d + 3.0).abs() < 1e-12);
         assert!((i.ci95[1] - (-3.0 + 2.776_445 * (2.0f64 / 3.0).sqrt())).abs() < 1e-5);
         // TOST: mean difference 2, SE 1/sqrt(3), t_0.95(2) = 2.919986.
-        let e = equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 5.0).unwrap();
+        let e = equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 5.0, true).unwrap();
         assert!((e.ci90[1] - (2.0 + 2.919_986 / 3f64.sqrt())).abs() < 1e-5);
         assert!(e.equivalent, "CI90 [1.3, 3.7] inside ±5: {e:?}");
         assert!(
-            !equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 2.5)
+            !equivalence(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0], 2.5, true)
                 .unwrap()
                 .equivalent
         );
-        assert!(equivalence(&[1.0], &[1.0], 1.0).is_none());
+        assert!(equivalence(&[1.0], &[1.0], 1.0, true).is_none());
+        // Independent groups: mean difference −3, pooled SD 1, SE sqrt(2/3), df 4,
+        // t_0.95(4) = 2.131847: 90% CI [−4.741, −1.259].
+        let e = equivalence(&[1.0, 2.0, 3.0], &[4.0, 5.0, 6.0], 5.0, false).unwrap();
+        assert!(
+            (e.ci90[0] - (-3.0 - 2.131_847 * (2.0f64 / 3.0).sqrt())).abs() < 1e-5,
+            "{e:?}"
+        );
+        assert!(e.equivalent && !e.paired && e.n == [3, 3], "{e:?}");
+        assert!(
+            !equivalence(&[1.0, 2.0, 3.0], &[4.0, 5.0, 6.0], 4.0, false)
+                .unwrap()
+                .equivalent
+        );
+        // Independent groups need not be of one size, nor the same networks.
+        assert!(equivalence(&[1.0, 2.0], &[4.0, 5.0, 6.0], 5.0, false).is_some());
     }
 
     #[test]

@@ -346,6 +346,149 @@ fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
     );
 }
 
+/// Each interference direction is tested only on its complete design: with network 0
+/// alone the report gives descriptive means and no test; the job that finishes a direction
+/// is the one `report::completed_by` names (the front end then writes the report); and a
+/// complete direction has its ANOVA, every Holm contrast with its raw difference and
+/// interval, and the "no change" claim (Fig 6A) tested as equivalence.
+#[test]
+fn an_interference_direction_is_tested_once_complete() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    // Sequences of 12 steps: 16 trainings and 32 inference runs, as short as they go.
+    pvrnn_dataset::synthetic::caresim_like(&[590, 650, 710], 3, 1, 12)
+        .unwrap()
+        .write(&data)
+        .unwrap();
+    let out = tmp.path().join("interference");
+    let plan = Plan::new(Experiment::Interference, Scale::Smoke, &data, None, None).unwrap();
+    plan.save(&out).unwrap();
+    assert_eq!(plan.design.primary_tasks, ["repositioning", "wiping"]);
+    let go = AtomicBool::new(false);
+    // (job, part completed, whether its report then held that part's tests)
+    let completed = std::sync::Mutex::new(Vec::new());
+    let events = |e: Event<'_>| {
+        if let Event::Reported { id, part, report } = e {
+            let md = std::fs::read_to_string(report.unwrap()).unwrap();
+            let primary = part.split(' ').nth(1).unwrap().to_string();
+            let tested = !md.contains(&format!("### Primary task: {primary}\n\n**No test yet**"));
+            completed
+                .lock()
+                .unwrap()
+                .push((id, part.to_string(), tested));
+        }
+    };
+    let workers = pvrnn_experiment::run::Workers { jobs: 2, cohort: 1 };
+    let run = |selection| {
+        pvrnn_experiment::reporting::run_with(&out, &cpu(), "cpu", workers, selection, &go, &events)
+    };
+    run(Selection::Network(0)).unwrap();
+    assert!(completed.lock().unwrap().is_empty(), "{completed:?}");
+    let dir = report::write(&out).unwrap();
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert_eq!(
+        md.matches("**No test yet**: 4 of this direction's 8 trainings")
+            .count(),
+        2,
+        "{md}"
+    );
+    assert!(
+        md.contains("| 1 of 2 |") && !md.contains("| condition |"),
+        "{md}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let repositioning = &summary["results"]["repositioning"];
+    assert_eq!(repositioning["complete"], false);
+    assert!(repositioning["art"].is_null() && repositioning["equivalence"].is_null());
+    let findings = summary["paper"].as_array().unwrap();
+    assert!(
+        findings.iter().all(
+            |f| f["agrees"].is_null() && f["note"].as_str().unwrap().starts_with("no test yet")
+        ),
+        "{findings:?}"
+    );
+    assert!(
+        md.contains("(8 of the design's 16 trainings, 2 networks per condition)"),
+        "{md}"
+    );
+
+    run(Selection::All).unwrap();
+    let completed = completed.into_inner().unwrap();
+    let names: Vec<&str> = completed.iter().map(|(_, part, _)| part.as_str()).collect();
+    assert_eq!(
+        names,
+        ["the repositioning direction", "the wiping direction"]
+    );
+    // Each is reported once, after a job of its own direction, with its tests.
+    for (id, part, tested) in &completed {
+        let JobKind::Infer { training, .. } = &plan.jobs[*id].kind else {
+            panic!("an inference run ends a direction")
+        };
+        let primary = training.split(' ').next().unwrap();
+        assert_eq!(part, &format!("the {primary} direction"));
+        assert!(tested, "{part}: its report has no tests");
+    }
+    assert!(
+        report::completed_by(&plan, &out, 0).is_some(),
+        "named once all is done"
+    );
+    let dir = report::write(&out).unwrap();
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(!md.contains("No test yet"), "{md}");
+    assert_eq!(
+        md.matches("| condition |").count(),
+        8,
+        "4 measures x 2 directions: {md}"
+    );
+    assert!(
+        md.contains("raw difference [95% CI]") && md.contains("| equivalence margin |"),
+        "{md}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    for primary in ["repositioning", "wiping"] {
+        let direction = &summary["results"][primary];
+        assert_eq!(direction["complete"], true);
+        let tost = &direction["equivalence"]["pooled"];
+        let none = direction["per_network"][0][0].as_array().unwrap();
+        let none_mean = none.iter().map(|v| v.as_f64().unwrap()).sum::<f64>() / none.len() as f64;
+        assert!(
+            (tost["margin"].as_f64().unwrap() - 0.1 * none_mean).abs() <= 1e-12 * none_mean,
+            "the margin is ±10% of the none condition's mean: {tost}"
+        );
+        let contrasts = direction["art"]["pooled"]["contrasts"].as_array().unwrap();
+        assert_eq!(contrasts.len(), 6);
+        assert!(
+            contrasts.iter().all(|c| c["difference"]["ci95"].is_array()),
+            "{contrasts:?}"
+        );
+    }
+    let findings = summary["paper"].as_array().unwrap();
+    assert_eq!(
+        findings.len(),
+        6,
+        "Fig 6A, 6B and its 4 Holm contrasts: {findings:?}"
+    );
+    assert!(
+        findings[0]["ours"]
+            .as_str()
+            .unwrap()
+            .starts_with("TOST: difference"),
+        "{findings:?}"
+    );
+    assert!(
+        findings
+            .iter()
+            .all(|f| f["effect"].as_str().unwrap().contains("detectable")),
+        "an effect with its interval beside every p: {findings:?}"
+    );
+    assert!(
+        md.contains("(16 of the design's 16 trainings, 2 networks per condition)"),
+        "{md}"
+    );
+}
+
 /// Experiments sharing a networks folder compute each inference run once: uncertainty's
 /// runs are hierarchy's (everything observed; the maps are read out after each step), taken
 /// from `<networks>/runs/`, and they are exactly what uncertainty computes on its own.
@@ -532,6 +675,21 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
     let best_file = pvrnn_core::io::TensorFile::open(&plan.best_path(&out, 0)).unwrap();
     assert!(!pvrnn_core::io::is_checkpoint(&best_file));
     assert!(plan.validation_log_path(&out, 0).is_file());
+    // A network file of another iteration than the result names (stale) is refused.
+    let kept = std::fs::read(&path).unwrap();
+    let model = pvrnn_core::io::load_model(&path).unwrap();
+    let other = trained.network_iteration.unwrap() + 1;
+    pvrnn_core::io::save_model_at(&path, &model, other).unwrap();
+    let e = pvrnn_experiment::run::network_path(&plan, &out, 0).unwrap_err();
+    assert!(
+        e.to_string().contains(&format!("iteration {other}")) && e.to_string().contains("stale"),
+        "{e:#}"
+    );
+    std::fs::write(&path, kept).unwrap();
+    assert_eq!(
+        pvrnn_experiment::run::network_path(&plan, &out, 0).unwrap(),
+        path
+    );
     // Learning all 18 sequences, the network is validated on both tasks' held-out ones;
     // an interference network that learns one task only, on that task's.
     assert_eq!(trained.validations[0].trials, 2);

@@ -114,7 +114,7 @@ pub const FINDINGS: &[Finding] = &[
         scale: "reduced scale: 3 x 5,000 per condition (networks x iterations)",
         figures: &["interference/report/interference_wiping.png"],
         view: None,
-        look: "Interference compares networks trained on different data: the shipped network cannot show it. The figures are the reduced-scale runs (3 networks x 5,000 iterations per condition); the converged interference networks are not trained yet.",
+        look: "Interference compares networks trained on different data: the shipped network cannot show it. The figures are the reduced-scale runs (3 networks x 5,000 iterations per condition); the converged interference campaign is under way, and each direction is tested only once all its networks are trained.",
     },
 ];
 

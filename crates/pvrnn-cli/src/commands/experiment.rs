@@ -203,6 +203,14 @@ fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
     bar.set_position(done_before as u64);
     let tty = std::io::stderr().is_terminal();
     let last_line = std::sync::Mutex::new(Instant::now());
+    // A line of its own: above the progress bar on a terminal, else to stderr.
+    let say = |line: String| {
+        if tty {
+            bar.println(line)
+        } else {
+            eprintln!("{line}")
+        }
+    };
     let events = |e: Event<'_>| match e {
         Event::Started { id, name } => {
             if !tty {
@@ -211,12 +219,15 @@ fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
         }
         Event::Finished { id, name, seconds } => {
             bar.inc(1);
-            let line = format!("job {id} ({name}) done in {seconds:.1} s");
-            if tty {
-                bar.println(line)
-            } else {
-                eprintln!("{line}")
-            }
+            say(format!("job {id} ({name}) done in {seconds:.1} s"));
+        }
+        Event::Reported { part, report, .. } => {
+            say(match report {
+                Ok(path) => format!("{part} is complete: report {}", path.display()),
+                Err(why) => format!(
+                    "{part} is complete, but its report failed: {why} (run again with --report)"
+                ),
+            });
         }
         Event::Training {
             id,
@@ -239,21 +250,16 @@ fn run_jobs(a: &Args, plan: &Plan) -> Result<()> {
             bar.set_message(format!("job {id}: step {done}/{total}"));
         }
         Event::Diverged { id, name, step } => {
-            let line = format!(
+            say(format!(
                 "job {id} ({name}): online inference diverged beyond repair at step {step}; recorded, the report leaves it out"
-            );
-            if tty {
-                bar.println(line)
-            } else {
-                eprintln!("{line}")
-            }
+            ));
         }
     };
     let workers = pvrnn_experiment::run::Workers {
         jobs: a.jobs,
         cohort: a.cohort as usize,
     };
-    let result = pvrnn_experiment::run::run_with(
+    let result = pvrnn_experiment::reporting::run_with(
         &a.out,
         &backend,
         &computed_by,

@@ -424,8 +424,8 @@ fn interference(r: &Value) -> Vec<Finding> {
             untested(
                 &mut findings,
                 &format!(
-                    "no test yet: {} of the direction's {} trainings done",
-                    v["trainings_done"], v["trainings_planned"]
+                    "no test yet: {} of the direction's {} trainings and {} of its {} jobs done",
+                    v["trainings_done"], v["trainings_planned"], v["jobs_done"], v["jobs_planned"]
                 ),
             );
         }
@@ -443,15 +443,22 @@ fn no_change_finding(v: &Value) -> Finding {
         Some(t) => format!("{t}; {}", f_text(effect)),
         None => f_text(effect),
     };
+    // A change the ANOVA finds is a disagreement even within the margin; without one,
+    // "no change" needs equivalence (so the rule can only turn the old p ≥ 0.05 reading
+    // into "undecided", never into agreement).
+    let p = num(&effect["p"]);
+    let verdict = match p {
+        Some(p) if p < ALPHA => (
+            Some(false),
+            "adding wiping changes repositioning's error (ANOVA significant)".into(),
+        ),
+        _ => no_difference_verdict(tost, p, ""),
+    };
     finding(
         "Adding wiping data does not change repositioning's error (Fig 6A): tested as equivalence of 9 added and none",
         "F(3, 16) = 0.62, p = 0.61 (n.s., read as no change)",
         ours,
-        no_difference_verdict(
-            tost,
-            num(&effect["p"]),
-            "adding wiping changes repositioning's error (ANOVA significant)",
-        ),
+        verdict,
     )
     .with_effect(format!(
         "9 added − none, pooled: {}",
@@ -715,6 +722,8 @@ mod tests {
         partial["wiping"]["complete"] = json!(false);
         partial["wiping"]["trainings_done"] = json!(7);
         partial["wiping"]["trainings_planned"] = json!(20);
+        partial["wiping"]["jobs_done"] = json!(49);
+        partial["wiping"]["jobs_planned"] = json!(140);
         let f = findings(Experiment::Interference, &partial);
         assert!(
             f.iter().all(|x| x.agrees.is_none() && x.effect == "–"),
@@ -751,5 +760,9 @@ mod tests {
         assert_eq!(f[0].agrees, None, "{:?}", f[0]);
         assert!(f[0].note.contains("undecided"), "{}", f[0].note);
         assert_eq!(agrees(false, 0.01)[0].agrees, Some(false));
+        // A change the ANOVA finds disagrees, even within the margin.
+        let f = agrees(true, 0.01);
+        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
+        assert!(f[0].note.contains("ANOVA significant"), "{}", f[0].note);
     }
 }

@@ -1555,6 +1555,8 @@ fn interference(
             "complete": complete,
             "trainings_done": trainings_done,
             "trainings_planned": trainings_planned,
+            "jobs_done": jobs_done,
+            "jobs_planned": jobs.len(),
         });
         if complete {
             let names: Vec<&str> = measures.iter().map(|(n, _)| *n).collect();

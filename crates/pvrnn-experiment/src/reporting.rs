@@ -3,9 +3,10 @@
 //! by the run that completes it, without waiting for the rest of the plan. Apart from
 //! [`crate::run`], which [`crate::report`] reads results with.
 
+use std::collections::BTreeSet;
 use std::path::Path;
-use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
 
 use anyhow::Result;
 use pvrnn_core::backend::Backend;
@@ -26,6 +27,8 @@ pub fn run_with(
     events: &(dyn Fn(Event<'_>) + Sync),
 ) -> Result<()> {
     let plan = Plan::load(dir)?;
+    // Jobs finishing together may each find their part complete: one report per part.
+    let reported = Mutex::new(BTreeSet::new());
     let reporting = |e: Event<'_>| {
         let finished = match &e {
             Event::Finished { id, .. } => Some(*id),
@@ -34,6 +37,9 @@ pub fn run_with(
         events(e);
         if let Some(id) = finished
             && let Some(part) = report::completed_by(&plan, dir, id)
+            && reported
+                .lock()
+                .is_ok_and(|mut parts| parts.insert(part.clone()))
         {
             let written = report::write(dir)
                 .map(|d| d.join("report.md"))

@@ -842,6 +842,31 @@ mod tests {
                 .all(|c| c.rank_difference < 0.0 && c.p_holm.unwrap() < 0.01)
         );
         assert_eq!(art.cell_contrasts.len(), 15);
+        // Raw differences: paired over the 6 networks, each network's mean of the level
+        // (over B) for A's contrasts, its cell value for the cells'.
+        let level_mean = |k: usize, i: usize| design.y[k][i].iter().sum::<f64>() / 2.0;
+        let by_network: Vec<f64> = (0..6)
+            .map(|k| level_mean(k, 0) - level_mean(k, 1))
+            .collect();
+        let a01 = art.a_contrasts[0].difference.as_ref().unwrap();
+        assert!(a01.paired && a01.n == [6, 6], "{a01:?}");
+        assert!(
+            (a01.mean - by_network.iter().sum::<f64>() / 6.0).abs() < 1e-12,
+            "{a01:?}"
+        );
+        let expected = difference(&by_network, &[0.0; 6], true).unwrap();
+        assert!(
+            (a01.ci95[0] - expected.ci95[0]).abs() < 1e-12,
+            "{a01:?} {expected:?}"
+        );
+        let cell = art.cell_contrasts[0].difference.as_ref().unwrap();
+        let cells: Vec<f64> = (0..6)
+            .map(|k| design.y[k][0][0] - design.y[k][0][1])
+            .collect();
+        assert!(
+            (cell.mean - cells.iter().sum::<f64>() / 6.0).abs() < 1e-12,
+            "{cell:?}"
+        );
     }
 
     #[test]

@@ -1797,6 +1797,8 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
         &out,
     ]);
     assert!(e.contains("smoke") && e.contains("another --out"), "{e}");
+    // Without --scale, an existing plan's own scale.
+    ok(&["experiment", "uncertainty", "--out", &out, "--report"]);
     ok(&[
         "experiment",
         "uncertainty",

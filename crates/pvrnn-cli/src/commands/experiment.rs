@@ -14,7 +14,7 @@ use pvrnn_experiment::{Experiment, Plan, Scale, report};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn experiment robustness --scale smoke --dataset data/caresim --out runs/robustness-smoke\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --network 0\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --report"
+    after_help = "Example:\n  pvrnn experiment robustness --scale smoke --dataset data/caresim --out runs/robustness-smoke\n  pvrnn experiment robustness --scale smoke --out runs/robustness-smoke --network 0\n  pvrnn experiment robustness --out runs/robustness-smoke --report   # the plan's scale"
 )]
 pub struct Args {
     /// hierarchy (Figs 2-3), uncertainty (Fig 4), robustness (Fig 5) or interference (Fig 6).
@@ -22,9 +22,10 @@ pub struct Args {
     experiment: String,
     /// smoke (minutes; tests the machinery), reduced (3 networks, fixed iterations: about
     /// 12 h of 2-core training), converged (5 networks, each trained until it converges;
-    /// needs --validate) or paper (5 networks x 100,000 iterations, 5 trials).
-    #[arg(long, default_value = "smoke", value_parser = ["smoke", "reduced", "converged", "paper"])]
-    scale: String,
+    /// needs --validate) or paper (5 networks x 100,000 iterations, 5 trials). Default:
+    /// the plan's own scale when --out has one, else smoke.
+    #[arg(long, value_parser = ["smoke", "reduced", "converged", "paper"])]
+    scale: Option<String>,
     /// The experiment's folder: plan.json, networks/, results/, report/.
     #[arg(long)]
     out: PathBuf,
@@ -91,10 +92,13 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let experiment = Experiment::parse(&a.experiment).expect("clap checks the name");
-    let scale = Scale::parse(&a.scale).expect("clap checks the scale");
+    let asked = a
+        .scale
+        .as_deref()
+        .map(|s| Scale::parse(s).expect("clap checks the scale"));
     let plan = if Plan::path(&a.out).is_file() {
         let plan = Plan::load(&a.out)?;
-        plan.check_matches(experiment, scale)?;
+        plan.check_matches(experiment, asked.unwrap_or(plan.scale))?;
         if a.reuse.is_some() || a.networks.is_some() || a.validate.is_some() {
             bail!(
                 "--reuse, --networks and --validate apply when the plan is created; {} already has one",
@@ -111,7 +115,7 @@ pub fn run(a: Args) -> Result<()> {
         };
         let mut plan = Plan::new(
             experiment,
-            scale,
+            asked.unwrap_or(Scale::Smoke),
             dataset,
             a.reuse.as_deref(),
             a.validate.as_deref(),
@@ -123,7 +127,7 @@ pub fn run(a: Args) -> Result<()> {
         eprintln!(
             "planned {} at {} scale: {} jobs, about {:.1} h of 2-core training ({})",
             experiment.name(),
-            scale.name(),
+            plan.scale.name(),
             plan.jobs.len(),
             plan.design.estimated_training_hours,
             Plan::path(&a.out).display()

@@ -3,7 +3,9 @@
 //! whether they agree, read from the report's own results (`summary.json`'s `results`).
 //!
 //! "Agrees" means the same direction and the same verdict at p < 0.05 (a difference the
-//! paper found significant is significant here too, one it found not significant is not).
+//! paper found significant is significant here too). The paper's two "no difference"
+//! claims (Figs 4A, 6A) agree only when the difference test is not significant and an
+//! equivalence test puts the difference inside a stated margin.
 //! A same-direction result that is not significant is not blamed on power by default:
 //! every finding states its effect with the 95% confidence interval and the smallest
 //! effect the design could detect (80% power, from the observed variance), so the reader
@@ -105,7 +107,9 @@ fn effect_text(d: &Value) -> String {
         num(&d["detectable"]),
     ) {
         (Some(m), Some(lo), Some(hi), Some(det)) => format!(
-            "Δ = {m:.3e} [{lo:.3e}, {hi:.3e}], d = {:.2}; detectable ±{det:.3e}",
+            "Δ = {m:.3e} [{lo:.3e}, {hi:.3e}], {} = {:.2}; detectable ±{det:.3e}",
+            // d_z: the mean of paired differences over their SD; d: over the pooled SD.
+            if d["paired"] == true { "d_z" } else { "d" },
             num(&d["cohen_d"]).unwrap_or(f64::NAN)
         ),
         _ => "– (too few networks)".into(),
@@ -162,15 +166,19 @@ pub fn findings(experiment: Experiment, results: &Value) -> Vec<Finding> {
 fn hierarchy(r: &Value) -> Vec<Finding> {
     let boundary = &r["executive_boundary"];
     let difference = mean_of(&boundary["near_minus_elsewhere_per_network"]);
-    let p = num(&boundary["p"]);
+    // The verdict is the test across networks, the unit every other finding is tested
+    // over; the permutation test (within runs, so over repeated trials of the same
+    // networks) is printed beside it.
+    let p = num(&boundary["difference"]["p"]);
     let mut out = vec![finding(
         "The executive module's latent state changes most at subtask boundaries (Figs 2A, 3A)",
         "described from single runs, no test",
         match difference {
             Some(d) => format!(
                 // No `|` in the text: it would split the Markdown table's cell.
-                "mean absolute Δμ_q near − elsewhere (steps t ≥ H) = {d:.3e}, two-sided permutation {}",
-                p_text(p)
+                "mean absolute Δμ_q near − elsewhere (steps t ≥ H) = {d:.3e}; across networks, two-sided one-sample t: {}; within runs, two-sided permutation: {}",
+                p_text(p),
+                p_text(num(&boundary["p"]))
             ),
             None => "no run with a subtask boundary".into(),
         },
@@ -280,10 +288,11 @@ fn robustness(r: &Value) -> Vec<Finding> {
     let by_vision: Vec<Option<f64>> = (0..3)
         .map(|v| Some((cell(v, 0)? + cell(v, 1)?) / 2.0))
         .collect();
-    let rising = match (by_vision[0], by_vision[1], by_vision[2]) {
-        (Some(a), Some(b), Some(c)) => a <= b && b <= c,
-        _ => true,
-    };
+    let resolution_verdict = resolution_verdict(
+        num(&effects[0]["p"]),
+        Order::of(&by_vision),
+        Order::of_ranks(&r["art"]["a_contrasts"]),
+    );
     let on: Option<f64> = (0..3).map(|v| cell(v, 0)).sum::<Option<f64>>();
     let off: Option<f64> = (0..3).map(|v| cell(v, 1)).sum::<Option<f64>>();
     let helps = match (on, off) {
@@ -334,7 +343,7 @@ fn robustness(r: &Value) -> Vec<Finding> {
                     .collect::<Vec<_>>()
                     .join(" / ")
             ),
-            verdict(num(&effects[0]["p"]), true, rising),
+            resolution_verdict,
         )
         .with_effect(format!("16 − 64 (proprio on): {}", effect_text(&paired_difference(&cells[2][0], &cells[0][0])))),
         finding(
@@ -377,18 +386,127 @@ fn robustness(r: &Value) -> Vec<Finding> {
     ]
 }
 
-/// The verdict on a "no difference" claim tested as equivalence (TOST JSON `tost`), with
-/// the omnibus or paired test's p beside it: equivalent agrees; a significant difference
-/// disagrees; neither is undecided.
+/// Resolution levels 64 / 32+16 / 16 in the order of [`robustness`]'s means.
+const RESOLUTIONS: [&str; 3] = ["64 (all)", "32+16", "16"];
+
+/// How errors by resolution (64, 32+16, 16) run as the resolution drops.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Order {
+    Rising,
+    Falling,
+    /// Neither; the level with the lowest error.
+    Lowest(&'static str),
+}
+
+impl Order {
+    fn from_levels(v: [f64; 3]) -> Self {
+        if v[0] <= v[1] && v[1] <= v[2] {
+            Order::Rising
+        } else if v[0] >= v[1] && v[1] >= v[2] {
+            Order::Falling
+        } else {
+            let lowest = (0..3).min_by(|&a, &b| v[a].total_cmp(&v[b])).unwrap_or(0);
+            Order::Lowest(RESOLUTIONS[lowest])
+        }
+    }
+
+    /// The order of the mean errors; `None` when one is unknown.
+    fn of(by_vision: &[Option<f64>]) -> Option<Self> {
+        Some(Self::from_levels([
+            by_vision[0]?,
+            by_vision[1]?,
+            by_vision[2]?,
+        ]))
+    }
+
+    /// The order of the aligned ranks the ANOVA tests, from the vision contrasts
+    /// (64 − 32+16, 64 − 16 and 32+16 − 16 in mean rank).
+    fn of_ranks(contrasts: &Value) -> Option<Self> {
+        let c = contrasts.as_array()?;
+        let first = num(&c.first()?["rank_difference"])?;
+        let second = num(&c.get(1)?["rank_difference"])?;
+        // Mean ranks relative to 64's: 0, −(64 − 32+16), −(64 − 16).
+        Some(Self::from_levels([0.0, -first, -second]))
+    }
+}
+
+/// Fig 5B's "the error rises as the resolution drops": the paper's order in both the mean
+/// errors and the ranks the test uses (or in the means where no ranks are recorded); the
+/// two disagreeing leave it undecided.
+fn resolution_verdict(
+    p: Option<f64>,
+    means: Option<Order>,
+    ranks: Option<Order>,
+) -> (Option<bool>, String) {
+    let significance = if p.is_some_and(|p| p < ALPHA) {
+        "significant"
+    } else {
+        "not significant"
+    };
+    match (means, ranks) {
+        (None, _) => verdict(p, true, true),
+        (Some(m), None) => resolution_verdict(p, Some(m), Some(m)),
+        (Some(m), Some(r)) if r == m => match m {
+            Order::Rising => verdict(p, true, true),
+            Order::Falling => verdict(p, true, false),
+            Order::Lowest(level) => (
+                Some(false),
+                format!(
+                    "the error does not rise monotonically as the resolution drops (lowest with {level}; ANOVA {significance})"
+                ),
+            ),
+        },
+        (Some(m), Some(r)) if m == Order::Rising || r == Order::Rising => (
+            None,
+            format!(
+                "undecided (ANOVA {significance}): the {} rise as the resolution drops, the {} do not{}",
+                if r == Order::Rising {
+                    "aligned ranks the test uses"
+                } else {
+                    "mean errors"
+                },
+                if r == Order::Rising {
+                    "mean errors"
+                } else {
+                    "aligned ranks"
+                },
+                match (m, r) {
+                    (Order::Lowest(level), _) | (_, Order::Lowest(level)) =>
+                        format!(" (lowest with {level})"),
+                    _ => String::new(),
+                }
+            ),
+        ),
+        (Some(_), Some(_)) => (
+            Some(false),
+            format!(
+                "neither the mean errors nor the ranks rise monotonically as the resolution drops (ANOVA {significance})"
+            ),
+        ),
+    }
+}
+
+/// The verdict on a "no difference" claim (Figs 4A and 6A), one rule for both: a
+/// significant difference test (`p`: the paired t or the omnibus ANOVA) disagrees, even
+/// when the difference lies inside the equivalence margin; without one, equivalence (TOST
+/// JSON `tost`) agrees; neither is undecided. `differ` says what a significant test means.
 fn no_difference_verdict(tost: &Value, p: Option<f64>, differ: &str) -> (Option<bool>, String) {
-    match (tost["equivalent"].as_bool(), p) {
-        (Some(true), _) => (Some(true), String::new()),
-        (Some(false), Some(p)) if p < ALPHA => (Some(false), differ.into()),
-        (Some(false), _) => (
+    let equivalent = tost["equivalent"].as_bool();
+    match (p, equivalent) {
+        (Some(p), Some(equivalent)) if p < ALPHA => (
+            Some(false),
+            if equivalent {
+                format!("{differ}, though by less than the equivalence margin")
+            } else {
+                differ.into()
+            },
+        ),
+        (_, Some(true)) => (Some(true), String::new()),
+        (_, Some(false)) => (
             None,
             "undecided: neither a difference nor equivalence within the margin is shown".into(),
         ),
-        (None, _) => (None, "no test: too few complete networks".into()),
+        (_, None) => (None, "no test: too few complete networks".into()),
     }
 }
 
@@ -443,17 +561,14 @@ fn no_change_finding(v: &Value) -> Finding {
         Some(t) => format!("{t}; {}", f_text(effect)),
         None => f_text(effect),
     };
-    // A change the ANOVA finds is a disagreement even within the margin; without one,
-    // "no change" needs equivalence (so the rule can only turn the old p ≥ 0.05 reading
-    // into "undecided", never into agreement).
-    let p = num(&effect["p"]);
-    let verdict = match p {
-        Some(p) if p < ALPHA => (
-            Some(false),
-            "adding wiping changes repositioning's error (ANOVA significant)".into(),
-        ),
-        _ => no_difference_verdict(tost, p, ""),
-    };
+    // Fig 4A's rule: a change the ANOVA finds disagrees even within the margin; without
+    // one, "no change" needs equivalence (so the rule can only turn the old p ≥ 0.05
+    // reading into "undecided", never into agreement).
+    let verdict = no_difference_verdict(
+        tost,
+        num(&effect["p"]),
+        "adding wiping changes repositioning's error (ANOVA significant)",
+    );
     finding(
         "Adding wiping data does not change repositioning's error (Fig 6A): tested as equivalence of 9 added and none",
         "F(3, 16) = 0.62, p = 0.61 (n.s., read as no change)",
@@ -539,8 +654,13 @@ fn holm_findings(v: &Value) -> Vec<Finding> {
             })
         });
         let p = contrast.and_then(|x| num(&x["p_holm"]));
-        // Lower error (rank) with fewer added sequences.
-        let lower = contrast.is_none_or(|x| {
+        let difference =
+            serde_json::to_value(crate::stats::difference(&group(many), &group(few), false))
+                .unwrap_or(Value::Null);
+        // The direction is the printed effect's (mean errors, many − few > 0: lower with
+        // fewer); the test is on aligned ranks, which can point the other way.
+        let lower = num(&difference["mean"]).is_none_or(|d| d > 0.0);
+        let lower_in_ranks = contrast.is_none_or(|x| {
             let d = num(&x["rank_difference"]).unwrap_or(0.0);
             if added(x["a"].as_str().unwrap_or("")) == few {
                 d < 0.0
@@ -548,15 +668,22 @@ fn holm_findings(v: &Value) -> Vec<Finding> {
                 d > 0.0
             }
         });
-        let difference =
-            serde_json::to_value(crate::stats::difference(&group(many), &group(few), false))
-                .unwrap_or(Value::Null);
+        // Means and ranks disagreeing leave the direction undecided, significant or not.
+        let (agrees, note) = if lower == lower_in_ranks || p.is_none() {
+            verdict(p, true, lower)
+        } else {
+            (
+                None,
+                "undecided: the mean errors and the aligned ranks the test uses point different ways"
+                    .into(),
+            )
+        };
         out.push(
             finding(
                 &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
                 paper_p,
                 format!("ART-C, Holm over the 6 pairs: {}", p_text(p)),
-                verdict(p, true, lower),
+                (agrees, note),
             )
             .with_effect(format!("{many} added − {few}, pooled: {}", effect_text(&difference))),
         );
@@ -578,7 +705,7 @@ fn untested(findings: &mut [Finding], note: &str) {
 /// cover ("5 of the design's 5 networks").
 pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d, and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -652,6 +779,10 @@ mod tests {
             findings(Experiment::Uncertainty, &r(false, 0.01))[0].agrees,
             Some(false)
         );
+        // Fig 6A's rule too: a significant difference disagrees, even inside the margin.
+        let inside = findings(Experiment::Uncertainty, &r(true, 0.01));
+        assert_eq!(inside[0].agrees, Some(false), "{:?}", inside[0]);
+        assert!(inside[0].note.contains("less than the equivalence margin"));
         // Significant, but wiping's change is the smaller: the opposite of the paper.
         assert_eq!(f[1].agrees, Some(false));
         assert!(f[1].note.contains("opposite"));
@@ -675,6 +806,56 @@ mod tests {
         assert_eq!(f[2].agrees, Some(false), "{:?}", f[2]);
         assert!(f[2].note.contains("opposite direction"), "{}", f[2].note);
         assert!(f[2].ours.contains("3.000e-1 / 1.000e-1"), "{}", f[2].ours);
+
+        // Lowest at 32+16: significant, but neither the paper's order nor its opposite.
+        let r = json!({
+            "cells": [cells(1.5, 1.5), cells(1.0, 1.0), cells(2.0, 2.0)],
+            "art": {"effects": [effect(0.01), effect(0.5), effect(0.5)], "cell_contrasts": []},
+        });
+        let f = robustness(&r);
+        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
+        assert!(
+            f[0].note.contains("not rise monotonically") && f[0].note.contains("lowest with 32+16"),
+            "{}",
+            f[0].note
+        );
+        assert!(!f[0].note.contains("opposite"), "{}", f[0].note);
+
+        // The same means, but ranks that rise (an outlier lifts the 64 mean): undecided.
+        let rank = |d: f64| json!({"rank_difference": d});
+        let mut with_ranks = r.clone();
+        with_ranks["art"]["a_contrasts"] = json!([rank(-3.5), rank(-11.2), rank(-7.7)]);
+        let f = robustness(&with_ranks);
+        assert_eq!(f[0].agrees, None, "{:?}", f[0]);
+        assert!(
+            f[0].note
+                .starts_with("undecided (ANOVA significant): the aligned ranks the test uses rise")
+                && f[0].note.contains("lowest with 32+16"),
+            "{}",
+            f[0].note
+        );
+    }
+
+    #[test]
+    fn the_boundary_verdict_is_the_test_across_networks() {
+        // Significant within runs (permutation), not across networks: the verdict follows
+        // the networks, and both p values are printed.
+        let r = json!({"executive_boundary": {
+            "near_minus_elsewhere_per_network": {"0": -0.002, "1": -0.004, "2": 0.002},
+            "p": 0.046,
+            "difference": {"mean": -0.00133, "ci95": [-0.01, 0.007], "cohen_d": -0.5,
+                "detectable": 0.011, "p": 0.45, "paired": true},
+        }, "occlusion": null});
+        let f = findings(Experiment::Hierarchy, &r);
+        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
+        assert_eq!(f[0].note, "the opposite direction (not significant)");
+        assert!(
+            f[0].ours.contains("one-sample t: p = 0.450")
+                && f[0].ours.contains("permutation: p = 0.046"),
+            "{}",
+            f[0].ours
+        );
+        assert!(f[0].effect.contains("d_z = -0.50"), "{}", f[0].effect);
     }
 
     #[test]
@@ -701,8 +882,9 @@ mod tests {
         assert!(f[0].ours.contains("1.100e0 / 2.100e0"), "{}", f[0].ours);
         assert_eq!(f[1].agrees, Some(true));
         assert_eq!(f[2].agrees, Some(false));
-        assert_eq!(f[3].agrees, Some(false));
-        assert!(f[3].note.contains("opposite"));
+        // 3 vs 6: the ranks put 3 above 6, the means (2.1 against 3.1) below: undecided.
+        assert_eq!(f[3].agrees, None, "{:?}", f[3]);
+        assert!(f[3].note.contains("different ways"), "{}", f[3].note);
         assert_eq!(f[4].agrees, Some(true));
         // Every Holm contrast has its raw difference with its interval beside its p:
         // 6 added − 0 = 2 (independent groups, SD 0.1414 each).

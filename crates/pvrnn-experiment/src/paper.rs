@@ -5,7 +5,10 @@
 //! "Agrees" means the same direction and the same verdict at p < 0.05 (a difference the
 //! paper found significant is significant here too). The paper's two "no difference"
 //! claims (Figs 4A, 6A) agree only when the difference test is not significant and an
-//! equivalence test puts the difference inside a stated margin.
+//! equivalence test puts the difference inside a stated margin. A direction is judged on
+//! the mean errors; where the aligned ranks a rank test uses point the other way, the
+//! verdict is "undecided", as is Fig 5B's rise when its means and ranks run in different
+//! orders (a rise neither shows is a disagreement).
 //! A same-direction result that is not significant is not blamed on power by default:
 //! every finding states its effect with the 95% confidence interval and the smallest
 //! effect the design could detect (80% power, from the observed variance), so the reader
@@ -255,6 +258,7 @@ fn uncertainty(r: &Value) -> Vec<Finding> {
         tost,
         num(&level["paired_t"]["p"]),
         "the tasks differ (paired t significant)",
+        "by less than the equivalence margin",
     );
     vec![
         finding(
@@ -490,13 +494,18 @@ fn resolution_verdict(
 /// significant difference test (`p`: the paired t or the omnibus ANOVA) disagrees, even
 /// when the difference lies inside the equivalence margin; without one, equivalence (TOST
 /// JSON `tost`) agrees; neither is undecided. `differ` says what a significant test means.
-fn no_difference_verdict(tost: &Value, p: Option<f64>, differ: &str) -> (Option<bool>, String) {
+fn no_difference_verdict(
+    tost: &Value,
+    p: Option<f64>,
+    differ: &str,
+    inside: &str,
+) -> (Option<bool>, String) {
     let equivalent = tost["equivalent"].as_bool();
     match (p, equivalent) {
-        (Some(p), Some(equivalent)) if p < ALPHA => (
+        (Some(p), equivalent) if p < ALPHA => (
             Some(false),
-            if equivalent {
-                format!("{differ}, though by less than the equivalence margin")
+            if equivalent == Some(true) {
+                format!("{differ}, though {inside}")
             } else {
                 differ.into()
             },
@@ -568,6 +577,7 @@ fn no_change_finding(v: &Value) -> Finding {
         tost,
         num(&effect["p"]),
         "adding wiping changes repositioning's error (ANOVA significant)",
+        "9 added against none lies within the equivalence margin",
     );
     finding(
         "Adding wiping data does not change repositioning's error (Fig 6A): tested as equivalence of 9 added and none",
@@ -593,6 +603,12 @@ fn rise_finding(v: &Value) -> Finding {
         .copied()
         .flatten()
         .zip(means.last().copied().flatten());
+    // The ranks of none against the most added (the last condition).
+    let most = v["conditions"]
+        .as_array()
+        .and_then(|c| c.last())
+        .map_or(String::new(), |x| added(x.as_str().unwrap_or("")));
+    let ranks = lower_in_ranks(pooled_contrast(v, "0", &most), "0");
     finding(
         "Adding repositioning data raises wiping's error (Fig 6B)",
         "F(3, 16) = 19.16, p < 0.001",
@@ -605,16 +621,58 @@ fn rise_finding(v: &Value) -> Finding {
                 .collect::<Vec<_>>()
                 .join(" / ")
         ),
-        verdict(
+        directed_verdict(
             num(&effect["p"]),
-            true,
             rising.is_none_or(|(first, last)| first < last),
+            ranks,
         ),
     )
     .with_effect(format!(
         "9 added − none, pooled: {}",
         effect_text(&v["most_minus_none"]["pooled"])
     ))
+}
+
+/// The pooled ART-C contrast of the conditions adding `few` and `many` sequences.
+fn pooled_contrast<'a>(v: &'a Value, few: &str, many: &str) -> Option<&'a Value> {
+    v["art"]["pooled"]["contrasts"]
+        .as_array()?
+        .iter()
+        .find(|x| {
+            let (a, b) = (
+                added(x["a"].as_str().unwrap_or("")),
+                added(x["b"].as_str().unwrap_or("")),
+            );
+            (a == few && b == many) || (a == many && b == few)
+        })
+}
+
+/// Whether the aligned ranks of `contrast` put the condition adding `few` below the other;
+/// `None` when they tie or no contrast is recorded.
+fn lower_in_ranks(contrast: Option<&Value>, few: &str) -> Option<bool> {
+    let x = contrast?;
+    let d = num(&x["rank_difference"])?;
+    if d == 0.0 {
+        return None;
+    }
+    Some(if added(x["a"].as_str().unwrap_or("")) == few {
+        d < 0.0
+    } else {
+        d > 0.0
+    })
+}
+
+/// The verdict on a directed claim judged on the mean errors (`lower`: the paper's
+/// direction), undecided when the aligned ranks the test uses point the other way.
+fn directed_verdict(p: Option<f64>, lower: bool, ranks: Option<bool>) -> (Option<bool>, String) {
+    match ranks {
+        Some(ranks) if ranks != lower && p.is_some() => (
+            None,
+            "undecided: the mean errors and the aligned ranks the test uses point different ways"
+                .into(),
+        ),
+        _ => verdict(p, true, lower),
+    }
 }
 
 /// The number of sequences a condition adds (`wiping 9 + repositioning 3` → `3`).
@@ -625,7 +683,6 @@ fn added(label: &str) -> String {
 /// Fig 6B's Holm contrasts the paper reports, each with the raw difference of the
 /// conditions' per-network pooled errors (independent groups) beside its p.
 fn holm_findings(v: &Value) -> Vec<Finding> {
-    let contrasts = v["art"]["pooled"]["contrasts"].as_array();
     // A condition's per-network pooled errors, by how many sequences it adds.
     let group = |count: &str| -> Vec<f64> {
         let index = v["conditions"].as_array().and_then(|c| {
@@ -644,40 +701,15 @@ fn holm_findings(v: &Value) -> Vec<Finding> {
         ("3", "6", "p = 0.0033"),
         ("3", "9", "p = 0.0033"),
     ] {
-        let contrast = contrasts.and_then(|c| {
-            c.iter().find(|x| {
-                let (a, b) = (
-                    added(x["a"].as_str().unwrap_or("")),
-                    added(x["b"].as_str().unwrap_or("")),
-                );
-                (a == few && b == many) || (a == many && b == few)
-            })
-        });
+        let contrast = pooled_contrast(v, few, many);
         let p = contrast.and_then(|x| num(&x["p_holm"]));
         let difference =
             serde_json::to_value(crate::stats::difference(&group(many), &group(few), false))
                 .unwrap_or(Value::Null);
         // The direction is the printed effect's (mean errors, many − few > 0: lower with
-        // fewer); the test is on aligned ranks, which can point the other way.
+        // fewer), unless the aligned ranks the test uses point the other way.
         let lower = num(&difference["mean"]).is_none_or(|d| d > 0.0);
-        let lower_in_ranks = contrast.is_none_or(|x| {
-            let d = num(&x["rank_difference"]).unwrap_or(0.0);
-            if added(x["a"].as_str().unwrap_or("")) == few {
-                d < 0.0
-            } else {
-                d > 0.0
-            }
-        });
-        // Means and ranks disagreeing leave the direction undecided, significant or not.
-        let (agrees, note) = if lower == lower_in_ranks || p.is_none() {
-            verdict(p, true, lower)
-        } else {
-            (
-                None,
-                "undecided: the mean errors and the aligned ranks the test uses point different ways"
-                    .into(),
-            )
-        };
+        let (agrees, note) = directed_verdict(p, lower, lower_in_ranks(contrast, few));
         out.push(
             finding(
                 &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
@@ -705,7 +737,7 @@ fn untested(findings: &mut [Finding], note: &str) {
 /// cover ("5 of the design's 5 networks").
 pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -886,6 +918,20 @@ mod tests {
         assert_eq!(f[3].agrees, None, "{:?}", f[3]);
         assert!(f[3].note.contains("different ways"), "{}", f[3].note);
         assert_eq!(f[4].agrees, Some(true));
+        // Tied ranks do not contradict the means.
+        let mut tied = r.clone();
+        tied["wiping"]["art"]["pooled"]["contrasts"][2] = contrast("3", "6", 0.0, 0.01);
+        assert_eq!(
+            findings(Experiment::Interference, &tied)[3].agrees,
+            Some(true)
+        );
+        // The rise itself: means rise from none to 9 added, but ranks of 0 vs 9 say the
+        // other way: undecided.
+        let mut against = r.clone();
+        against["wiping"]["art"]["pooled"]["contrasts"][1] = contrast("0", "9", 6.0, 0.20);
+        let f = findings(Experiment::Interference, &against);
+        assert_eq!(f[0].agrees, None, "{:?}", f[0]);
+        assert!(f[0].note.contains("different ways"), "{}", f[0].note);
         // Every Holm contrast has its raw difference with its interval beside its p:
         // 6 added − 0 = 2 (independent groups, SD 0.1414 each).
         assert!(
@@ -942,9 +988,18 @@ mod tests {
         assert_eq!(f[0].agrees, None, "{:?}", f[0]);
         assert!(f[0].note.contains("undecided"), "{}", f[0].note);
         assert_eq!(agrees(false, 0.01)[0].agrees, Some(false));
-        // A change the ANOVA finds disagrees, even within the margin.
+        // A change the ANOVA finds disagrees, even within the margin, or without a TOST.
         let f = agrees(true, 0.01);
         assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
         assert!(f[0].note.contains("ANOVA significant"), "{}", f[0].note);
+        assert!(
+            f[0].note.contains("9 added against none lies within"),
+            "{}",
+            f[0].note
+        );
+        let mut no_tost = r(true, 0.01);
+        no_tost["repositioning"]["equivalence"] = json!({});
+        let f = findings(Experiment::Interference, &no_tost);
+        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
     }
 }

@@ -14,6 +14,8 @@ pub struct Finding {
     /// Our statistic and effect (with its interval), as the row gives them.
     pub ours: &'static str,
     pub effect: &'static str,
+    /// The verdict the row's reading opens with (`docs/experiments.md` gives the rules).
+    pub verdict: Verdict,
     /// Networks, iterations and trials behind `ours`.
     pub scale: &'static str,
     /// Figures, as paths under `docs/results/`.
@@ -24,6 +26,38 @@ pub struct Finding {
     pub look: &'static str,
 }
 
+/// How a result stands to the paper's claim, by the rules of `docs/experiments.md`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    Agrees,
+    Disagrees,
+    /// The tests point different ways (means against ranks, say): no verdict either way.
+    Undecided,
+    /// The paper describes figures; there is nothing to test.
+    Descriptive,
+}
+
+impl Verdict {
+    /// The words the results document's reading opens with.
+    pub fn reading(self) -> &'static str {
+        match self {
+            Self::Agrees => "**Agrees**",
+            Self::Disagrees => "**Disagrees**",
+            Self::Undecided => "**Undecided**",
+            Self::Descriptive => "No verdict (the paper describes figures)",
+        }
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Agrees => "agrees with the paper",
+            Self::Disagrees => "disagrees with the paper",
+            Self::Undecided => "undecided",
+            Self::Descriptive => "no verdict: the paper describes figures",
+        }
+    }
+}
+
 pub const FINDINGS: &[Finding] = &[
     Finding {
         claim: "Each module contributes at its own time: the executive module while reaching, the others as the task proceeds",
@@ -31,6 +65,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "described in figures",
         ours: "executive, repositioning reaching / holding / lifting: 0.0093 ± 0.0020 / 0.0049 ± 0.0017 / 0.0055 ± 0.0009; wiping reaching / wiping / releasing: 0.0107 ± 0.0031 / 0.0091 ± 0.0024 / 0.0105 ± 0.0009; associative, repositioning 0.0237 / 0.0111 / 0.0176, wiping 0.0165 / 0.0100 / 0.0184",
         effect: "– (descriptive)",
+        verdict: Verdict::Descriptive,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &[
             "converged/hierarchy/report/contributions_over_time_repositioning.png",
@@ -45,6 +80,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "described, no test",
         ours: "near − elsewhere (t ≥ 30) −0.0003; across networks two-sided t(4), p = 0.79; within runs permutation p = 0.80",
         effect: "−0.0003 [−0.0030, +0.0024], d = −0.13; ±0.0036",
+        verdict: Verdict::Disagrees,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &[],
         view: Some("seq=wiping_650mm_test0&t=83&d=0"),
@@ -56,6 +92,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "pictures",
         ours: "reconstruction −0.0108, t(4) = −45.2, p < 0.001; from the 16x16 input −0.0107, p < 0.001; prior prediction −0.0108, p < 0.001",
         effect: "reconstruction −0.0108 [−0.0115, −0.0102], d = −20.2; ±0.0009",
+        verdict: Verdict::Agrees,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/hierarchy/report/contribution_maps.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&contours=1"),
@@ -67,6 +104,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "t(4) = 1.67, p = 0.17",
         ours: "TOST vs ±0.125: 90% CI [+0.0048, +0.0127], p < 0.001: equivalent; paired t(4) = 4.70, p = 0.009",
         effect: "+0.0087 [+0.0036, +0.0139], d = 2.1; ±0.0069",
+        verdict: Verdict::Disagrees,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/uncertainty/report/sigma_p.png"],
         view: Some("seq=wiping_650mm_test0&t=150"),
@@ -78,6 +116,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "t(4) = −8.15, p = 0.0012",
         ours: "t(4) = −2.28, p = 0.085",
         effect: "−0.0013 [−0.0029, +0.0003], d = −1.0; ±0.0021",
+        verdict: Verdict::Disagrees,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/uncertainty/report/sigma_p_change.png"],
         view: Some("seq=repositioning_650mm_test0&t=150"),
@@ -89,6 +128,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(2, 20) = 105.57, p < 0.001",
         ours: "ART F(2, 20) = 12.98, p < 0.001; 64 / 32+16 / 16: 0.00688 / 0.00674 / 0.00698",
         effect: "16 − 64 (proprio on): +0.00008 [−0.0007, +0.0009], d = 0.12; ±0.0011",
+        verdict: Verdict::Undecided,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/robustness/report/robustness.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&compare=vision"),
@@ -100,6 +140,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(1, 20) = 46.09, p < 0.001",
         ours: "ART F(1, 20) = 0.39, p = 0.54; on / off 0.00685 / 0.00689",
         effect: "off − on at 64: +0.00001 [−0.00017, +0.00019], d = 0.09; ±0.00024",
+        verdict: Verdict::Disagrees,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/robustness/report/robustness.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&compare=vision&vision=1&proprio=0"),
@@ -111,6 +152,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(3, 16) = 19.16, p < 0.001",
         ours: "ART F(3, 8) = 1.07, p = 0.414 (pooled over all 32,284 sensory dimensions)",
         effect: "9 added − none: −1.1e-4 [−8.3e-4, +6.0e-4]; ±9.6e-4",
+        verdict: Verdict::Undecided,
         scale: "reduced scale: 3 x 5,000 per condition (networks x iterations)",
         figures: &["interference/report/interference_wiping.png"],
         view: None,

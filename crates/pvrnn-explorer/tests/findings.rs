@@ -34,6 +34,16 @@ fn every_statistic_is_the_results_document_s() {
             "`{}`: its statistic or effect is not experiments.md's",
             f.row
         );
+        // The verdict is the reading's: the row's last cell opens with it.
+        assert!(
+            rows.iter().any(|r| r.contains(f.ours)
+                && r.trim_end_matches(" |")
+                    .rsplit(" | ")
+                    .next()
+                    .is_some_and(|reading| reading.starts_with(f.verdict.reading()))),
+            "`{}`: the verdict is not experiments.md's reading",
+            f.row
+        );
         assert!(f.scale.contains("networks"), "`{}` names no scale", f.row);
     }
 }
@@ -115,7 +125,12 @@ fn the_panel_lists_every_claim_and_its_link_opens_the_view() {
         assert!(labels.contains(f.claim), "no `{}`", f.claim);
     }
     // The first finding is open: its statistics, its figures read, its link.
-    for text in [FINDINGS[0].paper, FINDINGS[0].ours, FINDINGS[0].scale] {
+    for text in [
+        FINDINGS[0].paper,
+        FINDINGS[0].ours,
+        FINDINGS[0].scale,
+        FINDINGS[0].verdict.label(),
+    ] {
         assert!(labels.contains(text), "no `{text}`");
     }
     assert!(!labels.contains("figure not available"), "{labels}");

@@ -1,9 +1,9 @@
-//! The findings panel: the paper's claims beside what the experiments found (statistic,
+//! The findings panel: the paper's claims beside what the experiments found (verdict, statistic,
 //! effect with its interval, scale, the committed figures), each with one click to the
 //! view of the shipped network that shows it and a sentence on what to look at.
 
 use super::*;
-use crate::findings::{FINDINGS, Finding};
+use crate::findings::{FINDINGS, Finding, Verdict};
 
 /// The findings' figures as textures, read when the panel first shows them.
 #[derive(Default)]
@@ -65,7 +65,8 @@ impl ExplorerApp {
             .vscroll(true)
             .show(ctx, |ui| {
                 ui.label(
-                    "Each claim of the paper with its statistic, ours as measured (effect with \
+                    "Each claim of the paper with our verdict (by the rules of \
+                     docs/experiments.md), the paper's statistic, ours as measured (effect with \
                      its 95% interval; docs/results/experiments.md), the scale it was measured \
                      at, and the view of the shipped network that shows it.",
                 );
@@ -94,11 +95,12 @@ impl FindingPanel<'_> {
     fn ui(&self, ui: &mut egui::Ui, figures: &mut FigureCache) -> bool {
         let f = self.finding;
         let mut follow = false;
-        egui::CollapsingHeader::new(RichText::new(f.claim).strong())
+        egui::CollapsingHeader::new(header(ui, f))
             .id_salt(("finding", self.index))
             .default_open(self.index == 0)
             .show(ui, |ui| {
                 for (label, text) in [
+                    ("verdict:", f.verdict.label()),
                     ("paper:", f.paper),
                     ("ours:", f.ours),
                     ("effect [95% CI]; detectable:", f.effect),
@@ -147,4 +149,29 @@ impl FindingPanel<'_> {
             });
         follow
     }
+}
+
+/// A finding's header: the claim, then the verdict in its colour, so that the verdicts read
+/// down the closed list.
+fn header(ui: &egui::Ui, f: &Finding) -> egui::text::LayoutJob {
+    let visuals = ui.visuals();
+    let colour = match f.verdict {
+        Verdict::Agrees => Color32::from_rgb(52, 168, 83),
+        Verdict::Disagrees => visuals.error_fg_color,
+        Verdict::Undecided => visuals.warn_fg_color,
+        Verdict::Descriptive => visuals.weak_text_color(),
+    };
+    let mut job = egui::text::LayoutJob::default();
+    for text in [
+        RichText::new(f.claim).strong(),
+        RichText::new(format!("  {}", f.verdict.label())).color(colour),
+    ] {
+        text.append_to(
+            &mut job,
+            ui.style(),
+            egui::FontSelection::Default,
+            egui::Align::Center,
+        );
+    }
+    job
 }

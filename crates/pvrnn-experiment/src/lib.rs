@@ -7,10 +7,12 @@
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
 //! - [`paper`]: the paper's findings beside ours (the table every report ends with).
+//! - [`compatibility`]: whether a non-significant result still excludes the paper's effect.
 //! - [`reporting`]: running jobs with the report rebuilt when a part of the design (an
 //!   interference direction) is complete.
 //! - [`slurm`]: the same plan as Slurm job arrays.
 
+pub mod compatibility;
 pub mod occlusion;
 pub mod paper;
 pub mod plan;

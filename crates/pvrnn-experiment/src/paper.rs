@@ -11,12 +11,15 @@
 //! orders (a rise neither shows is a disagreement).
 //! A same-direction result that is not significant is not blamed on power by default:
 //! every finding states its effect with the 95% confidence interval and the smallest
-//! effect the design could detect (80% power, from the observed variance), so the reader
-//! sees whether the interval excludes the paper's effect or the design was too small.
+//! effect the design could detect (80% power, from the observed variance), and where the
+//! paper gives a statistic, the verdict sets our interval against the paper's effect
+//! ([`crate::compatibility`]): an interval that excludes it disagrees, one that holds it
+//! is undecided (too small a design to tell).
 
 use serde::Serialize;
 use serde_json::Value;
 
+use crate::compatibility::{Compatibility, OurStatistic, PaperStatistic};
 use crate::plan::Experiment;
 
 /// One finding: the paper's, ours, and whether they agree (None: not testable here).
@@ -78,11 +81,71 @@ fn verdict(p: Option<f64>, significant: bool, direction_ok: bool) -> (Option<boo
         (true, true, true) | (false, false, true) => (Some(true), String::new()),
         (true, false, true) => (
             Some(false),
-            "same direction, not significant here (see the effect's interval and the detectable effect)"
+            "same direction, not significant here (the paper gives no statistic to set our interval against)"
                 .into(),
         ),
         (false, true, true) => (Some(false), "significant here, not in the paper".into()),
     }
+}
+
+/// [`verdict`] for a claim the paper found significant and reports a statistic for
+/// (`against`: its effect set against our interval): a same-direction result that is not
+/// significant disagrees when our 95% interval excludes the paper's effect and is
+/// undecided when it holds it.
+fn verdict_against(
+    p: Option<f64>,
+    direction_ok: bool,
+    against: Option<Compatibility>,
+) -> (Option<bool>, String) {
+    match (p, against) {
+        (Some(p), Some(c)) if p >= ALPHA && direction_ok => {
+            if c.excluded {
+                (
+                    Some(false),
+                    format!(
+                        "same direction, not significant, and our interval excludes the paper's effect ({})",
+                        c.text
+                    ),
+                )
+            } else {
+                (
+                    None,
+                    format!(
+                        "undecided: same direction, not significant, and our interval holds the paper's effect as well as none ({}): too small a design to tell",
+                        c.text
+                    ),
+                )
+            }
+        }
+        _ => verdict(p, true, direction_ok),
+    }
+}
+
+/// Our t or F as JSON (`{"t", "df"}` or `{"f", "df1", "df2"}`); a t negated when
+/// `negate` (so that the paper's direction is positive).
+fn our_t(v: &Value, negate: bool) -> Option<OurStatistic> {
+    let t = num(&v["t"])?;
+    Some(OurStatistic::T {
+        t: if negate { -t } else { t },
+        df: num(&v["df"])?,
+    })
+}
+
+fn our_f(v: &Value) -> Option<OurStatistic> {
+    Some(OurStatistic::F {
+        f: num(&v["f"])?,
+        df1: num(&v["df1"])?,
+        df2: num(&v["df2"])?,
+    })
+}
+
+/// The paper's statistic against ours at `networks` networks per condition.
+fn against(
+    paper: PaperStatistic,
+    ours: Option<OurStatistic>,
+    networks: usize,
+) -> Option<Compatibility> {
+    crate::compatibility::compare(paper, ours?, networks as f64)
 }
 
 fn finding(
@@ -275,10 +338,15 @@ fn uncertainty(r: &Value) -> Vec<Finding> {
             "Prior σ changes less over time in repositioning than in wiping (Fig 4B)",
             "t(4) = −8.15, p = 0.0012",
             t_text(&change["paired_t"]),
-            verdict(
+            verdict_against(
                 num(&change["paired_t"]["p"]),
-                true,
                 num(&change["paired_t"]["t"]).is_none_or(|t| t < 0.0),
+                against(
+                    PaperStatistic::T { t: -8.15, df: 4.0 },
+                    // Repositioning − wiping: the paper's direction is negative.
+                    our_t(&change["paired_t"], true),
+                    num(&change["paired_t"]["n"]).unwrap_or(0.0) as usize,
+                ),
             ),
         )
         .with_effect(effect_text(&change["difference"])),
@@ -292,10 +360,13 @@ fn robustness(r: &Value) -> Vec<Finding> {
     let by_vision: Vec<Option<f64>> = (0..3)
         .map(|v| Some((cell(v, 0)? + cell(v, 1)?) / 2.0))
         .collect();
+    let networks = by_network(&r["cells"][0][0]).len();
+    let paper_f = |f: f64, df1: f64| PaperStatistic::F { f, df1, df2: 20.0 };
     let resolution_verdict = resolution_verdict(
         num(&effects[0]["p"]),
         Order::of(&by_vision),
         Order::of_ranks(&r["art"]["a_contrasts"]),
+        against(paper_f(105.57, 2.0), our_f(&effects[0]), networks),
     );
     let on: Option<f64> = (0..3).map(|v| cell(v, 0)).sum::<Option<f64>>();
     let off: Option<f64> = (0..3).map(|v| cell(v, 1)).sum::<Option<f64>>();
@@ -319,6 +390,9 @@ fn robustness(r: &Value) -> Vec<Finding> {
         })
     });
     let simple_p = simple.and_then(|x| num(&x["p_holm"]));
+    // The contrast's t in the paper's direction (lower with proprioception on).
+    let simple_t =
+        simple.and_then(|x| our_t(x, x["a"].as_str().is_some_and(|a| a.ends_with("on"))));
     // Paired differences over networks: 16 vs 64 (vision, proprio on), off vs on (16x16),
     // and the interaction (saving at 16 − saving at 64).
     let cells = &r["cells"];
@@ -359,7 +433,11 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 fmt(on.map(|v| v / 3.0)),
                 fmt(off.map(|v| v / 3.0))
             ),
-            verdict(num(&effects[1]["p"]), true, helps),
+            verdict_against(
+                num(&effects[1]["p"]),
+                helps,
+                against(paper_f(46.09, 1.0), our_f(&effects[1]), networks),
+            ),
         )
         .with_effect(format!("off − on at 64: {}", effect_text(&paired_difference(&cells[0][1], &cells[0][0])))),
         finding(
@@ -371,7 +449,11 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 fmt(saving_64),
                 fmt(saving_16)
             ),
-            verdict(num(&effects[2]["p"]), true, more_at_low),
+            verdict_against(
+                num(&effects[2]["p"]),
+                more_at_low,
+                against(paper_f(13.57, 2.0), our_f(&effects[2]), networks),
+            ),
         )
         .with_effect(format!(
             "saving at 16 − saving at 64: {}",
@@ -384,7 +466,11 @@ fn robustness(r: &Value) -> Vec<Finding> {
                 "ART-C cell contrast 16 / on vs 16 / off, Holm over all 15 cell pairs: {}",
                 p_text(simple_p)
             ),
-            verdict(simple_p, true, simple_helps),
+            verdict_against(
+                simple_p,
+                simple_helps,
+                against(PaperStatistic::P { p: 0.034, df: 20.0 }, simple_t, networks),
+            ),
         )
         .with_effect(format!("off − on at 16: {}", effect_text(&paired_difference(&cells[2][1], &cells[2][0])))),
     ]
@@ -441,6 +527,7 @@ fn resolution_verdict(
     p: Option<f64>,
     means: Option<Order>,
     ranks: Option<Order>,
+    against: Option<Compatibility>,
 ) -> (Option<bool>, String) {
     let significance = if p.is_some_and(|p| p < ALPHA) {
         "significant"
@@ -448,10 +535,10 @@ fn resolution_verdict(
         "not significant"
     };
     match (means, ranks) {
-        (None, _) => verdict(p, true, true),
-        (Some(m), None) => resolution_verdict(p, Some(m), Some(m)),
+        (None, _) => verdict_against(p, true, against),
+        (Some(m), None) => resolution_verdict(p, Some(m), Some(m), against),
         (Some(m), Some(r)) if r == m => match m {
-            Order::Rising => verdict(p, true, true),
+            Order::Rising => verdict_against(p, true, against),
             Order::Falling => verdict(p, true, false),
             Order::Lowest(level) => (
                 Some(false),
@@ -625,6 +712,15 @@ fn rise_finding(v: &Value) -> Finding {
             num(&effect["p"]),
             rising.is_none_or(|(first, last)| first < last),
             ranks,
+            against(
+                PaperStatistic::F {
+                    f: 19.16,
+                    df1: 3.0,
+                    df2: 16.0,
+                },
+                our_f(effect),
+                networks_per_condition(v),
+            ),
         ),
     )
     .with_effect(format!(
@@ -664,15 +760,28 @@ fn lower_in_ranks(contrast: Option<&Value>, few: &str) -> Option<bool> {
 
 /// The verdict on a directed claim judged on the mean errors (`lower`: the paper's
 /// direction), undecided when the aligned ranks the test uses point the other way.
-fn directed_verdict(p: Option<f64>, lower: bool, ranks: Option<bool>) -> (Option<bool>, String) {
+fn directed_verdict(
+    p: Option<f64>,
+    lower: bool,
+    ranks: Option<bool>,
+    against: Option<Compatibility>,
+) -> (Option<bool>, String) {
     match ranks {
         Some(ranks) if ranks != lower && p.is_some() => (
             None,
             "undecided: the mean errors and the aligned ranks the test uses point different ways"
                 .into(),
         ),
-        _ => verdict(p, true, lower),
+        _ => verdict_against(p, lower, against),
     }
+}
+
+/// The networks per condition of an interference direction (the smallest group).
+fn networks_per_condition(v: &Value) -> usize {
+    v["per_network"][0]
+        .as_array()
+        .and_then(|c| c.iter().filter_map(|g| g.as_array().map(Vec::len)).min())
+        .unwrap_or(0)
 }
 
 /// The number of sequences a condition adds (`wiping 9 + repositioning 3` → `3`).
@@ -695,11 +804,11 @@ fn holm_findings(v: &Value) -> Vec<Finding> {
             .unwrap_or_default()
     };
     let mut out = Vec::new();
-    for (few, many, paper_p) in [
-        ("0", "6", "p < 0.001"),
-        ("0", "9", "p < 0.001"),
-        ("3", "6", "p = 0.0033"),
-        ("3", "9", "p = 0.0033"),
+    for (few, many, paper_p, p_value) in [
+        ("0", "6", "p < 0.001", 0.001),
+        ("0", "9", "p < 0.001", 0.001),
+        ("3", "6", "p = 0.0033", 0.0033),
+        ("3", "9", "p = 0.0033", 0.0033),
     ] {
         let contrast = pooled_contrast(v, few, many);
         let p = contrast.and_then(|x| num(&x["p_holm"]));
@@ -709,7 +818,22 @@ fn holm_findings(v: &Value) -> Vec<Finding> {
         // The direction is the printed effect's (mean errors, many − few > 0: lower with
         // fewer), unless the aligned ranks the test uses point the other way.
         let lower = num(&difference["mean"]).is_none_or(|d| d > 0.0);
-        let (agrees, note) = directed_verdict(p, lower, lower_in_ranks(contrast, few));
+        // The contrast's t in the paper's direction (lower with fewer added): the rank
+        // difference is a − b.
+        let t = contrast.and_then(|x| our_t(x, added(x["a"].as_str().unwrap_or("")) == few));
+        let (agrees, note) = directed_verdict(
+            p,
+            lower,
+            lower_in_ranks(contrast, few),
+            against(
+                PaperStatistic::P {
+                    p: p_value,
+                    df: 16.0,
+                },
+                t,
+                networks_per_condition(v),
+            ),
+        );
         out.push(
             finding(
                 &format!("Wiping's error is lower with {few} than with {many} repositioning sequences added (Fig 6B, Holm)"),
@@ -737,7 +861,7 @@ fn untested(findings: &mut [Finding], note: &str) {
 /// cover ("5 of the design's 5 networks").
 pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. A result in the paper's direction that is not significant disagrees when the 95% interval of our test's noncentrality excludes the paper's effect (its t or F, or the smallest t its p allows, scaled to our networks per condition), and is undecided when the interval holds it. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -962,6 +1086,67 @@ mod tests {
             "{}",
             f[0].note
         );
+    }
+
+    #[test]
+    fn a_non_significant_result_is_set_against_the_papers_effect() {
+        // Fig 4B, repositioning − wiping (the paper: t(4) = −8.15, δ 6.31 at 3 networks).
+        let change = |t: f64, p: f64| {
+            json!({"comparisons": [
+                {"module": "all modules", "measure": "mean absolute change of prior sigma",
+                 "paired_t": {"t": t, "df": 2.0, "p": p, "n": 3}},
+            ]})
+        };
+        // t(2) = −1.79: δ at most 4.24, the paper's effect excluded.
+        let f = &findings(Experiment::Uncertainty, &change(-1.79, 0.215))[1];
+        assert_eq!(f.agrees, Some(false), "{f:?}");
+        assert!(
+            f.note.contains("excludes the paper's effect")
+                && f.note
+                    .contains("[-0.86, 4.24], the paper's 6.31 at 3 networks"),
+            "{}",
+            f.note
+        );
+        // t(2) = −4.00 (p = 0.057): δ up to 8.08, which holds the paper's: undecided.
+        let f = &findings(Experiment::Uncertainty, &change(-4.0, 0.057))[1];
+        assert_eq!(f.agrees, None, "{f:?}");
+        assert!(f.note.contains("too small a design"), "{}", f.note);
+        // The opposite direction is not set against anything.
+        let f = &findings(Experiment::Uncertainty, &change(1.79, 0.215))[1];
+        assert!(f.note.contains("opposite"), "{}", f.note);
+
+        // Fig 6B's Holm contrasts report only p: the paper's effect is at least the t that
+        // p allows (4.01 on 16 df for p < 0.001, δ 4.01 at 5 networks).
+        let label = |k: &str| format!("wiping 9 + repositioning {k}");
+        let contrast = |a: &str, b: &str, t: f64| json!({"a": label(a), "b": label(b), "rank_difference": t, "t": t, "df": 16.0, "p_holm": 0.5});
+        let group = |m: f64| json!([m, m + 0.1, m + 0.2, m + 0.3, m + 0.4]);
+        let r = |t_0_6: f64| {
+            json!({"wiping": {
+                "conditions": [label("0"), label("3"), label("6"), label("9")],
+                "per_network": [[group(1.0), group(1.1), group(1.2), group(1.3)]],
+                "complete": true,
+                "art": {"pooled": {
+                    "effect": {"f": 1.0, "df1": 3.0, "df2": 16.0, "p": 0.4},
+                    "contrasts": [contrast("0", "6", t_0_6), contrast("0", "9", -1.0),
+                        contrast("3", "6", -1.0), contrast("3", "9", -1.0)],
+                }},
+            }})
+        };
+        // t = −1.0 (0 below 6 in ranks): δ at most 2.97 < 4.01: excluded.
+        let f = findings(Experiment::Interference, &r(-1.0));
+        assert_eq!(f[1].agrees, Some(false), "{:?}", f[1]);
+        assert!(
+            f[1].note
+                .contains("the paper's at least 4.01 at 5 networks"),
+            "{}",
+            f[1].note
+        );
+        // t = −3.0: δ up to 5.18: undecided.
+        let f = findings(Experiment::Interference, &r(-3.0));
+        assert_eq!(f[1].agrees, None, "{:?}", f[1]);
+        // The rise's F(3, 16) = 1.0 against the paper's 19.16 (λ 57.5): excluded.
+        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
+        assert!(f[0].note.contains("λ"), "{}", f[0].note);
     }
 
     #[test]

@@ -346,9 +346,10 @@ pub struct BackendArgs {
     /// `--weights-on-host` the whole iteration then stays on the GPU: the recurrent weights
     /// and the adaptive variables with their optimiser state too, one submission per
     /// iteration, only the free-energy terms read back (on an H200 0.0256 against 0.0299 s
-    /// per paper-scale iteration). Online inference (`infer`, `evaluate`, an experiment's
-    /// inference runs) keeps the recurrence on the CPU: there the GPU's made it slower (21
-    /// against 35 steps/s with 16x16 + proprioception; docs/gpu.md).
+    /// per paper-scale iteration). Online inference keeps the recurrence on the CPU (`infer`
+    /// and `evaluate` refuse this flag; an experiment's inference runs leave it out): there
+    /// the GPU's made it slower (21 against 35 steps/s with 16x16 + proprioception;
+    /// docs/gpu.md).
     #[arg(long)]
     pub gpu_recurrence: bool,
     /// With `--backend wgpu`: upload the weights and read their gradients back every

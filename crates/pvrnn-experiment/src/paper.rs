@@ -383,16 +383,7 @@ fn robustness(r: &Value) -> Vec<Finding> {
         _ => true,
     };
     let fmt = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.3e}"));
-    let simple = r["art"]["cell_contrasts"].as_array().and_then(|c| {
-        c.iter().find(|x| {
-            let (a, b) = (x["a"].as_str().unwrap_or(""), x["b"].as_str().unwrap_or(""));
-            a.starts_with("16 /") && b.starts_with("16 /")
-        })
-    });
-    let simple_p = simple.and_then(|x| num(&x["p_holm"]));
-    // The contrast's t in the paper's direction (lower with proprioception on).
-    let simple_t =
-        simple.and_then(|x| our_t(x, x["a"].as_str().is_some_and(|a| a.ends_with("on"))));
+    let (simple_p, simple_t) = simple_effect(r);
     // Paired differences over networks: 16 vs 64 (vision, proprio on), off vs on (16x16),
     // and the interaction (saving at 16 − saving at 64).
     let cells = &r["cells"];
@@ -474,6 +465,21 @@ fn robustness(r: &Value) -> Vec<Finding> {
         )
         .with_effect(format!("off − on at 16: {}", effect_text(&paired_difference(&cells[2][1], &cells[2][0])))),
     ]
+}
+
+/// The simple effect of proprioception at 16x16 (the ART-C contrast of the cells 16 / on
+/// and 16 / off): its Holm p and its t in the paper's direction (lower with it on).
+fn simple_effect(r: &Value) -> (Option<f64>, Option<OurStatistic>) {
+    let simple = r["art"]["cell_contrasts"].as_array().and_then(|c| {
+        c.iter().find(|x| {
+            let (a, b) = (x["a"].as_str().unwrap_or(""), x["b"].as_str().unwrap_or(""));
+            a.starts_with("16 /") && b.starts_with("16 /")
+        })
+    });
+    (
+        simple.and_then(|x| num(&x["p_holm"])),
+        simple.and_then(|x| our_t(x, x["a"].as_str().is_some_and(|a| a.ends_with("on")))),
+    )
 }
 
 /// Resolution levels 64 / 32+16 / 16 in the order of [`robustness`]'s means.

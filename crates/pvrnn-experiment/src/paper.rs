@@ -49,11 +49,11 @@ fn p_text(p: Option<f64>) -> String {
     }
 }
 
-/// A test's F as "F(df1, df2) = f, p".
+/// An ART ANOVA's F (every F set beside the paper's is one) as "ART F(df1, df2) = f, p".
 fn f_text(effect: &Value) -> String {
     match (num(&effect["f"]), num(&effect["df1"]), num(&effect["df2"])) {
         (Some(f), Some(a), Some(b)) => {
-            format!("F({a}, {b}) = {f:.2}, {}", p_text(num(&effect["p"])))
+            format!("ART F({a}, {b}) = {f:.2}, {}", p_text(num(&effect["p"])))
         }
         _ => "not computed (too few networks)".into(),
     }

@@ -142,7 +142,7 @@ fn effects_table(out: &mut String, effects: &[Effect]) {
 }
 
 fn contrasts_table(out: &mut String, contrasts: &[Contrast]) {
-    out.push_str("| contrast | rank difference | t | df | p | p (Holm) | Cohen's d (pooled SD, pairing ignored) | raw difference [95% CI] |\n|---|---|---|---|---|---|---|---|\n");
+    out.push_str("| contrast | rank difference | t | df | p | p (Holm) | Cohen's d (pooled SD; for paired levels, pairing ignored) | raw difference [95% CI] |\n|---|---|---|---|---|---|---|---|\n");
     for c in contrasts {
         let _ = writeln!(
             out,

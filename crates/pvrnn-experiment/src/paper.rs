@@ -37,6 +37,9 @@ pub struct Finding {
 
 const ALPHA: f64 = 0.05;
 
+/// The key of the interference results' asymmetry test (beside the directions' keys).
+pub const ASYMMETRY: &str = "asymmetry";
+
 fn num(v: &Value) -> Option<f64> {
     v.as_f64()
 }
@@ -630,6 +633,9 @@ fn interference(r: &Value) -> Vec<Finding> {
         return out;
     };
     for (primary, v) in primaries {
+        if primary == ASYMMETRY {
+            continue;
+        }
         let mut findings = if primary == "repositioning" {
             vec![no_change_finding(v)]
         } else {
@@ -651,7 +657,70 @@ fn interference(r: &Value) -> Vec<Finding> {
         }
         out.extend(findings);
     }
+    if primaries.contains_key("wiping") && primaries.contains_key("repositioning") {
+        out.push(asymmetry_finding(&r[ASYMMETRY]));
+    }
     out
+}
+
+/// Fig 6 read as one claim: adding repositioning data changes wiping's error by more than
+/// adding wiping data changes repositioning's (the difference of the two directions' log
+/// ratios of none → 9 added, pooled error).
+fn asymmetry_finding(a: &Value) -> Finding {
+    let t = &a["measures"]["pooled"];
+    // Wiping's log ratio − repositioning's: the paper's asymmetry is positive.
+    let sign = if a["second"] == "wiping" { 1.0 } else { -1.0 };
+    let difference = num(&t["difference"]).map(|d| sign * d);
+    let p = num(&t["p"]);
+    let (ours, effect, verdict) = match (a.is_null(), difference) {
+        (true, _) => (
+            "not tested yet: both directions must be complete".to_string(),
+            "–".to_string(),
+            (
+                None,
+                "no test yet: both directions must be complete".to_string(),
+            ),
+        ),
+        (false, None) => (
+            "–".into(),
+            "–".into(),
+            (None, "no test: too few complete networks".into()),
+        ),
+        (false, Some(d)) => {
+            let change = |i: usize| num(&t["change"][i]).map_or(f64::NAN, |c| 100.0 * c);
+            let (reposition, wipe) = if sign > 0.0 {
+                (change(0), change(1))
+            } else {
+                (change(1), change(0))
+            };
+            let ci = [num(&t["ci95"][0]), num(&t["ci95"][1])].map(|c| c.map(|c| sign * c));
+            let (lo, hi) = match ci {
+                [Some(a), Some(b)] => (a.min(b), a.max(b)),
+                _ => (f64::NAN, f64::NAN),
+            };
+            (
+                format!(
+                    "pooled error, none → 9 added: wiping {wipe:+.1}%, repositioning {reposition:+.1}%; Welch t({:.1}) = {:.2}, {}",
+                    num(&t["df"]).unwrap_or(f64::NAN),
+                    sign * num(&t["t"]).unwrap_or(f64::NAN),
+                    p_text(p)
+                ),
+                format!(
+                    "wiping's − repositioning's log ratio: {d:.3e} [{lo:.3e}, {hi:.3e}]; detectable ±{:.3e}",
+                    num(&t["detectable"]).unwrap_or(f64::NAN)
+                ),
+                verdict(p, true, d > 0.0),
+            )
+        }
+    };
+    Finding {
+        finding: "The interference is asymmetric: adding repositioning data raises wiping's error by more than adding wiping data changes repositioning's (Fig 6A against 6B)".into(),
+        paper: "described from the two ANOVAs (F(3, 16) = 19.16 against 0.62), not tested".into(),
+        ours,
+        effect,
+        agrees: verdict.0,
+        note: verdict.1,
+    }
 }
 
 /// Fig 6A: "did not affect" is a claim of no change, tested as equivalence of the most
@@ -1153,6 +1222,57 @@ mod tests {
         // The rise's F(3, 16) = 1.0 against the paper's 19.16 (λ 57.5): excluded.
         assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
         assert!(f[0].note.contains("λ"), "{}", f[0].note);
+    }
+
+    #[test]
+    fn the_asymmetry_is_read_from_both_directions() {
+        let direction = json!({"complete": true});
+        let test = |difference: f64, p: f64| {
+            json!({"log_ratio": [0.0, difference], "change": [0.0, difference.exp() - 1.0],
+                "difference": difference, "ci95": [difference - 0.1, difference + 0.1],
+                "t": difference / 0.05, "df": 7.5, "p": p, "detectable": 0.14})
+        };
+        let r = |asymmetry: Value| json!({"repositioning": direction, "wiping": direction, "asymmetry": asymmetry});
+        let last = |r: &Value| findings(Experiment::Interference, r).pop().unwrap();
+        // Not yet tested: no asymmetry in the results.
+        let f = last(&json!({"repositioning": direction, "wiping": direction}));
+        assert!(
+            f.finding.contains("asymmetric") && f.agrees.is_none(),
+            "{f:?}"
+        );
+        // Wiping's error rises by 20% more (log ratio 0.18), significantly: agrees.
+        let ordered = |a: Value| {
+            r(json!({"first": "repositioning", "second": "wiping", "measures": {"pooled": a}}))
+        };
+        let f = last(&ordered(test(0.18, 0.01)));
+        assert_eq!(f.agrees, Some(true), "{f:?}");
+        assert!(
+            f.ours.contains("wiping +19.7%, repositioning +0.0%"),
+            "{}",
+            f.ours
+        );
+        assert!(
+            f.effect
+                .starts_with("wiping's − repositioning's log ratio: 1.800e-1"),
+            "{}",
+            f.effect
+        );
+        // The same numbers with the directions the other way round: repositioning's rise.
+        let swapped = r(json!({"first": "wiping", "second": "repositioning",
+            "measures": {"pooled": test(0.18, 0.01)}}));
+        let f = last(&swapped);
+        assert_eq!(f.agrees, Some(false), "{f:?}");
+        assert!(f.note.contains("opposite"), "{}", f.note);
+        assert!(
+            f.effect.contains("-1.800e-1 [-2.800e-1, -8.000e-2]"),
+            "{}",
+            f.effect
+        );
+        // Every other finding of the directions is still there, the asymmetry last.
+        assert_eq!(
+            findings(Experiment::Interference, &ordered(test(0.18, 0.01))).len(),
+            7
+        );
     }
 
     #[test]

@@ -1568,7 +1568,76 @@ fn interference(
         }
         json_out.insert(primary.clone(), direction);
     }
+    if let Some(asymmetry) = asymmetry(&plan.design.primary_tasks, &json_out, md) {
+        json_out.insert(crate::paper::ASYMMETRY.into(), asymmetry);
+    }
     Ok(Value::Object(json_out))
+}
+
+/// The asymmetry of the two directions (pre-specified 2026-11-30, before the second
+/// direction's first training): whether the most added data changes the second primary
+/// task's error by a different factor than the first's, per measure
+/// ([`stats::relative_change_difference`] of none → most added); once both directions are
+/// complete.
+fn asymmetry(
+    primaries: &[String],
+    directions: &serde_json::Map<String, Value>,
+    md: &mut String,
+) -> Option<Value> {
+    let [first, second] = primaries else {
+        return None;
+    };
+    let (a, b) = (directions.get(first)?, directions.get(second)?);
+    if a["complete"] != true || b["complete"] != true {
+        return None;
+    }
+    // A direction's none and most-added groups of measure k.
+    let ends = |d: &Value, k: usize| -> Option<[Vec<f64>; 2]> {
+        let groups = d["per_network"][k].as_array()?;
+        let values = |g: &Value| -> Vec<f64> {
+            g.as_array()
+                .map_or(Vec::new(), |v| v.iter().filter_map(Value::as_f64).collect())
+        };
+        Some([values(groups.first()?), values(groups.last()?)])
+    };
+    let _ = writeln!(
+        md,
+        "### Asymmetry: does the other task's data change {second}'s error by a different factor than {first}'s?
+
+Pre-specified on 2026-11-30, before the converged campaign's second direction began (docs/experiments.md): each direction's change from none to the most added is the ratio of the two conditions' geometric-mean errors; the test is Welch's t of the difference of the log ratios ({second}'s − {first}'s; two-sided, 95% CI, and the smallest difference the design detects with 80% power). The paper's asymmetry (Fig 6: {second}'s error rises, {first}'s does not change) is a positive difference.
+
+| measure | {first}: change | {second}: change | difference of log ratios [95% CI] | t | df | p | detectable |\n|---|---|---|---|---|---|---|---|"
+    );
+    let mut tests = serde_json::Map::new();
+    let names = a["measures"].as_array()?;
+    for (k, name) in names.iter().enumerate() {
+        let name = name.as_str()?;
+        let ([a0, a1], [b0, b1]) = (ends(a, k)?, ends(b, k)?);
+        let test = stats::relative_change_difference([&a0, &a1], [&b0, &b1]);
+        match &test {
+            Some(t) => {
+                let _ = writeln!(
+                    md,
+                    "| {name} | {:+.1}% | {:+.1}% | {} [{}, {}] | {:.2} | {:.1} | {} | ±{} |",
+                    100.0 * t.change[0],
+                    100.0 * t.change[1],
+                    sig(t.difference),
+                    sig(t.ci95[0]),
+                    sig(t.ci95[1]),
+                    t.t,
+                    t.df,
+                    p_text(t.p),
+                    sig(t.detectable)
+                );
+            }
+            None => {
+                let _ = writeln!(md, "| {name} | – | – | – | | | | |");
+            }
+        }
+        tests.insert(name.to_string(), json!(test));
+    }
+    md.push('\n');
+    Some(json!({"first": first, "second": second, "measures": tests}))
 }
 
 #[cfg(test)]

@@ -205,6 +205,81 @@ pub fn equivalence(a: &[f64], b: &[f64], margin: f64, paired: bool) -> Option<Eq
     })
 }
 
+/// Whether a change is larger in one design than in another (an interaction of two
+/// independent 2-group comparisons): the change of each is the log ratio of its groups'
+/// geometric means (`after` over `before`, so changes of tasks whose errors differ in size
+/// compare as relative ones), and the test is Welch's t of the difference of the two log
+/// ratios over the four groups' variances (two-sided, Welch-Satterthwaite df).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct RelativeChangeDifference {
+    /// Each design's log ratio, first and second.
+    pub log_ratio: [f64; 2],
+    /// Each design's change as a fraction (exp(log ratio) − 1).
+    pub change: [f64; 2],
+    /// Second − first log ratio, with its 95% CI.
+    pub difference: f64,
+    pub ci95: [f64; 2],
+    pub t: f64,
+    pub df: f64,
+    pub p: Option<f64>,
+    /// The smallest difference of log ratios this design detects (80% power, two-sided,
+    /// 0.05): (t₀.₉₇₅ + t₀.₈) x SE.
+    pub detectable: f64,
+}
+
+/// [`RelativeChangeDifference`] of the change from `first[0]` to `first[1]` and that from
+/// `second[0]` to `second[1]` (each group one value per network, all positive).
+pub fn relative_change_difference(
+    first: [&[f64]; 2],
+    second: [&[f64]; 2],
+) -> Option<RelativeChangeDifference> {
+    let groups = [first[0], first[1], second[0], second[1]];
+    if groups
+        .iter()
+        .any(|g| g.len() < 2 || g.iter().any(|&x| x.is_nan() || x <= 0.0))
+    {
+        return None;
+    }
+    // Mean of the logs and the variance of that mean, per group.
+    let moments: Vec<(f64, f64, f64)> = groups
+        .iter()
+        .map(|g| {
+            let n = g.len() as f64;
+            let logs: Vec<f64> = g.iter().map(|x| x.ln()).collect();
+            let mean = logs.iter().sum::<f64>() / n;
+            let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            (mean, var / n, n)
+        })
+        .collect();
+    let log_ratio = [moments[1].0 - moments[0].0, moments[3].0 - moments[2].0];
+    let difference = log_ratio[1] - log_ratio[0];
+    let variance: f64 = moments.iter().map(|m| m.1).sum();
+    let se = variance.sqrt();
+    let df = variance.powi(2)
+        / moments
+            .iter()
+            .map(|(_, v, n)| v.powi(2) / (n - 1.0))
+            .sum::<f64>();
+    let df = if df.is_finite() {
+        df
+    } else {
+        moments.iter().map(|m| m.2 - 1.0).sum()
+    };
+    let t975 = t_quantile(1.0 - ALPHA / 2.0, df)?;
+    let t80 = t_quantile(POWER, df)?;
+    let t = t_statistic(difference, se);
+    Some(RelativeChangeDifference {
+        log_ratio,
+        change: log_ratio.map(|l| l.exp() - 1.0),
+        difference,
+        ci95: [difference - t975 * se, difference + t975 * se],
+        t,
+        df,
+        p: t_p_value(t, df),
+        detectable: (t975 + t80) * se,
+    })
+}
+
 /// Holm's step-down adjustment of a family of p-values (same order as given).
 pub fn holm(p: &[f64]) -> Vec<f64> {
     let m = p.len();
@@ -731,6 +806,31 @@ pub fn art_one_way(labels: &[String], groups: &[Vec<f64>]) -> Option<ArtOneWay> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn relative_change_difference_matches_a_hand_computation() {
+        // Logs: first before {0, 0.2}, after {0.1, 0.3}: ratio 0.1; second before {1, 1.2},
+        // after {1.5, 1.9}: ratio 0.6. Difference 0.5. Group variances of the logs 0.02,
+        // 0.02, 0.02, 0.08; of the means (n = 2) 0.01 x 3 + 0.04: SE sqrt(0.07).
+        let e = |logs: [f64; 2]| logs.map(f64::exp).to_vec();
+        let d = relative_change_difference(
+            [&e([0.0, 0.2]), &e([0.1, 0.3])],
+            [&e([1.0, 1.2]), &e([1.5, 1.9])],
+        )
+        .unwrap();
+        assert!((d.log_ratio[0] - 0.1).abs() < 1e-12 && (d.log_ratio[1] - 0.6).abs() < 1e-12);
+        assert!((d.difference - 0.5).abs() < 1e-12, "{d:?}");
+        let se = 0.07f64.sqrt();
+        assert!((d.t - 0.5 / se).abs() < 1e-9, "{d:?}");
+        // Welch-Satterthwaite: 0.07² / (3 x 0.01² + 0.04²) = 0.0049 / 0.0019.
+        assert!((d.df - 0.0049 / 0.0019).abs() < 1e-9, "{d:?}");
+        assert!((d.change[1] - (0.6f64.exp() - 1.0)).abs() < 1e-12);
+        // A non-positive error has no log: no test.
+        assert!(
+            relative_change_difference([&[1.0, 0.0], &[1.0, 2.0]], [&[1.0, 2.0], &[1.0, 2.0]])
+                .is_none()
+        );
+    }
 
     #[test]
     fn paired_t_matches_a_hand_computation() {

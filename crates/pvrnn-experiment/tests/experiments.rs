@@ -464,11 +464,30 @@ fn an_interference_direction_is_tested_once_complete() {
             "{contrasts:?}"
         );
     }
+    // The asymmetry of the two directions, once both are complete: every measure's
+    // difference of log ratios with its interval.
+    let asymmetry = &summary["results"]["asymmetry"];
+    assert_eq!(asymmetry["first"], "repositioning");
+    for measure in ["pooled", "vision", "proprioception", "equal weight"] {
+        let t = &asymmetry["measures"][measure];
+        assert!(
+            t["p"].is_f64() && t["ci95"].is_array(),
+            "{measure}: {asymmetry}"
+        );
+    }
+    assert!(
+        md.contains("### Asymmetry: does the other task's data change wiping's error"),
+        "{md}"
+    );
     let findings = summary["paper"].as_array().unwrap();
     assert_eq!(
         findings.len(),
-        6,
-        "Fig 6A, 6B and its 4 Holm contrasts: {findings:?}"
+        7,
+        "Fig 6A, 6B, its 4 Holm contrasts and the asymmetry: {findings:?}"
+    );
+    assert!(
+        findings[6]["ours"].as_str().unwrap().contains("Welch t("),
+        "{findings:?}"
     );
     assert!(
         findings[0]["ours"]

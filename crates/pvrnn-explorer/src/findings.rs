@@ -116,7 +116,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "t(4) = −8.15, p = 0.0012",
         ours: "t(4) = −2.28, p = 0.085",
         effect: "−0.0013 [−0.0029, +0.0003], d = −1.0; ±0.0021",
-        verdict: Verdict::Disagrees,
+        verdict: Verdict::Undecided,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/uncertainty/report/sigma_p_change.png"],
         view: Some("seq=repositioning_650mm_test0&t=150"),

@@ -720,7 +720,7 @@ fn asymmetry_finding(a: &Value) -> Finding {
         }
     };
     Finding {
-        finding: "The interference is asymmetric: adding repositioning data raises wiping's error by more than adding wiping data changes repositioning's (Fig 6A against 6B)".into(),
+        finding: "The interference is asymmetric: adding repositioning data raises wiping's error by a larger factor than adding wiping data raises repositioning's (Fig 6A against 6B)".into(),
         paper: "described from the two ANOVAs (F(3, 16) = 19.16 against 0.62), not tested".into(),
         ours,
         effect,

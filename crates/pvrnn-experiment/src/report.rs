@@ -1604,7 +1604,7 @@ fn asymmetry(
         md,
         "### Asymmetry: does the other task's data change {second}'s error by a different factor than {first}'s?
 
-Pre-specified on 2026-11-30, before the converged campaign's second direction began (docs/experiments.md): each direction's change from none to the most added is the ratio of the two conditions' geometric-mean errors; the test is Welch's t of the difference of the log ratios ({second}'s − {first}'s; two-sided, 95% CI, and the smallest difference the design detects with 80% power). The paper's asymmetry (Fig 6: {second}'s error rises, {first}'s does not change) is a positive difference.
+Pre-specified on 2026-11-30, before the converged campaign's second direction began (docs/experiments.md): each direction's change from none to the most added is the ratio of the two conditions' geometric-mean errors; the test is Welch's t of the difference of the log ratios ({second}'s − {first}'s; two-sided, 95% CI, and the smallest difference the design detects with 80% power). The paper's asymmetry (Fig 6: wiping's error rises with repositioning data added, repositioning's does not change with wiping data added) is wiping's log ratio above repositioning's.
 
 | measure | {first}: change | {second}: change | difference of log ratios [95% CI] | t | df | p | detectable |\n|---|---|---|---|---|---|---|---|"
     );

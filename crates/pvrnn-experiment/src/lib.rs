@@ -7,7 +7,8 @@
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
 //! - [`paper`]: the paper's findings beside ours (the table every report ends with).
-//! - [`compatibility`]: whether a non-significant result still excludes the paper's effect.
+//! - [`compatibility`]: whether a non-significant result and the paper's differ (one effect
+//!   for both studies, tested).
 //! - [`reporting`]: running jobs with the report rebuilt when a part of the design (an
 //!   interference direction) is complete.
 //! - [`slurm`]: the same plan as Slurm job arrays.

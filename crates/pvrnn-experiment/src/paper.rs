@@ -12,9 +12,9 @@
 //! A same-direction result that is not significant is not blamed on power by default:
 //! every finding states its effect with the 95% confidence interval and the smallest
 //! effect the design could detect (80% power, from the observed variance), and where the
-//! paper gives a statistic, the verdict sets our interval against the paper's effect
-//! ([`crate::compatibility`]): an interval that excludes it disagrees, one that holds it
-//! is undecided (too small a design to tell).
+//! paper gives a statistic, the verdict tests whether one effect fits both studies
+//! ([`crate::compatibility`]): if they differ it disagrees, if one fits both it is
+//! undecided (too small a design to tell).
 
 use serde::Serialize;
 use serde_json::Value;
@@ -943,7 +943,7 @@ fn untested(findings: &mut [Finding], note: &str) {
 /// cover ("5 of the design's 5 networks").
 pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. A result in the paper's direction that is not significant disagrees when the 95% interval of our test's noncentrality excludes the paper's effect (its t or F, or the smallest t its p allows, scaled to our networks per condition), and is undecided when the interval holds it. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. A result in the paper's direction that is not significant disagrees when the two studies' effects differ (a likelihood-ratio test of one effect per network for both, from the paper's t or F, or the smallest t its p allows) and is undecided when one effect fits both; our noncentrality's 95% interval and the paper's estimate at our networks are printed beside it. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));

@@ -277,10 +277,11 @@ impl Observed {
 fn maximum(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
     const POINTS: usize = 400;
     let step = (hi - lo) / POINTS as f64;
-    let best = (0..=POINTS)
+    let (best, best_value) = (0..=POINTS)
         .map(|i| lo + step * i as f64)
-        .max_by(|a, b| f(*a).total_cmp(&f(*b)))
-        .unwrap_or(lo);
+        .map(|x| (x, f(x)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((lo, f(lo)));
     let (mut a, mut b) = ((best - step).max(lo), (best + step).min(hi));
     let ratio = (5f64.sqrt() - 1.0) / 2.0;
     for _ in 0..80 {
@@ -291,7 +292,7 @@ fn maximum(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
             a = c;
         }
     }
-    f(best).max(f(0.5 * (a + b)))
+    best_value.max(f(0.5 * (a + b)))
 }
 
 /// The likelihood-ratio test of one effect per network for both studies (χ² with 1 df):

@@ -244,11 +244,9 @@ pub fn relative_change_difference(
     let moments: Vec<(f64, f64, f64)> = groups
         .iter()
         .map(|g| {
-            let n = g.len() as f64;
             let logs: Vec<f64> = g.iter().map(|x| x.ln()).collect();
-            let mean = logs.iter().sum::<f64>() / n;
-            let var = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (n - 1.0);
-            (mean, var / n, n)
+            let (mean, se) = mean_se(&logs);
+            (mean, se.unwrap_or(0.0).powi(2), g.len() as f64)
         })
         .collect();
     let log_ratio = [moments[1].0 - moments[0].0, moments[3].0 - moments[2].0];

@@ -22,6 +22,14 @@ if ! rustup target list --installed | grep -q '^wasm32-unknown-unknown$'; then
     rustup target add wasm32-unknown-unknown
 fi
 
+# A minimal rustup profile has neither; test.sh checks formatting and runs clippy.
+for component in rustfmt clippy; do
+    if [ "$mode" = test ] && ! rustup component list --installed | grep -q "^$component-"; then
+        step "adding the Rust component $component"
+        rustup component add "$component"
+    fi
+done
+
 if ! wasm-bindgen-test-runner --version 2>/dev/null | grep -q "$WASM_BINDGEN_VERSION"; then
     step "installing wasm-bindgen-cli $WASM_BINDGEN_VERSION (about 2 minutes)"
     # Without --locked: its lock file wants a crate version this registry lacks.
@@ -89,7 +97,14 @@ fi
 
 if ! python3 -c "import safetensors, numpy" 2>/dev/null; then
     step "installing the Python packages the walkthrough's snippet uses (safetensors, numpy)"
-    python3 -m pip install --quiet safetensors numpy
+    if ! python3 -m pip --version >/dev/null 2>&1; then
+        apt-get update -qq && apt-get install -y -qq python3-pip
+    fi
+    # A distribution's own Python (Debian 12 and later, PEP 668) refuses installs outside a
+    # virtual environment; there the two packages go to the user's site-packages, which
+    # leaves the system's packages alone.
+    python3 -m pip install --quiet safetensors numpy 2>/dev/null ||
+        python3 -m pip install --quiet --no-warn-script-location --user --break-system-packages safetensors numpy
 fi
 
 if ! [ -x web/node_modules/.bin/wasm-opt ] || ! [ -d web/node_modules/playwright-core ]; then

@@ -4,7 +4,8 @@
 //! iterations, network used, validation error, last-tenth change and training time as its
 //! `train-*.json` records them; and the interference status's prose to the same files (how
 //! many of the plan's trainings are done and remain, and by how much every finished
-//! network beats the best baseline).
+//! network beats the best baseline); and `docs/experiments.md`'s count and time range of
+//! the same trainings.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 
@@ -119,7 +120,11 @@ fn results(dir: &str) -> Vec<TrainResult> {
 }
 
 fn doc() -> String {
-    std::fs::read_to_string(repo().join("docs/results/experiments.md")).unwrap()
+    read_doc("docs/results/experiments.md")
+}
+
+fn read_doc(path: &str) -> String {
+    std::fs::read_to_string(repo().join(path)).unwrap_or_else(|e| panic!("{path}: {e}"))
 }
 
 /// The table headed `header` against the trainings of `dir`: as many rows as results, and
@@ -167,7 +172,11 @@ fn the_interference_table_has_a_row_for_every_finished_training() {
 /// The document with every run of white space (line breaks included) made one space, so
 /// that a phrase matches wherever the text was wrapped.
 fn flat_doc() -> String {
-    doc().split_whitespace().collect::<Vec<_>>().join(" ")
+    flat(&doc())
+}
+
+fn flat(text: &str) -> String {
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 /// The number written right before each occurrence of `phrase` (`"10 of its 40"`: 10 for
@@ -189,10 +198,7 @@ fn numbers_before(doc: &str, phrase: &str) -> Vec<usize> {
                 .unwrap_or_else(|_| panic!("no number right before `{phrase}`"))
         })
         .collect();
-    assert!(
-        !found.is_empty(),
-        "docs/results/experiments.md no longer says `{phrase}`"
-    );
+    assert!(!found.is_empty(), "the document no longer says `{phrase}`");
     found
 }
 
@@ -263,4 +269,59 @@ fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_sta
         (low, high),
         "the networks beat the best baseline by {smallest:.1}-{largest:.1}%"
     );
+}
+
+/// Each `(low-high unit` range written right before `unit` (as in "(3,296-22,896 s"),
+/// the two numbers parsed; fails if there is none.
+fn ranges_before(doc: &str, unit: &str) -> Vec<(f64, f64)> {
+    let found: Vec<(f64, f64)> = doc
+        .match_indices(unit)
+        .filter_map(|(at, _)| {
+            let start = doc[..at].rfind(['(', ' '])?;
+            let (low, high) = doc[start + 1..at].split_once('-')?;
+            let number = |s: &str| s.replace(',', "").parse::<f64>().ok();
+            Some((number(low)?, number(high)?))
+        })
+        .collect();
+    assert!(
+        !found.is_empty(),
+        "no `low-high{unit}` range in the document"
+    );
+    found
+}
+
+#[test]
+fn the_plan_document_states_the_campaign_as_its_results_do() {
+    // docs/experiments.md: "... 18 of 40 done on 2 CPU cores (0.9-6.4 h each)" and the
+    // scale table's "0.9-6.4 h each on 2 cores (3,296-22,896 s ..."; the status in
+    // docs/results/experiments.md: "taken 0.9-6.4 hours (3,296-22,896 s, builds and tests".
+    let results = results(INTERFERENCE);
+    let planned = planned_trainings(INTERFERENCE);
+    let doc = flat(&read_doc("docs/experiments.md"));
+    for number in numbers_before(&doc, &format!(" of {planned} done on 2 CPU cores")) {
+        assert_eq!(
+            number,
+            results.len(),
+            "docs/experiments.md: `{number} of {planned} done`"
+        );
+    }
+    let seconds = results.iter().map(|r| r.seconds);
+    let shortest = seconds.clone().fold(f64::INFINITY, f64::min);
+    let longest = seconds.fold(f64::NEG_INFINITY, f64::max);
+    let in_seconds = (shortest.round(), longest.round());
+    let in_hours = (
+        (shortest / 360.0).round() / 10.0,
+        (longest / 360.0).round() / 10.0,
+    );
+    let results_doc = flat_doc();
+    for (doc, unit, expected) in [
+        (&doc, " s on three machines", in_seconds),
+        (&doc, " h each", in_hours),
+        (&results_doc, " s, builds and tests", in_seconds),
+        (&results_doc, " hours (", in_hours),
+    ] {
+        for range in ranges_before(doc, unit) {
+            assert_eq!(range, expected, "the trainings took {expected:?}{unit}");
+        }
+    }
 }

@@ -5,8 +5,7 @@
 //! `train-*.json` records them; and the interference status's prose to the same files (how
 //! many of the plan's trainings are done and remain, and by how much every finished
 //! network beats the best baseline its validations recorded, per primary task); and
-//! `docs/experiments.md`'s count and time range of
-//! the same trainings.
+//! `docs/experiments.md`'s count and time range of the same trainings.
 
 #![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
 

@@ -22,9 +22,11 @@
 #   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
 #                condition; NETWORKS overrides): N networks trained together, one
 #                recurrence dispatch for all of them; training only
-#   wgpu-blocked, whole-blocked, whole-N-blocked
-#                `wgpu`, `whole` and `whole-N` with the register-blocked output-layer
-#                kernels (PVRNN_WGPU_OUTPUT_KERNELS=blocked)
+#   wgpu-fused, whole-fused, whole-N-fused
+#                `wgpu`, `whole` and `whole-N` with the fused output-layer kernels in
+#                every call at their workgroup target of 1,024 (PVRNN_WGPU_OUTPUT_KERNELS=fused
+#                PVRNN_WGPU_WORKGROUPS=1024: the default before 2026-11-30; the default
+#                now runs the register-blocked kernels for learning's calls)
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -114,11 +116,13 @@ for round in $(seq "$rounds"); do
         fi
         bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
             --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench wgpu-blocked "$threads" "$round" --backend wgpu
-        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench whole-blocked "$threads" "$round" \
-            --backend wgpu --gpu-recurrence $train_only
-        PVRNN_WGPU_OUTPUT_KERNELS=blocked bench "whole-${NETWORKS:-5}-blocked" "$threads" \
-            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
+            bench wgpu-fused "$threads" "$round" --backend wgpu
+        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
+            bench whole-fused "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
+        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
+            bench "whole-${NETWORKS:-5}-fused" "$threads" "$round" --backend wgpu \
+            --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \

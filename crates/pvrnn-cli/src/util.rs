@@ -442,8 +442,12 @@ impl BackendArgs {
                 if self.weights_on_host {
                     name.push_str(", weights on the host");
                 }
-                if gpu.tiling().output_kernels == pvrnn_wgpu::OutputKernels::Blocked {
-                    name.push_str(", blocked output kernels");
+                match gpu.tiling().output_kernels {
+                    pvrnn_wgpu::OutputKernels::Auto => {}
+                    pvrnn_wgpu::OutputKernels::Fused => name.push_str(", fused output kernels"),
+                    pvrnn_wgpu::OutputKernels::Blocked => {
+                        name.push_str(", blocked output kernels");
+                    }
                 }
                 if self.gpu_recurrence && !gpu.tiling().replay_iterations {
                     name.push_str(", every iteration encoded");

@@ -3,13 +3,16 @@
 //! inference's window (30 rows, everything observed or 16x16 only, input gradient only,
 //! targets resident as online inference keeps them for a step's 50 updates).
 //!
-//! Then the first three again with the register-blocked kernels (`OutputKernels::Blocked`,
-//! named "blocked") and learning's full batch with the blocked kernels' knobs (no weight
-//! gradient, shallow tiles, one chunk, other workgroup targets), and inference's everything-observed case under caps on the column
-//! splits (`Tiling::max_splits`), the knob that trades the row pass's parallelism against
-//! the length of the reduce pass's sums. Then learning's full batch without the weight
-//! gradient, in one chunk, and with the row pass's other shapes (`Tiling::row_pass_rows`,
-//! `Tiling::row_pass_step`); with
+//! The first three run the fused kernels (`OutputKernels::Fused`, what the default picks
+//! for inference's window); then the same three with the register-blocked kernels
+//! (`OutputKernels::Blocked`, named "blocked": what the default picks for learning's
+//! batch) and learning's full batch with the blocked kernels' knobs (no weight gradient,
+//! shallow tiles, one chunk, other workgroup targets). Then the fused kernels' knobs:
+//! learning's full batch at the workgroup target before 2026-11-30 (1,024), without the
+//! weight gradient, in one chunk, and with the row pass's other shapes
+//! (`Tiling::row_pass_rows`, `Tiling::row_pass_step`), and inference's everything-observed
+//! case under caps on the column splits (`Tiling::max_splits`), the knob that trades the
+//! row pass's parallelism against the length of the reduce pass's sums; with
 //! `PVRNN_WGPU_CHECKS=all` every case runs with wgpu's runtime checks (the fused kernels run
 //! without them by default), with `PVRNN_WGPU_CHECKS=none` no kernel has them.
 //!
@@ -58,8 +61,9 @@ fn main() {
     // (what, rows, observed columns, weight gradients, repetitions, tiling); the targets
     // are resident in every case, as learning and online inference keep them.
     // Every call on the GPU: the bench times the layer there, small calls included.
-    let default = Tiling {
+    let fused = Tiling {
         min_work: 0,
+        output_kernels: OutputKernels::Fused,
         ..Tiling::default()
     };
     let mut cases = vec![
@@ -69,7 +73,7 @@ fn main() {
             dims,
             true,
             20,
-            default,
+            fused,
         ),
         (
             "inference, everything observed".into(),
@@ -77,7 +81,7 @@ fn main() {
             dims,
             false,
             50,
-            default,
+            fused,
         ),
         (
             "inference, 16x16 observed".into(),
@@ -85,12 +89,12 @@ fn main() {
             p16,
             false,
             50,
-            default,
+            fused,
         ),
     ];
     let blocked = Tiling {
         output_kernels: OutputKernels::Blocked,
-        ..default
+        ..fused
     };
     let blocked_cases: Vec<_> = cases
         .iter()
@@ -118,27 +122,40 @@ fn main() {
         ..blocked
     };
     blocked_learning("one chunk", true, one_chunk);
-    for target_workgroups in [256, 4096] {
+    for target_workgroups in [1024, 4096] {
         let tiling = Tiling {
             target_workgroups,
             ..blocked
         };
         blocked_learning(&format!("{target_workgroups} workgroups"), true, tiling);
     }
-    // Learning's full batch without the weight gradient (the row pass and its reduce
-    // alone: the column pass is the difference), in one chunk of 768 MiB instead of 11 of
-    // 64, and with the row pass's other shapes (rows per workgroup, columns per step).
+    // The fused kernels on learning's full batch: at the workgroup target they were
+    // measured at before 2026-11-30, without the weight gradient (the row pass and its
+    // reduce alone: the column pass is the difference), in one chunk of 768 MiB instead of
+    // 11 of 64, and with the row pass's other shapes (rows per workgroup, columns per step).
+    let fused_1024 = Tiling {
+        target_workgroups: 1024,
+        ..fused
+    };
+    cases.push((
+        "learning, full batch, 1024 workgroups".into(),
+        5400,
+        dims,
+        true,
+        20,
+        fused_1024,
+    ));
     cases.push((
         "learning, full batch, no d W".into(),
         5400,
         dims,
         false,
         20,
-        default,
+        fused,
     ));
     let one_chunk = Tiling {
         max_chunk_bytes: 768 << 20,
-        ..default
+        ..fused
     };
     cases.push((
         "learning, one chunk".into(),
@@ -153,7 +170,7 @@ fn main() {
             let tiling = Tiling {
                 row_pass_rows,
                 row_pass_step,
-                ..default
+                ..fused
             };
             let what = format!("learning, row pass {row_pass_rows} rows, {row_pass_step} per step");
             cases.push((what, 5400, dims, true, 20, tiling));
@@ -162,7 +179,7 @@ fn main() {
     for max_splits in [1024, 256, 128, 64, 32, 16] {
         let tiling = Tiling {
             max_splits,
-            ..default
+            ..fused
         };
         let what = format!("inference, everything, <= {max_splits} splits");
         cases.push((what, 30, dims, false, 50, tiling));

@@ -32,10 +32,16 @@ const BLOCKED_WEIGHT_ROWS: usize = 16;
 /// to f32 summation order; which is faster is a GPU's question (docs/gpu.md).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OutputKernels {
+    /// `Blocked` for a call of at least one whole block of rows (`BLOCKED_TILE`, 128:
+    /// learning's batches), `Fused` for fewer (online inference's 30-row window). On an
+    /// H200 (2026-11-30) the blocked kernels took a paper-scale learning iteration from
+    /// 0.0185 to 0.0164 s and five networks' from 0.071 to 0.061 s, while the fused took
+    /// inference's window in 0.22 ms against 0.27 (docs/gpu.md).
+    #[default]
+    Auto,
     /// A fused pass by rows (forward product, error, input gradient; each thread one row
     /// against broadcast weights) and, with weight gradients, a pass by columns that
-    /// recomputes the forward product: the kernels measured on H100 and H200.
-    #[default]
+    /// recomputes the forward product.
     Fused,
     /// Three register-blocked products with the error gradient written out between them:
     /// the forward product in 8 x 8 blocks of (rows, columns) per thread, then the input
@@ -44,8 +50,18 @@ pub enum OutputKernels {
     /// (`BlockedDepth`). 16 (forward) and 10.7 multiply-adds per workgroup-memory load
     /// against `Fused`'s 4, and no recomputed product, for a [rows x columns] error
     /// gradient in device memory (one chunk of rows, at most `Tiling::max_chunk_bytes`).
-    /// Not timed on a GPU yet (docs/gpu.md).
     Blocked,
+}
+
+impl OutputKernels {
+    /// The kernels a call of `rows` rows runs: `Fused` or `Blocked`, never `Auto`.
+    pub fn for_rows(self, rows: usize) -> Self {
+        match self {
+            Self::Auto if rows >= BLOCKED_TILE => Self::Blocked,
+            Self::Auto => Self::Fused,
+            chosen => chosen,
+        }
+    }
 }
 
 impl std::str::FromStr for OutputKernels {
@@ -53,10 +69,11 @@ impl std::str::FromStr for OutputKernels {
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.trim() {
+            "auto" => Ok(Self::Auto),
             "fused" => Ok(Self::Fused),
             "blocked" => Ok(Self::Blocked),
             other => Err(format!(
-                "unknown output-layer kernels {other:?}: `fused` or `blocked`"
+                "unknown output-layer kernels {other:?}: `auto`, `fused` or `blocked`"
             )),
         }
     }
@@ -70,9 +87,12 @@ const PREDICT_ROWS: usize = 4;
 /// shapes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tiling {
-    /// Workgroups the row pass aims for per chunk: enough to fill a large GPU (the rows
-    /// alone give 85 workgroups of 64 at the paper's 5,400), few enough that the split-K
-    /// partials stay small.
+    /// Workgroups a chunk's passes aim for (the row pass's and the blocked input
+    /// gradient's column splits, the blocked weight gradient's row ranges): enough to fill
+    /// a large GPU, few enough that the split-K partials stay small. 256: on an H200
+    /// (2026-11-30) the blocked learning call took 9.9 ms at 256 against 18.1 at 1,024
+    /// and 10.7 at 4,096, and whole iterations with the fused kernels were alike at 256
+    /// and 1,024 (0.0189 and 0.0185 s).
     pub target_workgroups: usize,
     /// At most this many column splits: the reduce pass adds a row's partials one after
     /// another, so with few rows (online inference's 30, which would otherwise get one
@@ -138,14 +158,14 @@ impl Tiling {
 impl Default for Tiling {
     fn default() -> Self {
         Self {
-            target_workgroups: 1024,
+            target_workgroups: 256,
             max_splits: 256,
             // Below WebGPU's default 128 MiB per binding.
             max_chunk_bytes: 64 << 20,
             weight_rows_per_split: 256,
             min_work: 4 << 20,
             replay_iterations: true,
-            output_kernels: OutputKernels::Fused,
+            output_kernels: OutputKernels::Auto,
             blocked_depth: None,
             row_pass_rows: 64,
             row_pass_step: 2,
@@ -455,6 +475,8 @@ fn packed(rows: &[&[f32]], k: usize) -> Vec<f32> {
 /// [`GpuOutputLayer::encode_loss`]).
 #[derive(Clone, Copy, Debug)]
 struct LossCut {
+    /// `Fused` or `Blocked` (the tiling's choice for the call's rows).
+    kernels: OutputKernels,
     chunk: usize,
     splits: usize,
     cols_per_split: usize,
@@ -646,23 +668,22 @@ impl GpuOutputLayer {
         let limit = self.chunk_limit();
         let max_groups = self.gpu.limits().max_compute_workgroups_per_dimension as usize;
         let mut chunk = (limit / (4 * k)).max(1).min(n);
+        let kernels = self.tiling.output_kernels.for_rows(n);
         // The blocked kernels' workgroups take 128 rows: a chunk of whole blocks wastes none
         // (520 rows per chunk at the paper's scale would leave a fifth of the forward
         // product's threads idle).
-        if self.tiling.output_kernels == OutputKernels::Blocked && chunk < n && chunk > BLOCKED_TILE
-        {
+        let blocked = kernels == OutputKernels::Blocked;
+        if blocked && chunk < n && chunk > BLOCKED_TILE {
             chunk -= chunk % BLOCKED_TILE;
         }
         // Column splits: enough workgroups to fill the GPU, partials within one binding.
-        let tile_columns = match self.tiling.output_kernels {
-            OutputKernels::Fused => TILE_COLUMNS,
-            OutputKernels::Blocked => BLOCKED_TILE,
+        let (tile_columns, row_blocks) = if blocked {
+            (BLOCKED_TILE, chunk.div_ceil(BLOCKED_TILE))
+        } else {
+            let rows = self.tiling.row_pass(hv, &self.gpu).rows;
+            (TILE_COLUMNS, chunk.div_ceil(rows))
         };
         let tiles = k.div_ceil(tile_columns);
-        let row_blocks = match self.tiling.output_kernels {
-            OutputKernels::Fused => chunk.div_ceil(self.tiling.row_pass(hv, &self.gpu).rows),
-            OutputKernels::Blocked => chunk.div_ceil(BLOCKED_TILE),
-        };
         let splits = self
             .tiling
             .target_workgroups
@@ -674,13 +695,14 @@ impl GpuOutputLayer {
         let cols_per_split = tiles.div_ceil(splits) * tile_columns;
         let splits = k.div_ceil(cols_per_split);
         LossCut {
+            kernels,
             chunk,
             splits,
             cols_per_split,
         }
     }
 
-    /// The scratch of `OutputKernels::Blocked` for a call cut as `cut` (none for `Fused`).
+    /// The scratch of the blocked kernels for a call cut as `cut` (none for the fused).
     fn blocked_scratch(
         &self,
         cut: LossCut,
@@ -688,7 +710,7 @@ impl GpuOutputLayer {
         hv: usize,
         weight_grads: bool,
     ) -> Option<BlockedScratch> {
-        if self.tiling.output_kernels != OutputKernels::Blocked {
+        if cut.kernels != OutputKernels::Blocked {
             return None;
         }
         let usage = wgpu::BufferUsages::empty();

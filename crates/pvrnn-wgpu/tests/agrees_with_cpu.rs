@@ -195,6 +195,62 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
     learning_with_resident_weights(blocked(every_call()), other_readouts(), None);
 }
 
+/// The default output kernels (`OutputKernels::Auto`) are the blocked ones for a call of
+/// one whole 128-row block or more (learning's batches) and the fused ones for fewer
+/// (online inference's 30-row window): each call gives, bit for bit, the results of the
+/// kernels it should pick, and not those of the others (their sums run in another order).
+#[test]
+fn the_default_output_kernels_are_blocked_for_batches_and_fused_for_windows() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap();
+    let hidden = *config.exteroceptive_readout.hidden.last().unwrap();
+    let k = config.vision.dims();
+    let loss = |output_kernels, rows: usize| {
+        let tiling = Tiling {
+            output_kernels,
+            ..every_call()
+        };
+        let layer = pvrnn_wgpu::GpuOutputLayer::upload(gpu.gpu().clone(), tiling, &model.params);
+        let input: Vec<f32> = (0..rows * hidden)
+            .map(|i| (i * 7919 % 113) as f32 / 113.0 - 0.5)
+            .collect();
+        let target_data: Vec<f32> = (0..rows * k)
+            .map(|i| (i * 104_729 % 97) as f32 / 97.0)
+            .collect();
+        let targets: Vec<&[f32]> = target_data.chunks_exact(k).collect();
+        let call = layer.loss(
+            Modality::Exteroceptive,
+            &input,
+            rows,
+            k,
+            k,
+            &targets,
+            None,
+            true,
+        );
+        pvrnn_core::deferred::now(call.expect("every call on the GPU"))
+    };
+    let (fused, blocked) = (OutputKernels::Fused, OutputKernels::Blocked);
+    for (rows, picked, other) in [
+        (128, blocked, fused),
+        (127, fused, blocked),
+        (30, fused, blocked),
+    ] {
+        assert_eq!(OutputKernels::Auto.for_rows(rows), picked, "{rows} rows");
+        let auto = loss(OutputKernels::Auto, rows);
+        let expected = loss(picked, rows);
+        assert_eq!(auto.row_loss, expected.row_loss, "{rows} rows: loss");
+        assert_eq!(auto.grad_in, expected.grad_in, "{rows} rows: d input");
+        assert_eq!(auto.grad_w, expected.grad_w, "{rows} rows: d W");
+        let not_picked = loss(other, rows);
+        assert_ne!(
+            auto.grad_w, not_picked.grad_w,
+            "{rows} rows: the other kernels' d W"
+        );
+    }
+}
+
 /// Learning with the output layers resident on the GPU (weights, biases and RAdam moments
 /// updated there, `radam.wgsl`) follows the CPU's learning iteration by iteration, through
 /// both RAdam phases (momentum only, then rectified); bringing the weights back in the

@@ -163,7 +163,12 @@ impl std::str::FromStr for BlockedDepth {
 pub(crate) struct RecurrenceKernels {
     pub(crate) forward: wgpu::ComputePipeline,
     pub(crate) backward: wgpu::ComputePipeline,
+    /// The weight gradients, one thread per weight over all of a network's windows.
     pub(crate) weights: wgpu::ComputePipeline,
+    /// The weight gradients' partial sums, one thread per weight and window.
+    pub(crate) weight_partials: wgpu::ComputePipeline,
+    /// The partial sums added in window order.
+    pub(crate) weights_reduce: wgpu::ComputePipeline,
 }
 
 /// The recurrence kernels' compiled shape: threads per workgroup, loads per batch.
@@ -595,6 +600,7 @@ impl Gpu {
         }
         let kernels = {
             let common = include_str!("shaders/recurrence_common.wgsl");
+            let weights = include_str!("shaders/recurrence_weights.wgsl");
             // A kernel's source: the common part, its own, and its dot products
             // (`recurrence_dot.wgsl` once per function name, weights and values).
             let source = |text: &str, dots: &[[&str; 3]]| {
@@ -633,7 +639,15 @@ impl Gpu {
                 ),
                 weights: self.pipeline(
                     "recurrence weights",
-                    source(include_str!("shaders/recurrence_weights.wgsl"), &[]),
+                    source(&weights.replace("{{PARTIALS}}", "0"), &[]),
+                ),
+                weight_partials: self.pipeline(
+                    "recurrence weight partials",
+                    source(&weights.replace("{{PARTIALS}}", "1"), &[]),
+                ),
+                weights_reduce: self.pipeline(
+                    "recurrence weights reduce",
+                    include_str!("shaders/recurrence_weights_reduce.wgsl").into(),
                 ),
             })
         };

@@ -31,7 +31,7 @@ use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use crate::recurrence::{RecurrenceLayout, WindowEntry};
+use crate::recurrence::{RecurrenceLayout, WeightGradBuffers, WindowEntry};
 use crate::resident::{Part, ResidentLayer, ResidentTensor, TensorIndex, resident_buffer};
 use crate::timing::{PassTimes, begin_pass};
 
@@ -42,6 +42,8 @@ pub(crate) struct Stack {
     gpu: Arc<Gpu>,
     layout: RecurrenceLayout,
     kernels: Arc<RecurrenceKernels>,
+    /// `Tiling::recurrence_weight_partials`.
+    weight_partials: bool,
     slots: usize,
     sequences: usize,
     steps: usize,
@@ -137,6 +139,7 @@ impl Stack {
         Some(Arc::new(Self {
             gpu: gpu.clone(),
             kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
+            weight_partials: tiling.recurrence_weight_partials,
             slots,
             sequences,
             steps,
@@ -265,26 +268,34 @@ impl Stack {
             windows,
         ));
         let mut first = 0;
-        for p in &prepared {
-            let count = p.work.entries.len();
-            keep.push(layout.encode_weight_grads(
-                gpu,
-                &self.kernels,
-                &mut backward,
-                &table,
-                &self.inputs,
-                &self.record,
-                &self.back,
-                &self.grads,
-                first..first + count,
-                p.slot * self.weight_floats(),
-            ));
-            first += count;
-        }
+        let networks: Vec<_> = prepared
+            .iter()
+            .map(|p| {
+                let count = p.work.entries.len();
+                first += count;
+                (first - count..first, p.slot * self.weight_floats())
+            })
+            .collect();
+        let buffers = WeightGradBuffers {
+            table: &table,
+            inputs: &self.inputs,
+            record: &self.record,
+            back: &self.back,
+            grads: &self.grads,
+        };
+        let mut weight_grads = DispatchList::default();
+        keep.extend(layout.encode_weight_grads(
+            gpu,
+            &self.kernels,
+            &mut weight_grads,
+            buffers,
+            &networks,
+            self.weight_partials,
+        ));
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         // Dispatches in one compute pass (a pass per dispatch costs the host more than the
         // small kernels); while profiling, a pass per part, each timed on the device.
-        let parts: [(&'static str, Vec<&DispatchList>); 5] = [
+        let parts: [(&'static str, Vec<&DispatchList>); 6] = [
             (
                 "device: inputs into the recurrence's layout",
                 prepared.iter().map(|p| &*p.work.inputs).collect(),
@@ -294,10 +305,8 @@ impl Stack {
                 "device: read-outs (hidden and output layers, forward and backward)",
                 prepared.iter().map(|p| &*p.work.readouts).collect(),
             ),
-            (
-                "device: recurrence backward and its weight gradients",
-                vec![&backward],
-            ),
+            ("device: recurrence backward", vec![&backward]),
+            ("device: recurrent weight gradients", vec![&weight_grads]),
             (
                 "device: gradients into the optimiser's layout",
                 prepared.iter().map(|p| &*p.work.after).collect(),

@@ -108,6 +108,15 @@ impl WgpuBackend {
                 ),
             }
         }
+        if let Ok(value) = std::env::var("PVRNN_WGPU_RECURRENCE_WEIGHTS") {
+            match value.as_str() {
+                "windows" => tiling.recurrence_weight_partials = true,
+                "serial" => tiling.recurrence_weight_partials = false,
+                other => eprintln!(
+                    "PVRNN_WGPU_RECURRENCE_WEIGHTS={other} is neither `windows` nor `serial`; windows"
+                ),
+            }
+        }
         if let Ok(value) = std::env::var("PVRNN_WGPU_REPLAY") {
             match value.as_str() {
                 "off" => tiling.replay_iterations = false,

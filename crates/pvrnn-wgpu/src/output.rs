@@ -145,6 +145,12 @@ pub struct Tiling {
     /// round trips at 8 against 8 at 4 (the width before 2026-11-28). For measuring
     /// (`PVRNN_WGPU_RECURRENCE_LOADS`).
     pub recurrence_loads: usize,
+    /// The recurrent weights' gradients as a partial sum per window (one thread per weight
+    /// and window), added in window order by a second pass, instead of one thread per
+    /// weight over all of a network's windows (`PVRNN_WGPU_RECURRENCE_WEIGHTS=windows|serial`).
+    /// The serial sum is a chain of 5,400 steps on about 19,000 threads at the paper's
+    /// scale, too few to fill a large GPU.
+    pub recurrence_weight_partials: bool,
 }
 
 impl Tiling {
@@ -171,6 +177,7 @@ impl Default for Tiling {
             row_pass_step: 2,
             recurrence_threads: None,
             recurrence_loads: 8,
+            recurrence_weight_partials: true,
         }
     }
 }

@@ -1,8 +1,9 @@
 //! The recurrence on the GPU: forward and back-propagation through time with one
 //! workgroup per window (`shaders/recurrence_forward.wgsl`, `recurrence_backward.wgsl`;
 //! a window's steps depend on each other, so dispatching per step would cost a submission
-//! per step), and the weight gradients with one thread per weight
-//! (`recurrence_weights.wgsl`). The forward record stays on the device for the backward
+//! per step), and the weight gradients with one thread per weight and window, their
+//! partial sums added in window order (`recurrence_weights.wgsl`,
+//! `recurrence_weights_reduce.wgsl`). The forward record stays on the device for the backward
 //! pass; the states come back once (the read-outs on the CPU need them).
 
 use std::sync::Arc;
@@ -151,6 +152,15 @@ struct BackwardParams {
 struct WeightsParams {
     first_window: u32,
     windows: u32,
+    total: u32,
+    base: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ReduceParams {
+    first_part: u32,
+    parts: u32,
     total: u32,
     base: u32,
 }
@@ -310,6 +320,8 @@ pub struct GpuRecurrence {
     pub(crate) weights_t: PooledBuffer,
     /// The CPU's recurrence with the same weights, for the windows the kernels do not hold.
     cpu: CpuRecurrence<f32>,
+    /// `Tiling::recurrence_weight_partials`.
+    weight_partials: bool,
 }
 
 impl GpuRecurrence {
@@ -333,6 +345,7 @@ impl GpuRecurrence {
             gpu,
             layout,
             cpu: CpuRecurrence::new(params, config),
+            weight_partials: tiling.recurrence_weight_partials,
         }
     }
 }
@@ -581,42 +594,106 @@ impl RecurrenceLayout {
         params
     }
 
-    /// Encodes the weight gradients, summed over the table's `windows` (one network's), into
-    /// `grads` from `base` on (the packed weights' layout). Returns the uniform it used.
+    /// Encodes the weight gradients of each network in `networks` (its windows of the
+    /// table, and where its gradients start in `grads`, the packed weights' layout). With
+    /// `partials` (`Tiling::recurrence_weight_partials`), where the partial sums fit one
+    /// binding and the dispatch grid: one dispatch of a partial sum per window for all the
+    /// networks' windows, then one reduce per network in window order; else one dispatch
+    /// per network, a thread per weight over all its windows. Returns the buffers to keep
+    /// until the submission has run.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_weight_grads(
         &self,
         gpu: &Gpu,
         kernels: &RecurrenceKernels,
         encoder: &mut dyn Recorder,
-        table: &wgpu::Buffer,
-        inputs: &wgpu::Buffer,
-        record: &wgpu::Buffer,
-        back: &wgpu::Buffer,
-        grads: &wgpu::Buffer,
-        windows: std::ops::Range<usize>,
-        base: usize,
-    ) -> PooledBuffer {
+        buffers: WeightGradBuffers<'_>,
+        networks: &[(std::ops::Range<usize>, usize)],
+        partials: bool,
+    ) -> Vec<PooledBuffer> {
+        let WeightGradBuffers {
+            table,
+            inputs,
+            record,
+            back,
+            grads,
+        } = buffers;
+        let total = self.weight_floats;
+        let groups = total.div_ceil(WEIGHTS_WORKGROUP) as u32;
+        let first = networks.iter().map(|(w, _)| w.start).min().unwrap_or(0);
+        let end = networks.iter().map(|(w, _)| w.end).max().unwrap_or(0);
+        let limits = gpu.limits();
+        let partials = partials
+            && end > first
+            && 4 * (end - first) * total <= limits.max_storage_buffer_binding_size as usize
+            && end - first <= limits.max_compute_workgroups_per_dimension as usize;
+        let mut keep = Vec::new();
+        if !partials {
+            for (windows, base) in networks {
+                let params = gpu.uniform(&WeightsParams {
+                    first_window: windows.start as u32,
+                    windows: windows.len() as u32,
+                    total: total as u32,
+                    base: *base as u32,
+                });
+                let group = bind(
+                    gpu,
+                    &kernels.weights,
+                    &[table, inputs, record, back, grads, &params],
+                );
+                dispatch(encoder, &kernels.weights, &group, groups, 1);
+                keep.push(params);
+            }
+            return keep;
+        }
+        let partial = gpu.scratch(
+            "recurrent weight gradients, per window",
+            (end - first) * total,
+            wgpu::BufferUsages::empty(),
+        );
         let params = gpu.uniform(&WeightsParams {
-            first_window: windows.start as u32,
-            windows: windows.len() as u32,
-            total: self.weight_floats as u32,
-            base: base as u32,
+            first_window: first as u32,
+            windows: (end - first) as u32,
+            total: total as u32,
+            base: 0,
         });
         let group = bind(
             gpu,
-            &kernels.weights,
-            &[table, inputs, record, back, grads, &params],
+            &kernels.weight_partials,
+            &[table, inputs, record, back, &partial, &params],
         );
         dispatch(
             encoder,
-            &kernels.weights,
+            &kernels.weight_partials,
             &group,
-            self.weight_floats.div_ceil(WEIGHTS_WORKGROUP) as u32,
-            1,
+            groups,
+            (end - first) as u32,
         );
-        params
+        keep.push(params);
+        for (windows, base) in networks {
+            let params = gpu.uniform(&ReduceParams {
+                first_part: (windows.start - first) as u32,
+                parts: windows.len() as u32,
+                total: total as u32,
+                base: *base as u32,
+            });
+            let group = bind(gpu, &kernels.weights_reduce, &[&partial, grads, &params]);
+            dispatch(encoder, &kernels.weights_reduce, &group, groups, 1);
+            keep.push(params);
+        }
+        keep.push(partial);
+        keep
     }
+}
+
+/// The buffers the recurrent weight gradients read and write (see
+/// [`RecurrenceLayout::encode_weight_grads`]).
+pub(crate) struct WeightGradBuffers<'a> {
+    pub(crate) table: &'a wgpu::Buffer,
+    pub(crate) inputs: &'a wgpu::Buffer,
+    pub(crate) record: &'a wgpu::Buffer,
+    pub(crate) back: &'a wgpu::Buffer,
+    pub(crate) grads: &'a wgpu::Buffer,
 }
 
 /// On the GPU where its kernels hold the windows, else on the CPU's recurrence.
@@ -818,17 +895,20 @@ impl RecurrencePass<f32> for GpuPass<'_> {
             wgpu::BufferUsages::COPY_SRC,
         );
         let weights_params = weight_grads.then(|| {
+            let buffers = WeightGradBuffers {
+                table: &self.table,
+                inputs: &self.inputs,
+                record: &self.record,
+                back: &back,
+                grads: &grads,
+            };
             layout.encode_weight_grads(
                 gpu,
                 &r.kernels,
                 &mut encoder,
-                &self.table,
-                &self.inputs,
-                &self.record,
-                &back,
-                &grads,
-                0..windows,
-                0,
+                buffers,
+                &[(0..windows, 0)],
+                r.weight_partials,
             )
         });
         let mut sources = vec![(&*back, self.steps * s.back)];

@@ -676,14 +676,41 @@ fn threads_sharing_the_device_each_get_their_own_results() {
     });
 }
 
+/// Windows of 30 steps, the prior's biases learned too, the recurrent weight gradients
+/// summed over 3 windows both ways (`Tiling::recurrence_weight_partials`): a partial sum
+/// per window added in window order (the default), and one thread per weight over every
+/// window. The two sum in different orders, so their gradients differ in the last bits.
 #[test]
 fn the_recurrence_on_the_gpu_gives_the_same_free_energy_and_gradients() {
     let Some(gpu) = gpu() else { return };
-    // Windows of 30 steps, weight gradients from the third kernel summed over 3 windows,
-    // the prior's biases learned too.
     let mut config = config();
     config.prior_bias = true;
-    free_energy_and_gradients_agree_with(gpu.with_recurrence_on_gpu(true), config, 3, 30);
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let tiling = gpu.tiling();
+    assert!(
+        tiling.recurrence_weight_partials,
+        "the default sums per window"
+    );
+    let serial = gpu.clone().with_tiling(Tiling {
+        recurrence_weight_partials: false,
+        ..tiling
+    });
+    free_energy_and_gradients_agree_with(gpu.clone(), config.clone(), 3, 30);
+    free_energy_and_gradients_agree_with(serial.clone(), config.clone(), 3, 30);
+    let data = observations(&config, 3, 30);
+    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 30, 7).unwrap();
+    let draw = NoiseDraw::training(NoiseMode::Sampled { seed: 5 }, 0);
+    let weights = |backend: &WgpuBackend| {
+        let (_, grads) = free_energy(backend, &model, &data, draw, true).unwrap();
+        let grads = grads.unwrap();
+        let named = grads.params.named();
+        let all: Vec<f32> = named
+            .iter()
+            .flat_map(|(_, t, _)| t.data().to_vec())
+            .collect();
+        all
+    };
+    assert_ne!(weights(&gpu), weights(&serial), "the two ways sum alike");
 }
 
 /// The tests' small read-outs with the paper's four modules (and prior biases): the

@@ -1,6 +1,12 @@
-// The recurrent weights' gradients: one thread per weight (the weights buffer's layout),
-// summing outer-product terms over windows and steps in a fixed order, so no float
-// atomics are needed and results do not depend on scheduling.
+// The recurrent weights' gradients, summing outer-product terms over windows and steps in
+// a fixed order, so no float atomics are needed and results do not depend on scheduling.
+// With PARTIALS = 0, one thread per weight (the weights buffer's layout) walks every
+// window of its network and writes the sum to grads[base + g]. With PARTIALS = 1, one
+// thread per weight and window (workgroup row y: window first_window + y) walks that
+// window's steps and writes its partial sum to grads[y * total + g], which
+// `recurrence_weights_reduce.wgsl` adds in window order: 18 times the threads and an
+// eighteenth of the chain at the paper's batch (one thread per weight left a large GPU
+// mostly idle on 5,400 dependent steps).
 //   W_prior[j][i] += gprior_j d_{t-1,i}    b_prior[j] += gprior_j
 //   W_dd[r][i]    += gu_r d_{t-1,i}        W_dz[r][j] += gu_r z_j
 //   W_dh[r][k]    += gu_r d_parent,t,k     (the bias and time constants are fixed: 0)
@@ -12,8 +18,9 @@
 @group(0) @binding(4) var<storage, read_write> grads: array<f32>;
 @group(0) @binding(5) var<uniform> p: WeightsParams;
 
-// The windows first_window .. first_window + windows (one network's), its weights'
-// gradients written from `base` on.
+// The windows first_window .. first_window + windows (one network's with PARTIALS = 0,
+// its weights' gradients written from `base` on; any with PARTIALS = 1, a partial per
+// window from 0 on).
 struct WeightsParams {
     first_window: u32,
     windows: u32,
@@ -45,8 +52,16 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let md = module_at(m);
     let rec_stride = table.strides.rec;
     let back_stride = table.strides.back;
+    var first = p.first_window;
+    var end = p.first_window + p.windows;
+    var out = p.base + g;
+    if ({{PARTIALS}}u == 1u) {
+        first = p.first_window + id.y;
+        end = first + 1u;
+        out = id.y * p.total + g;
+    }
     var acc = 0.0;
-    for (var w = p.first_window; w < p.first_window + p.windows; w++) {
+    for (var w = first; w < end; w++) {
         let win = window_at(w);
         for (var t = 0u; t < win.len; t++) {
             let back_t = win.back + t * back_stride + md.back;
@@ -73,5 +88,5 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             }
         }
     }
-    grads[p.base + g] = acc;
+    grads[out] = acc;
 }

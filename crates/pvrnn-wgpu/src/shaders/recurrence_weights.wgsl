@@ -53,15 +53,15 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let rec_stride = table.strides.rec;
     let back_stride = table.strides.back;
     var first = p.first_window;
-    var end = p.first_window + p.windows;
-    var out = p.base + g;
+    var window_end = p.first_window + p.windows;
+    var write_at = p.base + g;
     if ({{PARTIALS}}u == 1u) {
         first = p.first_window + id.y;
-        end = first + 1u;
-        out = id.y * p.total + g;
+        window_end = first + 1u;
+        write_at = id.y * p.total + g;
     }
     var acc = 0.0;
-    for (var w = first; w < end; w++) {
+    for (var w = first; w < window_end; w++) {
         let win = window_at(w);
         for (var t = 0u; t < win.len; t++) {
             let back_t = win.back + t * back_stride + md.back;
@@ -88,5 +88,5 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             }
         }
     }
-    grads[out] = acc;
+    grads[write_at] = acc;
 }

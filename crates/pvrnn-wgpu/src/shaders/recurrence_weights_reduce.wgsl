@@ -9,7 +9,7 @@ struct ReduceParams {
     base: u32,
 }
 
-@group(0) @binding(0) var<storage, read> partial: array<f32>;
+@group(0) @binding(0) var<storage, read> partial_sums: array<f32>;
 @group(0) @binding(1) var<storage, read_write> grads: array<f32>;
 @group(0) @binding(2) var<uniform> p: ReduceParams;
 
@@ -21,7 +21,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     var acc = 0.0;
     for (var s = p.first_part; s < p.first_part + p.parts; s++) {
-        acc += partial[s * p.total + g];
+        acc += partial_sums[s * p.total + g];
     }
     grads[p.base + g] = acc;
 }

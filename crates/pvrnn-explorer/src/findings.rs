@@ -147,6 +147,18 @@ pub const FINDINGS: &[Finding] = &[
         look: "In the comparison window compare the proprioception on and off rows at 16x16; the main view shows 16x16 without proprioception.",
     },
     Finding {
+        claim: "Learning wiping as well leaves repositioning's error unchanged",
+        row: "Adding wiping data leaves repositioning unchanged (Fig 6A)",
+        paper: "F(3, 16) = 0.62, p = 0.61",
+        ours: "ART F(3, 16) = 28.51, p < 0.001 (pooled over all 32,284 sensory dimensions); TOST 9 added vs none: 90% CI [+2.30e-4, +3.26e-4] vs ±3.03e-4 (±10% of none's mean), p = 0.18: not equivalent",
+        effect: "9 added − none, pooled: +2.78e-4 [+2.18e-4, +3.38e-4], d = 6.8; ±8.3e-5",
+        verdict: Verdict::Disagrees,
+        scale: "converged campaign, repositioning direction: 5 networks per condition x 4 conditions (20 trainings of 12,000-30,000 iterations to their validation best, one stopped at the cap; 2 trials x 3 test sequences each)",
+        figures: &["converged/interference/report/interference_repositioning.png"],
+        view: None,
+        look: "Interference compares networks trained on different data: the shipped network cannot show it. The figure is the converged repositioning direction (5 networks per condition); the wiping direction is being trained and is tested once all its networks are.",
+    },
+    Finding {
         claim: "Learning more repositioning interferes with wiping, not the other way round",
         row: "Adding repositioning data raises wiping's error (Fig 6B), paper's pooled error",
         paper: "F(3, 16) = 19.16, p < 0.001",
@@ -191,6 +203,12 @@ pub const FIGURES: &[(&str, &[u8])] = &[
     (
         "converged/uncertainty/report/sigma_p_change.png",
         include_bytes!("../../../docs/results/converged/uncertainty/report/sigma_p_change.png"),
+    ),
+    (
+        "converged/interference/report/interference_repositioning.png",
+        include_bytes!(
+            "../../../docs/results/converged/interference/report/interference_repositioning.png"
+        ),
     ),
     (
         "interference/report/interference_wiping.png",

@@ -236,62 +236,13 @@ impl Stack {
             .filter_map(|p| p.clears.take())
             .collect();
         let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
-        let entries: Vec<WindowEntry> = prepared
-            .iter()
-            .flat_map(|p| p.work.entries.clone())
-            .collect();
-        let windows = entries.len();
-        let layout = &self.layout;
-        let table = layout.upload_table(gpu, &Ablation::none(), &entries);
-        let mut keep = Vec::new();
-        let mut forward = DispatchList::default();
-        layout.encode_forward(
-            gpu,
-            &self.kernels,
-            &mut forward,
-            &table,
-            &self.weights_t,
-            &self.inputs,
-            &self.record,
-            windows,
-        );
-        let mut backward = DispatchList::default();
-        keep.push(layout.encode_backward(
-            gpu,
-            &self.kernels,
-            &mut backward,
-            &table,
-            &self.weights,
-            &self.record,
-            &self.grad_d,
-            &self.back,
-            windows,
-        ));
-        let mut first = 0;
-        let networks: Vec<_> = prepared
-            .iter()
-            .map(|p| {
-                let count = p.work.entries.len();
-                first += count;
-                (first - count..first, p.slot * self.weight_floats())
-            })
-            .collect();
-        let buffers = WeightGradBuffers {
-            table: &table,
-            inputs: &self.inputs,
-            record: &self.record,
-            back: &self.back,
-            grads: &self.grads,
-        };
-        let mut weight_grads = DispatchList::default();
-        keep.extend(layout.encode_weight_grads(
-            gpu,
-            &self.kernels,
-            &mut weight_grads,
-            buffers,
-            &networks,
-            self.weight_partials,
-        ));
+        let RecurrenceWork {
+            table,
+            forward,
+            backward,
+            weight_grads,
+            keep,
+        } = self.encode_recurrence(&prepared);
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         // Dispatches in one compute pass (a pass per dispatch costs the host more than the
         // small kernels); while profiling, a pass per part, each timed on the device.
@@ -350,6 +301,86 @@ impl Stack {
         drop(prepared);
         results
     }
+
+    /// The recurrence's part of a submission for every prepared run: the windows' table,
+    /// one forward and one backward dispatch over all their windows, and the weight
+    /// gradients of each run; with the buffers to keep until the submission has run.
+    fn encode_recurrence(&self, prepared: &[Prepared]) -> RecurrenceWork {
+        let gpu = &*self.gpu;
+        let entries: Vec<WindowEntry> = prepared
+            .iter()
+            .flat_map(|p| p.work.entries.clone())
+            .collect();
+        let windows = entries.len();
+        let layout = &self.layout;
+        let table = layout.upload_table(gpu, &Ablation::none(), &entries);
+        let mut keep = Vec::new();
+        let mut forward = DispatchList::default();
+        layout.encode_forward(
+            gpu,
+            &self.kernels,
+            &mut forward,
+            &table,
+            &self.weights_t,
+            &self.inputs,
+            &self.record,
+            windows,
+        );
+        let mut backward = DispatchList::default();
+        keep.push(layout.encode_backward(
+            gpu,
+            &self.kernels,
+            &mut backward,
+            &table,
+            &self.weights,
+            &self.record,
+            &self.grad_d,
+            &self.back,
+            windows,
+        ));
+        let mut first = 0;
+        let networks: Vec<_> = prepared
+            .iter()
+            .map(|p| {
+                let count = p.work.entries.len();
+                first += count;
+                (first - count..first, p.slot * self.weight_floats())
+            })
+            .collect();
+        let buffers = WeightGradBuffers {
+            table: &table,
+            inputs: &self.inputs,
+            record: &self.record,
+            back: &self.back,
+            grads: &self.grads,
+        };
+        let mut weight_grads = DispatchList::default();
+        keep.extend(layout.encode_weight_grads(
+            gpu,
+            &self.kernels,
+            &mut weight_grads,
+            buffers,
+            &networks,
+            self.weight_partials,
+        ));
+        RecurrenceWork {
+            table,
+            forward,
+            backward,
+            weight_grads,
+            keep,
+        }
+    }
+}
+
+/// What [`Stack::encode_recurrence`] encodes: the table, the dispatches per part, and the
+/// buffers to keep until the submission has run.
+struct RecurrenceWork {
+    table: PooledBuffer,
+    forward: DispatchList,
+    backward: DispatchList,
+    weight_grads: DispatchList,
+    keep: Vec<PooledBuffer>,
 }
 
 /// A run's claim on its prepared iteration's results ([`Stack::enqueue`]). Dropped before

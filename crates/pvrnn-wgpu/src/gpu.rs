@@ -286,8 +286,10 @@ pub struct Gpu {
     pub(crate) resident: Mutex<ResidentTargets>,
     pool: Arc<BufferPool>,
     read_backs: AtomicU64,
-    /// Learning iterations encoded (not replayed) so far.
+    /// Learning iterations encoded (not replayed) so far: runs' parts, and submissions'
+    /// recurrence parts.
     iterations_encoded: AtomicU64,
+    recurrence_parts_encoded: AtomicU64,
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,
 }
@@ -336,6 +338,7 @@ impl Gpu {
             pool: Arc::default(),
             read_backs: AtomicU64::new(0),
             iterations_encoded: AtomicU64::new(0),
+            recurrence_parts_encoded: AtomicU64::new(0),
             checks: RuntimeChecks::from_env(),
         })
     }
@@ -427,6 +430,18 @@ impl Gpu {
 
     pub(crate) fn count_iteration_encoded(&self) {
         self.iterations_encoded.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A submission's recurrence part (the windows' table, the recurrence's dispatches and
+    /// the weight gradients of its runs) encoded so far, not replayed
+    /// (`Tiling::replay_iterations`).
+    pub fn recurrence_parts_encoded(&self) -> u64 {
+        self.recurrence_parts_encoded.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn count_recurrence_part_encoded(&self) {
+        self.recurrence_parts_encoded
+            .fetch_add(1, Ordering::Relaxed);
     }
 
     pub(crate) fn count_read_back(&self) {

@@ -44,6 +44,9 @@ pub(crate) struct Stack {
     kernels: Arc<RecurrenceKernels>,
     /// `Tiling::recurrence_weight_partials`.
     weight_partials: bool,
+    /// The recurrence part of the last submission, with the runs (slot, windows) it was
+    /// encoded for, replayed while they stay (`Tiling::replay_iterations`; `None`: off).
+    recurrence_recording: Option<Mutex<Option<RecordedRecurrence>>>,
     slots: usize,
     sequences: usize,
     steps: usize,
@@ -140,6 +143,7 @@ impl Stack {
             gpu: gpu.clone(),
             kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
             weight_partials: tiling.recurrence_weight_partials,
+            recurrence_recording: tiling.replay_iterations.then(Mutex::default),
             slots,
             sequences,
             steps,
@@ -236,13 +240,17 @@ impl Stack {
             .filter_map(|p| p.clears.take())
             .collect();
         let encode_phase = pvrnn_core::profile::phase("evaluate on the device: upload and encode");
+        let recurrence_phase = pvrnn_core::profile::phase(
+            "evaluate on the device: the recurrence's part, encoded or replayed",
+        );
+        let recurrence = self.recurrence_work(&prepared);
+        drop(recurrence_phase);
         let RecurrenceWork {
-            table,
             forward,
             backward,
             weight_grads,
-            keep,
-        } = self.encode_recurrence(&prepared);
+            ..
+        } = &*recurrence;
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         // Dispatches in one compute pass (a pass per dispatch costs the host more than the
         // small kernels); while profiling, a pass per part, each timed on the device.
@@ -251,13 +259,13 @@ impl Stack {
                 "device: inputs into the recurrence's layout",
                 prepared.iter().map(|p| &*p.work.inputs).collect(),
             ),
-            ("device: recurrence forward", vec![&forward]),
+            ("device: recurrence forward", vec![forward]),
             (
                 "device: read-outs (hidden and output layers, forward and backward)",
                 prepared.iter().map(|p| &*p.work.readouts).collect(),
             ),
-            ("device: recurrence backward", vec![&backward]),
-            ("device: recurrent weight gradients", vec![&weight_grads]),
+            ("device: recurrence backward", vec![backward]),
+            ("device: recurrent weight gradients", vec![weight_grads]),
             (
                 "device: gradients into the optimiser's layout",
                 prepared.iter().map(|p| &*p.work.after).collect(),
@@ -295,11 +303,33 @@ impl Stack {
             times.collect(gpu);
         }
         drop(encode_phase);
-        drop((keep, table));
+        drop(recurrence);
         let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
         let results = pvrnn_core::deferred::now(pending);
         drop(prepared);
         results
+    }
+
+    /// The recurrence's part of a submission for these runs: the one recorded for the same
+    /// runs and windows when replaying, else encoded anew (and recorded).
+    fn recurrence_work(&self, prepared: &[Prepared]) -> Arc<RecurrenceWork> {
+        let Some(recording) = &self.recurrence_recording else {
+            return Arc::new(self.encode_recurrence(prepared));
+        };
+        let runs: Vec<(usize, Vec<WindowEntry>)> = prepared
+            .iter()
+            .map(|p| (p.slot, p.work.entries.clone()))
+            .collect();
+        let mut recorded = recording.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(last) = recorded.as_ref().filter(|last| last.runs == runs) {
+            return last.work.clone();
+        }
+        let work = Arc::new(self.encode_recurrence(prepared));
+        *recorded = Some(RecordedRecurrence {
+            runs,
+            work: work.clone(),
+        });
+        work
     }
 
     /// The recurrence's part of a submission for every prepared run: the windows' table,
@@ -307,6 +337,7 @@ impl Stack {
     /// gradients of each run; with the buffers to keep until the submission has run.
     fn encode_recurrence(&self, prepared: &[Prepared]) -> RecurrenceWork {
         let gpu = &*self.gpu;
+        gpu.count_recurrence_part_encoded();
         let entries: Vec<WindowEntry> = prepared
             .iter()
             .flat_map(|p| p.work.entries.clone())
@@ -363,24 +394,33 @@ impl Stack {
             &networks,
             self.weight_partials,
         ));
+        keep.push(table);
         RecurrenceWork {
-            table,
             forward,
             backward,
             weight_grads,
-            keep,
+            _buffers: keep,
         }
     }
 }
 
+/// A submission's recurrence part and the runs it was encoded for (their slots and window
+/// entries): the same runs replay it, for they bind the same buffers and shapes.
+#[derive(Debug)]
+struct RecordedRecurrence {
+    runs: Vec<(usize, Vec<WindowEntry>)>,
+    work: Arc<RecurrenceWork>,
+}
+
 /// What [`Stack::encode_recurrence`] encodes: the table, the dispatches per part, and the
-/// buffers to keep until the submission has run.
+/// buffers to keep until the submission has run (or while it is recorded).
+#[derive(Debug)]
 struct RecurrenceWork {
-    table: PooledBuffer,
     forward: DispatchList,
     backward: DispatchList,
     weight_grads: DispatchList,
-    keep: Vec<PooledBuffer>,
+    /// The table, uniforms and scratch the dispatches bind, held from the pool.
+    _buffers: Vec<PooledBuffer>,
 }
 
 /// A run's claim on its prepared iteration's results ([`Stack::enqueue`]). Dropped before

@@ -500,6 +500,7 @@ fn learning_with_resident_weights(
         let a = cpu.step(&data).unwrap().total;
         let read_backs = gpu.gpu().read_backs();
         let encodings = gpu.gpu().iterations_encoded();
+        let recurrence_parts = gpu.gpu().recurrence_parts_encoded();
         let b = on_gpu.step(&data).unwrap().total;
         if gpu_recurrence {
             // One submission's results: the free-energy terms.
@@ -513,9 +514,16 @@ fn learning_with_resident_weights(
                 u64::from(i == 0),
                 "iteration {i}: encoded only the first time"
             );
+            assert_eq!(
+                gpu.gpu().recurrence_parts_encoded() - recurrence_parts,
+                u64::from(i == 0),
+                "iteration {i}: the recurrence part encoded only the first time"
+            );
             let encodings = gpu.gpu().iterations_encoded();
+            let recurrence_parts = gpu.gpu().recurrence_parts_encoded();
             let d = encoded.step(&data).unwrap().total;
             assert_eq!(gpu.gpu().iterations_encoded() - encodings, 1);
+            assert_eq!(gpu.gpu().recurrence_parts_encoded() - recurrence_parts, 1);
             assert_eq!(b, d, "iteration {i}: F replayed and encoded anew");
         }
         let c = synced.step(&data).unwrap().total;

@@ -286,9 +286,9 @@ pub struct Gpu {
     pub(crate) resident: Mutex<ResidentTargets>,
     pool: Arc<BufferPool>,
     read_backs: AtomicU64,
-    /// Learning iterations encoded (not replayed) so far: runs' parts, and submissions'
-    /// recurrence parts.
+    /// Runs' parts of learning iterations encoded (not replayed) so far.
     iterations_encoded: AtomicU64,
+    /// Submissions' recurrence parts encoded (not replayed) so far.
     recurrence_parts_encoded: AtomicU64,
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,

@@ -617,8 +617,9 @@ impl Gpu {
             let common = include_str!("shaders/recurrence_common.wgsl");
             let weights = include_str!("shaders/recurrence_weights.wgsl");
             // A kernel's source: the common part, its own, and its dot products
-            // (`recurrence_dot.wgsl` once per function name, weights and values).
-            let source = |text: &str, dots: &[[&str; 3]]| {
+            // (`recurrence_dot.wgsl` once per function name, weights and values); PARTIALS
+            // picks the weight-gradient kernel's form (1: a partial sum per window).
+            let source = |text: &str, dots: &[[&str; 3]], partials: usize| {
                 let mut full = format!("{common}\n{text}");
                 for [name, weights, values] in dots {
                     let dot = include_str!("shaders/recurrence_dot.wgsl");
@@ -629,7 +630,14 @@ impl Gpu {
                             .replace("VALUES", values),
                     );
                 }
-                crate::template::expand(&full, &[("WG", threads as usize), ("LOADS", loads)])
+                crate::template::expand(
+                    &full,
+                    &[
+                        ("WG", threads as usize),
+                        ("LOADS", loads),
+                        ("PARTIALS", partials),
+                    ],
+                )
             };
             Arc::new(RecurrenceKernels {
                 forward: self.pipeline(
@@ -640,6 +648,7 @@ impl Gpu {
                             ["dot_d_prev", "weights_t", "d_prev"],
                             ["dot_zs", "weights_t", "zs"],
                         ],
+                        0,
                     ),
                 ),
                 backward: self.pipeline(
@@ -650,16 +659,12 @@ impl Gpu {
                             ["dot_gu", "weights", "gu"],
                             ["dot_gprior", "weights", "gprior"],
                         ],
+                        0,
                     ),
                 ),
-                weights: self.pipeline(
-                    "recurrence weights",
-                    source(&weights.replace("{{PARTIALS}}", "0"), &[]),
-                ),
-                weight_partials: self.pipeline(
-                    "recurrence weight partials",
-                    source(&weights.replace("{{PARTIALS}}", "1"), &[]),
-                ),
+                weights: self.pipeline("recurrence weights", source(weights, &[], 0)),
+                weight_partials: self
+                    .pipeline("recurrence weight partials", source(weights, &[], 1)),
                 weights_reduce: self.pipeline(
                     "recurrence weights reduce",
                     include_str!("shaders/recurrence_weights_reduce.wgsl").into(),

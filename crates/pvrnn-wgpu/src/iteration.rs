@@ -316,17 +316,24 @@ impl Stack {
         let Some(recording) = &self.recurrence_recording else {
             return Arc::new(self.encode_recurrence(prepared));
         };
-        let runs: Vec<(usize, Vec<WindowEntry>)> = prepared
-            .iter()
-            .map(|p| (p.slot, p.work.entries.clone()))
-            .collect();
         let mut recorded = recording.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(last) = recorded.as_ref().filter(|last| last.runs == runs) {
+        let same_runs = |last: &&RecordedRecurrence| {
+            last.runs.len() == prepared.len()
+                && last
+                    .runs
+                    .iter()
+                    .zip(prepared)
+                    .all(|((slot, entries), p)| *slot == p.slot && *entries == p.work.entries)
+        };
+        if let Some(last) = recorded.as_ref().filter(same_runs) {
             return last.work.clone();
         }
         let work = Arc::new(self.encode_recurrence(prepared));
         *recorded = Some(RecordedRecurrence {
-            runs,
+            runs: prepared
+                .iter()
+                .map(|p| (p.slot, p.work.entries.clone()))
+                .collect(),
             work: work.clone(),
         });
         work

@@ -27,6 +27,11 @@
 #                every call at their workgroup target of 1,024 (PVRNN_WGPU_OUTPUT_KERNELS=fused
 #                PVRNN_WGPU_WORKGROUPS=1024: the default before 2026-11-30; the default
 #                now runs the register-blocked kernels for learning's calls)
+#   whole-waited, whole-N-waited
+#                `whole` and `whole-N` with each iteration's free energy read back before
+#                its update and the next iteration are queued (PVRNN_WGPU_AHEAD=off; the
+#                default queues them first, the updates skipping on the device after a
+#                diverged iteration: the path before 2026-11-30's third session)
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -123,6 +128,10 @@ for round in $(seq "$rounds"); do
         PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
             bench "whole-${NETWORKS:-5}-fused" "$threads" "$round" --backend wgpu \
             --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_AHEAD=off bench whole-waited "$threads" "$round" --backend wgpu \
+            --gpu-recurrence $train_only
+        PVRNN_WGPU_AHEAD=off bench "whole-${NETWORKS:-5}-waited" "$threads" "$round" \
+            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \

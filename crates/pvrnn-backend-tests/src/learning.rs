@@ -256,3 +256,62 @@ pub fn learning_runs_stepped_together_equal_each_run_alone<T: SuiteReal>(backend
         "{error}"
     );
 }
+
+/// A run's model, optimiser step count and iteration count: what a diverged iteration
+/// must leave as it was.
+fn run_state<T: Real>(trainer: &mut Trainer<T>) -> (Vec<u64>, u64, u64) {
+    let bits = model_bits(trainer);
+    (bits, trainer.state().1.step, trainer.iteration)
+}
+
+/// A learning iteration whose free energy is not finite (after a step at a learning rate
+/// far too large) fails, naming the divergence, and leaves the run as it was before it:
+/// model, optimiser and iteration count; on a device that queued the iteration's update
+/// before it read the free energy back (`Learner::guards_updates`), the update was skipped
+/// there. So does the next attempt. In a cohort, the other run goes on as it would alone.
+pub fn a_diverging_iteration_leaves_the_run_as_it_was<T: SuiteReal>(backend: &Shared<T>) {
+    let ruined = || {
+        let (mut run, data) = fresh_run(backend, 1);
+        run.step(&data).unwrap();
+        run.state_mut().1.config.lr = 1e200;
+        // Finite: the weights it was taken at were fine; the update is not.
+        run.step(&data).unwrap();
+        (run, data)
+    };
+    let diverges = |report: Result<_, pvrnn_core::Error>| match report {
+        Err(pvrnn_core::Error::Numerical(message)) => {
+            assert!(message.contains("learning diverged"), "{message}");
+        }
+        other => panic!("expected the divergence, got {other:?}"),
+    };
+    let (mut run, data) = ruined();
+    let before = run_state(&mut run);
+    for _ in 0..2 {
+        diverges(run.step(&data));
+        assert!(
+            run_state(&mut run) == before,
+            "a diverged iteration changed the run"
+        );
+    }
+    // Stepped together with a run that learns on.
+    let (mut alone, other_data) = fresh_run(backend, 2);
+    for _ in 0..3 {
+        alone.step(&other_data).unwrap();
+    }
+    let (mut run, data) = ruined();
+    let (mut other, _) = fresh_run(backend, 2);
+    other.step(&other_data).unwrap();
+    other.step(&other_data).unwrap();
+    let before = run_state(&mut run);
+    let mut reports = step_together(&mut [&mut run, &mut other], &[&data, &other_data]).unwrap();
+    reports.pop().unwrap().unwrap();
+    diverges(reports.pop().unwrap());
+    assert!(
+        run_state(&mut run) == before,
+        "a diverged iteration in a cohort changed the run"
+    );
+    assert!(
+        run_state(&mut other) == run_state(&mut alone),
+        "the other run of the cohort differs from the run alone"
+    );
+}

@@ -98,6 +98,7 @@ macro_rules! backend_suite {
                 learning::learning_lowers_free_energy_and_online_inference_tracks_the_sequence,
                 learning::learning_runs_stepped_together_equal_each_run_alone,
                 learning::a_changed_noise_takes_effect_at_the_next_iteration,
+                learning::a_diverging_iteration_leaves_the_run_as_it_was,
             );
         }
     };

@@ -252,6 +252,29 @@ pub trait Learner<T: Real>: Backend<T> {
     ) -> Option<Deferred<'a, Result<FreeEnergy>>> {
         self.free_energy(data, eps).map(crate::deferred::ready)
     }
+
+    /// Whether [`Self::update`] is skipped on the device after an evaluation whose free
+    /// energy was not finite, and every update after it (the learner is then spent: the
+    /// trainer downloads it and makes a new one). Such a learner lets the trainer queue an
+    /// iteration's update, and the next iteration's evaluation ([`Self::queue_free_energy`]),
+    /// before it has read the free energy back, so that the device never waits for the
+    /// host. The default: no, the trainer checks first.
+    fn guards_updates(&self) -> bool {
+        false
+    }
+
+    /// Queues the evaluation [`Self::begin_free_energy`] would begin for `data` and `eps`,
+    /// for the next call of it with the same `data` and `eps` to take (any other call drops
+    /// it); it starts at [`Self::submit_queued`]. The default queues nothing.
+    fn queue_free_energy(&self, data: &Observations<T>, eps: &[[Vec<T>; 4]]) -> Result<()> {
+        let _ = (data, eps);
+        Ok(())
+    }
+
+    /// Starts on the device, without waiting, what is queued there: begun and queued
+    /// evaluations (of every run sharing it, a cohort's in one submission). Awaiting an
+    /// evaluation starts it too. The default has nothing to start.
+    fn submit_queued(&self) {}
 }
 
 /// Weights ready for evaluation on one backend. Everything the model computes goes through

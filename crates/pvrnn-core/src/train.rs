@@ -9,7 +9,7 @@ use crate::data::Observations;
 use crate::error::{Error, Result};
 use crate::free_energy::{FreeEnergy, NoiseDraw, check_model_fits_data, free_energy, window_eps};
 use crate::noise::NoiseMode;
-use crate::optim::RAdam;
+use crate::optim::{RAdam, RAdamStep};
 use crate::params::{Adaptive, Model, Params, Role};
 
 /// A learning run: the model, its optimiser state and how far it got.
@@ -272,7 +272,17 @@ impl<T: Real> Trainer<T> {
     }
 
     fn step_here(&mut self, data: &Observations<T>) -> Result<FreeEnergy> {
-        let on_device = match self.begin(data)? {
+        let eps = self.begin(data)?;
+        if eps.is_some() && self.guarded() {
+            let mut members = [self];
+            let mut stepped = step_ahead(&mut members, &[data], vec![Ok(eps)]);
+            return stepped.pop().unwrap_or_else(|| {
+                Err(Error::Mismatch(
+                    "one learning run stepped, no result".into(),
+                ))
+            });
+        }
+        let on_device = match eps {
             Some(eps) => {
                 let queued = self.device_iteration(data, &eps)?;
                 let next = self.next_draw(data);
@@ -286,6 +296,24 @@ impl<T: Real> Trainer<T> {
             None => None,
         };
         self.finish(data, on_device)
+    }
+
+    /// Whether the learner evaluates whole iterations and guards its updates on the device
+    /// ([`Learner::guards_updates`]): the next iteration is then queued before this one's
+    /// free energy is read back ([`step_ahead`]).
+    fn guarded(&self) -> bool {
+        self.learner.as_ref().is_some_and(|l| l.guards_updates())
+    }
+
+    /// After a learning evaluation diverged on a learner that guards its updates: its
+    /// tensors as they were before (its update and every later one were skipped) back on the
+    /// host, the spent learner dropped (the next step makes a new one), the optimiser's
+    /// step count back to match.
+    fn spend_learner(&mut self) {
+        self.sync();
+        self.learner = None;
+        self.drawn_ahead = None;
+        self.optimizer.step -= 1;
     }
 
     /// The draw of the iteration after this one.
@@ -339,6 +367,20 @@ impl<T: Real> Trainer<T> {
         Ok(Some(self.this_iterations_eps(data)))
     }
 
+    /// The learner that evaluates whole iterations on its device.
+    fn whole_learner(&self) -> Result<&dyn Learner<T>> {
+        self.learner
+            .as_deref()
+            .ok_or_else(|| Error::Mismatch("a learning run on its device has no learner".into()))
+    }
+
+    /// Starts what the learner queued on its device ([`Learner::submit_queued`]).
+    fn submit_queued(&self) {
+        if let Some(learner) = &self.learner {
+            learner.submit_queued();
+        }
+    }
+
     /// The iteration evaluated on the learner's device (after [`Self::begin`] gave `eps`),
     /// queued there; awaiting it waits for the device.
     fn device_iteration<'a>(
@@ -377,10 +419,7 @@ impl<T: Real> Trainer<T> {
             }
         };
         if !report.total.is_finite() {
-            return Err(Error::Numerical(format!(
-                "the free energy became {} at iteration {}: learning diverged (try a smaller train.optimizer.lr)",
-                report.total, self.iteration
-            )));
+            return Err(diverged(&report, self.iteration));
         }
         let mut grad_slices: Vec<&[T]> = Vec::new();
         if let Some(grads) = &grads {
@@ -415,6 +454,125 @@ impl<T: Real> Trainer<T> {
     }
 }
 
+/// The error of a learning iteration whose free energy is not finite.
+fn diverged(report: &FreeEnergy, iteration: u64) -> Error {
+    Error::Numerical(format!(
+        "the free energy became {} at iteration {iteration}: learning diverged (try a smaller train.optimizer.lr)",
+        report.total
+    ))
+}
+
+/// One iteration of runs whose learners guard their updates ([`Learner::guards_updates`];
+/// `eps[i]` from [`Trainer::begin`]), with the next iteration queued before this one is
+/// read back, so that the device runs it while the host checks this one and the caller
+/// does its bookkeeping: every run's evaluation (queued by the step before when it was for
+/// these eps), then every run's update behind it, then every run's next evaluation behind
+/// that; then the free energies awaited. A run that diverged had its update skipped on the
+/// device, and its learner is spent ([`Trainer::spend_learner`]). The results are those of
+/// [`Trainer::finish`]'s order of events, exactly.
+fn step_ahead<T: Real>(
+    members: &mut [&mut Trainer<T>],
+    data: &[&Observations<T>],
+    eps: Vec<Result<Option<WindowEps<T>>>>,
+) -> Vec<Result<FreeEnergy>> {
+    // This iteration's evaluations, queued (or found queued); a run whose evaluation could
+    // not be queued gets no update, and its error.
+    let (queued, mut errors): (Vec<Option<WindowEps<T>>>, Vec<Option<Error>>) = members
+        .iter()
+        .zip(data)
+        .zip(eps)
+        .map(|((m, d), e)| {
+            let queue = |e: Option<WindowEps<T>>| {
+                let e = e.ok_or_else(|| {
+                    Error::Mismatch(
+                        "the learner guards its updates but evaluates on the host".into(),
+                    )
+                })?;
+                m.whole_learner()?.queue_free_energy(d, &e)?;
+                Ok(e)
+            };
+            match e.and_then(queue) {
+                Ok(e) => (Some(e), None),
+                Err(error) => (None, Some(error)),
+            }
+        })
+        .unzip();
+    let steps: Vec<Option<RAdamStep>> = members
+        .iter_mut()
+        .zip(&queued)
+        .map(|(m, q)| q.as_ref().map(|_| m.optimizer.begin_step()))
+        .collect();
+    let (reports, ahead): (Vec<Result<FreeEnergy>>, Vec<Option<DrawnAhead<T>>>) = {
+        let members: &[&mut Trainer<T>] = members;
+        let claimed: Vec<Result<_>> = members
+            .iter()
+            .zip(data)
+            .zip(&queued)
+            .zip(&mut errors)
+            .map(|(((m, d), e), error)| match e {
+                Some(e) => m.device_iteration(d, e),
+                None => Err(error.take().unwrap_or_else(|| {
+                    Error::Mismatch("a learning run's evaluation was not queued".into())
+                })),
+            })
+            .collect();
+        members.iter().for_each(|m| m.submit_queued());
+        for ((m, step), c) in members.iter().zip(&steps).zip(&claimed) {
+            if let (Some(step), Ok(_), Ok(learner)) = (step, c, m.whole_learner()) {
+                let _phase = crate::profile::phase("optimiser on the device (queued)");
+                learner.update(step);
+            }
+        }
+        let ahead: Vec<Option<DrawnAhead<T>>> = members
+            .iter()
+            .zip(data)
+            .zip(&claimed)
+            .map(|((m, d), c)| {
+                let ahead: DrawnAhead<T> = c.as_ref().ok().map(|_| m.next_draw(d).draw())?;
+                // An error here comes back, and is reported, when the next step queues
+                // its evaluation itself.
+                let _ = m
+                    .whole_learner()
+                    .map(|l| l.queue_free_energy(d, &ahead.eps));
+                Some(ahead)
+            })
+            .collect();
+        members.iter().for_each(|m| m.submit_queued());
+        let reports = claimed
+            .into_iter()
+            .map(|c| c.and_then(crate::deferred::now))
+            .collect();
+        (reports, ahead)
+    };
+    members
+        .iter_mut()
+        .zip(reports.into_iter().zip(ahead))
+        .zip(steps)
+        .map(|((m, (report, ahead)), step)| {
+            if step.is_some() {
+                m.host_stale = true;
+            }
+            m.drawn_ahead = ahead;
+            match report {
+                Ok(report) if report.total.is_finite() => {
+                    m.iteration += 1;
+                    Ok(report)
+                }
+                Ok(report) => {
+                    m.spend_learner();
+                    Err(diverged(&report, m.iteration))
+                }
+                Err(e) => {
+                    if step.is_some() {
+                        m.spend_learner();
+                    }
+                    Err(e)
+                }
+            }
+        })
+        .collect()
+}
+
 /// An iteration's eps per sequence and module ([`window_eps`]).
 type WindowEps<T> = Vec<[Vec<T>; 4]>;
 
@@ -442,6 +600,9 @@ pub fn step_together<T: Real>(
             .zip(data)
             .map(|(m, d)| m.begin(d))
             .collect();
+        if members.iter().all(|m| m.guarded()) {
+            return Ok(step_ahead(members, data, eps));
+        }
         // Queued on the device, all of them, then awaited in order, while the next
         // iteration's eps of the runs on the device are drawn.
         let (on_device, ahead): (Vec<Option<Result<FreeEnergy>>>, Vec<Option<_>>) = {

@@ -279,6 +279,7 @@ pub struct Gpu {
     /// of its own costs the web site's download more than it saves).
     recurrence_kernels: Mutex<Vec<(RecurrenceShape, Arc<RecurrenceKernels>)>>,
     radam_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
+    finite_check_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     copy_kernel: OnceLock<Arc<wgpu::ComputePipeline>>,
     dense_kernels: OnceLock<Arc<DenseKernels>>,
     /// Targets kept on the device (learning's data, uploaded once per run; an inference
@@ -332,6 +333,7 @@ impl Gpu {
             kernels: Mutex::new(HashMap::new()),
             recurrence_kernels: Mutex::default(),
             radam_kernel: OnceLock::new(),
+            finite_check_kernel: OnceLock::new(),
             copy_kernel: OnceLock::new(),
             dense_kernels: OnceLock::new(),
             resident: Mutex::new(ResidentTargets::default()),
@@ -680,6 +682,19 @@ impl Gpu {
         self.radam_kernel
             .get_or_init(|| {
                 Arc::new(self.pipeline("radam", include_str!("shaders/radam.wgsl").into()))
+            })
+            .clone()
+    }
+
+    /// The divergence mark of a learning run (`shaders/finite_check.wgsl`), compiled on
+    /// first use.
+    pub(crate) fn finite_check_kernel(&self) -> Arc<wgpu::ComputePipeline> {
+        self.finite_check_kernel
+            .get_or_init(|| {
+                Arc::new(self.pipeline(
+                    "finite check",
+                    include_str!("shaders/finite_check.wgsl").into(),
+                ))
             })
             .clone()
     }

@@ -26,11 +26,11 @@ use pvrnn_core::params::Model;
 use pvrnn_core::{Error, Modality, ModelConfig, Result};
 
 use crate::copy::{Strided, encode_copy};
-use crate::encode::{DispatchList, row_losses, vec4s};
+use crate::encode::{DispatchList, bind, dispatch, grid, row_losses, vec4s};
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
-use crate::readback::read_back;
+use crate::readback::{ReadBack, read_back};
 use crate::recurrence::{RecurrenceLayout, WeightGradBuffers, WindowEntry};
 use crate::resident::{Part, ResidentLayer, ResidentTensor, TensorIndex, resident_buffer};
 use crate::timing::{PassTimes, begin_pass};
@@ -66,12 +66,34 @@ pub(crate) struct Stack {
     queue: Mutex<Queue>,
 }
 
-/// Iterations prepared and not yet submitted, and results not yet taken.
+/// Iterations prepared and not yet submitted, submitted and not yet read back, and
+/// results not yet taken.
 #[derive(Debug, Default)]
 struct Queue {
     next_ticket: u64,
     prepared: Vec<Prepared>,
+    /// Oldest first.
+    in_flight: Vec<InFlight>,
     results: HashMap<u64, Vec<Vec<f32>>>,
+}
+
+/// One submission on its way: its runs' tickets (`None`: withdrawn) with how many of the
+/// read-back's parts are theirs, and what it uses, kept until it has run.
+#[derive(Debug)]
+struct InFlight {
+    tickets: Vec<(Option<u64>, usize)>,
+    read_back: ReadBack,
+    _prepared: Vec<Prepared>,
+    _recurrence: Arc<RecurrenceWork>,
+}
+
+/// `shaders/finite_check.wgsl`'s parameters.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FiniteCheckParams {
+    count: u32,
+    groups_x: u32,
+    _pad: [u32; 2],
 }
 
 /// One run's part of an iteration, encoded (see [`DeviceIteration::free_energy_later`]).
@@ -101,10 +123,7 @@ struct RunWork {
     entries: Vec<WindowEntry>,
     /// What to read back (KL terms, each read-out's row losses) with its length.
     sources: Vec<(wgpu::Buffer, usize)>,
-    /// Where each module's noise starts, the read-outs' divisors, the rows.
-    per_module_at: [usize; 4],
-    divisors: [usize; 2],
-    total: usize,
+    reading: Reading,
 }
 
 impl Stack {
@@ -209,31 +228,67 @@ impl Stack {
         ticket
     }
 
+    /// Submits every prepared iteration (one submission), without waiting.
+    pub(crate) fn submit_prepared(&self) {
+        let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        self.submit_locked(&mut queue);
+    }
+
+    fn submit_locked(&self, queue: &mut Queue) {
+        let prepared = std::mem::take(&mut queue.prepared);
+        if !prepared.is_empty() {
+            let in_flight = self.submit(prepared);
+            queue.in_flight.push(in_flight);
+        }
+    }
+
     /// The read-back of `ticket`'s iteration: submitted with every other prepared one if it
-    /// has not been yet, waited for.
+    /// has not been yet, waited for (with the submissions before it).
     fn results_of(&self, ticket: u64) -> Vec<Vec<f32>> {
         let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(results) = queue.results.remove(&ticket) {
             return results;
         }
-        let prepared = std::mem::take(&mut queue.prepared);
-        let tickets: Vec<(u64, Vec<usize>)> = prepared
-            .iter()
-            .map(|p| (p.ticket, p.work.sources.iter().map(|&(_, n)| n).collect()))
-            .collect();
-        let all = self.submit(prepared);
-        let mut all = all.into_iter();
-        for (t, sizes) in tickets {
-            let results: Vec<Vec<f32>> = sizes.iter().filter_map(|_| all.next()).collect();
-            queue.results.insert(t, results);
+        if queue.prepared.iter().any(|p| p.ticket == ticket) {
+            self.submit_locked(&mut queue);
+        }
+        let holds = |f: &InFlight| f.tickets.iter().any(|&(t, _)| t == Some(ticket));
+        let Some(last) = queue.in_flight.iter().position(holds) else {
+            return Vec::new();
+        };
+        let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
+        for in_flight in queue.in_flight.drain(..=last).collect::<Vec<_>>() {
+            let mut all = pvrnn_core::deferred::now(in_flight.read_back).into_iter();
+            for (t, parts) in in_flight.tickets {
+                let results: Vec<Vec<f32>> = all.by_ref().take(parts).collect();
+                if let Some(t) = t {
+                    queue.results.insert(t, results);
+                }
+            }
         }
         queue.results.remove(&ticket).unwrap_or_default()
     }
 
+    /// Takes `ticket`'s iteration back: not submitted if it was not yet, its results not
+    /// kept if it was.
+    fn withdraw(&self, ticket: u64) {
+        let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        queue.prepared.retain(|p| p.ticket != ticket);
+        queue.results.remove(&ticket);
+        for in_flight in &mut queue.in_flight {
+            for (t, _) in &mut in_flight.tickets {
+                if *t == Some(ticket) {
+                    *t = None;
+                }
+            }
+        }
+    }
+
     /// Every prepared run's iteration in one submission: their inputs, one forward dispatch
     /// over all their windows, their read-outs, one backward dispatch, each run's weight
-    /// gradients and copies; then one read-back of every run's free-energy terms.
-    fn submit(&self, mut prepared: Vec<Prepared>) -> Vec<Vec<f32>> {
+    /// gradients and copies; then one read-back of every run's free-energy terms, not yet
+    /// waited for.
+    fn submit(&self, mut prepared: Vec<Prepared>) -> InFlight {
         let gpu = &*self.gpu;
         let clears: Vec<wgpu::CommandBuffer> = prepared
             .iter_mut()
@@ -296,18 +351,22 @@ impl Stack {
             .iter()
             .flat_map(|p| p.work.sources.iter().map(|(b, n)| (b, *n)))
             .collect();
-        // The clears first, then the iteration (queue order), then one wait.
+        // The clears first, then the iteration (queue order).
         gpu.queue.submit(clears);
-        let pending = read_back(gpu, encoder, &sources);
+        let read_back = read_back(gpu, encoder, &sources);
         if let Some(times) = times {
             times.collect(gpu);
         }
         drop(encode_phase);
-        drop(recurrence);
-        let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
-        let results = pvrnn_core::deferred::now(pending);
-        drop(prepared);
-        results
+        InFlight {
+            tickets: prepared
+                .iter()
+                .map(|p| (Some(p.ticket), p.work.sources.len()))
+                .collect(),
+            read_back,
+            _prepared: prepared,
+            _recurrence: recurrence,
+        }
     }
 
     /// The recurrence's part of a submission for these runs: the one recorded for the same
@@ -446,9 +505,7 @@ impl Ticket<'_> {
 
 impl Drop for Ticket<'_> {
     fn drop(&mut self) {
-        let mut queue = self.stack.queue.lock().unwrap_or_else(|e| e.into_inner());
-        queue.prepared.retain(|p| p.ticket != self.ticket);
-        queue.results.remove(&self.ticket);
+        self.stack.withdraw(self.ticket);
     }
 }
 
@@ -466,6 +523,38 @@ pub(crate) struct DeviceIteration {
     readouts: GpuOutputLayer,
     /// The run's part of an iteration as last encoded, to replay (`Tiling::replay_iterations`).
     recording: Option<Mutex<Option<Recording>>>,
+    /// The evaluation queued ahead of its call (`Learner::queue_free_energy`).
+    ahead: Mutex<Option<Ahead>>,
+    /// The run's divergence mark: set on the device when an iteration's free-energy terms
+    /// are not finite (`shaders/finite_check.wgsl`); the learner's updates read it.
+    diverged: wgpu::Buffer,
+}
+
+/// An evaluation queued ahead of its call: the data (`Observations::id`) and eps it is
+/// for, its ticket, and what reading its results needs.
+#[derive(Debug)]
+struct Ahead {
+    data: u64,
+    eps: Vec<[Vec<f32>; 4]>,
+    ticket: u64,
+    reading: Reading,
+}
+
+/// What turns a run's read-back into its free energy ([`DeviceIteration::free_energy_of`]).
+#[derive(Clone, Copy, Debug)]
+struct Reading {
+    total: usize,
+    per_module_at: [usize; 4],
+    divisors: [usize; 2],
+}
+
+impl Drop for DeviceIteration {
+    fn drop(&mut self) {
+        let ahead = self.ahead.get_mut().unwrap_or_else(|e| e.into_inner());
+        if let Some(ahead) = ahead.take() {
+            self.stack.withdraw(ahead.ticket);
+        }
+    }
 }
 
 /// A run's part of a learning iteration, encoded once and replayed while the data and its
@@ -600,7 +689,14 @@ impl DeviceIteration {
             adaptive_grads,
             readouts: GpuOutputLayer::with_resident(gpu.clone(), tiling, &model.params, layers),
             recording: tiling.replay_iterations.then(Mutex::default),
+            ahead: Mutex::default(),
+            diverged: resident_buffer(gpu, "divergence mark", &[0.0]),
         })
+    }
+
+    /// The run's divergence mark (see [`Self::diverged`]'s field).
+    pub(crate) fn divergence_mark(&self) -> &wgpu::Buffer {
+        &self.diverged
     }
 
     fn layout(&self) -> &RecurrenceLayout {
@@ -626,6 +722,64 @@ impl DeviceIteration {
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<impl std::future::Future<Output = FreeEnergy> + '_> {
+        let taken = {
+            let mut ahead = self.ahead.lock().unwrap_or_else(|e| e.into_inner());
+            match ahead.take() {
+                Some(a) if a.data == data.id() && a.eps == eps => Some(a),
+                Some(a) => {
+                    self.stack.withdraw(a.ticket);
+                    None
+                }
+                None => None,
+            }
+        };
+        let (ticket, reading) = match taken {
+            Some(a) => (a.ticket, a.reading),
+            None => self.enqueue(data, eps)?,
+        };
+        // Dropped unawaited, the guard takes the iteration back out of the queue.
+        let ticket = Ticket {
+            stack: &self.stack,
+            ticket,
+        };
+        Ok(async move {
+            let results = ticket.results();
+            self.free_energy_of(reading, results)
+        })
+    }
+
+    /// Queues the iteration [`Self::free_energy_later`] would for `data` and `eps`, for its
+    /// next call with the same to take; kept if it is queued already.
+    pub(crate) fn queue_ahead(
+        &self,
+        data: &Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> Result<()> {
+        let mut ahead = self.ahead.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(a) = ahead.take() {
+            if a.data == data.id() && a.eps == eps {
+                *ahead = Some(a);
+                return Ok(());
+            }
+            self.stack.withdraw(a.ticket);
+        }
+        let (ticket, reading) = self.enqueue(data, eps)?;
+        *ahead = Some(Ahead {
+            data: data.id(),
+            eps: eps.to_vec(),
+            ticket,
+            reading,
+        });
+        Ok(())
+    }
+
+    /// Starts what the stack has queued (this run's and its cohort's), without waiting.
+    pub(crate) fn submit_queued(&self) {
+        self.stack.submit_prepared();
+    }
+
+    /// The iteration on `data` with `eps`, prepared and queued in the stack; its ticket.
+    fn enqueue(&self, data: &Observations<f32>, eps: &[[Vec<f32>; 4]]) -> Result<(u64, Reading)> {
         self.check_fits(data, eps)?;
         let stack = &*self.stack;
         // The first iteration uploads the targets and makes the read-outs' scratch.
@@ -634,22 +788,8 @@ impl DeviceIteration {
             n => format!("prepare a learning iteration of {n} networks trained together"),
         };
         let prepared = stack.gpu.allocating(what, || self.prepare(data, eps))??;
-        let RunWork {
-            per_module_at,
-            divisors,
-            total,
-            ..
-        } = prepared.work;
-        let ticket = stack.enqueue(prepared);
-        // Dropped unawaited, the guard takes the iteration back out of the queue.
-        let ticket = Ticket {
-            stack: &self.stack,
-            ticket,
-        };
-        Ok(async move {
-            let results = ticket.results();
-            self.free_energy_of(total, &per_module_at, divisors, results)
-        })
+        let reading = prepared.work.reading;
+        Ok((stack.enqueue(prepared), reading))
     }
 
     /// The device work of one iteration of this run, encoded (or replayed from its
@@ -708,6 +848,7 @@ impl DeviceIteration {
                 .iter()
                 .map(|(r, _)| ((*r.row_loss).clone(), batch.total)),
         );
+        self.encode_finite_checks(gpu, &mut after, &sources, &mut keep);
         let divisors = [readouts[0].1, readouts[1].1];
         keep.push(kl);
         let readouts: Vec<EncodedReadout> = readouts.into_iter().map(|(r, _)| r).collect();
@@ -717,9 +858,11 @@ impl DeviceIteration {
             after: Arc::new(after),
             entries: batch.entries,
             sources,
-            per_module_at,
-            divisors,
-            total: batch.total,
+            reading: Reading {
+                total: batch.total,
+                per_module_at,
+                divisors,
+            },
         };
         let mut prepared = Prepared {
             ticket: 0,
@@ -1022,14 +1165,36 @@ impl DeviceIteration {
         kl
     }
 
-    /// F from what came back: the KL terms, then each read-out's row losses.
-    fn free_energy_of(
+    /// The divergence mark set when one of the free-energy terms in `sources` is not
+    /// finite (`shaders/finite_check.wgsl`).
+    fn encode_finite_checks(
         &self,
-        total: usize,
-        per_module_at: &[usize; 4],
-        divisors: [usize; 2],
-        results: Vec<Vec<f32>>,
-    ) -> FreeEnergy {
+        gpu: &Gpu,
+        work: &mut DispatchList,
+        sources: &[(wgpu::Buffer, usize)],
+        keep: &mut Vec<PooledBuffer>,
+    ) {
+        let kernel = gpu.finite_check_kernel();
+        for (terms, count) in sources.iter().filter(|(_, n)| *n > 0) {
+            let (groups_x, groups_y) = grid(gpu, *count);
+            let uniform = gpu.uniform(&FiniteCheckParams {
+                count: *count as u32,
+                groups_x,
+                _pad: [0; 2],
+            });
+            let group = bind(gpu, &kernel, &[&uniform, terms, &self.diverged]);
+            dispatch(work, &kernel, &group, groups_x, groups_y);
+            keep.push(uniform);
+        }
+    }
+
+    /// F from what came back: the KL terms, then each read-out's row losses.
+    fn free_energy_of(&self, reading: Reading, results: Vec<Vec<f32>>) -> FreeEnergy {
+        let Reading {
+            total,
+            per_module_at,
+            divisors,
+        } = reading;
         let mut results = results.into_iter();
         let kl = results.next().unwrap_or_default();
         let mut complexity = [0.0; 4];

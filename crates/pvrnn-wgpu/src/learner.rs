@@ -26,7 +26,7 @@ use crate::gpu::Gpu;
 use crate::iteration::{DeviceIteration, Stack};
 use crate::pool::PooledBuffer;
 use crate::readback::read_back;
-use crate::resident::{Part, ResidentLayer, ResidentTensor};
+use crate::resident::{Part, ResidentLayer, ResidentTensor, resident_buffer};
 use crate::timing::{PassTimes, begin_pass};
 
 #[repr(C)]
@@ -63,6 +63,9 @@ pub struct GpuLearner {
     /// The update as first encoded, to replay with each step's scalars
     /// (`Tiling::replay_iterations`; `None`: encoded every time).
     recorded_update: Option<Mutex<Option<RecordedUpdate>>>,
+    /// What the updates read to skip after a diverged iteration: the whole iteration's
+    /// divergence mark, or one never set when the host checks the free energy first.
+    divergence_mark: wgpu::Buffer,
 }
 
 /// A learner's update as first encoded: the RAdam dispatches with their uniform buffers
@@ -124,6 +127,10 @@ impl GpuLearner {
             .flat_map(|l| l.tensors.iter().map(|t| t.index))
             .chain(more.iter().map(|t| t.index))
             .collect();
+        let divergence_mark = match &iteration {
+            Some(iteration) => iteration.divergence_mark().clone(),
+            None => resident_buffer(backend.gpu(), "divergence mark, never set", &[0.0]),
+        };
         (!resident.is_empty()).then(|| Self {
             backend: backend.clone(),
             layers,
@@ -131,6 +138,7 @@ impl GpuLearner {
             more,
             resident,
             recorded_update: backend.tiling().replay_iterations.then(Mutex::default),
+            divergence_mark,
         })
     }
 
@@ -228,7 +236,14 @@ impl GpuLearner {
         let group = bind(
             gpu,
             &kernel,
-            &[&uniform, &t.value, &t.moments[0], &t.moments[1], &t.grad],
+            &[
+                &uniform,
+                &t.value,
+                &t.moments[0],
+                &t.moments[1],
+                &t.grad,
+                &self.divergence_mark,
+            ],
         );
         dispatch(encoder, &kernel, &group, groups_x, groups_y);
         uniform
@@ -402,6 +417,29 @@ impl Learner<f32> for GpuLearner {
     ) -> Option<pvrnn_core::Result<pvrnn_core::FreeEnergy>> {
         let iteration = self.iteration.as_ref()?;
         Some(iteration.free_energy(data, eps))
+    }
+
+    /// With the whole iteration on the device, and `Tiling::queue_ahead`: its updates read
+    /// the run's divergence mark (`shaders/finite_check.wgsl`).
+    fn guards_updates(&self) -> bool {
+        self.iteration.is_some() && self.backend.tiling().queue_ahead
+    }
+
+    fn queue_free_energy(
+        &self,
+        data: &pvrnn_core::Observations<f32>,
+        eps: &[[Vec<f32>; 4]],
+    ) -> pvrnn_core::Result<()> {
+        match &self.iteration {
+            Some(iteration) => iteration.queue_ahead(data, eps),
+            None => Ok(()),
+        }
+    }
+
+    fn submit_queued(&self) {
+        if let Some(iteration) = &self.iteration {
+            iteration.submit_queued();
+        }
     }
 
     fn begin_free_energy<'a>(

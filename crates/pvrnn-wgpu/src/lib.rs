@@ -108,22 +108,18 @@ impl WgpuBackend {
                 ),
             }
         }
-        if let Ok(value) = std::env::var("PVRNN_WGPU_RECURRENCE_WEIGHTS") {
-            match value.as_str() {
-                "windows" => tiling.recurrence_weight_partials = true,
-                "serial" => tiling.recurrence_weight_partials = false,
-                other => eprintln!(
-                    "PVRNN_WGPU_RECURRENCE_WEIGHTS={other} is neither `windows` nor `serial`; windows"
-                ),
-            }
-        }
-        if let Ok(value) = std::env::var("PVRNN_WGPU_REPLAY") {
-            match value.as_str() {
-                "off" => tiling.replay_iterations = false,
-                "on" => tiling.replay_iterations = true,
-                other => eprintln!("PVRNN_WGPU_REPLAY={other} is neither `on` nor `off`; on"),
-            }
-        }
+        let weights = ["windows", "serial"];
+        env_switch(
+            "PVRNN_WGPU_RECURRENCE_WEIGHTS",
+            weights,
+            &mut tiling.recurrence_weight_partials,
+        );
+        env_switch(
+            "PVRNN_WGPU_REPLAY",
+            ["on", "off"],
+            &mut tiling.replay_iterations,
+        );
+        env_switch("PVRNN_WGPU_AHEAD", ["on", "off"], &mut tiling.queue_ahead);
         if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
             match value.parse() {
                 Ok(depth) => tiling.blocked_depth = Some(depth),
@@ -268,6 +264,24 @@ impl Backend<f32> for WgpuBackend {
                     .map(|(model, optimizer)| self.learner(model, optimizer))
                     .collect(),
             })
+    }
+}
+
+/// `*value` set by the environment variable `name`, if set: true for `words[0]`, false
+/// for `words[1]`; anything else is reported and the default kept.
+fn env_switch(name: &str, words: [&str; 2], value: &mut bool) {
+    if let Ok(text) = std::env::var(name) {
+        match text.trim() {
+            word if word == words[0] => *value = true,
+            word if word == words[1] => *value = false,
+            _ => {
+                let default = words[usize::from(!*value)];
+                eprintln!(
+                    "{name}={text} is neither `{}` nor `{}`; using the default, {default}",
+                    words[0], words[1]
+                );
+            }
+        }
     }
 }
 

@@ -151,6 +151,13 @@ pub struct Tiling {
     /// The serial sum is a chain of 5,400 steps on about 19,000 threads at the paper's
     /// scale, too few to fill a large GPU.
     pub recurrence_weight_partials: bool,
+    /// With the whole iteration on the device, the trainer queues an iteration's update
+    /// and the next iteration before it reads the free energy back (the updates skip on
+    /// the device after a diverged iteration: `Learner::guards_updates`), so that the
+    /// device does not wait for the host between iterations: 3.1-3.2 ms of one network's
+    /// 13.8 ms iteration and 14.1-14.5 of five networks' 48.5 on an H200 (2026-11-30,
+    /// before this). `PVRNN_WGPU_AHEAD=off` waits for each free energy first.
+    pub queue_ahead: bool,
 }
 
 impl Tiling {
@@ -178,6 +185,7 @@ impl Default for Tiling {
             recurrence_threads: None,
             recurrence_loads: 8,
             recurrence_weight_partials: true,
+            queue_ahead: true,
         }
     }
 }

@@ -82,6 +82,14 @@ pub(crate) struct ReadBack {
     submitted: wgpu::SubmissionIndex,
 }
 
+impl std::fmt::Debug for ReadBack {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ReadBack")
+            .field("floats", &self.total)
+            .finish_non_exhaustive()
+    }
+}
+
 impl ReadBack {
     /// Natively: polls the device until this copy is mapped (also when another thread's
     /// poll mapped it).

@@ -494,7 +494,14 @@ fn learning_with_resident_weights(
         replay_iterations: false,
         ..gpu.tiling()
     });
-    let mut encoded = Trainer::new(model, noise).with_backend(Box::new(encoding));
+    let mut encoded = Trainer::new(model.clone(), noise).with_backend(Box::new(encoding));
+    // With it, the next iteration is queued before the free energy is read back
+    // (`Tiling::queue_ahead`); this one waits for each free energy first.
+    let waiting = gpu.clone().with_tiling(Tiling {
+        queue_ahead: false,
+        ..gpu.tiling()
+    });
+    let mut waited = Trainer::new(model, noise).with_backend(Box::new(waiting));
     let iterations = 10;
     for i in 0..iterations {
         let a = cpu.step(&data).unwrap().total;
@@ -502,11 +509,14 @@ fn learning_with_resident_weights(
         let encodings = gpu.gpu().iterations_encoded();
         let recurrence_parts = gpu.gpu().recurrence_parts_encoded();
         let b = on_gpu.step(&data).unwrap().total;
+        // The first step queues the next iteration too (`Tiling::queue_ahead`); every
+        // later one the iteration after it.
+        let first = u64::from(i == 0);
         if gpu_recurrence {
             // One submission's results: the free-energy terms.
             assert_eq!(
                 gpu.gpu().read_backs() - read_backs,
-                1,
+                1 + first,
                 "read-backs per iteration"
             );
             assert_eq!(
@@ -522,9 +532,20 @@ fn learning_with_resident_weights(
             let encodings = gpu.gpu().iterations_encoded();
             let recurrence_parts = gpu.gpu().recurrence_parts_encoded();
             let d = encoded.step(&data).unwrap().total;
-            assert_eq!(gpu.gpu().iterations_encoded() - encodings, 1);
-            assert_eq!(gpu.gpu().recurrence_parts_encoded() - recurrence_parts, 1);
+            assert_eq!(gpu.gpu().iterations_encoded() - encodings, 1 + first);
+            assert_eq!(
+                gpu.gpu().recurrence_parts_encoded() - recurrence_parts,
+                1 + first
+            );
             assert_eq!(b, d, "iteration {i}: F replayed and encoded anew");
+            let read_backs = gpu.gpu().read_backs();
+            let e = waited.step(&data).unwrap().total;
+            assert_eq!(
+                gpu.gpu().read_backs() - read_backs,
+                1,
+                "nothing queued ahead"
+            );
+            assert_eq!(b, e, "iteration {i}: F queued ahead and waited for");
         }
         let c = synced.step(&data).unwrap().total;
         assert!(
@@ -556,6 +577,23 @@ fn learning_with_resident_weights(
     let (cpu_model, cpu_opt) = cpu.state();
     let (cpu_model, cpu_opt) = (cpu_model.clone(), cpu_opt.clone());
     let names = pvrnn_core::train::trainable_names(&cpu_model);
+    if gpu_recurrence {
+        let bits = |trainer: &mut Trainer<f32>| {
+            let (model, optimizer) = trainer.state();
+            let values = model.params.named().into_iter().map(|(_, t, _)| t.data());
+            let adaptive = model.adaptive.named().into_iter().map(|(_, t)| t.data());
+            let moments = optimizer.m.iter().chain(&optimizer.v).map(Vec::as_slice);
+            values
+                .chain(adaptive)
+                .chain(moments)
+                .flat_map(|v| v.iter().map(|x| x.to_bits()))
+                .collect::<Vec<u32>>()
+        };
+        assert!(
+            bits(&mut on_gpu) == bits(&mut waited),
+            "weights and moments queued ahead differ from those waited for"
+        );
+    }
     {
         let (gpu_model, gpu_opt) = on_gpu.state();
         assert_eq!(gpu_opt.step, cpu_opt.step);

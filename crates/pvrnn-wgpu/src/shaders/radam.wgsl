@@ -3,7 +3,9 @@
 // p -= lr m sqrt(bias2) / (sqrt(v) + eps) when rectified, else p -= lr m. Elements from
 // `live` on have no gradient this step (rows of the output layer that were not observed):
 // g = 0 there, as on the host. The tensor may be one range of packed buffers (the recurrent
-// weights: value, moments and gradient share the layout). One thread per element.
+// weights: value, moments and gradient share the layout). Nothing changes once the run's
+// divergence mark is set (`finite_check.wgsl`): the update was queued before the host read
+// back a free energy that was not finite. One thread per element.
 
 struct Params {
     count: u32,       // elements of the tensor
@@ -29,11 +31,12 @@ struct Params {
 @group(0) @binding(2) var<storage, read_write> m: array<f32>;
 @group(0) @binding(3) var<storage, read_write> v: array<f32>;
 @group(0) @binding(4) var<storage, read> grad: array<f32>;
+@group(0) @binding(5) var<storage, read> diverged: array<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t: u32) {
     let e = (wg.y * p.groups_x + wg.x) * 64u + t;
-    if (e >= p.count) {
+    if (e >= p.count || diverged[0] != 0u) {
         return;
     }
     let i = p.offset + e;

@@ -92,6 +92,14 @@ pub struct Design {
     pub validate_every: Option<u64>,
     #[serde(default)]
     pub patience: Option<usize>,
+    /// Validations before this iteration are recorded but not counted by the rule: the
+    /// best is chosen among the later ones and the patience counts from there, so training
+    /// stops no earlier than `select_from + patience * validate_every` (None: all count).
+    /// Added 2026-11-30 after the first wiping-primary network of the interference plan
+    /// stopped at 6,000 iterations with its 2,000-iteration network; every network trained
+    /// before under this design had its stop and its network at or after this point.
+    #[serde(default)]
+    pub select_from: Option<u64>,
     #[serde(default)]
     pub flat_change: Option<f64>,
     /// Noise trials per test sequence and network.
@@ -127,6 +135,7 @@ impl Design {
                 checkpoint_every: 10,
                 validate_every: None,
                 patience: None,
+                select_from: None,
                 flat_change: None,
                 trials: 2,
                 train_steps: Some(24),
@@ -147,6 +156,7 @@ impl Design {
                 checkpoint_every: 200,
                 validate_every: None,
                 patience: None,
+                select_from: None,
                 flat_change: None,
                 trials: 2,
                 train_steps: None,
@@ -174,6 +184,8 @@ impl Design {
                 // 12,000 iterations and rose by 0.6% per 2,000 after (docs/results/recipes).
                 validate_every: Some(2_000),
                 patience: Some(2),
+                // Validation errors before 8,000 iterations do not count (see the field).
+                select_from: Some(8_000),
                 flat_change: Some(0.01),
                 trials: 2,
                 train_steps: None,
@@ -186,7 +198,7 @@ impl Design {
                 primary_tasks: vec!["repositioning".into(), "wiping".into()],
                 added: vec![0, 3, 6, 9],
                 estimated_training_hours: 0.0,
-                note: "5 networks per condition, each trained until 2 validations in a row (every 2,000 iterations, on the plan's validation dataset) have not beaten the best, or its free energy changes by less than 1% over the last tenth; at most 30,000 iterations (the estimate below assumes the cap)".into(),
+                note: "5 networks per condition, each trained until 2 validations in a row (every 2,000 iterations, on the plan's validation dataset; those before 8,000 iterations do not count) have not beaten the best, or its free energy changes by less than 1% over the last tenth; at most 30,000 iterations (the estimate below assumes the cap)".into(),
             },
             Scale::Paper => Design {
                 networks: 5,
@@ -194,6 +206,7 @@ impl Design {
                 checkpoint_every: 500,
                 validate_every: None,
                 patience: None,
+                select_from: None,
                 flat_change: None,
                 trials: 5,
                 train_steps: None,

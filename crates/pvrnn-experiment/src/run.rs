@@ -142,6 +142,17 @@ impl TrainResult {
     }
 }
 
+/// The validations `design`'s convergence rule counts: those from `Design::select_from`
+/// on (`rows` in the order they ran).
+pub fn counted<'r>(design: &Design, rows: &'r [ValidationRow]) -> &'r [ValidationRow] {
+    rows_from(rows, design.select_from.unwrap_or(0))
+}
+
+/// The validations of `rows` (in the order they ran) at iteration `from` or later.
+fn rows_from(rows: &[ValidationRow], from: u64) -> &[ValidationRow] {
+    &rows[rows.partition_point(|r| r.iteration < from)..]
+}
+
 /// The convergence rule of `design`, checked at a validation (or the cap): `totals` is
 /// the free energy per iteration so far, `rows` the validations so far.
 pub fn convergence(
@@ -152,7 +163,7 @@ pub fn convergence(
 ) -> Option<Stop> {
     if design
         .patience
-        .is_some_and(|p| validation::stalled(rows, p).is_some())
+        .is_some_and(|p| validation::stalled(counted(design, rows), p).is_some())
     {
         return Some(Stop::ValidationBest);
     }
@@ -731,7 +742,8 @@ impl<'p> TrainingRun<'p> {
         let seconds = training_log::seconds(&self.log).unwrap_or(0.0);
         let validations = self.rule.map(|r| r.rows).unwrap_or_default();
         // The network: the best-validated checkpoint unless the free energy went flat first.
-        let network_iteration = match (stop_reason, validation::best(&validations)) {
+        let counted = counted(&self.plan.design, &validations);
+        let network_iteration = match (stop_reason, validation::best(counted)) {
             (Some(Stop::ValidationBest | Stop::Cap), Some(best)) => best.iteration,
             _ => iteration,
         };
@@ -928,6 +940,8 @@ fn scored_tasks<'a>(
 struct ConvergenceRule {
     dataset: Dataset,
     every: u64,
+    /// `Design::select_from`: the first iteration whose validation may be the network.
+    select_from: u64,
     rows: Vec<ValidationRow>,
     log: std::path::PathBuf,
     best: std::path::PathBuf,
@@ -972,6 +986,7 @@ impl ConvergenceRule {
         Ok(Some(Self {
             dataset,
             every: every.max(1),
+            select_from: plan.design.select_from.unwrap_or(0),
             rows,
             log,
             best: plan.best_path(dir, id),
@@ -1009,7 +1024,10 @@ impl ConvergenceRule {
         let iteration = trainer.iteration;
         let model = Arc::new(trainer.model().clone());
         let row = validation::validate(model.clone(), backend.as_ref(), &self.dataset, iteration)?;
-        if validation::best(&self.rows).is_none_or(|b| row.better_than(b)) {
+        let counted = rows_from(&self.rows, self.select_from);
+        if iteration >= self.select_from
+            && validation::best(counted).is_none_or(|b| row.better_than(b))
+        {
             io::save_model_at(&self.best, &model, iteration)?;
         }
         self.rows.push(row);

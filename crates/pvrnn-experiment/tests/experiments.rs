@@ -573,10 +573,16 @@ fn convergence_rule_stops_at_the_validation_best_a_flat_curve_or_the_cap() {
     use pvrnn_experiment::run::{Stop, convergence};
     let mut design = pvrnn_experiment::Design::of(Experiment::Hierarchy, Scale::Converged);
     assert_eq!(
-        (design.validate_every, design.patience, design.flat_change),
-        (Some(2_000), Some(2), Some(0.01))
+        (
+            design.validate_every,
+            design.patience,
+            design.flat_change,
+            design.select_from
+        ),
+        (Some(2_000), Some(2), Some(0.01), Some(8_000))
     );
     design.train_iterations = 100;
+    design.select_from = None;
     let row = |iteration, error| ValidationRow {
         iteration,
         failed_trials: 0,
@@ -607,6 +613,24 @@ fn convergence_rule_stops_at_the_validation_best_a_flat_curve_or_the_cap() {
     assert_eq!(
         convergence(&design, &falling, &improving, 100),
         Some(Stop::Cap)
+    );
+    // Validations before `select_from` do not count: an early best neither stops the run
+    // nor is its network.
+    let early = [row(20, 0.1), row(40, 0.3), row(60, 0.35), row(80, 0.36)];
+    assert_eq!(
+        convergence(&design, &falling, &early[..3], 60),
+        Some(Stop::ValidationBest)
+    );
+    design.select_from = Some(40);
+    assert_eq!(convergence(&design, &falling, &early[..3], 60), None);
+    assert_eq!(
+        convergence(&design, &falling, &early, 80),
+        Some(Stop::ValidationBest)
+    );
+    let counted = pvrnn_experiment::run::counted(&design, &early);
+    assert_eq!(
+        pvrnn_eval::validation::best(counted).map(|r| r.iteration),
+        Some(40)
     );
 }
 

@@ -339,11 +339,16 @@ fn learning_curves(plan: &Plan, trains: &[TrainResult], md: &mut String) {
     let flat = plan.design.flat_change.unwrap_or(FLAT_CHANGE);
     let rule = match plan.design.validate_every {
         Some(every) => format!(
-            "trained until {} validations in a row (every {every} iterations, on `{}`) did not beat the best one, or the free energy changed by less than {:.0}% over the last tenth of the iterations; at most {} iterations",
+            "trained until {} validations in a row (every {every} iterations, on `{}`{}) did not beat the best one, or the free energy changed by less than {:.0}% over the last tenth of the iterations; at most {} iterations",
             plan.design.patience.unwrap_or(0),
             plan.validation_dataset
                 .as_deref()
                 .map_or("?".into(), |p| p.display().to_string()),
+            plan.design
+                .select_from
+                .map_or(String::new(), |from| format!(
+                    "; those before iteration {from} do not count"
+                )),
             flat * 100.0,
             plan.design.train_iterations
         ),

@@ -244,11 +244,13 @@ fn the_interference_counts_in_the_prose_match_the_results() {
 const PRIMARY_TASKS: [&str; 2] = ["repositioning", "wiping"];
 
 #[test]
-fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_stated_range() {
+fn every_finished_interference_network_is_stated_against_the_best_baseline() {
     // Per primary task with a finished training, a paragraph: "The baselines on the same 12
     // held-out repositioning sequences (1 trial each): ... upsampling with the mean image's
     // detail 0.004588, ... All 10 networks beat all three baselines (by 19-25% the best of
-    // them)".
+    // them)", or where some do not: "3 of the 5 networks beat all three baselines (by 2-4%
+    // the best of them); the other 2 are 10-12% above upsampling with the mean image's
+    // detail" ("0 of the 5 networks ...; the other 5 are ...").
     let doc = doc();
     for task in PRIMARY_TASKS {
         let results: Vec<TrainResult> = results(INTERFERENCE)
@@ -280,26 +282,62 @@ fn every_finished_interference_network_beats_the_stated_best_baseline_by_the_sta
                 );
             }
         }
-        let count = numbers_before(&paragraph, " networks beat all three baselines");
-        assert_eq!(count, [results.len()], "{task}: the finished networks");
-        let range = &paragraph[paragraph.find("(by ").unwrap() + 4..];
-        let (low, high) = range.split_once('-').unwrap();
-        let (low, high) = (leading_number(low), leading_number(high));
+        // Percent below the best baseline, per network (negative: above it).
         let margins: Vec<f64> = results
             .iter()
             .map(|result| 100.0 * (1.0 - used_network_error(result) / best))
             .collect();
-        let smallest = margins.iter().copied().fold(f64::INFINITY, f64::min);
-        let largest = margins.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        assert!(
-            smallest > 0.0,
-            "a {task} network does not beat the best baseline ({best})"
-        );
-        assert_eq!(
-            (smallest.round(), largest.round()),
-            (low, high),
-            "the {task} networks beat the best baseline by {smallest:.1}-{largest:.1}%"
-        );
+        let beating: Vec<f64> = margins.iter().copied().filter(|&m| m > 0.0).collect();
+        let above: Vec<f64> = margins.iter().map(|m| -m).filter(|&m| m >= 0.0).collect();
+        let all = results.len();
+        let stated_range = |text: &str| {
+            let (low, high) = text.split_once('-').unwrap();
+            (leading_number(low), leading_number(high))
+        };
+        let rounded_range = |values: &[f64]| {
+            let low = values.iter().copied().fold(f64::INFINITY, f64::min);
+            let high = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (low.round(), high.round())
+        };
+        if above.is_empty() {
+            let count = numbers_before(&paragraph, " networks beat all three baselines");
+            assert_eq!(count, [all], "{task}: the finished networks");
+            assert!(
+                paragraph.contains(&format!("All {all} networks beat all three baselines")),
+                "{task}: every network beats the best baseline"
+            );
+        } else {
+            let phrase = format!(" of the {all} networks beat all three baselines");
+            let count = numbers_before(&paragraph, &phrase);
+            assert_eq!(
+                count,
+                [beating.len()],
+                "{task}: the networks that beat the best baseline ({best})"
+            );
+            let others = format!("the other {} are ", above.len());
+            let at = paragraph
+                .find(&others)
+                .unwrap_or_else(|| panic!("{task}: no `{others}...`"));
+            let range = stated_range(&paragraph[at + others.len()..]);
+            assert_eq!(
+                range,
+                rounded_range(&above),
+                "{task}: the networks above the best baseline, percent"
+            );
+            assert!(
+                paragraph[at..].contains("% above upsampling with the mean image's detail"),
+                "{task}: what the others are above"
+            );
+        }
+        if !beating.is_empty() {
+            let range = &paragraph[paragraph.find("(by ").unwrap() + 4..];
+            assert_eq!(
+                stated_range(range),
+                rounded_range(&beating),
+                "the {task} networks beat the best baseline by {:?}%",
+                rounded_range(&beating)
+            );
+        }
     }
 }
 

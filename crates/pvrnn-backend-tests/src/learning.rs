@@ -268,14 +268,20 @@ fn run_state<T: Real>(trainer: &mut Trainer<T>) -> (Vec<u64>, u64, u64) {
 /// far too large) fails, naming the divergence, and leaves the run as it was before it:
 /// model, optimiser and iteration count; on a device that queued the iteration's update
 /// before it read the free energy back (`Learner::guards_updates`), the update was skipped
-/// there. So does the next attempt. In a cohort, the other run goes on as it would alone.
+/// there. So does the next attempt. In a cohort (on a device that lays it out side by
+/// side, its runs in one submission), the other run goes on as it would alone.
 pub fn a_diverging_iteration_leaves_the_run_as_it_was<T: SuiteReal>(backend: &Shared<T>) {
-    let ruined = || {
-        let (mut run, data) = fresh_run(backend, 1);
-        run.step(&data).unwrap();
-        run.state_mut().1.config.lr = 1e200;
-        // Finite: the weights it was taken at were fine; the update is not.
-        run.step(&data).unwrap();
+    // Finite at the first iteration (the weights are fine), not after its update.
+    let ruinous = || {
+        let mut config = learning_config();
+        config.train.optimizer.lr = 1e200;
+        let data = sine_observations::<T>(&config, 2, 48);
+        let model = Model::<T>::init_on(backend.as_ref(), config, 2, 48, 1).unwrap();
+        let run = Trainer::new_on(
+            Box::new(backend.clone()),
+            model,
+            NoiseMode::Sampled { seed: 1 },
+        );
         (run, data)
     };
     let diverges = |report: Result<_, pvrnn_core::Error>| match report {
@@ -284,7 +290,8 @@ pub fn a_diverging_iteration_leaves_the_run_as_it_was<T: SuiteReal>(backend: &Sh
         }
         other => panic!("expected the divergence, got {other:?}"),
     };
-    let (mut run, data) = ruined();
+    let (mut run, data) = ruinous();
+    run.step(&data).unwrap();
     let before = run_state(&mut run);
     for _ in 0..2 {
         diverges(run.step(&data));
@@ -293,25 +300,54 @@ pub fn a_diverging_iteration_leaves_the_run_as_it_was<T: SuiteReal>(backend: &Sh
             "a diverged iteration changed the run"
         );
     }
-    // Stepped together with a run that learns on.
+    // Stepped together with a run that learns on (on a device that lays a cohort out side
+    // by side, one submission for both at the first step): the other run's data are
+    // sane, this one's past its float type's square root, so that its free energy is
+    // infinite from the start.
     let (mut alone, other_data) = fresh_run(backend, 2);
     for _ in 0..3 {
         alone.step(&other_data).unwrap();
     }
-    let (mut run, data) = ruined();
+    let (mut run, data) = fresh_run(backend, 1);
+    let data = past_the_squares_range(&data);
     let (mut other, _) = fresh_run(backend, 2);
-    other.step(&other_data).unwrap();
-    other.step(&other_data).unwrap();
     let before = run_state(&mut run);
-    let mut reports = step_together(&mut [&mut run, &mut other], &[&data, &other_data]).unwrap();
-    reports.pop().unwrap().unwrap();
-    diverges(reports.pop().unwrap());
-    assert!(
-        run_state(&mut run) == before,
-        "a diverged iteration in a cohort changed the run"
-    );
+    for _ in 0..3 {
+        let mut reports =
+            step_together(&mut [&mut run, &mut other], &[&data, &other_data]).unwrap();
+        reports.pop().unwrap().unwrap();
+        diverges(reports.pop().unwrap());
+        assert!(
+            run_state(&mut run) == before,
+            "a diverged iteration in a cohort changed the run"
+        );
+    }
     assert!(
         run_state(&mut other) == run_state(&mut alone),
         "the other run of the cohort differs from the run alone"
     );
+}
+
+/// `data` scaled by the largest power of 1e10 that `T` holds: finite, but its squares are
+/// not.
+fn past_the_squares_range<T: Real>(data: &Observations<T>) -> Observations<T> {
+    let mut scale = 1e300;
+    while !T::from_f64(scale).is_finite() {
+        scale /= 1e10;
+    }
+    let scaled = |modality| {
+        let t: &pvrnn_core::Tensor<T> = data.tensor(modality);
+        let values = t
+            .data()
+            .iter()
+            .map(|v| T::from_f64(v.to_f64() * scale))
+            .collect();
+        pvrnn_core::Tensor::from_vec(t.shape(), values).unwrap()
+    };
+    Observations::new(
+        scaled(Modality::Exteroceptive),
+        scaled(Modality::Proprioceptive),
+        None,
+    )
+    .unwrap()
 }

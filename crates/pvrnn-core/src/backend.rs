@@ -253,9 +253,9 @@ pub trait Learner<T: Real>: Backend<T> {
         self.free_energy(data, eps).map(crate::deferred::ready)
     }
 
-    /// Whether [`Self::update`] is skipped on the device after an evaluation whose free
-    /// energy was not finite, and every update after it (the learner is then spent: the
-    /// trainer downloads it and makes a new one). Such a learner lets the trainer queue an
+    /// Whether [`Self::update`] is skipped on the device when the evaluation queued before
+    /// it gave a free energy that is not finite (the trainer then downloads the learner's
+    /// tensors, as they were, and makes a new one). Such a learner lets the trainer queue an
     /// iteration's update, and the next iteration's evaluation ([`Self::queue_free_energy`]),
     /// before it has read the free energy back, so that the device never waits for the
     /// host. The default: no, the trainer checks first.

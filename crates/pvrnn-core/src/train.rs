@@ -306,9 +306,9 @@ impl<T: Real> Trainer<T> {
     }
 
     /// After a learning evaluation diverged on a learner that guards its updates: its
-    /// tensors as they were before (its update and every later one were skipped) back on the
-    /// host, the spent learner dropped (the next step makes a new one), the optimiser's
-    /// step count back to match.
+    /// tensors as they were before (the device skipped its update; the next evaluation,
+    /// queued behind it, changes no tensor) back on the host, the learner dropped (the next
+    /// step makes a new one), the optimiser's step count back to match.
     fn spend_learner(&mut self) {
         self.sync();
         self.learner = None;

@@ -525,8 +525,9 @@ pub(crate) struct DeviceIteration {
     recording: Option<Mutex<Option<Recording>>>,
     /// The evaluation queued ahead of its call (`Learner::queue_free_energy`).
     ahead: Mutex<Option<Ahead>>,
-    /// The run's divergence mark: set on the device when an iteration's free-energy terms
-    /// are not finite (`shaders/finite_check.wgsl`); the learner's updates read it.
+    /// The run's divergence mark: cleared as an evaluation starts and set when its
+    /// free-energy terms are not finite (`shaders/finite_check.wgsl`); the learner's
+    /// update queued after that evaluation reads it.
     diverged: wgpu::Buffer,
 }
 
@@ -965,7 +966,7 @@ impl DeviceIteration {
 
     /// Clears what starts from zero: the run's inputs (initial states are zero), its
     /// read-outs' d F / d d (modules without a read-out get none), its adaptive gradients
-    /// (steps past a sequence's length get none).
+    /// (steps past a sequence's length get none), its divergence mark.
     fn clear(&self, encoder: &mut wgpu::CommandEncoder) {
         let stack = &*self.stack;
         let s = self.layout().strides();
@@ -987,6 +988,8 @@ impl DeviceIteration {
                 encoder.clear_buffer(grads, 0, None);
             }
         }
+        // The update after this evaluation reads this evaluation's mark only.
+        encoder.clear_buffer(&self.diverged, 0, None);
     }
 
     /// The recurrence's inputs: per window its initial states (zero), then per step and

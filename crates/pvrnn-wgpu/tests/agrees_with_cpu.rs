@@ -627,6 +627,69 @@ fn learning_with_resident_weights(
     }
 }
 
+/// A diverged evaluation's mark on the device (`finite_check.wgsl`) skips only the update
+/// queued behind it: with each free energy read back first (`Tiling::queue_ahead` off,
+/// where a diverged step keeps its learner), a step on data whose free energy is not
+/// finite fails, and the next step on sane data learns exactly as if that step had never
+/// been taken.
+#[test]
+fn a_diverged_evaluation_skips_only_the_update_behind_it() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let waiting = gpu.clone().with_tiling(Tiling {
+        queue_ahead: false,
+        ..gpu.tiling()
+    });
+    let config = config();
+    let sane = observations(&config, 2, 12);
+    // Squared errors past f32's range: the free energy is infinite.
+    let huge = {
+        let scaled = |t: &pvrnn_core::Tensor<f32>| {
+            let values = t.data().iter().map(|v| 1e30 * v).collect();
+            pvrnn_core::Tensor::from_vec(t.shape(), values).unwrap()
+        };
+        Observations::new(
+            scaled(sane.tensor(Modality::Exteroceptive)),
+            scaled(sane.tensor(Modality::Proprioceptive)),
+            None,
+        )
+        .unwrap()
+    };
+    let model = Model::<f32>::init_on(&CpuBackend, config, 2, 12, 5).unwrap();
+    let noise = NoiseMode::Sampled { seed: 4 };
+    let mut interrupted =
+        Trainer::new(model.clone(), noise).with_backend(Box::new(waiting.clone()));
+    let mut straight = Trainer::new(model, noise).with_backend(Box::new(waiting));
+    interrupted.step(&sane).unwrap();
+    straight.step(&sane).unwrap();
+    match interrupted.step(&huge) {
+        Err(pvrnn_core::Error::Numerical(_)) => {}
+        other => panic!("expected the divergence, got {other:?}"),
+    }
+    for i in 0..2 {
+        let a = interrupted.step(&sane).unwrap().total;
+        let b = straight.step(&sane).unwrap().total;
+        assert_eq!(
+            a.to_bits(),
+            b.to_bits(),
+            "iteration {i} after the diverged step"
+        );
+    }
+    let bits = |trainer: &mut Trainer<f32>| {
+        let (model, optimizer) = trainer.state();
+        let values = model.params.named().into_iter().map(|(_, t, _)| t.data());
+        let moments = optimizer.m.iter().chain(&optimizer.v).map(Vec::as_slice);
+        values
+            .chain(moments)
+            .flat_map(|v| v.iter().map(|x| x.to_bits()))
+            .collect::<Vec<u32>>()
+    };
+    assert!(
+        bits(&mut interrupted) == bits(&mut straight),
+        "the update after a diverged evaluation was skipped too"
+    );
+}
+
 /// Learning's targets stay on the GPU between iterations (keyed by the observations' id):
 /// the same data again reuses them, other data is uploaded beside them (runs sharing one
 /// GPU keep theirs), data unused for a while is freed, and everything agrees with the CPU.

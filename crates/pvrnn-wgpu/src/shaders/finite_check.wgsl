@@ -2,8 +2,8 @@
 // losses) is not finite, NaN or infinite (every exponent bit set), which is when the host
 // finds the summed free energy not finite: the run's RAdam updates (`radam.wgsl`) read
 // the mark and skip, so that an update queued before the host has read the free energy
-// back never applies a diverged iteration's gradients. The mark stays set. One thread per
-// term.
+// back never applies a diverged iteration's gradients. Each evaluation clears the mark
+// first (`DeviceIteration::clear`). One thread per term.
 
 struct Params {
     count: u32,     // terms

@@ -3,9 +3,10 @@
 // p -= lr m sqrt(bias2) / (sqrt(v) + eps) when rectified, else p -= lr m. Elements from
 // `live` on have no gradient this step (rows of the output layer that were not observed):
 // g = 0 there, as on the host. The tensor may be one range of packed buffers (the recurrent
-// weights: value, moments and gradient share the layout). Nothing changes once the run's
-// divergence mark is set (`finite_check.wgsl`): the update was queued before the host read
-// back a free energy that was not finite. One thread per element.
+// weights: value, moments and gradient share the layout). Nothing changes when the run's
+// divergence mark is set (`finite_check.wgsl`): the evaluation before this update gave a
+// free energy that was not finite, which the host had not read back when it queued the
+// update. One thread per element.
 
 struct Params {
     count: u32,       // elements of the tensor

@@ -578,19 +578,8 @@ fn learning_with_resident_weights(
     let (cpu_model, cpu_opt) = (cpu_model.clone(), cpu_opt.clone());
     let names = pvrnn_core::train::trainable_names(&cpu_model);
     if gpu_recurrence {
-        let bits = |trainer: &mut Trainer<f32>| {
-            let (model, optimizer) = trainer.state();
-            let values = model.params.named().into_iter().map(|(_, t, _)| t.data());
-            let adaptive = model.adaptive.named().into_iter().map(|(_, t)| t.data());
-            let moments = optimizer.m.iter().chain(&optimizer.v).map(Vec::as_slice);
-            values
-                .chain(adaptive)
-                .chain(moments)
-                .flat_map(|v| v.iter().map(|x| x.to_bits()))
-                .collect::<Vec<u32>>()
-        };
         assert!(
-            bits(&mut on_gpu) == bits(&mut waited),
+            state_bits(&mut on_gpu) == state_bits(&mut waited),
             "weights and moments queued ahead differ from those waited for"
         );
     }
@@ -675,19 +664,23 @@ fn a_diverged_evaluation_skips_only_the_update_behind_it() {
             "iteration {i} after the diverged step"
         );
     }
-    let bits = |trainer: &mut Trainer<f32>| {
-        let (model, optimizer) = trainer.state();
-        let values = model.params.named().into_iter().map(|(_, t, _)| t.data());
-        let moments = optimizer.m.iter().chain(&optimizer.v).map(Vec::as_slice);
-        values
-            .chain(moments)
-            .flat_map(|v| v.iter().map(|x| x.to_bits()))
-            .collect::<Vec<u32>>()
-    };
     assert!(
-        bits(&mut interrupted) == bits(&mut straight),
+        state_bits(&mut interrupted) == state_bits(&mut straight),
         "the update after a diverged evaluation was skipped too"
     );
+}
+
+/// Every value of a run's weights, adaptive variables and optimiser moments, as bits.
+fn state_bits(trainer: &mut Trainer<f32>) -> Vec<u32> {
+    let (model, optimizer) = trainer.state();
+    let values = model.params.named().into_iter().map(|(_, t, _)| t.data());
+    let adaptive = model.adaptive.named().into_iter().map(|(_, t)| t.data());
+    let moments = optimizer.m.iter().chain(&optimizer.v).map(Vec::as_slice);
+    values
+        .chain(adaptive)
+        .chain(moments)
+        .flat_map(|v| v.iter().map(|x| x.to_bits()))
+        .collect()
 }
 
 /// Learning's targets stay on the GPU between iterations (keyed by the observations' id):

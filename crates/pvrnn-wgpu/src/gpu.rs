@@ -679,35 +679,34 @@ impl Gpu {
 
     /// The RAdam update of a resident tensor (`shaders/radam.wgsl`), compiled on first use.
     pub(crate) fn radam_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        self.radam_kernel
-            .get_or_init(|| {
-                Arc::new(self.pipeline("radam", include_str!("shaders/radam.wgsl").into()))
-            })
-            .clone()
+        self.compiled_once(
+            &self.radam_kernel,
+            "radam",
+            include_str!("shaders/radam.wgsl"),
+        )
     }
 
     /// The divergence mark of a learning run (`shaders/finite_check.wgsl`), compiled on
     /// first use.
     pub(crate) fn finite_check_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        self.finite_check_kernel
-            .get_or_init(|| {
-                Arc::new(self.pipeline(
-                    "finite check",
-                    include_str!("shaders/finite_check.wgsl").into(),
-                ))
-            })
-            .clone()
+        let source = include_str!("shaders/finite_check.wgsl");
+        self.compiled_once(&self.finite_check_kernel, "finite check", source)
     }
 
     /// The strided copy between layouts (`shaders/strided_copy.wgsl`), compiled on first use.
     pub(crate) fn copy_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        self.copy_kernel
-            .get_or_init(|| {
-                Arc::new(self.pipeline(
-                    "strided copy",
-                    include_str!("shaders/strided_copy.wgsl").into(),
-                ))
-            })
+        let source = include_str!("shaders/strided_copy.wgsl");
+        self.compiled_once(&self.copy_kernel, "strided copy", source)
+    }
+
+    /// A one-kernel shader kept in `cell`, compiled at its first use.
+    fn compiled_once(
+        &self,
+        cell: &OnceLock<Arc<wgpu::ComputePipeline>>,
+        label: &str,
+        source: &str,
+    ) -> Arc<wgpu::ComputePipeline> {
+        cell.get_or_init(|| Arc::new(self.pipeline(label, source.into())))
             .clone()
     }
 

@@ -127,18 +127,17 @@ impl GpuLearner {
             .flat_map(|l| l.tensors.iter().map(|t| t.index))
             .chain(more.iter().map(|t| t.index))
             .collect();
-        let divergence_mark = match &iteration {
-            Some(iteration) => iteration.divergence_mark().clone(),
-            None => resident_buffer(backend.gpu(), "divergence mark, never set", &[0.0]),
-        };
         (!resident.is_empty()).then(|| Self {
             backend: backend.clone(),
             layers,
+            divergence_mark: match &iteration {
+                Some(iteration) => iteration.divergence_mark().clone(),
+                None => resident_buffer(backend.gpu(), "divergence mark, never set", &[0.0]),
+            },
             iteration,
             more,
             resident,
             recorded_update: backend.tiling().replay_iterations.then(Mutex::default),
-            divergence_mark,
         })
     }
 

@@ -32,6 +32,16 @@
 #                its update and the next iteration are queued (PVRNN_WGPU_AHEAD=off; the
 #                default queues them first, the updates skipping on the device after a
 #                diverged iteration: the path before 2026-11-30's third session)
+#   whole-kernels, whole-N-kernels
+#                `whole` and `whole-N` with every dispatch timed apart
+#                (PVRNN_WGPU_PROFILE_KERNELS=on): the summary's device table then lists
+#                each kernel's milliseconds per iteration ("kernel <label>"); a pass per
+#                dispatch adds to the totals, so these time where, not how fast
+#   whole-chunkM, whole-N-chunkM
+#                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
+#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128"; the
+#                default is 64): smaller chunks keep a chunk's error gradient in the L2
+#                cache between the three products, larger ones dispatch less often
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -132,6 +142,17 @@ for round in $(seq "$rounds"); do
             --gpu-recurrence $train_only
         PVRNN_WGPU_AHEAD=off bench "whole-${NETWORKS:-5}-waited" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_PROFILE_KERNELS=on bench whole-kernels "$threads" "$round" --backend wgpu \
+            --gpu-recurrence $train_only
+        PVRNN_WGPU_PROFILE_KERNELS=on bench "whole-${NETWORKS:-5}-kernels" "$threads" \
+            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        for mb in ${CHUNKS:-32 128}; do
+            PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
+                --backend wgpu --gpu-recurrence $train_only
+            PVRNN_WGPU_CHUNK_MB=$mb bench "whole-${NETWORKS:-5}-chunk$mb" "$threads" \
+                "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" \
+                $train_only
+        done
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \
@@ -199,7 +220,8 @@ if device:
     print()
     print("device ms per training iteration (timestamp queries)")
     for variant, phases in device.items():
-        total = sum(statistics.mean(v) for v in phases.values())
+        # Kernels ("kernel <label>", PVRNN_WGPU_PROFILE_KERNELS=on) are inside the parts.
+        total = sum(statistics.mean(v) for k, v in phases.items() if not k.startswith('kernel '))
         print(f"{variant:36} total {total:9.3f}")
         for phase, v in phases.items():
             print(f"    {phase:70} {statistics.mean(v):9.3f}")

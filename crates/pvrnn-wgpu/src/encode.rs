@@ -113,6 +113,25 @@ impl DispatchList {
             pass.dispatch_workgroups(*x, *y, 1);
         }
     }
+
+    /// The recorded dispatches' kernels, in order.
+    pub(crate) fn kernels(&self) -> impl Iterator<Item = &wgpu::ComputePipeline> {
+        self.dispatches.iter().map(|(pipeline, ..)| pipeline)
+    }
+
+    /// How many dispatches are recorded.
+    pub(crate) fn len(&self) -> usize {
+        self.dispatches.len()
+    }
+
+    /// Recorded dispatch `index` alone into `pass` (for timing each apart).
+    pub(crate) fn replay_one(&self, index: usize, pass: &mut wgpu::ComputePass<'_>) {
+        if let Some((pipeline, group, x, y)) = self.dispatches.get(index) {
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(*x, *y, 1);
+        }
+    }
 }
 
 pub(crate) fn dispatch(

@@ -293,6 +293,8 @@ pub struct Gpu {
     recurrence_parts_encoded: AtomicU64,
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,
+    /// Every kernel's label, for the profile's time per kernel.
+    pub(crate) kernel_names: crate::timing::KernelNames,
 }
 
 impl Gpu {
@@ -342,6 +344,7 @@ impl Gpu {
             iterations_encoded: AtomicU64::new(0),
             recurrence_parts_encoded: AtomicU64::new(0),
             checks: RuntimeChecks::from_env(),
+            kernel_names: Default::default(),
         })
     }
 
@@ -703,7 +706,7 @@ impl Gpu {
     fn compiled_once(
         &self,
         cell: &OnceLock<Arc<wgpu::ComputePipeline>>,
-        label: &str,
+        label: &'static str,
         source: &str,
     ) -> Arc<wgpu::ComputePipeline> {
         cell.get_or_init(|| Arc::new(self.pipeline(label, source.into())))
@@ -738,7 +741,7 @@ impl Gpu {
 
     /// `source` compiled with wgpu's runtime checks (bounds, loop bounding, division),
     /// unless `PVRNN_WGPU_CHECKS=none`.
-    fn pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
+    fn pipeline(&self, label: &'static str, source: String) -> wgpu::ComputePipeline {
         self.compile_pipeline(label, source, self.checks == RuntimeChecks::None)
     }
 
@@ -746,14 +749,14 @@ impl Gpu {
     /// for the output-layer kernels only (fused and blocked), whose every index is bounded by the shapes
     /// the host sized their buffers with (see their sources). The checks cost them a fourth
     /// of their time on an H200 (docs/gpu.md).
-    fn audited_pipeline(&self, label: &str, source: String) -> wgpu::ComputePipeline {
+    fn audited_pipeline(&self, label: &'static str, source: String) -> wgpu::ComputePipeline {
         self.compile_pipeline(label, source, self.checks != RuntimeChecks::All)
     }
 
     #[allow(unsafe_code)] // trusted shader modules: see the SAFETY note
     fn compile_pipeline(
         &self,
-        label: &str,
+        label: &'static str,
         source: String,
         unchecked: bool,
     ) -> wgpu::ComputePipeline {
@@ -778,7 +781,8 @@ impl Gpu {
         } else {
             self.device.create_shader_module(descriptor)
         };
-        self.device
+        let pipeline = self
+            .device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(label),
                 layout: None,
@@ -786,7 +790,9 @@ impl Gpu {
                 entry_point: Some("main"),
                 compilation_options: Default::default(),
                 cache: None,
-            })
+            });
+        self.kernel_names.register(&pipeline, label);
+        pipeline
     }
 }
 

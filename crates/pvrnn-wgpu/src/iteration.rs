@@ -44,6 +44,8 @@ pub(crate) struct Stack {
     kernels: Arc<RecurrenceKernels>,
     /// `Tiling::recurrence_weight_partials`.
     weight_partials: bool,
+    /// `Tiling::profile_kernels`.
+    profile_kernels: bool,
     /// The recurrence part of the last submission, with the runs (slot, windows) it was
     /// encoded for, replayed while they stay (`Tiling::replay_iterations`; `None`: off).
     recurrence_recording: Option<Mutex<Option<RecordedRecurrence>>>,
@@ -162,6 +164,7 @@ impl Stack {
             gpu: gpu.clone(),
             kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
             weight_partials: tiling.recurrence_weight_partials,
+            profile_kernels: tiling.profile_kernels,
             recurrence_recording: tiling.replay_iterations.then(Mutex::default),
             slots,
             sequences,
@@ -326,10 +329,7 @@ impl Stack {
                 prepared.iter().map(|p| &*p.work.after).collect(),
             ),
         ];
-        let times = PassTimes::new(
-            gpu,
-            &parts.iter().map(|(name, _)| *name).collect::<Vec<_>>(),
-        );
+        let times = self.pass_times(&parts);
         match &times {
             None => {
                 let mut pass = begin_pass(&mut encoder, None, 0);
@@ -337,6 +337,17 @@ impl Stack {
                     .iter()
                     .flat_map(|(_, lists)| lists)
                     .for_each(|list| list.replay(&mut pass));
+            }
+            Some(times) if self.profile_kernels => {
+                let dispatches = parts
+                    .iter()
+                    .flat_map(|(_, lists)| lists)
+                    .flat_map(|list| (0..list.len()).map(move |index| (list, index)));
+                for (pass_index, (list, index)) in dispatches.enumerate() {
+                    let mut pass = begin_pass(&mut encoder, Some(times), pass_index);
+                    list.replay_one(index, &mut pass);
+                }
+                times.resolve(&mut encoder);
             }
             Some(times) => {
                 for (part, (_, lists)) in parts.iter().enumerate() {
@@ -367,6 +378,27 @@ impl Stack {
             _prepared: prepared,
             _recurrence: recurrence,
         }
+    }
+
+    /// The timestamps of a submission's passes while profiling: a pass per part, or with
+    /// `Tiling::profile_kernels` a pass per dispatch, its time added to its part and to its
+    /// kernel.
+    fn pass_times(&self, parts: &[(&'static str, Vec<&DispatchList>)]) -> Option<PassTimes> {
+        let passes: Vec<Vec<&'static str>> = if self.profile_kernels {
+            let kernels = &self.gpu.kernel_names;
+            parts
+                .iter()
+                .flat_map(|(part, lists)| {
+                    lists
+                        .iter()
+                        .flat_map(|list| list.kernels())
+                        .map(|kernel| vec![*part, kernels.phase(kernel)])
+                })
+                .collect()
+        } else {
+            parts.iter().map(|(part, _)| vec![*part]).collect()
+        };
+        PassTimes::adding_to(&self.gpu, passes)
     }
 
     /// The recurrence's part of a submission for these runs: the one recorded for the same

@@ -120,6 +120,12 @@ impl WgpuBackend {
             &mut tiling.replay_iterations,
         );
         env_switch("PVRNN_WGPU_AHEAD", ["on", "off"], &mut tiling.queue_ahead);
+        let kernels = ["on", "off"];
+        env_switch(
+            "PVRNN_WGPU_PROFILE_KERNELS",
+            kernels,
+            &mut tiling.profile_kernels,
+        );
         if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
             match value.parse() {
                 Ok(depth) => tiling.blocked_depth = Some(depth),

@@ -158,6 +158,12 @@ pub struct Tiling {
     /// 13.8 ms iteration and 14.1-14.5 of five networks' 48.5 on an H200 (2026-11-30,
     /// before this). `PVRNN_WGPU_AHEAD=off` waits for each free energy first.
     pub queue_ahead: bool,
+    /// While profiling (`pvrnn bench --profile`), each dispatch of a whole iteration on the
+    /// device in a timed pass of its own, so that the profile lists each kernel's device
+    /// time ("device: kernel <label>") as well as each part's. Off by default: a pass per
+    /// dispatch lets the device drain between them, which adds to the parts' times.
+    /// `PVRNN_WGPU_PROFILE_KERNELS=on` turns it on.
+    pub profile_kernels: bool,
 }
 
 impl Tiling {
@@ -186,6 +192,7 @@ impl Default for Tiling {
             recurrence_loads: 8,
             recurrence_weight_partials: true,
             queue_ahead: true,
+            profile_kernels: false,
         }
     }
 }

@@ -11,10 +11,67 @@
 
 use crate::gpu::Gpu;
 
-/// A submission's timed parts: their names, the queries, and where they are resolved.
+/// Each kernel's label, by pipeline, for timing every dispatch of a submission apart
+/// (`Tiling::profile_kernels`): the profile then lists "device: kernel <label>" beside
+/// the parts. Native only (nothing is kept in the browser, where profiling is off).
+#[derive(Debug, Default)]
+pub(crate) struct KernelNames {
+    #[cfg(not(target_arch = "wasm32"))]
+    labels: std::sync::Mutex<Vec<(wgpu::ComputePipeline, &'static str)>>,
+}
+
+impl KernelNames {
+    /// Remembers `pipeline`'s label.
+    pub(crate) fn register(&self, pipeline: &wgpu::ComputePipeline, label: &'static str) {
+        #[cfg(not(target_arch = "wasm32"))]
+        self.labels
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((pipeline.clone(), label));
+        #[cfg(target_arch = "wasm32")]
+        let _ = (pipeline, label);
+    }
+
+    /// The profile's phase for `pipeline`'s dispatches: "device: kernel <label>".
+    #[cfg(not(target_arch = "wasm32"))]
+    pub(crate) fn phase(&self, pipeline: &wgpu::ComputePipeline) -> &'static str {
+        let label = self
+            .labels
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(p, _)| p == pipeline)
+            .map_or("unnamed", |(_, label)| *label);
+        kernel_phase(label)
+    }
+
+    #[cfg(target_arch = "wasm32")]
+    pub(crate) fn phase(&self, _pipeline: &wgpu::ComputePipeline) -> &'static str {
+        "device: kernel"
+    }
+}
+
+/// "device: kernel <label>", made once per label (the profile keeps `&'static str`
+/// names; there are a few dozen kernels).
+#[cfg(not(target_arch = "wasm32"))]
+fn kernel_phase(label: &'static str) -> &'static str {
+    static PHASES: std::sync::Mutex<Vec<(&'static str, &'static str)>> =
+        std::sync::Mutex::new(Vec::new());
+    let mut phases = PHASES.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, phase)) = phases.iter().find(|(l, _)| *l == label) {
+        return phase;
+    }
+    let phase: &'static str = Box::leak(format!("device: kernel {label}").into_boxed_str());
+    phases.push((label, phase));
+    phase
+}
+
+/// A submission's timed passes: the profile's phases each adds its time to (a part, and
+/// with `Tiling::profile_kernels` its kernel too), the queries, and where they are
+/// resolved.
 #[cfg(not(target_arch = "wasm32"))]
 pub(crate) struct PassTimes {
-    names: Vec<&'static str>,
+    names: Vec<Vec<&'static str>>,
     queries: wgpu::QuerySet,
     resolved: wgpu::Buffer,
     staging: wgpu::Buffer,
@@ -25,6 +82,12 @@ impl PassTimes {
     /// Queries for `names` (one part each, in the order their passes will be begun);
     /// `None` unless profiling is on and `gpu` has timestamps.
     pub(crate) fn new(gpu: &Gpu, names: &[&'static str]) -> Option<Self> {
+        Self::adding_to(gpu, names.iter().map(|&name| vec![name]).collect())
+    }
+
+    /// Queries for one pass per entry of `names`, each pass's time added to every phase
+    /// its entry names; `None` unless profiling is on and `gpu` has timestamps.
+    pub(crate) fn adding_to(gpu: &Gpu, names: Vec<Vec<&'static str>>) -> Option<Self> {
         if !pvrnn_core::profile::enabled() || !gpu.has_timestamps() || names.is_empty() {
             return None;
         }
@@ -39,7 +102,7 @@ impl PassTimes {
             })
         };
         Some(Self {
-            names: names.to_vec(),
+            names,
             queries: gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("pass timestamps"),
                 ty: wgpu::QueryType::Timestamp,
@@ -95,9 +158,11 @@ impl PassTimes {
                             u64::from_le_bytes(word)
                         })
                         .collect();
-                    for (name, pair) in names.iter().zip(ticks.chunks_exact(2)) {
+                    for (phases, pair) in names.iter().zip(ticks.chunks_exact(2)) {
                         let seconds = pair[1].saturating_sub(pair[0]) as f64 * period_ns * 1e-9;
-                        pvrnn_core::profile::add(name, seconds);
+                        for name in phases {
+                            pvrnn_core::profile::add(name, seconds);
+                        }
                     }
                 }
                 mapped.unmap();
@@ -112,6 +177,10 @@ pub(crate) enum PassTimes {}
 #[cfg(target_arch = "wasm32")]
 impl PassTimes {
     pub(crate) fn new(_gpu: &Gpu, _names: &[&'static str]) -> Option<Self> {
+        None
+    }
+
+    pub(crate) fn adding_to(_gpu: &Gpu, _names: Vec<Vec<&'static str>>) -> Option<Self> {
         None
     }
 

@@ -32,8 +32,9 @@ pub(crate) struct Kernels {
     pub(crate) reduce: wgpu::ComputePipeline,
     pub(crate) predict: wgpu::ComputePipeline,
     /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), deep and
-    /// shallow ([`BlockedDepth`]), compiled on first use.
-    blocked: [OnceLock<BlockedKernels>; 2],
+    /// shallow ([`BlockedDepth`]), for widths with and without a padding lane to sum the
+    /// biases in (`blocked_weight_grad.wgsl`), compiled on first use.
+    blocked: [[OnceLock<BlockedKernels>; 2]; 2],
 }
 
 /// Which kernels keep wgpu's runtime checks (bounds, loop bounding, integer division):
@@ -544,22 +545,25 @@ impl Gpu {
             ),
             reduce: self.pipeline("reduce", source(include_str!("shaders/reduce.wgsl"))),
             predict: self.pipeline("predict", source(include_str!("shaders/predict.wgsl"))),
-            blocked: [OnceLock::new(), OnceLock::new()],
+            blocked: Default::default(),
         }
     }
 
-    /// The register-blocked kernels of `kernels`' hidden width with tiles `depth` deep (at
-    /// most what the adapter's workgroup memory holds), compiled on first use.
+    /// The register-blocked kernels of `kernels`' width in vec4s (`hidden` units) with
+    /// tiles `depth` deep (at most what the adapter's workgroup memory holds), compiled on
+    /// first use.
     pub(crate) fn blocked_kernels<'k>(
         &self,
         kernels: &'k Kernels,
         depth: BlockedDepth,
+        hidden: usize,
     ) -> &'k BlockedKernels {
         let depth = match BlockedDepth::for_limits(&self.limits()) {
             BlockedDepth::Shallow => BlockedDepth::Shallow,
             BlockedDepth::Deep => depth,
         };
-        kernels.blocked[depth as usize].get_or_init(|| {
+        let bias_lane = usize::from(hidden % 4 != 0);
+        kernels.blocked[depth as usize][bias_lane].get_or_init(|| {
             let hv = kernels.hv;
             let (kc, kt) = (depth.forward_vec4s(), depth.tile());
             let threads = 16 * hv;
@@ -574,6 +578,7 @@ impl Gpu {
                     ("NT", threads),
                     ("STAGE", 2 * (32 * kt + kt * hv)),
                     ("LOADS", loads),
+                    ("BIAS_LANE", bias_lane),
                 ]
             };
             BlockedKernels {

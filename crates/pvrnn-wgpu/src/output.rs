@@ -681,7 +681,8 @@ impl GpuOutputLayer {
     /// The blocked kernels of `layer`'s width at the depth the tiling asks for.
     fn blocked_kernels<'l>(&self, layer: &'l Layer) -> &'l crate::gpu::BlockedKernels {
         let depth = self.tiling.blocked_depth.unwrap_or(BlockedDepth::Deep);
-        self.gpu.blocked_kernels(&layer.kernels, depth)
+        self.gpu
+            .blocked_kernels(&layer.kernels, depth, layer.hidden)
     }
 
     /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and

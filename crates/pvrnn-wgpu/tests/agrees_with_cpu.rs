@@ -193,6 +193,13 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
     );
     learning_with_resident_weights(blocked(every_call()), config(), None);
     learning_with_resident_weights(blocked(every_call()), other_readouts(), None);
+    // Top hidden layers of whole vec4s (48 and 8 units): no padding lane to sum the
+    // output biases in, so the weight gradient's threads add them themselves
+    // (`blocked_weight_grad.wgsl`); the widths above (50, 10, 30) sum them in the lane.
+    let mut whole_vec4s = config();
+    whole_vec4s.exteroceptive_readout.hidden = vec![12, 48];
+    whole_vec4s.proprioceptive_readout.hidden = vec![8];
+    learning_with_resident_weights(blocked(every_call()), whole_vec4s, None);
 }
 
 /// The default output kernels (`OutputKernels::Auto`) are the blocked ones for a call of

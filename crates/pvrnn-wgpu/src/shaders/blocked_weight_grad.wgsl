@@ -14,6 +14,13 @@
 // Double-buffered as `blocked_forward.wgsl`. KT = 16 where the adapter allows 32 KiB of
 // workgroup memory, else 8.
 //
+// Where the width leaves its last lane as padding (BIAS_LANE = 1: hidden widths not a
+// multiple of 4, such as the paper's 50), the bias sums ride in it: that lane is staged as
+// 1 instead of 0, so the last vec4's accumulators add g times 1 there, the same sums in
+// the same order as adding g (an fma by 1 rounds once, as an add does), without a thread's
+// two extra vec4 adds per row (a fifth of its arithmetic). Its part_w lane is written as
+// the zero it was.
+//
 // Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`): every index is in
 // bounds by construction. Device memory: rows below r_end <= p.rows (x: p.row_offset + row),
 // columns below p.k, ranges below the grid's y the host sized part_w and part_b for; loads
@@ -25,6 +32,7 @@ const NT: u32 = 16u * HV;      // threads
 const BN: u32 = 128u;          // columns per workgroup
 const GH: u32 = KT * 32u;      // vec4s of error gradients per buffer
 const BUF: u32 = GH + KT * HV; // one buffer: error gradients, then activations
+const BIAS_LANE: bool = {{BIAS_LANE}}u == 1u; // the bias sums in the width's padding lane
 
 struct Params {
     rows: u32,            // rows in this chunk
@@ -64,6 +72,9 @@ fn load_activations(t: u32, r0: u32, r_end: u32) -> vec4<f32> {
     var v = vec4<f32>(0.0);
     if (t < KT * HV && row < r_end) {
         v = x[(p.row_offset + row) * HV + t % HV];
+        if (BIAS_LANE && t % HV == HV - 1u) {
+            v.w = 1.0;
+        }
     }
     return v;
 }
@@ -115,8 +126,10 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
             let ga = stage[base + {r}u * 32u + cy];
             let gb = stage[base + {r}u * 32u + 16u + cy];
             let xv = stage[base + GH + {r}u * HV + h];
-            bias_a += ga;
-            bias_b += gb;
+            if (!BIAS_LANE) {
+                bias_a += ga;
+                bias_b += gb;
+            }
             //#unroll j 4
             a{j} = fma(vec4<f32>(ga[{j}]), xv, a{j});
             b{j} = fma(vec4<f32>(gb[{j}]), xv, b{j});
@@ -139,18 +152,27 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
     {
         let col_a = c0 + 4u * cy + {j}u;
         if (col_a < p.k) {
-            part_w[(split * p.k + col_a) * HV + h] = a{j};
-            if (h == 0u) {
-                part_b[split * p.k + col_a] = bias_a[{j}];
-            }
+            store_column(split, col_a, h, a{j}, bias_a[{j}]);
         }
         let col_b = col_a + 64u;
         if (col_b < p.k) {
-            part_w[(split * p.k + col_b) * HV + h] = b{j};
-            if (h == 0u) {
-                part_b[split * p.k + col_b] = bias_b[{j}];
-            }
+            store_column(split, col_b, h, b{j}, bias_b[{j}]);
         }
     }
     //#end
+}
+
+// Thread h's vec4 of column `col`'s weight gradient, and the column's bias sum from the
+// thread that holds it: the padding lane's (BIAS_LANE), else h = 0's `bias`.
+fn store_column(split: u32, col: u32, h: u32, sums: vec4<f32>, bias: f32) {
+    var w = sums;
+    if (BIAS_LANE) {
+        if (h == HV - 1u) {
+            part_b[split * p.k + col] = w.w;
+            w.w = 0.0;
+        }
+    } else if (h == 0u) {
+        part_b[split * p.k + col] = bias;
+    }
+    part_w[(split * p.k + col) * HV + h] = w;
 }

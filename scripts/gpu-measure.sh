@@ -37,6 +37,11 @@
 #                (PVRNN_WGPU_PROFILE_KERNELS=on): the summary's device table then lists
 #                each kernel's milliseconds per iteration ("kernel <label>"); a pass per
 #                dispatch adds to the totals, so these time where, not how fast
+#   whole-kernels-wgW
+#                `whole-kernels` at a workgroup target of W for the output layer's passes
+#                (PVRNN_WGPU_WORKGROUPS=W, W in KERNEL_WORKGROUPS, default "128 512 1024";
+#                the default is 256): the forward product, the input and the weight
+#                gradient share the target, and each kernel's time says which wants what
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
 #                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128"; the
@@ -146,6 +151,10 @@ for round in $(seq "$rounds"); do
             --gpu-recurrence $train_only
         PVRNN_WGPU_PROFILE_KERNELS=on bench "whole-${NETWORKS:-5}-kernels" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        for wg in ${KERNEL_WORKGROUPS:-128 512 1024}; do
+            PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
+                "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
+        done
         for mb in ${CHUNKS:-32 128}; do
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence $train_only

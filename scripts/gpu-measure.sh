@@ -224,14 +224,19 @@ for variant, rs in sorted(rows.items()):
                 continue
             for p in part['phases']:
                 if p['phase'].startswith('device: '):
-                    device.setdefault(variant, {}).setdefault(p['phase'][8:], []).append(p['ms'])
+                    runs = device.setdefault(variant, {}).setdefault(p['phase'][8:], [])
+                    runs.append((p['ms'], p.get('times', 1.0)))
 if device:
     print()
     print("device ms per training iteration (timestamp queries)")
     for variant, phases in device.items():
         # Kernels ("kernel <label>", PVRNN_WGPU_PROFILE_KERNELS=on) are inside the parts.
-        total = sum(statistics.mean(v) for k, v in phases.items() if not k.startswith('kernel '))
+        ms = {k: statistics.mean(m for m, _ in v) for k, v in phases.items()}
+        total = sum(m for k, m in ms.items() if not k.startswith('kernel '))
         print(f"{variant:36} total {total:9.3f}")
         for phase, v in phases.items():
-            print(f"    {phase:70} {statistics.mean(v):9.3f}")
+            # A kernel's dispatches per iteration (PVRNN_WGPU_PROFILE_KERNELS=on).
+            times = statistics.mean(t for _, t in v)
+            count = f"  x{times:g}" if phase.startswith('kernel ') else ""
+            print(f"    {phase:70} {ms[phase]:9.3f}{count}")
 EOF

@@ -728,7 +728,7 @@ fn bench_profile_names_the_phases_of_an_iteration() {
     let parts = v["profile"].as_array().expect("a profile");
     assert_eq!(parts.len(), 1, "only training was run: {v}");
     assert_eq!(parts[0]["part"], "train");
-    let phases: Vec<(String, f64)> = parts[0]["phases"]
+    let phases: Vec<(String, f64, f64)> = parts[0]["phases"]
         .as_array()
         .unwrap()
         .iter()
@@ -736,19 +736,23 @@ fn bench_profile_names_the_phases_of_an_iteration() {
             (
                 p["phase"].as_str().unwrap().trim().to_string(),
                 p["ms"].as_f64().unwrap(),
+                p["times"].as_f64().unwrap(),
             )
         })
         .collect();
-    let ms = |name: &str| {
+    let phase = |name: &str| {
         phases
             .iter()
-            .find(|(n, _)| n == name)
+            .find(|(n, ..)| n == name)
             .unwrap_or_else(|| panic!("no phase {name} in {phases:?}"))
-            .1
     };
-    for (_, t) in &phases {
+    let ms = |name: &str| phase(name).1;
+    let times = |name: &str| phase(name).2;
+    for (_, t, _) in &phases {
         assert!(*t >= 0.0, "{phases:?}");
     }
+    // How often each phase ran per iteration: the one timed iteration evaluated once.
+    assert_eq!(times("evaluate"), 1.0, "{phases:?}");
     // Parts never exceed the whole they are in.
     let evaluate = ms("evaluate");
     let inside = ms("recurrence forward") + ms("read-out output layer") + ms("recurrence backward");

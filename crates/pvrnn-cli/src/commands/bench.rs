@@ -100,6 +100,9 @@ struct PartProfile {
 struct PhaseTime {
     phase: String,
     ms: f64,
+    /// Times the phase was entered (or a device's time added to it) per unit: a kernel's
+    /// dispatches per iteration, with `PVRNN_WGPU_PROFILE_KERNELS=on`.
+    times: f64,
 }
 
 /// The profiler's sums so far, per unit of work (`units` iterations or steps).
@@ -108,9 +111,10 @@ fn take_profile(part: &'static str, units: usize) -> PartProfile {
         part,
         phases: pvrnn_core::profile::take()
             .into_iter()
-            .map(|(phase, seconds, _)| PhaseTime {
+            .map(|(phase, seconds, times)| PhaseTime {
                 phase: phase.to_string(),
                 ms: seconds * 1e3 / units.max(1) as f64,
+                times: times as f64 / units.max(1) as f64,
             })
             .collect(),
     }
@@ -400,7 +404,13 @@ fn print_report(report: &Report, config: &ModelConfig) {
         };
         println!("where the time goes, {} (ms per {unit}):", part.part);
         for p in &part.phases {
-            println!("  {:40} {:9.2}", p.phase, p.ms);
+            // How often a phase ran per unit, where not once (a kernel's dispatches).
+            let times = if p.times == 1.0 {
+                String::new()
+            } else {
+                format!("  ({:.3} per {unit})", p.times)
+            };
+            println!("  {:40} {:9.2}{times}", p.phase, p.ms);
         }
     }
 }

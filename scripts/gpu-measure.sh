@@ -42,6 +42,12 @@
 #                (PVRNN_WGPU_WORKGROUPS=W, W in KERNEL_WORKGROUPS, default "128 512 1024";
 #                the default is 256): the forward product, the input and the weight
 #                gradient share the target, and each kernel's time says which wants what
+#   whole-loadsL, whole-N-loadsL
+#                `whole` and `whole-N` with L loads in flight per batch of the recurrence's
+#                dot products (PVRNN_WGPU_RECURRENCE_LOADS=L, L in LOADS, default "16 30";
+#                the default is 8): 30-long sums in 2 or 1 round trips instead of 4. If
+#                the recurrence's time falls with L, its weight loads' latency is what
+#                bounds it (and keeping the weights in workgroup memory would help)
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
 #                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128"; the
@@ -154,6 +160,13 @@ for round in $(seq "$rounds"); do
         for wg in ${KERNEL_WORKGROUPS:-128 512 1024}; do
             PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
                 "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
+        done
+        for loads in ${LOADS:-16 30}; do
+            PVRNN_WGPU_RECURRENCE_LOADS=$loads bench "whole-loads$loads" "$threads" "$round" \
+                --backend wgpu --gpu-recurrence $train_only
+            PVRNN_WGPU_RECURRENCE_LOADS=$loads bench "whole-${NETWORKS:-5}-loads$loads" \
+                "$threads" "$round" --backend wgpu --gpu-recurrence \
+                --networks "${NETWORKS:-5}" $train_only
         done
         for mb in ${CHUNKS:-32 128}; do
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \

@@ -53,6 +53,10 @@
 #                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128"; the
 #                default is 64): smaller chunks keep a chunk's error gradient in the L2
 #                cache between the three products, larger ones dispatch less often
+#   whole-N-sequential
+#                `whole-N` with each network's dispatches replayed after the one before's
+#                (PVRNN_WGPU_INTERLEAVE=off; the default interleaves them across the
+#                networks)
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -175,6 +179,8 @@ for round in $(seq "$rounds"); do
                 "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" \
                 $train_only
         done
+        PVRNN_WGPU_INTERLEAVE=off bench "whole-${NETWORKS:-5}-sequential" "$threads" "$round" \
+            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \

@@ -562,7 +562,7 @@ impl Gpu {
             BlockedDepth::Shallow => BlockedDepth::Shallow,
             BlockedDepth::Deep => depth,
         };
-        let bias_lane = usize::from(hidden % 4 != 0);
+        let bias_lane = usize::from(!hidden.is_multiple_of(4));
         kernels.blocked[depth as usize][bias_lane].get_or_init(|| {
             let hv = kernels.hv;
             let (kc, kt) = (depth.forward_vec4s(), depth.tile());

@@ -50,13 +50,11 @@
 #                bounds it (and keeping the weights in workgroup memory would help)
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
-#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128"; the
+#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128 512"; the
 #                default is 64): smaller chunks keep a chunk's error gradient in the L2
-#                cache between the three products, larger ones dispatch less often
-#   whole-N-sequential
-#                `whole-N` with each network's dispatches replayed after the one before's
-#                (PVRNN_WGPU_INTERLEAVE=off; the default interleaves them across the
-#                networks)
+#                cache between the three products, larger ones dispatch less often (wgpu
+#                puts a barrier before every dispatch that writes, and the device drains
+#                at each; docs/results/gpu/notes.md, entry 17)
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -172,15 +170,13 @@ for round in $(seq "$rounds"); do
                 "$threads" "$round" --backend wgpu --gpu-recurrence \
                 --networks "${NETWORKS:-5}" $train_only
         done
-        for mb in ${CHUNKS:-32 128}; do
+        for mb in ${CHUNKS:-32 128 512}; do
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence $train_only
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-${NETWORKS:-5}-chunk$mb" "$threads" \
                 "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" \
                 $train_only
         done
-        PVRNN_WGPU_INTERLEAVE=off bench "whole-${NETWORKS:-5}-sequential" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \

@@ -124,22 +124,7 @@ impl DispatchList {
         self.dispatches.len()
     }
 
-    /// Several runs' lists into `pass`, interleaved: the first dispatch of each, then the
-    /// second of each, and so on. Each list keeps its order (wgpu still orders a dispatch
-    /// after those whose results it reads); the runs' dispatches, which share no buffer
-    /// they write, then sit side by side with no barrier between them, so the device can
-    /// run them together instead of draining between one run's steps.
-    pub(crate) fn replay_interleaved(lists: &[&Self], pass: &mut wgpu::ComputePass<'_>) {
-        let longest = lists.iter().map(|list| list.len()).max().unwrap_or(0);
-        for index in 0..longest {
-            for list in lists {
-                list.replay_one(index, pass);
-            }
-        }
-    }
-
-    /// Recorded dispatch `index` alone into `pass` (for timing each apart; nothing past
-    /// the end).
+    /// Recorded dispatch `index` alone into `pass` (for timing each apart).
     pub(crate) fn replay_one(&self, index: usize, pass: &mut wgpu::ComputePass<'_>) {
         if let Some((pipeline, group, x, y)) = self.dispatches.get(index) {
             pass.set_pipeline(pipeline);

@@ -46,8 +46,6 @@ pub(crate) struct Stack {
     weight_partials: bool,
     /// `Tiling::profile_kernels`.
     profile_kernels: bool,
-    /// `Tiling::interleave_runs`.
-    interleave_runs: bool,
     /// The recurrence part of the last submission, with the runs (slot, windows) it was
     /// encoded for, replayed while they stay (`Tiling::replay_iterations`; `None`: off).
     recurrence_recording: Option<Mutex<Option<RecordedRecurrence>>>,
@@ -167,7 +165,6 @@ impl Stack {
             kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
             weight_partials: tiling.recurrence_weight_partials,
             profile_kernels: tiling.profile_kernels,
-            interleave_runs: tiling.interleave_runs,
             recurrence_recording: tiling.replay_iterations.then(Mutex::default),
             slots,
             sequences,
@@ -336,9 +333,10 @@ impl Stack {
         match &times {
             None => {
                 let mut pass = begin_pass(&mut encoder, None, 0);
-                for (_, lists) in &parts {
-                    self.replay_runs(lists, &mut pass);
-                }
+                parts
+                    .iter()
+                    .flat_map(|(_, lists)| lists)
+                    .for_each(|list| list.replay(&mut pass));
             }
             Some(times) if self.profile_kernels => {
                 let dispatches = parts
@@ -354,7 +352,7 @@ impl Stack {
             Some(times) => {
                 for (part, (_, lists)) in parts.iter().enumerate() {
                     let mut pass = begin_pass(&mut encoder, Some(times), part);
-                    self.replay_runs(lists, &mut pass);
+                    lists.iter().for_each(|list| list.replay(&mut pass));
                 }
                 times.resolve(&mut encoder);
             }
@@ -379,16 +377,6 @@ impl Stack {
             read_back,
             _prepared: prepared,
             _recurrence: recurrence,
-        }
-    }
-
-    /// One part's dispatch lists, a run's each, into `pass`: interleaved across the runs
-    /// (`Tiling::interleave_runs`), or one run after another.
-    fn replay_runs(&self, lists: &[&DispatchList], pass: &mut wgpu::ComputePass<'_>) {
-        if self.interleave_runs {
-            DispatchList::replay_interleaved(lists, pass);
-        } else {
-            lists.iter().for_each(|list| list.replay(pass));
         }
     }
 

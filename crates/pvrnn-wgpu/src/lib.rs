@@ -120,12 +120,6 @@ impl WgpuBackend {
             &mut tiling.replay_iterations,
         );
         env_switch("PVRNN_WGPU_AHEAD", ["on", "off"], &mut tiling.queue_ahead);
-        let interleave = ["on", "off"];
-        env_switch(
-            "PVRNN_WGPU_INTERLEAVE",
-            interleave,
-            &mut tiling.interleave_runs,
-        );
         let kernels = ["on", "off"];
         env_switch(
             "PVRNN_WGPU_PROFILE_KERNELS",

@@ -164,15 +164,6 @@ pub struct Tiling {
     /// dispatch lets the device drain between them, which adds to the parts' times.
     /// `PVRNN_WGPU_PROFILE_KERNELS=on` turns it on.
     pub profile_kernels: bool,
-    /// With the whole iteration on the device, a cohort's runs' dispatches of each part
-    /// (their read-outs, above all) are interleaved, the first of each run, then the
-    /// second of each, ..., instead of one run's after another's: the runs write no buffer
-    /// in common, so wgpu puts no barrier between them and the device can run them side by
-    /// side, where one run's steps each wait for the step before and leave the device
-    /// draining at every one (five per chunk of rows, 11 chunks at the paper's scale). The same
-    /// arithmetic either way. `PVRNN_WGPU_INTERLEAVE=off` replays one run after another
-    /// (the order before 2026-11-30's fourth session).
-    pub interleave_runs: bool,
 }
 
 impl Tiling {
@@ -202,7 +193,6 @@ impl Default for Tiling {
             recurrence_weight_partials: true,
             queue_ahead: true,
             profile_kernels: false,
-            interleave_runs: true,
         }
     }
 }

@@ -160,7 +160,7 @@ pub struct Tiling {
     pub queue_ahead: bool,
     /// While profiling (`pvrnn bench --profile`), each dispatch of a whole iteration on the
     /// device in a timed pass of its own, so that the profile lists each kernel's device
-    /// time ("device: kernel <label>") as well as each part's. Off by default: a pass per
+    /// time (`device: kernel <label>`) as well as each part's. Off by default: a pass per
     /// dispatch lets the device drain between them, which adds to the parts' times.
     /// `PVRNN_WGPU_PROFILE_KERNELS=on` turns it on.
     pub profile_kernels: bool,

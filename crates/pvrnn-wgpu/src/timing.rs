@@ -12,7 +12,7 @@
 use crate::gpu::Gpu;
 
 /// Each kernel's label, by pipeline, for timing every dispatch of a submission apart
-/// (`Tiling::profile_kernels`): the profile then lists "device: kernel <label>" beside
+/// (`Tiling::profile_kernels`): the profile then lists `device: kernel <label>` beside
 /// the parts. Native only (nothing is kept in the browser, where profiling is off).
 #[derive(Debug, Default)]
 pub(crate) struct KernelNames {
@@ -32,7 +32,7 @@ impl KernelNames {
         let _ = (pipeline, label);
     }
 
-    /// The profile's phase for `pipeline`'s dispatches: "device: kernel <label>".
+    /// The profile's phase for `pipeline`'s dispatches: `device: kernel <label>`.
     #[cfg(not(target_arch = "wasm32"))]
     pub(crate) fn phase(&self, pipeline: &wgpu::ComputePipeline) -> &'static str {
         let label = self
@@ -51,7 +51,7 @@ impl KernelNames {
     }
 }
 
-/// "device: kernel <label>", made once per label (the profile keeps `&'static str`
+/// `device: kernel <label>`, made once per label (the profile keeps `&'static str`
 /// names; there are a few dozen kernels).
 #[cfg(not(target_arch = "wasm32"))]
 fn kernel_phase(label: &'static str) -> &'static str {

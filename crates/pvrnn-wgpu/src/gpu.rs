@@ -295,7 +295,7 @@ pub struct Gpu {
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,
     /// Every kernel's label, for the profile's time per kernel.
-    pub(crate) kernel_names: crate::timing::KernelNames,
+    pub(crate) kernel_names: crate::kernel_names::KernelNames,
 }
 
 impl Gpu {

@@ -30,6 +30,7 @@ mod copy;
 mod encode;
 mod gpu;
 mod iteration;
+mod kernel_names;
 mod learner;
 mod output;
 mod pool;

@@ -33,8 +33,9 @@ pub(crate) struct Kernels {
     pub(crate) predict: wgpu::ComputePipeline,
     /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), deep and
     /// shallow ([`BlockedDepth`]), for widths with and without a padding lane to sum the
-    /// biases in (`blocked_weight_grad.wgsl`), compiled on first use.
-    blocked: [[OnceLock<BlockedKernels>; 2]; 2],
+    /// biases in (`blocked_weight_grad.wgsl`), with the error gradients read and written
+    /// as scalars or as vec4s (`Tiling::vector_io`), compiled on first use.
+    blocked: [[[OnceLock<BlockedKernels>; 2]; 2]; 2],
 }
 
 /// Which kernels keep wgpu's runtime checks (bounds, loop bounding, integer division):
@@ -550,24 +551,33 @@ impl Gpu {
     }
 
     /// The register-blocked kernels of `kernels`' width in vec4s (`hidden` units) with
-    /// tiles `depth` deep (at most what the adapter's workgroup memory holds), compiled on
-    /// first use.
+    /// tiles `depth` deep (at most what the adapter's workgroup memory holds), the targets
+    /// and error gradients as vec4s where `vector_io` (rows of a multiple of 4 columns),
+    /// compiled on first use.
     pub(crate) fn blocked_kernels<'k>(
         &self,
         kernels: &'k Kernels,
         depth: BlockedDepth,
         hidden: usize,
+        vector_io: bool,
     ) -> &'k BlockedKernels {
         let depth = match BlockedDepth::for_limits(&self.limits()) {
             BlockedDepth::Shallow => BlockedDepth::Shallow,
             BlockedDepth::Deep => depth,
         };
         let bias_lane = usize::from(!hidden.is_multiple_of(4));
-        kernels.blocked[depth as usize][bias_lane].get_or_init(|| {
+        let vec_io = usize::from(vector_io);
+        kernels.blocked[depth as usize][bias_lane][vec_io].get_or_init(|| {
             let hv = kernels.hv;
             let (kc, kt) = (depth.forward_vec4s(), depth.tile());
             let threads = 16 * hv;
-            let forward = [("HV", hv), ("KC", kc), ("KS", 4 * kc), ("STAGE", 512 * kc)];
+            let forward = [
+                ("HV", hv),
+                ("KC", kc),
+                ("KS", 4 * kc),
+                ("STAGE", 512 * kc),
+                ("VEC_IO", vec_io),
+            ];
             // The input and weight gradients: two buffers of 32 kt error-gradient vec4s and
             // kt hv weight (activation) vec4s; each thread loads a fixed number of the
             // error gradients' 4 x 4 blocks (input) or vec4s (weights).
@@ -579,6 +589,7 @@ impl Gpu {
                     ("STAGE", 2 * (32 * kt + kt * hv)),
                     ("LOADS", loads),
                     ("BIAS_LANE", bias_lane),
+                    ("VEC_IO", vec_io),
                 ]
             };
             BlockedKernels {

@@ -164,6 +164,12 @@ pub struct Tiling {
     /// dispatch lets the device drain between them, which adds to the parts' times.
     /// `PVRNN_WGPU_PROFILE_KERNELS=on` turns it on.
     pub profile_kernels: bool,
+    /// The blocked output kernels read the targets and read and write the error gradient
+    /// as vec4s of four consecutive columns where a row's observed columns are a multiple
+    /// of 4 (every caresim layout's): a fourth of the accesses, each four times as wide;
+    /// the same arithmetic. `PVRNN_WGPU_VEC4_IO=off` reads and writes them one value at a
+    /// time (the kernels before 2026-11-30's fourth session).
+    pub vector_io: bool,
 }
 
 impl Tiling {
@@ -193,6 +199,7 @@ impl Default for Tiling {
             recurrence_weight_partials: true,
             queue_ahead: true,
             profile_kernels: false,
+            vector_io: true,
         }
     }
 }
@@ -678,11 +685,14 @@ impl GpuOutputLayer {
         }
     }
 
-    /// The blocked kernels of `layer`'s width at the depth the tiling asks for.
-    fn blocked_kernels<'l>(&self, layer: &'l Layer) -> &'l crate::gpu::BlockedKernels {
+    /// The blocked kernels of `layer`'s width at the depth the tiling asks for, for rows of
+    /// `k` observed columns (read as vec4s where `k` is a multiple of 4 and the tiling
+    /// allows it).
+    fn blocked_kernels<'l>(&self, layer: &'l Layer, k: usize) -> &'l crate::gpu::BlockedKernels {
         let depth = self.tiling.blocked_depth.unwrap_or(BlockedDepth::Deep);
+        let vector_io = self.tiling.vector_io && k.is_multiple_of(4);
         self.gpu
-            .blocked_kernels(&layer.kernels, depth, layer.hidden)
+            .blocked_kernels(&layer.kernels, depth, layer.hidden, vector_io)
     }
 
     /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and
@@ -919,7 +929,7 @@ impl GpuOutputLayer {
         cut: LossCut,
     ) -> PooledBuffer {
         let gpu = &*self.gpu;
-        let kernels = self.blocked_kernels(layer);
+        let kernels = self.blocked_kernels(layer, chunk.k);
         let splits = cut.splits as u32;
         let forward = bind(
             gpu,
@@ -964,7 +974,7 @@ impl GpuOutputLayer {
         chunk: ChunkRows,
     ) -> [PooledBuffer; 2] {
         let gpu = &*self.gpu;
-        let kernels = self.blocked_kernels(layer);
+        let kernels = self.blocked_kernels(layer, chunk.k);
         let hv = vec4s(layer.hidden);
         let Some((part_w, part_b)) = &scratch.part_w else {
             unreachable!("weight gradients asked for: their partials were made")

@@ -211,32 +211,13 @@ fn the_default_output_kernels_are_blocked_for_batches_and_fused_for_windows() {
     let Some(gpu) = gpu() else { return };
     let config = config();
     let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap();
-    let hidden = *config.exteroceptive_readout.hidden.last().unwrap();
     let k = config.vision.dims();
     let loss = |output_kernels, rows: usize| {
         let tiling = Tiling {
             output_kernels,
             ..every_call()
         };
-        let layer = pvrnn_wgpu::GpuOutputLayer::upload(gpu.gpu().clone(), tiling, &model.params);
-        let input: Vec<f32> = (0..rows * hidden)
-            .map(|i| (i * 7919 % 113) as f32 / 113.0 - 0.5)
-            .collect();
-        let target_data: Vec<f32> = (0..rows * k)
-            .map(|i| (i * 104_729 % 97) as f32 / 97.0)
-            .collect();
-        let targets: Vec<&[f32]> = target_data.chunks_exact(k).collect();
-        let call = layer.loss(
-            Modality::Exteroceptive,
-            &input,
-            rows,
-            k,
-            k,
-            &targets,
-            None,
-            true,
-        );
-        pvrnn_core::deferred::now(call.expect("every call on the GPU"))
+        vision_loss(&gpu, &model, tiling, rows, k)
     };
     let (fused, blocked) = (OutputKernels::Fused, OutputKernels::Blocked);
     for (rows, picked, other) in [
@@ -256,6 +237,68 @@ fn the_default_output_kernels_are_blocked_for_batches_and_fused_for_windows() {
             "{rows} rows: the other kernels' d W"
         );
     }
+}
+
+/// The blocked kernels read the targets and the error gradient as vec4s where a row's
+/// observed columns are a multiple of 4 (`Tiling::vector_io`), one value at a time
+/// otherwise: the same bits either way, over several chunks, splits and a short last
+/// tile; with 478 of the 480 columns observed the scalar path runs whatever the tiling.
+#[test]
+fn the_blocked_kernels_give_the_same_bits_with_vec4_or_scalar_access() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap();
+    let dims = config.vision.dims();
+    for (rows, k) in [(300, dims), (300, dims - 4), (140, dims - 2)] {
+        let loss = |vector_io| {
+            let tiling = Tiling {
+                output_kernels: OutputKernels::Blocked,
+                target_workgroups: 8,
+                max_chunk_bytes: 130 * dims * 4,
+                vector_io,
+                ..every_call()
+            };
+            vision_loss(&gpu, &model, tiling, rows, k)
+        };
+        let (vectors, scalars) = (loss(true), loss(false));
+        assert_eq!(vectors.row_loss, scalars.row_loss, "{rows} x {k}: loss");
+        assert_eq!(vectors.grad_in, scalars.grad_in, "{rows} x {k}: d input");
+        assert_eq!(vectors.grad_w, scalars.grad_w, "{rows} x {k}: d W");
+        assert_eq!(vectors.grad_b, scalars.grad_b, "{rows} x {k}: d b");
+        assert!(vectors.row_loss.iter().all(|l| l.is_finite() && *l > 0.0));
+    }
+}
+
+/// The vision output layer's loss and gradients on `gpu` under `tiling`, for `rows` rows
+/// of made-up top hidden activations and targets, `k` columns observed.
+fn vision_loss(
+    gpu: &WgpuBackend,
+    model: &Model<f32>,
+    tiling: Tiling,
+    rows: usize,
+    k: usize,
+) -> pvrnn_core::assembled::OutputLoss<f32> {
+    let hidden = *model.config.exteroceptive_readout.hidden.last().unwrap();
+    let dims = model.config.vision.dims();
+    let layer = pvrnn_wgpu::GpuOutputLayer::upload(gpu.gpu().clone(), tiling, &model.params);
+    let input: Vec<f32> = (0..rows * hidden)
+        .map(|i| (i * 7919 % 113) as f32 / 113.0 - 0.5)
+        .collect();
+    let target_data: Vec<f32> = (0..rows * dims)
+        .map(|i| (i * 104_729 % 97) as f32 / 97.0)
+        .collect();
+    let targets: Vec<&[f32]> = target_data.chunks_exact(dims).collect();
+    let call = layer.loss(
+        Modality::Exteroceptive,
+        &input,
+        rows,
+        k,
+        k,
+        &targets,
+        None,
+        true,
+    );
+    pvrnn_core::deferred::now(call.expect("every call on the GPU"))
 }
 
 /// Learning with the output layers resident on the GPU (weights, biases and RAdam moments

@@ -17,6 +17,10 @@
 // arithmetic. KC = 4 (32 KiB of workgroup memory) on adapters that allow it, else 2
 // (16 KiB, WebGPU's default); chosen by the host from the adapter's limits.
 //
+// With VEC_IO = 1 (the host's choice where the row length k is a multiple of 4, as every
+// caresim layout's is) the targets and the error gradient are read and written as vec4s of
+// four consecutive columns, one access where there were four; the arithmetic is the same.
+//
 // Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`): every index is in
 // bounds by construction. Device memory: rows below p.rows (x: p.row_offset + row, the host
 // bound the chunk's rows), columns below c_end <= p.k, vec4s of the width below HV; loads
@@ -47,8 +51,13 @@ struct Params {
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;          // [all rows, HV]
 @group(0) @binding(2) var<storage, read> w: array<vec4<f32>>;          // [dims, HV]
 @group(0) @binding(3) var<storage, read> b: array<f32>;                // [dims]
+//#if VEC_IO
+@group(0) @binding(4) var<storage, read> y: array<vec4<f32>>;          // [rows, k / 4]
+@group(0) @binding(5) var<storage, read_write> g: array<vec4<f32>>;    // [rows, k / 4]
+//#else
 @group(0) @binding(4) var<storage, read> y: array<f32>;                // [rows, k]
 @group(0) @binding(5) var<storage, read_write> g: array<f32>;          // [rows, k]
+//#end
 @group(0) @binding(6) var<storage, read_write> part_loss: array<f32>;  // [splits, rows]
 
 // Two buffers of [KS, 32] vec4s of rows then [KS, 32] of columns (vec4 = four consecutive
@@ -125,6 +134,23 @@ fn biases(col: u32, c_end: u32) -> vec4<f32> {
 // c_end and rows past the chunk skipped).
 fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 {
     var loss = 0.0;
+//#if VEC_IO
+    // k and c_end are multiples of 4, col too: the four columns are all in or all out.
+    if (row < p.rows && col < c_end) {
+        let at = (row * p.k + col) / 4u;
+        let wanted = y[at];
+        var grad = vec4<f32>(0.0);
+        //#unroll j 4
+        {
+            let yhat = tanh_safe(acc[{j}] + bias[{j}]);
+            let e = yhat - wanted[{j}];
+            loss += e * e;
+            grad[{j}] = p.scale * e * (1.0 - yhat * yhat);
+        }
+        //#end
+        g[at] = grad;
+    }
+//#else
     if (row < p.rows) {
         let at = row * p.k + col;
         //#unroll j 4
@@ -136,6 +162,7 @@ fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 
         }
         //#end
     }
+//#end
     return loss;
 }
 

@@ -12,6 +12,9 @@
 // the arithmetic and stored into the other buffer after it, one barrier per tile. KT = 16
 // (24 KiB of workgroup memory at HV = 16) where the adapter allows 32 KiB, else 8.
 //
+// VEC_IO = 1 (k a multiple of 4) reads the error gradients as vec4s, as
+// `blocked_forward.wgsl` writes them.
+//
 // Compiled without wgpu's runtime checks (`Gpu::audited_pipeline`): every index is in
 // bounds by construction. Device memory: rows below p.rows, columns below c_end <= p.k,
 // splits below the grid's y the host sized part_in for; loads outside are skipped (zeros),
@@ -35,7 +38,11 @@ struct Params {
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> w: array<vec4<f32>>;             // [dims, HV]
+//#if VEC_IO
+@group(0) @binding(2) var<storage, read> g: array<vec4<f32>>;             // [rows, k / 4]
+//#else
 @group(0) @binding(2) var<storage, read> g: array<f32>;                   // [rows, k]
+//#end
 @group(0) @binding(3) var<storage, read_write> part_in: array<vec4<f32>>; // [splits, rows, HV]
 
 var<workgroup> stage: array<vec4<f32>, {{STAGE}}>;  // 2 BUF
@@ -63,10 +70,21 @@ fn load_block(i: u32, r0: u32, c0: u32, c_end: u32) -> Block {
         //#unroll e 4
         if (row + {e}u < p.rows) {
             let at = (row + {e}u) * p.k + col;
+//#if VEC_IO
+            // k and c_end multiples of 4: the four columns are all in or all out.
+            if (col < c_end) {
+                let q = g[at / 4u];
+                v0[{e}] = q.x;
+                v1[{e}] = q.y;
+                v2[{e}] = q.z;
+                v3[{e}] = q.w;
+            }
+//#else
             if (col < c_end) { v0[{e}] = g[at]; }
             if (col + 1u < c_end) { v1[{e}] = g[at + 1u]; }
             if (col + 2u < c_end) { v2[{e}] = g[at + 2u]; }
             if (col + 3u < c_end) { v3[{e}] = g[at + 3u]; }
+//#end
         }
         //#end
     }

@@ -14,6 +14,9 @@
 // Double-buffered as `blocked_forward.wgsl`. KT = 16 where the adapter allows 32 KiB of
 // workgroup memory, else 8.
 //
+// VEC_IO = 1 (k a multiple of 4) reads the error gradients as vec4s, as
+// `blocked_forward.wgsl` writes them.
+//
 // Where the width leaves its last lane as padding (BIAS_LANE = 1: hidden widths not a
 // multiple of 4, such as the paper's 50), the bias sums ride in it: that lane is staged as
 // 1 instead of 0, so the last vec4's accumulators add g times 1 there, the same sums in
@@ -43,7 +46,11 @@ struct Params {
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> x: array<vec4<f32>>;            // [all rows, HV]
+//#if VEC_IO
+@group(0) @binding(2) var<storage, read> g: array<vec4<f32>>;            // [rows, k / 4]
+//#else
 @group(0) @binding(2) var<storage, read> g: array<f32>;                  // [rows, k]
+//#end
 @group(0) @binding(3) var<storage, read_write> part_w: array<vec4<f32>>; // [splits, k, HV]
 @group(0) @binding(4) var<storage, read_write> part_b: array<f32>;       // [splits, k]
 
@@ -57,10 +64,15 @@ fn load_gradients(i: u32, r0: u32, r_end: u32, c0: u32) -> vec4<f32> {
     if (i < 32u * KT && row < r_end) {
         let col = c0 + 4u * (i % 32u);
         let at = row * p.k + col;
+//#if VEC_IO
+        // k a multiple of 4: the four columns are all in or all out.
+        if (col < p.k) { v = g[at / 4u]; }
+//#else
         if (col < p.k) { v.x = g[at]; }
         if (col + 1u < p.k) { v.y = g[at + 1u]; }
         if (col + 2u < p.k) { v.z = g[at + 2u]; }
         if (col + 3u < p.k) { v.w = g[at + 3u]; }
+//#end
     }
     return v;
 }

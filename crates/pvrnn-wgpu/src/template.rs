@@ -1,4 +1,4 @@
-//! The kernels' sources are WGSL with two additions, expanded before compilation:
+//! The kernels' sources are WGSL with three additions, expanded before compilation:
 //!
 //! - `{{NAME}}` placeholders for the shape constants (the hidden width in vec4s, tile sizes);
 //! - blocks between `//#unroll VAR COUNT` and `//#end`, repeated COUNT times with `{VAR}`
@@ -21,7 +21,7 @@ pub(crate) fn expand(source: &str, constants: &[(&str, usize)]) -> String {
     let lines: Vec<&str> = text.lines().collect();
     let mut out = String::with_capacity(text.len() * 2);
     let mut i = 0;
-    unroll(&lines, &mut i, constants, &mut out, false);
+    expand_block(&lines, &mut i, constants, &mut out, false);
     out
 }
 
@@ -46,7 +46,7 @@ fn value(word: &str, constants: &[(&str, usize)]) -> usize {
 
 /// Copies lines from `*i` up to a closing `//#end` or `//#else` (when `inside`) or the
 /// end, expanding the blocks within; says which closed it.
-fn unroll(
+fn expand_block(
     lines: &[&str],
     i: &mut usize,
     constants: &[(&str, usize)],
@@ -69,8 +69,8 @@ fn unroll(
             let on = value(name.trim(), constants) != 0;
             // Both parts are expanded (so both are checked); the one that applies is kept.
             let (mut then, mut otherwise) = (String::new(), String::new());
-            if unroll(lines, i, constants, &mut then, true) == Close::Else {
-                let close = unroll(lines, i, constants, &mut otherwise, true);
+            if expand_block(lines, i, constants, &mut then, true) == Close::Else {
+                let close = expand_block(lines, i, constants, &mut otherwise, true);
                 assert_eq!(close, Close::End, "//#if without //#end: {line}");
             }
             out.push_str(if on { &then } else { &otherwise });
@@ -84,7 +84,7 @@ fn unroll(
             let count = value(count, constants);
             // The body, expanded once (inner blocks included), then repeated.
             let mut body = String::new();
-            let close = unroll(lines, i, constants, &mut body, true);
+            let close = expand_block(lines, i, constants, &mut body, true);
             assert_eq!(close, Close::End, "//#unroll without //#end: {line}");
             let pattern = format!("{{{var}}}");
             for k in 0..count {

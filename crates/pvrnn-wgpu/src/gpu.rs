@@ -539,13 +539,13 @@ impl Gpu {
             hv,
             row_pass_rows: rows,
             loss_rows: self
-                .audited_pipeline("loss_rows", source(include_str!("shaders/loss_rows.wgsl"))),
+                .audited_pipeline("loss_rows", source(shader!("loss_rows.wgsl"))),
             loss_columns: self.audited_pipeline(
                 "loss_columns",
-                source(include_str!("shaders/loss_columns.wgsl")),
+                source(shader!("loss_columns.wgsl")),
             ),
-            reduce: self.pipeline("reduce", source(include_str!("shaders/reduce.wgsl"))),
-            predict: self.pipeline("predict", source(include_str!("shaders/predict.wgsl"))),
+            reduce: self.pipeline("reduce", source(shader!("reduce.wgsl"))),
+            predict: self.pipeline("predict", source(shader!("predict.wgsl"))),
             blocked: Default::default(),
         }
     }
@@ -595,26 +595,26 @@ impl Gpu {
             BlockedKernels {
                 forward: self.audited_pipeline(
                     "blocked forward",
-                    output_source(include_str!("shaders/blocked_forward.wgsl"), &forward),
+                    output_source(shader!("blocked_forward.wgsl"), &forward),
                 ),
                 input_grad: self.audited_pipeline(
                     "blocked input gradient",
                     output_source(
-                        include_str!("shaders/blocked_input_grad.wgsl"),
+                        shader!("blocked_input_grad.wgsl"),
                         &gradient((8 * kt).div_ceil(threads)),
                     ),
                 ),
                 weight_grad: self.audited_pipeline(
                     "blocked weight gradient",
                     output_source(
-                        include_str!("shaders/blocked_weight_grad.wgsl"),
+                        shader!("blocked_weight_grad.wgsl"),
                         &gradient((32 * kt).div_ceil(threads)),
                     ),
                 ),
                 weight_reduce: self.pipeline(
                     "blocked weight reduce",
                     output_source(
-                        include_str!("shaders/blocked_weight_reduce.wgsl"),
+                        shader!("blocked_weight_reduce.wgsl"),
                         &[("HV", hv)],
                     ),
                 ),
@@ -635,15 +635,15 @@ impl Gpu {
             return kernels.clone();
         }
         let kernels = {
-            let common = include_str!("shaders/recurrence_common.wgsl");
-            let weights = include_str!("shaders/recurrence_weights.wgsl");
+            let common = shader!("recurrence_common.wgsl");
+            let weights = shader!("recurrence_weights.wgsl");
             // A kernel's source: the common part, its own, and its dot products
             // (`recurrence_dot.wgsl` once per function name, weights and values); PARTIALS
             // picks the weight-gradient kernel's form (1: a partial sum per window).
             let source = |text: &str, dots: &[[&str; 3]], partials: usize| {
                 let mut full = format!("{common}\n{text}");
                 for [name, weights, values] in dots {
-                    let dot = include_str!("shaders/recurrence_dot.wgsl");
+                    let dot = shader!("recurrence_dot.wgsl");
                     full.push('\n');
                     full.push_str(
                         &dot.replace("DOT", name)
@@ -664,7 +664,7 @@ impl Gpu {
                 forward: self.pipeline(
                     "recurrence forward",
                     source(
-                        include_str!("shaders/recurrence_forward.wgsl"),
+                        shader!("recurrence_forward.wgsl"),
                         &[
                             ["dot_d_prev", "weights_t", "d_prev"],
                             ["dot_zs", "weights_t", "zs"],
@@ -675,7 +675,7 @@ impl Gpu {
                 backward: self.pipeline(
                     "recurrence backward",
                     source(
-                        include_str!("shaders/recurrence_backward.wgsl"),
+                        shader!("recurrence_backward.wgsl"),
                         &[
                             ["dot_gu", "weights", "gu"],
                             ["dot_gprior", "weights", "gprior"],
@@ -688,7 +688,7 @@ impl Gpu {
                     .pipeline("recurrence weight partials", source(weights, &[], 1)),
                 weights_reduce: self.pipeline(
                     "recurrence weights reduce",
-                    include_str!("shaders/recurrence_weights_reduce.wgsl").into(),
+                    shader!("recurrence_weights_reduce.wgsl").into(),
                 ),
             })
         };
@@ -701,20 +701,20 @@ impl Gpu {
         self.compiled_once(
             &self.radam_kernel,
             "radam",
-            include_str!("shaders/radam.wgsl"),
+            shader!("radam.wgsl"),
         )
     }
 
     /// The divergence mark of a learning run (`shaders/finite_check.wgsl`), compiled on
     /// first use.
     pub(crate) fn finite_check_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        let source = include_str!("shaders/finite_check.wgsl");
+        let source = shader!("finite_check.wgsl");
         self.compiled_once(&self.finite_check_kernel, "finite check", source)
     }
 
     /// The strided copy between layouts (`shaders/strided_copy.wgsl`), compiled on first use.
     pub(crate) fn copy_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        let source = include_str!("shaders/strided_copy.wgsl");
+        let source = shader!("strided_copy.wgsl");
         self.compiled_once(&self.copy_kernel, "strided copy", source)
     }
 
@@ -736,19 +736,19 @@ impl Gpu {
                 Arc::new(DenseKernels {
                     forward: self.pipeline(
                         "dense forward",
-                        include_str!("shaders/dense_forward.wgsl").into(),
+                        shader!("dense_forward.wgsl").into(),
                     ),
                     backward: self.pipeline(
                         "dense backward",
-                        include_str!("shaders/dense_backward.wgsl").into(),
+                        shader!("dense_backward.wgsl").into(),
                     ),
                     weights: self.pipeline(
                         "dense weights",
-                        include_str!("shaders/dense_weights.wgsl").into(),
+                        shader!("dense_weights.wgsl").into(),
                     ),
                     weights_reduce: self.pipeline(
                         "dense weights reduce",
-                        include_str!("shaders/dense_weights_reduce.wgsl").into(),
+                        shader!("dense_weights_reduce.wgsl").into(),
                     ),
                 })
             })
@@ -814,7 +814,7 @@ impl Gpu {
 
 /// An output-layer kernel's source, expanded, after the helpers they share.
 fn output_source(text: &str, constants: &[(&str, usize)]) -> String {
-    let common = include_str!("shaders/output_common.wgsl");
+    let common = shader!("output_common.wgsl");
     crate::template::expand(&format!("{common}\n{text}"), constants)
 }
 

@@ -26,6 +26,14 @@
 //! free energy and every gradient against it on a CPU Vulkan device, and in headless
 //! Chromium on SwiftShader's WebGPU adapter).
 
+/// A kernel's source as the crate embeds it: `src/shaders/NAME` with its comments blanked
+/// (`build.rs`), for a smaller web site.
+macro_rules! shader {
+    ($name:literal) => {
+        include_str!(concat!(env!("OUT_DIR"), "/shaders/", $name))
+    };
+}
+
 mod copy;
 mod encode;
 mod gpu;

@@ -989,7 +989,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<TableWindow>(), 8 * 4);
         // windows count, 4 ablated, 5 strides, 4 offsets, 2 pad, then 4 modules.
         assert_eq!(std::mem::size_of::<Table>(), (16 + 4 * 16) * 4);
-        let common = include_str!("shaders/recurrence_common.wgsl");
+        let common = shader!("recurrence_common.wgsl");
         for name in ["struct Table {", "struct Module {", "struct WindowInfo {"] {
             assert!(common.contains(name), "{name} is gone from the WGSL");
         }

@@ -538,12 +538,9 @@ impl Gpu {
         Kernels {
             hv,
             row_pass_rows: rows,
-            loss_rows: self
-                .audited_pipeline("loss_rows", source(shader!("loss_rows.wgsl"))),
-            loss_columns: self.audited_pipeline(
-                "loss_columns",
-                source(shader!("loss_columns.wgsl")),
-            ),
+            loss_rows: self.audited_pipeline("loss_rows", source(shader!("loss_rows.wgsl"))),
+            loss_columns: self
+                .audited_pipeline("loss_columns", source(shader!("loss_columns.wgsl"))),
             reduce: self.pipeline("reduce", source(shader!("reduce.wgsl"))),
             predict: self.pipeline("predict", source(shader!("predict.wgsl"))),
             blocked: Default::default(),
@@ -613,10 +610,7 @@ impl Gpu {
                 ),
                 weight_reduce: self.pipeline(
                     "blocked weight reduce",
-                    output_source(
-                        shader!("blocked_weight_reduce.wgsl"),
-                        &[("HV", hv)],
-                    ),
+                    output_source(shader!("blocked_weight_reduce.wgsl"), &[("HV", hv)]),
                 ),
             }
         })
@@ -698,11 +692,7 @@ impl Gpu {
 
     /// The RAdam update of a resident tensor (`shaders/radam.wgsl`), compiled on first use.
     pub(crate) fn radam_kernel(&self) -> Arc<wgpu::ComputePipeline> {
-        self.compiled_once(
-            &self.radam_kernel,
-            "radam",
-            shader!("radam.wgsl"),
-        )
+        self.compiled_once(&self.radam_kernel, "radam", shader!("radam.wgsl"))
     }
 
     /// The divergence mark of a learning run (`shaders/finite_check.wgsl`), compiled on
@@ -734,18 +724,10 @@ impl Gpu {
         self.dense_kernels
             .get_or_init(|| {
                 Arc::new(DenseKernels {
-                    forward: self.pipeline(
-                        "dense forward",
-                        shader!("dense_forward.wgsl").into(),
-                    ),
-                    backward: self.pipeline(
-                        "dense backward",
-                        shader!("dense_backward.wgsl").into(),
-                    ),
-                    weights: self.pipeline(
-                        "dense weights",
-                        shader!("dense_weights.wgsl").into(),
-                    ),
+                    forward: self.pipeline("dense forward", shader!("dense_forward.wgsl").into()),
+                    backward: self
+                        .pipeline("dense backward", shader!("dense_backward.wgsl").into()),
+                    weights: self.pipeline("dense weights", shader!("dense_weights.wgsl").into()),
                     weights_reduce: self.pipeline(
                         "dense weights reduce",
                         shader!("dense_weights_reduce.wgsl").into(),

@@ -329,7 +329,7 @@ impl Stack {
                 prepared.iter().map(|p| &*p.work.after).collect(),
             ),
         ];
-        let times = self.pass_times(&parts);
+        let (times, per_kernel) = self.pass_times(&parts);
         match &times {
             None => {
                 let mut pass = begin_pass(&mut encoder, None, 0);
@@ -338,7 +338,7 @@ impl Stack {
                     .flat_map(|(_, lists)| lists)
                     .for_each(|list| list.replay(&mut pass));
             }
-            Some(times) if self.profile_kernels => {
+            Some(times) if per_kernel => {
                 let dispatches = parts
                     .iter()
                     .flat_map(|(_, lists)| lists)
@@ -381,10 +381,21 @@ impl Stack {
     }
 
     /// The timestamps of a submission's passes while profiling: a pass per part, or with
-    /// `Tiling::profile_kernels` a pass per dispatch, its time added to its part and to its
-    /// kernel.
-    fn pass_times(&self, parts: &[(&'static str, Vec<&DispatchList>)]) -> Option<PassTimes> {
-        let passes: Vec<Vec<&'static str>> = if self.profile_kernels {
+    /// `Tiling::profile_kernels` a pass per dispatch (then `true`), its time added to its
+    /// part and to its kernel. A submission of more dispatches than one query set times
+    /// (wgpu's `QUERY_SET_MAX_QUERIES`, two queries each) is timed per part.
+    fn pass_times(
+        &self,
+        parts: &[(&'static str, Vec<&DispatchList>)],
+    ) -> (Option<PassTimes>, bool) {
+        let dispatches: usize = parts
+            .iter()
+            .flat_map(|(_, lists)| lists)
+            .map(|list| list.len())
+            .sum();
+        let per_kernel =
+            self.profile_kernels && 2 * dispatches <= wgpu::QUERY_SET_MAX_QUERIES as usize;
+        let passes: Vec<Vec<&'static str>> = if per_kernel {
             let kernels = &self.gpu.kernel_names;
             parts
                 .iter()
@@ -398,7 +409,7 @@ impl Stack {
         } else {
             parts.iter().map(|(part, _)| vec![*part]).collect()
         };
-        PassTimes::adding_to(&self.gpu, passes)
+        (PassTimes::adding_to(&self.gpu, passes), per_kernel)
     }
 
     /// The recurrence's part of a submission for these runs: the one recorded for the same

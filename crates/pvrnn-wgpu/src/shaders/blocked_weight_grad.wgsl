@@ -5,7 +5,8 @@
 //
 // Thread (cy, h) of the 16 x HV workgroup owns vec4 h of the width for eight columns:
 // 4 cy + j and 64 + 4 cy + j (j < 4), eight vec4 accumulators (`a*`, `b*`), and the
-// columns' bias sums (every thread adds them; the h = 0 ones write them). The range's rows
+// columns' bias sums (below: in the padding lane where there is one, else every thread
+// adds them and the h = 0 ones write them). The range's rows
 // are walked in tiles of KT staged in workgroup memory: error gradients as they lie (a
 // vec4 is four consecutive columns of one row; consecutive threads read consecutive
 // columns), hidden activations likewise. Per row, 3 vec4 loads for 32 multiply-adds, and

@@ -57,7 +57,7 @@
 #                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128 512"; the
 #                default is 64): smaller chunks keep a chunk's error gradient in the L2
 #                cache between the three products, larger ones dispatch less often (wgpu
-#                puts a barrier before every dispatch that writes, and the device drains
+#                puts a barrier before nearly every dispatch, and the device drains
 #                at each; docs/results/gpu/notes.md, entry 17)
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the

@@ -7,7 +7,7 @@
 //! for inference's window); then the same three with the register-blocked kernels
 //! (`OutputKernels::Blocked`, named "blocked": what the default picks for learning's
 //! batch) and learning's full batch with the blocked kernels' knobs (no weight gradient,
-//! shallow tiles, one chunk, other workgroup targets). Then the fused kernels' knobs:
+//! shallow tiles, one chunk, other workgroup targets, scalar accesses). Then the fused kernels' knobs:
 //! learning's full batch at the workgroup target before 2026-11-30 (1,024), without the
 //! weight gradient, in one chunk, and with the row pass's other shapes
 //! (`Tiling::row_pass_rows`, `Tiling::row_pass_step`), and inference's everything-observed
@@ -129,6 +129,13 @@ fn main() {
         };
         blocked_learning(&format!("{target_workgroups} workgroups"), true, tiling);
     }
+    // The targets and error gradients one value at a time (the kernels before the fourth
+    // session of 2026-11-30) against the vec4 accesses of the default.
+    let scalar_io = Tiling {
+        vector_io: false,
+        ..blocked
+    };
+    blocked_learning("scalar accesses", true, scalar_io);
     // The fused kernels on learning's full batch: at the workgroup target they were
     // measured at before 2026-11-30, without the weight gradient (the row pass and its
     // reduce alone: the column pass is the difference), in one chunk of 768 MiB instead of

@@ -42,6 +42,10 @@
 #                (PVRNN_WGPU_WORKGROUPS=W, W in KERNEL_WORKGROUPS, default "128 512 1024";
 #                the default is 256): the forward product, the input and the weight
 #                gradient share the target, and each kernel's time says which wants what
+#   whole-late, whole-N-late
+#                `whole` and `whole-N` with the recurrence kernels loading a step's values
+#                where they are used (PVRNN_WGPU_RECURRENCE_EARLY=off; the default issues
+#                them at the step's start)
 #   whole-scalar-io, whole-N-scalar-io
 #                `whole` and `whole-N` with the blocked output kernels' targets and error
 #                gradients read and written one value at a time (PVRNN_WGPU_VEC4_IO=off;
@@ -167,6 +171,10 @@ for round in $(seq "$rounds"); do
             PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
                 "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
         done
+        PVRNN_WGPU_RECURRENCE_EARLY=off bench whole-late "$threads" "$round" --backend wgpu \
+            --gpu-recurrence $train_only
+        PVRNN_WGPU_RECURRENCE_EARLY=off bench "whole-${NETWORKS:-5}-late" "$threads" "$round" \
+            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_VEC4_IO=off bench whole-scalar-io "$threads" "$round" --backend wgpu \
             --gpu-recurrence $train_only
         PVRNN_WGPU_VEC4_IO=off bench "whole-${NETWORKS:-5}-scalar-io" "$threads" "$round" \

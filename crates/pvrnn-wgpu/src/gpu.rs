@@ -173,8 +173,9 @@ pub(crate) struct RecurrenceKernels {
     pub(crate) weights_reduce: wgpu::ComputePipeline,
 }
 
-/// The recurrence kernels' compiled shape: threads per workgroup, loads per batch.
-type RecurrenceShape = (u32, usize);
+/// The recurrence kernels' compiled shape: threads per workgroup, loads per batch, a
+/// step's loads issued at its start.
+type RecurrenceShape = (u32, usize, bool);
 
 /// The hidden read-out layers' kernels (shapes are parameters, so one set serves every
 /// layer).
@@ -617,15 +618,22 @@ impl Gpu {
     }
 
     /// The recurrence's kernels with `threads` per window's workgroup
-    /// (`RecurrenceLayout::threads`) and `loads` loads in flight per dot product
-    /// (`Tiling::recurrence_loads`), compiled on first use.
-    pub(crate) fn recurrence_kernels(&self, threads: u32, loads: usize) -> Arc<RecurrenceKernels> {
+    /// (`RecurrenceLayout::threads`), `loads` loads in flight per dot product
+    /// (`Tiling::recurrence_loads`) and a step's loads issued at its start where the width
+    /// allows (`early`, `Tiling::recurrence_early_loads`), compiled on first use.
+    pub(crate) fn recurrence_kernels(
+        &self,
+        threads: u32,
+        loads: usize,
+        early: bool,
+    ) -> Arc<RecurrenceKernels> {
         let loads = loads.clamp(1, 32);
         let mut compiled = self
             .recurrence_kernels
             .lock()
             .unwrap_or_else(|e| e.into_inner());
-        if let Some((_, kernels)) = compiled.iter().find(|(key, _)| *key == (threads, loads)) {
+        let shape = (threads, loads, early);
+        if let Some((_, kernels)) = compiled.iter().find(|(key, _)| *key == shape) {
             return kernels.clone();
         }
         let kernels = {
@@ -651,6 +659,7 @@ impl Gpu {
                         ("WG", threads as usize),
                         ("LOADS", loads),
                         ("PARTIALS", partials),
+                        ("EARLY", usize::from(early)),
                     ],
                 )
             };
@@ -686,7 +695,7 @@ impl Gpu {
                 ),
             })
         };
-        compiled.push(((threads, loads), kernels.clone()));
+        compiled.push((shape, kernels.clone()));
         kernels
     }
 

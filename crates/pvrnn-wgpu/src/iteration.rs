@@ -162,7 +162,11 @@ impl Stack {
         let p = packed.len();
         Some(Arc::new(Self {
             gpu: gpu.clone(),
-            kernels: gpu.recurrence_kernels(threads, tiling.recurrence_loads),
+            kernels: gpu.recurrence_kernels(
+                threads,
+                tiling.recurrence_loads,
+                tiling.recurrence_early_loads,
+            ),
             weight_partials: tiling.recurrence_weight_partials,
             profile_kernels: tiling.profile_kernels,
             recurrence_recording: tiling.replay_iterations.then(Mutex::default),

@@ -170,6 +170,14 @@ pub struct Tiling {
     /// the same arithmetic. `PVRNN_WGPU_VEC4_IO=off` reads and writes them one value at a
     /// time (the kernels before 2026-11-30's fourth session).
     pub vector_io: bool,
+    /// Where a window's workgroup is as wide as the recurrence's per-unit phases (the
+    /// default width), each thread issues a step's loads from device memory (the forward's
+    /// inputs; the backward's record and read-out gradients) at the step's start, so that
+    /// their latency passes under the phases before their use: one wait per step where the
+    /// backward had one per depth and one more. The same values.
+    /// `PVRNN_WGPU_RECURRENCE_EARLY=off` loads them where they are used (the kernels before
+    /// 2026-11-30's fourth session).
+    pub recurrence_early_loads: bool,
 }
 
 impl Tiling {
@@ -200,6 +208,7 @@ impl Default for Tiling {
             queue_ahead: true,
             profile_kernels: false,
             vector_io: true,
+            recurrence_early_loads: true,
         }
     }
 }

@@ -339,6 +339,7 @@ impl GpuRecurrence {
             kernels: gpu.recurrence_kernels(
                 layout.threads(&gpu, tiling.recurrence_threads),
                 tiling.recurrence_loads,
+                tiling.recurrence_early_loads,
             ),
             weights: gpu.upload("recurrent weights", &weights),
             weights_t: gpu.upload("recurrent weights, transposed", &weights_t),

@@ -895,8 +895,10 @@ fn paper_modules() -> ModelConfig {
 /// how its loads are issued, not the sum: with the paper's modules, the defaults (one
 /// thread per item of a step's widest phase, 384; 8 loads), the kernels' shape before
 /// (128 threads: up to three dot products per thread; 4 loads), 32 threads with 1 load,
-/// and 16 loads give bit for bit the same free energy and gradients for one call, and the
-/// same whole learning iterations on the device.
+/// 16 loads, and the default width with each step's loads issued where they are used
+/// rather than at the step's start (`Tiling::recurrence_early_loads`) give bit for bit the
+/// same free energy and gradients for one call, and the same whole learning iterations on
+/// the device.
 #[test]
 fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
     let Some(gpu) = gpu() else { return };
@@ -912,13 +914,21 @@ fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
     let wide_steps: Vec<f64> = (0..3)
         .map(|_| wide_learner.step(&data).unwrap().total)
         .collect();
-    for (threads, loads) in [(Some(128), 4), (Some(32), 1), (None, 16)] {
+    // The last: the default width with each step's loads where they are used
+    // (`Tiling::recurrence_early_loads` off; the narrower widths cannot issue them early).
+    for (threads, loads, early) in [
+        (Some(128), 4, true),
+        (Some(32), 1, true),
+        (None, 16, true),
+        (None, 8, false),
+    ] {
         let narrow = wide.clone().with_tiling(Tiling {
             recurrence_threads: threads,
             recurrence_loads: loads,
+            recurrence_early_loads: early,
             ..wide.tiling()
         });
-        let threads = format!("{threads:?} threads, {loads} loads");
+        let threads = format!("{threads:?} threads, {loads} loads, early loads {early}");
         let (f, g) = free_energy(&narrow, &model, &data, draw, true).unwrap();
         assert_eq!(f_wide.total, f.total, "{threads}");
         let g = g.unwrap();

@@ -56,10 +56,20 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
     let rec_stride = table.strides.rec;
     let grad_stride = table.strides.grad_d;
     let back_stride = table.strides.back;
+    // Where the workgroup is as wide as phases 1 and 3 (the default width: one thread per
+    // item of the widest phase), each thread has at most one item of each, and it loads a
+    // step's values from the forward record and the read-outs' gradients at the step's
+    // start: one wait for device memory per step, under the phases before their use,
+    // instead of one per depth in phase 1 and one more in phase 3. The same values.
+    let ahead = EARLY == 1u && total(ds) <= WG && total(zs_n) <= WG;
     for (var step = 0u; step < len; step++) {
         let t = len - 1u - step;
         let rec_t = win.rec + t * rec_stride;
         let back_t = win.back + t * back_stride;
+        var early = Early();
+        if (ahead) {
+            early = load_early(lid, ds, zs_n, win, t, rec_t, grad_stride);
+        }
         for (var up = 0u; up < levels; up++) {
             let level = levels - 1u - up;
             // Phase 1, the modules at this depth: dF/dh_t and dF/du_t.
@@ -72,8 +82,13 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
                 let i = mi.y;
                 let md = module_in(m, win.weights);
                 let dp = m * MAX_UNITS;
-                let g = gd_cur[dp + i] + grad_d[win.grad_d + t * grad_stride + table.grad_d_at[m] + i];
-                let d_t = record[rec_t + rec_d(md) + i];
+                var from_readouts = early.grad_d;
+                var d_t = early.d;
+                if (!ahead) {
+                    from_readouts = grad_d[win.grad_d + t * grad_stride + table.grad_d_at[m] + i];
+                    d_t = record[rec_t + rec_d(md) + i];
+                }
+                let g = gd_cur[dp + i] + from_readouts;
                 let gh = fma(g, 1.0 - d_t * d_t, weights[md.decay + i] * gh_next[dp + i]);
                 gh_next[dp + i] = gh;
                 let g_u = gh * weights[md.inv_tau + i];
@@ -135,12 +150,16 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let md = module_at(m);
             let dp = m * MAX_UNITS;
             let c = p.kl_scale[m];
-            let mu_p = record[rec_t + rec_row(md, MU_P) + j];
-            let mu_q = record[rec_t + rec_row(md, MU_Q) + j];
-            let ivp = record[rec_t + rec_row(md, INV_VAR_P) + j];
-            let ls_q = record[rec_t + rec_row(md, LOG_SIGMA_Q) + j];
-            let ls_p = record[rec_t + rec_row(md, LOG_SIGMA_P) + j];
-            let z = record[rec_t + rec_row(md, Z) + j];
+            var r = early.kl;
+            if (!ahead) {
+                r = kl_record(md, rec_t, j);
+            }
+            let mu_p = r.mu_p;
+            let mu_q = r.mu_q;
+            let ivp = r.inv_var_p;
+            let ls_q = r.log_sigma_q;
+            let ls_p = r.log_sigma_p;
+            let z = r.z;
             let var_ratio = exp(2.0 * (ls_q - ls_p));
             let diff = mu_q - mu_p;
             let g_mu_q = gz[dp + j] + c * diff * ivp;
@@ -169,4 +188,58 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
         }
         workgroupBarrier();
     }
+}
+
+// What phase 3 reads of a unit's step from the forward record.
+struct KlRecord {
+    mu_p: f32,
+    mu_q: f32,
+    inv_var_p: f32,
+    log_sigma_q: f32,
+    log_sigma_p: f32,
+    z: f32,
+}
+
+fn kl_record(md: Module, rec_t: u32, j: u32) -> KlRecord {
+    return KlRecord(
+        record[rec_t + rec_row(md, MU_P) + j],
+        record[rec_t + rec_row(md, MU_Q) + j],
+        record[rec_t + rec_row(md, INV_VAR_P) + j],
+        record[rec_t + rec_row(md, LOG_SIGMA_Q) + j],
+        record[rec_t + rec_row(md, LOG_SIGMA_P) + j],
+        record[rec_t + rec_row(md, Z) + j],
+    );
+}
+
+// A thread's loads of a step, issued at its start (`ahead`): for its phase-1 item (unit i
+// of module m, item `lid` of the d units) the read-outs' dF/dd_t and d_t, for its phase-3
+// item (unit j of module m, item `lid` of the z units) what `kl_record` reads. Zeros where
+// the thread has no item.
+struct Early {
+    grad_d: f32,
+    d: f32,
+    kl: KlRecord,
+}
+
+fn load_early(
+    lid: u32,
+    ds: vec4<u32>,
+    zs_n: vec4<u32>,
+    win: WindowInfo,
+    t: u32,
+    rec_t: u32,
+    grad_stride: u32,
+) -> Early {
+    var early = Early();
+    if (lid < total(ds)) {
+        let mi = split(lid, ds);
+        let md = module_at(mi.x);
+        early.grad_d = grad_d[win.grad_d + t * grad_stride + table.grad_d_at[mi.x] + mi.y];
+        early.d = record[rec_t + rec_d(md) + mi.y];
+    }
+    if (lid < total(zs_n)) {
+        let mj = split(lid, zs_n);
+        early.kl = kl_record(module_at(mj.x), rec_t, mj.y);
+    }
+    return early;
 }

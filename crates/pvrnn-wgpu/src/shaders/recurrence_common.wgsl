@@ -15,6 +15,8 @@ const MAX_UNITS: u32 = 128u;
 // Threads per window's workgroup (`RecurrenceLayout::threads`): one per item of a step's
 // widest phase where the adapter allows, so that no thread walks two dot products in turn.
 const WG: u32 = {{WG}}u;
+// 1: a step's loads issued at its start where the width allows (`Tiling::recurrence_early_loads`).
+const EARLY: u32 = {{EARLY}}u;
 
 // A module: its sizes (parent 4 = none), its offsets into the weights, and its offsets
 // within a step of the forward record, the inputs, the initial states and the backward

@@ -50,9 +50,19 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
     let rec_stride = table.strides.rec;
     let in_stride = table.strides.inp;
     let init_stride = table.strides.init;
+    // Where the workgroup is as wide as phase B (the default width), each thread has at
+    // most one unit of it and loads that unit's inputs of a step (the adaptive variables,
+    // eps) at the step's start, so that device memory's latency passes under phase A
+    // instead of opening phase B. The same values.
+    let ahead = EARLY == 1u && total(zs_n) <= WG;
     for (var t = 0u; t < len; t++) {
         let rec_t = win.rec + t * rec_stride;
         let in_t = win.inp + init_stride + t * in_stride;
+        var early = StepInputs();
+        if (ahead && lid < total(zs_n)) {
+            let mj = split(lid, zs_n);
+            early = step_inputs(module_at(mj.x), win, in_t, mj.y);
+        }
         // Phase A, every module: the prior from d_{t-1} (2z outputs) and bias + W_dd d_{t-1}
         // (d outputs).
         for (var k = lid; k < total(outputs_a); k += WG) {
@@ -94,14 +104,17 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
             let dp = m * MAX_UNITS;
             let pre = prior[2u * dp + j];
             let ls_p = prior[2u * dp + md.z + j];
+            var given = early;
+            if (!ahead) {
+                given = step_inputs(md, win, in_t, j);
+            }
             var a_mu = pre;
             var a_sigma = ls_p;
-            let at = in_t + md.inp;
             if (win.prior == 0u) {
-                a_mu = inputs[at + j];
-                a_sigma = inputs[at + md.z + j];
+                a_mu = given.a_mu;
+                a_sigma = given.a_sigma;
             }
-            let eps = inputs[at + 2u * md.z + j];
+            let eps = given.eps;
             let mu_p = tanh_sat(pre);
             let mu_q = tanh_sat(a_mu);
             let sigma_q = exp(a_sigma);
@@ -172,4 +185,23 @@ fn take_step(md: Module, at: u32, r: u32, rec_t: u32, acc: f32) {
     d_prev[at] = d;
     record[rec_t + rec_h(md) + r] = h;
     record[rec_t + rec_d(md) + r] = d;
+}
+
+// Unit j's inputs of a step: its adaptive variables (read only where the window has a
+// posterior; zeros otherwise) and eps.
+struct StepInputs {
+    a_mu: f32,
+    a_sigma: f32,
+    eps: f32,
+}
+
+fn step_inputs(md: Module, win: WindowInfo, in_t: u32, j: u32) -> StepInputs {
+    let at = in_t + md.inp;
+    var given = StepInputs();
+    if (win.prior == 0u) {
+        given.a_mu = inputs[at + j];
+        given.a_sigma = inputs[at + md.z + j];
+    }
+    given.eps = inputs[at + 2u * md.z + j];
+    return given;
 }

@@ -62,13 +62,14 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
     // start: one wait for device memory per step, under the phases before their use,
     // instead of one per depth in phase 1 and one more in phase 3. The same values.
     let ahead = EARLY == 1u && total(ds) <= WG && total(zs_n) <= WG;
+    let mine = early_items(lid, ds, zs_n);
     for (var step = 0u; step < len; step++) {
         let t = len - 1u - step;
         let rec_t = win.rec + t * rec_stride;
         let back_t = win.back + t * back_stride;
         var early = Early();
         if (ahead) {
-            early = load_early(lid, ds, zs_n, win, t, rec_t, grad_stride);
+            early = load_early(mine, win.grad_d + t * grad_stride, rec_t);
         }
         for (var up = 0u; up < levels; up++) {
             let level = levels - 1u - up;
@@ -201,45 +202,70 @@ struct KlRecord {
 }
 
 fn kl_record(md: Module, rec_t: u32, j: u32) -> KlRecord {
+    return kl_record_at(rec_t + rec_row(md, 0u) + j, md.z);
+}
+
+// `kl_record` from unit j's first row in the step's record (`at`) and the rows' length.
+fn kl_record_at(at: u32, z: u32) -> KlRecord {
     return KlRecord(
-        record[rec_t + rec_row(md, MU_P) + j],
-        record[rec_t + rec_row(md, MU_Q) + j],
-        record[rec_t + rec_row(md, INV_VAR_P) + j],
-        record[rec_t + rec_row(md, LOG_SIGMA_Q) + j],
-        record[rec_t + rec_row(md, LOG_SIGMA_P) + j],
-        record[rec_t + rec_row(md, Z) + j],
+        record[at + MU_P * z],
+        record[at + MU_Q * z],
+        record[at + INV_VAR_P * z],
+        record[at + LOG_SIGMA_Q * z],
+        record[at + LOG_SIGMA_P * z],
+        record[at + Z * z],
     );
 }
 
-// A thread's loads of a step, issued at its start (`ahead`): for its phase-1 item (unit i
-// of module m, item `lid` of the d units) the read-outs' dF/dd_t and d_t, for its phase-3
-// item (unit j of module m, item `lid` of the z units) what `kl_record` reads. Zeros where
-// the thread has no item.
+// Where a thread's loads of a step read, the same every step (`ahead`): for its phase-1
+// item (unit i of module m, item `lid` of the d units) dF/dd_t's offset in a step of the
+// read-outs' gradients and d_t's in a step of the record; for its phase-3 item (unit j of
+// module m, item `lid` of the z units) its first row's offset in the record and the rows'
+// length. Found once per window, not per step.
+struct EarlyItems {
+    has_d: bool,
+    grad_d: u32,
+    d: u32,
+    has_z: bool,
+    kl: u32,
+    z: u32,
+}
+
+fn early_items(lid: u32, ds: vec4<u32>, zs_n: vec4<u32>) -> EarlyItems {
+    var mine = EarlyItems();
+    if (lid < total(ds)) {
+        let mi = split(lid, ds);
+        mine.has_d = true;
+        mine.grad_d = table.grad_d_at[mi.x] + mi.y;
+        mine.d = rec_d(module_at(mi.x)) + mi.y;
+    }
+    if (lid < total(zs_n)) {
+        let mj = split(lid, zs_n);
+        let md = module_at(mj.x);
+        mine.has_z = true;
+        mine.kl = rec_row(md, 0u) + mj.y;
+        mine.z = md.z;
+    }
+    return mine;
+}
+
+// A thread's loads of a step, issued at its start (`ahead`): the read-outs' dF/dd_t and
+// d_t of its phase-1 item, what `kl_record` reads of its phase-3 item (zeros where it has
+// none); `grad_t` and `rec_t` are the step's offsets.
 struct Early {
     grad_d: f32,
     d: f32,
     kl: KlRecord,
 }
 
-fn load_early(
-    lid: u32,
-    ds: vec4<u32>,
-    zs_n: vec4<u32>,
-    win: WindowInfo,
-    t: u32,
-    rec_t: u32,
-    grad_stride: u32,
-) -> Early {
+fn load_early(mine: EarlyItems, grad_t: u32, rec_t: u32) -> Early {
     var early = Early();
-    if (lid < total(ds)) {
-        let mi = split(lid, ds);
-        let md = module_at(mi.x);
-        early.grad_d = grad_d[win.grad_d + t * grad_stride + table.grad_d_at[mi.x] + mi.y];
-        early.d = record[rec_t + rec_d(md) + mi.y];
+    if (mine.has_d) {
+        early.grad_d = grad_d[grad_t + mine.grad_d];
+        early.d = record[rec_t + mine.d];
     }
-    if (lid < total(zs_n)) {
-        let mj = split(lid, zs_n);
-        early.kl = kl_record(module_at(mj.x), rec_t, mj.y);
+    if (mine.has_z) {
+        early.kl = kl_record_at(rec_t + mine.kl, mine.z);
     }
     return early;
 }

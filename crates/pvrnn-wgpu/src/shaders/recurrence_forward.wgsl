@@ -55,13 +55,21 @@ fn main(@builtin(workgroup_id) wg_id: vec3<u32>, @builtin(local_invocation_index
     // eps) at the step's start, so that device memory's latency passes under phase A
     // instead of opening phase B. The same values.
     let ahead = EARLY == 1u && total(zs_n) <= WG;
+    // This thread's unit of phase B where `ahead`: its inputs' offset in a step and the
+    // rows' length, found once per window, not per step.
+    var mine = vec2<u32>(0u, 0u);
+    let has_unit = lid < total(zs_n);
+    if (has_unit) {
+        let mj = split(lid, zs_n);
+        let md = module_at(mj.x);
+        mine = vec2<u32>(md.inp + mj.y, md.z);
+    }
     for (var t = 0u; t < len; t++) {
         let rec_t = win.rec + t * rec_stride;
         let in_t = win.inp + init_stride + t * in_stride;
         var early = StepInputs();
-        if (ahead && lid < total(zs_n)) {
-            let mj = split(lid, zs_n);
-            early = step_inputs(module_at(mj.x), win, in_t, mj.y);
+        if (ahead && has_unit) {
+            early = step_inputs_at(win, in_t + mine.x, mine.y);
         }
         // Phase A, every module: the prior from d_{t-1} (2z outputs) and bias + W_dd d_{t-1}
         // (d outputs).
@@ -196,12 +204,16 @@ struct StepInputs {
 }
 
 fn step_inputs(md: Module, win: WindowInfo, in_t: u32, j: u32) -> StepInputs {
-    let at = in_t + md.inp;
+    return step_inputs_at(win, in_t + md.inp + j, md.z);
+}
+
+// `step_inputs` from the unit's offset in the step's inputs (`at`) and the rows' length.
+fn step_inputs_at(win: WindowInfo, at: u32, z: u32) -> StepInputs {
     var given = StepInputs();
     if (win.prior == 0u) {
-        given.a_mu = inputs[at + j];
-        given.a_sigma = inputs[at + md.z + j];
+        given.a_mu = inputs[at];
+        given.a_sigma = inputs[at + z];
     }
-    given.eps = inputs[at + 2u * md.z + j];
+    given.eps = inputs[at + 2u * z];
     return given;
 }

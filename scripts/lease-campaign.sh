@@ -16,13 +16,20 @@
 # OUT_DIR gets:
 #   results.tgz        the plan's results and report, and every training's log and
 #                      validations (finished trainings are complete in these)
+#   networks.tgz.NN    the networks of trainings that finished during the loan but whose
+#                      inference runs did not all run before the deadline: their results
+#                      say they are done, so without the network their runs could not run
+#                      anywhere else (a best network is 9.5 MB at paper scale)
 #   in-flight.tgz.NN   the training that had run furthest without finishing, as
-#                      `scripts/experiments.sh keep` keeps it, cut into parts of at most
-#                      PART_MB MiB (default 15): a checkpoint is 28 MB and its best network
-#                      9.5 MB at paper scale, so only one unfinished training comes back
-#                      when what returns is limited (8 files of 16 MiB, for example);
-#                      choose COHORT and SECONDS so that the others finish
-#   summary.txt        what finished, what is in flight, and the runner's last lines
+#                      `scripts/experiments.sh keep` keeps it (checkpoint 28 MB, best
+#                      network 9.5 MB), if it fits after those networks
+#   summary.txt        what finished, what came back, what did not, and the runner's last
+#                      lines
+# The archives come in parts of at most PART_MB MiB (default 15), and all of OUT_DIR within
+# BACK_MB MiB (default 60) and BACK_FILES files (default 8): what a loan here returns (8
+# files of 16 MiB, 64 MiB together). Choose COHORT and SECONDS so that the trainings and
+# their inference runs finish (a cohort of 3 at 12 sequences trained 12,000 iterations in
+# 329 s on an H200, then each inference run took 13-15 s).
 # --unpack puts the results back (and clears training/in-flight/ if the loan finished the
 # training kept there) and the training in flight into training/in-flight/, from where the
 # next `scripts/experiments.sh` run here resumes it (it replaces a checkpoint of
@@ -49,6 +56,11 @@ if [ "${1:-}" = --unpack ]; then
             rm -rf "$kept"
             echo "the kept training ${job#converged-} finished during the loan: $kept/ cleared" >&2
         fi
+    fi
+    if compgen -G "$from/networks.tgz.*" >/dev/null; then
+        cat "$from"/networks.tgz.* | tar -xzf -
+        echo "networks back for their inference runs (scripts/experiments.sh runs them):" >&2
+        cat "$from"/networks.tgz.* | tar -tzf - | sed 's/^/  /' >&2
     fi
     if compgen -G "$from/in-flight.tgz.*" >/dev/null; then
         rm -rf "$kept"
@@ -104,6 +116,49 @@ tar -czf "$out/results.tgz" "$results" "$networks"/*.log.csv "$networks"/*.valid
 
 } >"$out/summary.txt"
 
+# Room for the archives: what a loan returns, less the files beside them (results.tgz,
+# runner.log, summary.txt), in bytes and in files.
+part=$((${PART_MB:-15} * 1048576))
+size() { cat "$@" | wc -c; }
+parts_of() { echo $((($1 + part - 1) / part)); }
+bytes_left=$((${BACK_MB:-60} * 1048576 - $(size "$out/results.tgz" "$out/runner.log") - 65536))
+files_left=$((${BACK_FILES:-8} - 3))
+fits() { [ "$1" -le "$bytes_left" ] && [ "$(parts_of "$1")" -le "$files_left" ]; }
+
+# Finished trainings whose inference runs did not all run: the network the runs read (the
+# best one where the rule chose it, else the final checkpoint), in plan order.
+owed=$(python3 - "$results" "$networks" <<'EOF'
+import json, pathlib, sys
+results, networks = map(pathlib.Path, sys.argv[1:])
+jobs = json.loads((results / "plan.json").read_text())["jobs"]
+for job in (j for j in jobs if j["kind"] == "train"):
+    done = results / "results" / f"{job['name']}.json"
+    runs = [j for j in jobs if j["kind"] == "infer" and j["train_job"] == job["id"]]
+    if not done.exists() or all(
+        (results / "results" / f"{r['name']}.safetensors").exists() for r in runs
+    ):
+        continue
+    result = json.loads(done.read_text())
+    used = result.get("network_iteration") or result["iterations"]
+    stem = networks / f"converged-{job['name']}"
+    print(f"{stem}.best.safetensors" if used != result["iterations"] else f"{stem}.safetensors")
+EOF
+)
+back=() bytes=0
+for network in $owed; do
+    if fits $((bytes + $(size "$network"))); then
+        back+=("$network") bytes=$((bytes + $(size "$network")))
+        echo "network back for its inference runs: $network" >>"$out/summary.txt"
+    else
+        echo "LOST (no room to bring it back): $network, whose inference runs did not all run" >>"$out/summary.txt"
+    fi
+done
+if [ ${#back[@]} -gt 0 ]; then
+    tar -czf - "${back[@]}" | split -b "$part" -d - "$out/networks.tgz."
+    bytes=$(size "$out"/networks.tgz.*)
+    bytes_left=$((bytes_left - bytes)) files_left=$((files_left - $(parts_of "$bytes")))
+fi
+
 # The furthest unfinished training: the one whose log reaches the highest iteration among
 # those with a checkpoint and no result.
 furthest="" furthest_iteration=-1
@@ -122,8 +177,12 @@ if [ -n "$furthest" ]; then
     # keep takes the newest checkpoint: make it this one.
     touch "$furthest.safetensors"
     scripts/experiments.sh keep 2>>"$out/summary.txt"
-    tar -czf - "$kept" | split -b "${PART_MB:-15}M" -d - "$out/in-flight.tgz."
-    echo "in flight: $furthest at iteration $furthest_iteration (in-flight.tgz.*)" >>"$out/summary.txt"
+    if fits "$(du -sb "$kept" | cut -f1)"; then
+        tar -czf - "$kept" | split -b "$part" -d - "$out/in-flight.tgz."
+        echo "in flight: $furthest at iteration $furthest_iteration (in-flight.tgz.*)" >>"$out/summary.txt"
+    else
+        echo "LOST (no room after the networks above): the training in flight, $furthest at iteration $furthest_iteration" >>"$out/summary.txt"
+    fi
 fi
 echo "runner's last lines:" >>"$out/summary.txt"
 tail -n 5 "$out/runner.log" >>"$out/summary.txt"

@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # scripts/lease-campaign.sh on scratch copies, with a stand-in for the runner: the loan's
 # deadline stops the runner with SIGTERM, what finished comes back in results.tgz, the
-# training that had run furthest without finishing comes back in parts and is put back in
-# training/in-flight/ on the other machine, byte for byte, for experiments.sh to resume.
+# network of a finished training whose inference runs did not all run comes back to where
+# its runs read it, and the training that had run furthest without finishing comes back in
+# parts and is put back in training/in-flight/ on the other machine, byte for byte, for
+# experiments.sh to resume; where what a loan returns has no room for it, the summary says
+# it is lost.
 set -euo pipefail
 scripts=$(realpath "$(dirname "$0")/../../scripts")
 work=$(mktemp -d /tmp/pvrnn-lease.XXXXXX)
@@ -14,8 +17,18 @@ fail() { echo "lease-campaign test: $*" >&2; exit 1; }
 lent=$work/lent
 mkdir -p "$lent/scripts" "$lent/docs/results/converged/interference/results"
 cp "$scripts/experiments.sh" "$scripts/lease-campaign.sh" "$scripts/gpu-host.sh" "$lent/scripts/"
-printf '{\n  "dataset": "%s/data/caresim-robotfree",\n  "jobs": []\n}\n' "$lent" \
-    > "$lent/docs/results/converged/interference/plan.json"
+# Network 0 finished; one of its two inference runs ran.
+cat > "$lent/docs/results/converged/interference/plan.json" <<EOF
+{
+  "dataset": "$lent/data/caresim-robotfree",
+  "jobs": [
+    {"id": 0, "name": "train-repositioning-plus3-net0", "kind": "train"},
+    {"id": 1, "name": "train-repositioning-plus3-net1", "kind": "train"},
+    {"id": 2, "name": "infer-repositioning-plus3-net0-a", "kind": "infer", "train_job": 0},
+    {"id": 3, "name": "infer-repositioning-plus3-net0-b", "kind": "infer", "train_job": 0}
+  ]
+}
+EOF
 cat > "$work/pvrnn" <<'EOF'
 #!/usr/bin/env bash
 shift 2 # --threads N
@@ -32,7 +45,9 @@ experiment)
         head -c $((2500000 + net)) /dev/urandom > "$stem.safetensors"
         echo "best of $net" > "$stem.best.safetensors"
     done
-    echo '{"job": "train-repositioning-plus3-net0"}' > "$r/train-repositioning-plus3-net0.json"
+    echo '{"job": "train-repositioning-plus3-net0", "iterations": 500, "network_iteration": 300}' \
+        > "$r/train-repositioning-plus3-net0.json"
+    echo run > "$r/infer-repositioning-plus3-net0-a.safetensors"
     trap 'echo "interrupted: checkpoints written"; exit 130' TERM
     sleep 120 &
     wait
@@ -71,6 +86,19 @@ cmp -s "$here/training/in-flight/best.safetensors" "$lent/$stem.best.safetensors
 [ -f "$here/docs/results/converged/interference/results/train-repositioning-plus3-net0.json" ] ||
     fail "the finished training's result did not come back"
 cmp -s "$here/$stem.validation.csv" "$lent/$stem.validation.csv" || fail "the validations did not come back"
+owed=training/converged-interference/converged-train-repositioning-plus3-net0.best.safetensors
+cmp -s "$here/$owed" "$lent/$owed" || fail "network 0, whose inference runs did not all run, did not come back"
+[ ! -e "$here/${owed%.best.safetensors}.safetensors" ] || fail "network 0's checkpoint came back too"
+
+# A loan returning fewer files: network 0 comes back, the training in flight has no room
+# left and the summary says it is lost.
+rm -rf "$lent/training" "$lent/runner-args.txt"
+(cd "$lent" && PART_MB=1 BACK_FILES=5 BACKEND=cpu GPU_RECURRENCE= scripts/lease-campaign.sh \
+    "$work/pvrnn" "$work/small" 3 > "$work/small.log" 2>&1) || fail "the small loan failed: $(cat "$work/small.log")"
+compgen -G "$work/small/networks.tgz.*" >/dev/null || fail "network 0 did not come back in the small loan"
+! compgen -G "$work/small/in-flight.tgz.*" >/dev/null || fail "the training in flight came back without room"
+grep -q "^LOST (no room after the networks above): the training in flight" "$work/small/summary.txt" ||
+    fail "the summary does not say the training in flight is lost: $(cat "$work/small/summary.txt")"
 # A loan that finished the training kept here and left none in flight: the kept one is
 # cleared, not resumed again.
 again=$work/again

@@ -52,10 +52,11 @@
 #                the default reads and writes them as vec4s)
 #   whole-loadsL, whole-N-loadsL
 #                `whole` and `whole-N` with L loads in flight per batch of the recurrence's
-#                dot products (PVRNN_WGPU_RECURRENCE_LOADS=L, L in LOADS, default "16 30";
-#                the default is 8): 30-long sums in 2 or 1 round trips instead of 4. If
-#                the recurrence's time falls with L, its weight loads' latency is what
-#                bounds it (and keeping the weights in workgroup memory would help)
+#                dot products (PVRNN_WGPU_RECURRENCE_LOADS=L, L in LOADS, default "16 30",
+#                both kernels; the defaults are 8 forward and 30 backward since
+#                2026-12-01, when an H200 took the forward from 1.44 to 1.93 ms at 30 and
+#                the backward from 3.03 to 2.70): 30-long sums in 2 or 1 round trips
+#                instead of 4
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
 #                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128 512"; the

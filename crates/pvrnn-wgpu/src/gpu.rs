@@ -173,9 +173,9 @@ pub(crate) struct RecurrenceKernels {
     pub(crate) weights_reduce: wgpu::ComputePipeline,
 }
 
-/// The recurrence kernels' compiled shape: threads per workgroup, loads per batch, a
-/// step's loads issued at its start.
-type RecurrenceShape = (u32, usize, bool);
+/// The recurrence kernels' compiled shape: threads per workgroup, loads per batch (forward,
+/// backward), a step's loads issued at its start.
+type RecurrenceShape = (u32, [usize; 2], bool);
 
 /// The hidden read-out layers' kernels (shapes are parameters, so one set serves every
 /// layer).
@@ -618,21 +618,22 @@ impl Gpu {
     }
 
     /// The recurrence's kernels with `threads` per window's workgroup
-    /// (`RecurrenceLayout::threads`), `loads` loads in flight per dot product
-    /// (`Tiling::recurrence_loads`) and a step's loads issued at its start where the width
-    /// allows (`early`, `Tiling::recurrence_early_loads`), compiled on first use.
+    /// (`RecurrenceLayout::threads`), `[forward, backward]` loads in flight per dot product
+    /// (`Tiling::recurrence_forward_loads`, `Tiling::recurrence_backward_loads`) and a
+    /// step's loads issued at its start where the width allows (`early`,
+    /// `Tiling::recurrence_early_loads`), compiled on first use.
     pub(crate) fn recurrence_kernels(
         &self,
         threads: u32,
-        loads: usize,
+        loads: [usize; 2],
         early: bool,
     ) -> Arc<RecurrenceKernels> {
-        let loads = loads.clamp(1, 32);
+        let [forward_loads, backward_loads] = loads.map(|l| l.clamp(1, 32));
         let mut compiled = self
             .recurrence_kernels
             .lock()
             .unwrap_or_else(|e| e.into_inner());
-        let shape = (threads, loads, early);
+        let shape = (threads, [forward_loads, backward_loads], early);
         if let Some((_, kernels)) = compiled.iter().find(|(key, _)| *key == shape) {
             return kernels.clone();
         }
@@ -642,7 +643,7 @@ impl Gpu {
             // A kernel's source: the common part, its own, and its dot products
             // (`recurrence_dot.wgsl` once per function name, weights and values); PARTIALS
             // picks the weight-gradient kernel's form (1: a partial sum per window).
-            let source = |text: &str, dots: &[[&str; 3]], partials: usize| {
+            let source = |text: &str, dots: &[[&str; 3]], partials: usize, loads: usize| {
                 let mut full = format!("{common}\n{text}");
                 for [name, weights, values] in dots {
                     let dot = shader!("recurrence_dot.wgsl");
@@ -673,6 +674,7 @@ impl Gpu {
                             ["dot_zs", "weights_t", "zs"],
                         ],
                         0,
+                        forward_loads,
                     ),
                 ),
                 backward: self.pipeline(
@@ -684,11 +686,13 @@ impl Gpu {
                             ["dot_gprior", "weights", "gprior"],
                         ],
                         0,
+                        backward_loads,
                     ),
                 ),
-                weights: self.pipeline("recurrence weights", source(weights, &[], 0)),
+                // No dot products: LOADS is unused there.
+                weights: self.pipeline("recurrence weights", source(weights, &[], 0, 1)),
                 weight_partials: self
-                    .pipeline("recurrence weight partials", source(weights, &[], 1)),
+                    .pipeline("recurrence weight partials", source(weights, &[], 1, 1)),
                 weights_reduce: self.pipeline(
                     "recurrence weights reduce",
                     shader!("recurrence_weights_reduce.wgsl").into(),

@@ -164,7 +164,7 @@ impl Stack {
             gpu: gpu.clone(),
             kernels: gpu.recurrence_kernels(
                 threads,
-                tiling.recurrence_loads,
+                tiling.recurrence_loads(),
                 tiling.recurrence_early_loads,
             ),
             weight_partials: tiling.recurrence_weight_partials,

@@ -105,7 +105,16 @@ impl WgpuBackend {
         let mut recurrence_threads = 0;
         env_number("PVRNN_WGPU_RECURRENCE_THREADS", &mut recurrence_threads);
         tiling.recurrence_threads = (recurrence_threads > 0).then_some(recurrence_threads);
-        env_number("PVRNN_WGPU_RECURRENCE_LOADS", &mut tiling.recurrence_loads);
+        let mut loads = 0;
+        env_number("PVRNN_WGPU_RECURRENCE_LOADS", &mut loads);
+        if loads > 0 {
+            tiling.recurrence_forward_loads = loads;
+            tiling.recurrence_backward_loads = loads;
+        }
+        env_number(
+            "PVRNN_WGPU_RECURRENCE_BACKWARD_LOADS",
+            &mut tiling.recurrence_backward_loads,
+        );
         // The output layer's kernels, for comparing them on one GPU
         // (`PVRNN_WGPU_OUTPUT_KERNELS=blocked`).
         if let Ok(value) = std::env::var("PVRNN_WGPU_OUTPUT_KERNELS") {

@@ -140,11 +140,16 @@ pub struct Tiling {
     /// step's widest phase, as the adapter allows (384 at the paper's shapes; 128 before
     /// 2026-11-28). For measuring (`PVRNN_WGPU_RECURRENCE_THREADS`).
     pub recurrence_threads: Option<usize>,
-    /// Loads the recurrence kernels issue before their multiply-adds in each dot product
-    /// (1 to 32): a step's phases are chains of dependent loads, and a 30-long sum takes 4
-    /// round trips at 8 against 8 at 4 (the width before 2026-11-28). For measuring
-    /// (`PVRNN_WGPU_RECURRENCE_LOADS`).
-    pub recurrence_loads: usize,
+    /// Loads the recurrence's forward kernel issues before its multiply-adds in each dot
+    /// product (1 to 32): a step's phases are chains of dependent loads, and a 30-long sum
+    /// takes 4 round trips at 8 against 8 at 4 (the width before 2026-11-28). On an H200
+    /// (2026-12-01) the forward took 1.44 ms an iteration at 8 and 1.93 at 30. For measuring
+    /// (`PVRNN_WGPU_RECURRENCE_LOADS`, both directions).
+    pub recurrence_forward_loads: usize,
+    /// The same for the backward kernel, whose sums are over the units above and below:
+    /// on the same H200 the backward took 2.70 ms at 30 (one round trip per 30-long sum)
+    /// against 3.03 at 8 (`PVRNN_WGPU_RECURRENCE_BACKWARD_LOADS`; 8 before 2026-12-01).
+    pub recurrence_backward_loads: usize,
     /// The recurrent weights' gradients as a partial sum per window (one thread per weight
     /// and window), added in window order by a second pass, instead of one thread per
     /// weight over all of a network's windows (`PVRNN_WGPU_RECURRENCE_WEIGHTS=windows|serial`).
@@ -181,6 +186,14 @@ pub struct Tiling {
 }
 
 impl Tiling {
+    /// The recurrence kernels' loads per batch, `[forward, backward]`.
+    pub(crate) fn recurrence_loads(&self) -> [usize; 2] {
+        [
+            self.recurrence_forward_loads,
+            self.recurrence_backward_loads,
+        ]
+    }
+
     /// The row pass's shape for a hidden width of `hv` vec4s on `gpu`, made valid.
     pub(crate) fn row_pass(&self, hv: usize, gpu: &Gpu) -> RowPass {
         let workgroup_bytes = gpu.limits().max_compute_workgroup_storage_size as usize;
@@ -203,7 +216,8 @@ impl Default for Tiling {
             row_pass_rows: 64,
             row_pass_step: 2,
             recurrence_threads: None,
-            recurrence_loads: 8,
+            recurrence_forward_loads: 8,
+            recurrence_backward_loads: 30,
             recurrence_weight_partials: true,
             queue_ahead: true,
             profile_kernels: false,

@@ -338,7 +338,7 @@ impl GpuRecurrence {
         Self {
             kernels: gpu.recurrence_kernels(
                 layout.threads(&gpu, tiling.recurrence_threads),
-                tiling.recurrence_loads,
+                tiling.recurrence_loads(),
                 tiling.recurrence_early_loads,
             ),
             weights: gpu.upload("recurrent weights", &weights),

@@ -891,11 +891,12 @@ fn paper_modules() -> ModelConfig {
 }
 
 /// The recurrence kernels' workgroup width (`Tiling::recurrence_threads`) and the loads they
-/// batch per dot product (`Tiling::recurrence_loads`) change which thread computes a sum and
-/// how its loads are issued, not the sum: with the paper's modules, the defaults (one
-/// thread per item of a step's widest phase, 384; 8 loads), the kernels' shape before
-/// (128 threads: up to three dot products per thread; 4 loads), 32 threads with 1 load,
-/// 16 loads, and the default width with each step's loads issued where they are used
+/// batch per dot product (`Tiling::recurrence_forward_loads`, `recurrence_backward_loads`)
+/// change which thread computes a sum and how its loads are issued, not the sum: with the
+/// paper's modules, the defaults (one thread per item of a step's widest phase, 384; 8
+/// loads forward, 30 backward), the kernels' shape before (128 threads: up to three dot
+/// products per thread; 4 loads), 32 threads with 1 load, 16 and 8 loads both ways, and
+/// the default width with each step's loads issued where they are used
 /// rather than at the step's start (`Tiling::recurrence_early_loads`) give bit for bit the
 /// same free energy and gradients for one call, and the same whole learning iterations on
 /// the device.
@@ -920,11 +921,13 @@ fn the_recurrence_kernels_give_the_same_sums_at_any_width_and_load_batch() {
         (Some(128), 4, true),
         (Some(32), 1, true),
         (None, 16, true),
+        (None, 8, true),
         (None, 8, false),
     ] {
         let narrow = wide.clone().with_tiling(Tiling {
             recurrence_threads: threads,
-            recurrence_loads: loads,
+            recurrence_forward_loads: loads,
+            recurrence_backward_loads: loads,
             recurrence_early_loads: early,
             ..wide.tiling()
         });

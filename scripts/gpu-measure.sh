@@ -42,14 +42,6 @@
 #                (PVRNN_WGPU_WORKGROUPS=W, W in KERNEL_WORKGROUPS, default "128 512 1024";
 #                the default is 256): the forward product, the input and the weight
 #                gradient share the target, and each kernel's time says which wants what
-#   whole-late, whole-N-late
-#                `whole` and `whole-N` with the recurrence kernels loading a step's values
-#                where they are used (PVRNN_WGPU_RECURRENCE_EARLY=off; the default issues
-#                them at the step's start)
-#   whole-scalar-io, whole-N-scalar-io
-#                `whole` and `whole-N` with the blocked output kernels' targets and error
-#                gradients read and written one value at a time (PVRNN_WGPU_VEC4_IO=off;
-#                the default reads and writes them as vec4s)
 #   whole-loadsL, whole-N-loadsL
 #                `whole` and `whole-N` with L loads in flight per batch of the recurrence's
 #                dot products (PVRNN_WGPU_RECURRENCE_LOADS=L, L in LOADS, default "16 30",
@@ -172,14 +164,6 @@ for round in $(seq "$rounds"); do
             PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
                 "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
         done
-        PVRNN_WGPU_RECURRENCE_EARLY=off bench whole-late "$threads" "$round" --backend wgpu \
-            --gpu-recurrence $train_only
-        PVRNN_WGPU_RECURRENCE_EARLY=off bench "whole-${NETWORKS:-5}-late" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_VEC4_IO=off bench whole-scalar-io "$threads" "$round" --backend wgpu \
-            --gpu-recurrence $train_only
-        PVRNN_WGPU_VEC4_IO=off bench "whole-${NETWORKS:-5}-scalar-io" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         for loads in ${LOADS:-16 30}; do
             PVRNN_WGPU_RECURRENCE_LOADS=$loads bench "whole-loads$loads" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence $train_only

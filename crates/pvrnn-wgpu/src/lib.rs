@@ -138,13 +138,6 @@ impl WgpuBackend {
             &mut tiling.replay_iterations,
         );
         env_switch("PVRNN_WGPU_AHEAD", ["on", "off"], &mut tiling.queue_ahead);
-        env_switch("PVRNN_WGPU_VEC4_IO", ["on", "off"], &mut tiling.vector_io);
-        let early = ["on", "off"];
-        env_switch(
-            "PVRNN_WGPU_RECURRENCE_EARLY",
-            early,
-            &mut tiling.recurrence_early_loads,
-        );
         let kernels = ["on", "off"];
         env_switch(
             "PVRNN_WGPU_PROFILE_KERNELS",

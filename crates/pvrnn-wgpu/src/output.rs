@@ -172,16 +172,17 @@ pub struct Tiling {
     /// The blocked output kernels read the targets and read and write the error gradient
     /// as vec4s of four consecutive columns where a row's observed columns are a multiple
     /// of 4 (every caresim layout's): a fourth of the accesses, each four times as wide;
-    /// the same arithmetic. `PVRNN_WGPU_VEC4_IO=off` reads and writes them one value at a
-    /// time (the kernels before 2026-11-30's fourth session).
+    /// the same arithmetic. Off: one value at a time (the kernels before 2026-11-30's
+    /// fourth session; on an H200 the read-outs took 5.48 ms an iteration so against 4.96,
+    /// docs/gpu.md). Only tests turn it off (the scalar path serves k not a multiple of 4).
     pub vector_io: bool,
     /// Where a window's workgroup is as wide as the recurrence's per-unit phases (the
     /// default width), each thread issues a step's loads from device memory (the forward's
     /// inputs; the backward's record and read-out gradients) at the step's start, so that
     /// their latency passes under the phases before their use: one wait per step where the
-    /// backward had one per depth and one more. The same values.
-    /// `PVRNN_WGPU_RECURRENCE_EARLY=off` loads them where they are used (the kernels before
-    /// 2026-11-30's fourth session).
+    /// backward had one per depth and one more. The same values. Off: loaded where they
+    /// are used (the kernels before 2026-11-30's fourth session, and the path of narrower
+    /// widths; on an H200 about as fast, docs/gpu.md). Only tests turn it off.
     pub recurrence_early_loads: bool,
 }
 

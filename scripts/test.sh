@@ -60,6 +60,9 @@ tests/scripts/in-flight.sh
 step "a GPU loan spent on the campaign: stopped at its deadline, packed, brought back (scripts/lease-campaign.sh)"
 tests/scripts/lease-campaign.sh
 
+step "a checkout packed for a GPU call and put back (scripts/lease-tree.sh)"
+tests/scripts/lease-tree.sh
+
 step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU): the golden sequence's SHA-256"
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \

@@ -72,6 +72,10 @@
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
 #                only, where python3 imports torch with CUDA
+#   base-whole, base-whole-N, base-whole-kernels
+#                `whole`, `whole-N` and `whole-kernels` run with another build, the
+#                binary BASELINE names (set BASELINE to run them): two builds compared in
+#                one call, alternated, without a switch in the code
 # ITERATIONS=N and INFER_STEPS=N replace the training iterations and inference steps per
 # bench (10 and 20; 3 and 5 with --quick).
 # THREADS="16" replaces the thread counts (default: all the host's, and 2); VARIANTS="wgpu
@@ -140,6 +144,15 @@ for round in $(seq "$rounds"); do
         bench wgpu "$threads" "$round" --backend wgpu
         bench host-weights "$threads" "$round" --backend wgpu --weights-on-host
         bench whole "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
+        if [ -n "${BASELINE:-}" ]; then
+            # bench runs "$bin": here the other build.
+            bin=$BASELINE bench base-whole "$threads" "$round" --backend wgpu \
+                --gpu-recurrence $train_only
+            bin=$BASELINE bench "base-whole-${NETWORKS:-5}" "$threads" "$round" \
+                --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+            bin=$BASELINE PVRNN_WGPU_PROFILE_KERNELS=on bench base-whole-kernels "$threads" \
+                "$round" --backend wgpu --gpu-recurrence $train_only
+        fi
         if [ "$quick" = 0 ]; then
             PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
         fi

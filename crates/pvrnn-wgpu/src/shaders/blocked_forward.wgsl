@@ -129,16 +129,38 @@ fn biases(col: u32, c_end: u32) -> vec4<f32> {
     return v;
 }
 
-// The error of four columns from `col` of one row, given their forward products `acc` and
-// biases `bias`: the error gradient written, the squared error returned (columns at or past
-// c_end and rows past the chunk skipped).
-fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 {
-    var loss = 0.0;
+// The targets of four columns from `col` of one row (zeros at or past c_end and past the
+// chunk's rows). The epilogue loads a row pair's four vec4s of targets before it writes
+// any of their errors: as far as the compiler knows the error gradient's stores may alias
+// the targets, so a load after a store is issued only then, and each of 16 loads per tile
+// would wait on device memory in turn; four loads in a row wait once.
+fn targets(row: u32, col: u32, c_end: u32) -> vec4<f32> {
+    var wanted = vec4<f32>(0.0);
 //#if VEC_IO
     // k and c_end are multiples of 4, col too: the four columns are all in or all out.
     if (row < p.rows && col < c_end) {
-        let at = (row * p.k + col) / 4u;
-        let wanted = y[at];
+        wanted = y[(row * p.k + col) / 4u];
+    }
+//#else
+    if (row < p.rows) {
+        let at = row * p.k + col;
+        //#unroll j 4
+        if (col + {j}u < c_end) {
+            wanted[{j}] = y[at + {j}u];
+        }
+        //#end
+    }
+//#end
+    return wanted;
+}
+
+// The error of four columns from `col` of one row, given their forward products `acc`,
+// biases `bias` and targets `wanted`: the error gradient written, the squared error
+// returned (columns at or past c_end and rows past the chunk skipped).
+fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>, wanted: vec4<f32>) -> f32 {
+    var loss = 0.0;
+//#if VEC_IO
+    if (row < p.rows && col < c_end) {
         var grad = vec4<f32>(0.0);
         //#unroll j 4
         {
@@ -148,7 +170,7 @@ fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 
             grad[{j}] = p.scale * e * (1.0 - yhat * yhat);
         }
         //#end
-        g[at] = grad;
+        g[(row * p.k + col) / 4u] = grad;
     }
 //#else
     if (row < p.rows) {
@@ -156,7 +178,7 @@ fn emit(row: u32, col: u32, c_end: u32, acc: vec4<f32>, bias: vec4<f32>) -> f32 
         //#unroll j 4
         if (col + {j}u < c_end) {
             let yhat = tanh_safe(acc[{j}] + bias[{j}]);
-            let e = yhat - y[at + {j}u];
+            let e = yhat - wanted[{j}];
             loss += e * e;
             g[at + {j}u] = p.scale * e * (1.0 - yhat * yhat);
         }
@@ -225,11 +247,20 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
         let col_hi = col_lo + 64u;
         let bias_lo = biases(col_lo, c_end);
         let bias_hi = biases(col_hi, c_end);
+        // A row pair's targets first, then its errors (`targets`).
         //#unroll i 4
-        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_lo, c_end, lo_a{i}, bias_lo);
-        loss_a{i} += emit(r0 + 4u * ty + {i}u, col_hi, c_end, hi_a{i}, bias_hi);
-        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_lo, c_end, lo_b{i}, bias_lo);
-        loss_b{i} += emit(r0 + 64u + 4u * ty + {i}u, col_hi, c_end, hi_b{i}, bias_hi);
+        {
+            let row_a = r0 + 4u * ty + {i}u;
+            let row_b = row_a + 64u;
+            let y_alo = targets(row_a, col_lo, c_end);
+            let y_ahi = targets(row_a, col_hi, c_end);
+            let y_blo = targets(row_b, col_lo, c_end);
+            let y_bhi = targets(row_b, col_hi, c_end);
+            loss_a{i} += emit(row_a, col_lo, c_end, lo_a{i}, bias_lo, y_alo);
+            loss_a{i} += emit(row_a, col_hi, c_end, hi_a{i}, bias_hi, y_ahi);
+            loss_b{i} += emit(row_b, col_lo, c_end, lo_b{i}, bias_lo, y_blo);
+            loss_b{i} += emit(row_b, col_hi, c_end, hi_b{i}, bias_hi, y_bhi);
+        }
         //#end
     }
 

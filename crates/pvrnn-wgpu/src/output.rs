@@ -173,7 +173,7 @@ pub struct Tiling {
     /// as vec4s of four consecutive columns where a row's observed columns are a multiple
     /// of 4 (every caresim layout's): a fourth of the accesses, each four times as wide;
     /// the same arithmetic. Off: one value at a time (the kernels before 2026-11-30's
-    /// fourth session; on an H200 the read-outs took 5.48 ms an iteration so against 4.96,
+    /// fourth session; on an H200 the read-outs took 5.48 ms an iteration that way against 4.96,
     /// docs/gpu.md). Only tests turn it off (the scalar path serves k not a multiple of 4).
     pub vector_io: bool,
     /// Where a window's workgroup is as wide as the recurrence's per-unit phases (the

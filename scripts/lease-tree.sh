@@ -86,6 +86,7 @@ if [ "$build" = 1 ]; then
     cargo build --release -p pvrnn-cli --bin pvrnn
     target=${CARGO_TARGET_DIR:-target}
     cp "$target/release/pvrnn" lease/pvrnn
+    built=(lease/pvrnn)
     if [ "$tests" = 1 ]; then
         for spec in "pvrnn-backend-tests wgpu suite-wgpu" \
             "pvrnn-wgpu agrees_with_cpu agrees-with-cpu" \
@@ -99,9 +100,10 @@ for line in sys.stdin:
     if message.get("executable") and message.get("profile", {}).get("test"):
         print(message["executable"])')
             cp "$executable" "lease/$name"
+            built+=("lease/$name")
         done
     fi
-    strip lease/* 2>/dev/null || true
+    strip "${built[@]}"
 fi
 if ! compgen -G ".gl/libvulkan1_*.deb" >/dev/null; then
     mkdir -p .gl

@@ -58,9 +58,8 @@ if [ "${1:-}" = --unpack ]; then
         fi
     fi
     if compgen -G "$from/networks.tgz.*" >/dev/null; then
-        cat "$from"/networks.tgz.* | tar -xzf -
         echo "networks back for their inference runs (scripts/experiments.sh runs them):" >&2
-        cat "$from"/networks.tgz.* | tar -tzf - | sed 's/^/  /' >&2
+        cat "$from"/networks.tgz.* | tar -xvzf - | sed 's/^/  /' >&2
     fi
     if compgen -G "$from/in-flight.tgz.*" >/dev/null; then
         rm -rf "$kept"
@@ -146,8 +145,9 @@ EOF
 )
 back=() bytes=0
 for network in $owed; do
-    if fits $((bytes + $(size "$network"))); then
-        back+=("$network") bytes=$((bytes + $(size "$network")))
+    with=$((bytes + $(size "$network")))
+    if fits "$with"; then
+        back+=("$network") bytes=$with
         echo "network back for its inference runs: $network" >>"$out/summary.txt"
     else
         echo "LOST (no room to bring it back): $network, whose inference runs did not all run" >>"$out/summary.txt"

@@ -573,6 +573,9 @@ impl Gpu {
                 ("HV", hv),
                 ("KC", kc),
                 ("KS", 4 * kc),
+                ("FULL", hv / kc),
+                ("TAIL", 4 * (hv % kc)),
+                ("CHUNKS", hv.div_ceil(kc)),
                 ("STAGE", 512 * kc),
                 ("VEC_IO", vec_io),
             ];

@@ -14,7 +14,10 @@
 // Double-buffered: while a chunk is multiplied, each staging thread already holds the next
 // chunk's 4 x 4 block in registers (loaded before the arithmetic, stored into the other
 // buffer after it), so one barrier per chunk and the device-memory latency under the
-// arithmetic. KC = 4 (32 KiB of workgroup memory) on adapters that allow it, else 2
+// arithmetic. The chunks of all the split's tiles are one loop, so a tile's first chunk
+// loads under the previous tile's last chunk and epilogue. A last chunk that runs past the
+// width (13 vec4s at the paper's scale, 4 per chunk) multiplies only its TAIL scalars,
+// unrolled apart from the whole chunks, so the inner loop has no branch. KC = 4 (32 KiB of workgroup memory) on adapters that allow it, else 2
 // (16 KiB, WebGPU's default); chosen by the host from the adapter's limits.
 //
 // With VEC_IO = 1 (the host's choice where the row length k is a multiple of 4, as every
@@ -30,7 +33,9 @@
 const HV: u32 = {{HV}}u;       // hidden width in vec4s (zero-padded)
 const KC: u32 = {{KC}}u;       // vec4s of the width per staged chunk
 const KS: u32 = {{KS}}u;       // scalars of the width per staged chunk (4 KC)
-const CHUNKS: u32 = (HV + KC - 1u) / KC;
+const FULL: u32 = {{FULL}}u;   // whole chunks of the width (HV / KC)
+const TAIL: u32 = {{TAIL}}u;   // scalars of the width in a last, partial chunk (0: none)
+const CHUNKS: u32 = {{CHUNKS}}u; // chunks per tile: FULL, and one more if TAIL > 0
 const BM: u32 = 128u;          // rows per workgroup
 const BN: u32 = 128u;          // columns per tile
 const HALF: u32 = KS * 32u;    // vec4s of one operand's chunk
@@ -131,9 +136,10 @@ fn biases(col: u32, c_end: u32) -> vec4<f32> {
 
 // The targets of four columns from `col` of one row (zeros at or past c_end and past the
 // chunk's rows). The epilogue loads a row pair's four vec4s of targets before it writes
-// any of their errors: as far as the compiler knows the error gradient's stores may alias
-// the targets, so a load after a store is issued only then, and each of 16 loads per tile
-// would wait on device memory in turn; four loads in a row wait once.
+// any of their errors, so that four loads wait on device memory once, not each in turn
+// after the previous error's arithmetic. (Not for aliasing: SPIR-V lets a driver assume
+// that two bindings without the Aliased decoration, which naga never emits, do not
+// overlap.)
 fn targets(row: u32, col: u32, c_end: u32) -> vec4<f32> {
     var wanted = vec4<f32>(0.0);
 //#if VEC_IO
@@ -203,28 +209,32 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
 
     let c_begin = split * p.cols_per_split;
     let c_end = min(p.k, c_begin + p.cols_per_split);
-    for (var c0 = c_begin; c0 < c_end; c0 += BN) {
-        //#unroll i 4
-        var lo_a{i} = vec4<f32>(0.0);
-        var hi_a{i} = vec4<f32>(0.0);
-        var lo_b{i} = vec4<f32>(0.0);
-        var hi_b{i} = vec4<f32>(0.0);
-        //#end
-        var block = load_block(t, r0, c0, c_end, kk);
-        store_block(t, 0u, block);
-        workgroupBarrier();
-        for (var chunk = 0u; chunk < CHUNKS; chunk++) {
-            let more = chunk + 1u < CHUNKS;
-            if (more) {
-                block = load_block(t, r0, c0, c_end, (chunk + 1u) * KC + kk);
-            }
-            let xb = (chunk % 2u) * BUF;
-            let wb = xb + HALF;
-            let k0 = chunk * KC;
-            // The last chunk may run past the width (13 vec4s at the paper's scale): its
-            // zero padding is skipped, not multiplied.
+    let tiles = select(0u, (c_end - c_begin + BN - 1u) / BN, c_end > c_begin);
+    // One loop over every tile's chunks, so that the next tile's first chunk is loaded
+    // under this tile's last chunk and epilogue, as the chunks within a tile are.
+    let steps = tiles * CHUNKS;
+    //#unroll i 4
+    var lo_a{i} = vec4<f32>(0.0);
+    var hi_a{i} = vec4<f32>(0.0);
+    var lo_b{i} = vec4<f32>(0.0);
+    var hi_b{i} = vec4<f32>(0.0);
+    //#end
+    var block = load_block(t, r0, c_begin, c_end, kk);
+    store_block(t, 0u, block);
+    workgroupBarrier();
+    for (var step = 0u; step < steps; step++) {
+        let chunk = step % CHUNKS;
+        let c0 = c_begin + (step / CHUNKS) * BN;
+        let more = step + 1u < steps;
+        if (more) {
+            let next = step + 1u;
+            block = load_block(t, r0, c_begin + (next / CHUNKS) * BN, c_end, (next % CHUNKS) * KC + kk);
+        }
+        let xb = (step % 2u) * BUF;
+        let wb = xb + HALF;
+        if (chunk < FULL) {
             //#unroll q KS
-            if (k0 + {q}u / 4u < HV) {
+            {
                 let ra = stage[xb + {q}u * 32u + ty];
                 let rb = stage[xb + {q}u * 32u + 16u + ty];
                 let cl = stage[wb + {q}u * 32u + tx];
@@ -237,31 +247,55 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
                 //#end
             }
             //#end
-            if (more) {
-                store_block(t, ((chunk + 1u) % 2u) * BUF, block);
+        } else {
+            // The last chunk when the width is not a whole number of chunks (13 vec4s at
+            // the paper's scale): only its TAIL scalars, so its zero padding is not
+            // multiplied.
+            //#unroll q TAIL
+            {
+                let ra = stage[xb + {q}u * 32u + ty];
+                let rb = stage[xb + {q}u * 32u + 16u + ty];
+                let cl = stage[wb + {q}u * 32u + tx];
+                let ch = stage[wb + {q}u * 32u + 16u + tx];
+                //#unroll i 4
+                lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
+                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
+                lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
+                hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
+                //#end
             }
-            workgroupBarrier();
+            //#end
         }
-        // Each row's errors: its low columns, then its high ones.
-        let col_lo = c0 + 4u * tx;
-        let col_hi = col_lo + 64u;
-        let bias_lo = biases(col_lo, c_end);
-        let bias_hi = biases(col_hi, c_end);
-        // A row pair's targets first, then its errors (`targets`).
-        //#unroll i 4
-        {
-            let row_a = r0 + 4u * ty + {i}u;
-            let row_b = row_a + 64u;
-            let y_alo = targets(row_a, col_lo, c_end);
-            let y_ahi = targets(row_a, col_hi, c_end);
-            let y_blo = targets(row_b, col_lo, c_end);
-            let y_bhi = targets(row_b, col_hi, c_end);
-            loss_a{i} += emit(row_a, col_lo, c_end, lo_a{i}, bias_lo, y_alo);
-            loss_a{i} += emit(row_a, col_hi, c_end, hi_a{i}, bias_hi, y_ahi);
-            loss_b{i} += emit(row_b, col_lo, c_end, lo_b{i}, bias_lo, y_blo);
-            loss_b{i} += emit(row_b, col_hi, c_end, hi_b{i}, bias_hi, y_bhi);
+        if (chunk + 1u == CHUNKS) {
+            // The tile's errors, each row's low columns then its high ones, a row pair's
+            // targets first (`targets`); then its accumulators start again at zero.
+            let col_lo = c0 + 4u * tx;
+            let col_hi = col_lo + 64u;
+            let bias_lo = biases(col_lo, c_end);
+            let bias_hi = biases(col_hi, c_end);
+            //#unroll i 4
+            {
+                let row_a = r0 + 4u * ty + {i}u;
+                let row_b = row_a + 64u;
+                let y_alo = targets(row_a, col_lo, c_end);
+                let y_ahi = targets(row_a, col_hi, c_end);
+                let y_blo = targets(row_b, col_lo, c_end);
+                let y_bhi = targets(row_b, col_hi, c_end);
+                loss_a{i} += emit(row_a, col_lo, c_end, lo_a{i}, bias_lo, y_alo);
+                loss_a{i} += emit(row_a, col_hi, c_end, hi_a{i}, bias_hi, y_ahi);
+                loss_b{i} += emit(row_b, col_lo, c_end, lo_b{i}, bias_lo, y_blo);
+                loss_b{i} += emit(row_b, col_hi, c_end, hi_b{i}, bias_hi, y_bhi);
+                lo_a{i} = vec4<f32>(0.0);
+                hi_a{i} = vec4<f32>(0.0);
+                lo_b{i} = vec4<f32>(0.0);
+                hi_b{i} = vec4<f32>(0.0);
+            }
+            //#end
         }
-        //#end
+        if (more) {
+            store_block(t, ((step + 1u) % 2u) * BUF, block);
+        }
+        workgroupBarrier();
     }
 
     // Each row's loss: its 16 threads' sums (one per tx), added in order. Row quad m

@@ -51,8 +51,8 @@
 #                instead of 4
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
-#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 128 512"; the
-#                default is 64): smaller chunks keep a chunk's error gradient in the L2
+#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 64 512"; the
+#                default is 128, 64 before 2026-12-01): smaller chunks keep a chunk's error gradient in the L2
 #                cache between the three products, larger ones dispatch less often (wgpu
 #                puts a barrier before nearly every dispatch, and the device drains
 #                at each; docs/results/gpu/notes.md, entry 17)
@@ -72,6 +72,10 @@
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
 #                only, where python3 imports torch with CUDA
+#   whole-narrow, whole-N-narrow, whole-kernels-narrow
+#                `whole`, `whole-N` and `whole-kernels` with the blocked forward product at
+#                4 columns per thread, 128 x 64 tiles (PVRNN_WGPU_FORWARD_COLUMNS=4; the
+#                default is 8, 128 x 128): half the accumulators per thread
 #   base-whole, base-whole-N, base-whole-kernels
 #                `whole`, `whole-N` and `whole-kernels` run with another build, the
 #                binary BASELINE names (set BASELINE to run them): two builds compared in
@@ -173,6 +177,12 @@ for round in $(seq "$rounds"); do
             --gpu-recurrence $train_only
         PVRNN_WGPU_PROFILE_KERNELS=on bench "whole-${NETWORKS:-5}-kernels" "$threads" \
             "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_FORWARD_COLUMNS=4 bench whole-narrow "$threads" "$round" --backend wgpu \
+            --gpu-recurrence $train_only
+        PVRNN_WGPU_FORWARD_COLUMNS=4 bench "whole-${NETWORKS:-5}-narrow" "$threads" "$round" \
+            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_FORWARD_COLUMNS=4 bench whole-kernels-narrow \
+            "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
         for wg in ${KERNEL_WORKGROUPS:-128 512 1024}; do
             PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
                 "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
@@ -184,7 +194,7 @@ for round in $(seq "$rounds"); do
                 "$threads" "$round" --backend wgpu --gpu-recurrence \
                 --networks "${NETWORKS:-5}" $train_only
         done
-        for mb in ${CHUNKS:-32 128 512}; do
+        for mb in ${CHUNKS:-32 64 512}; do
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence $train_only
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-${NETWORKS:-5}-chunk$mb" "$threads" \

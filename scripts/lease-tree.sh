@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Prepares this checkout for a call on a lent GPU machine, and puts it back after.
 #
-#   scripts/lease-tree.sh pack [--campaign] [--tests] [--no-build]   # before the calls
+#   scripts/lease-tree.sh pack [--campaign] [--tests] [--no-build] [--baseline REV]
+#                                                                     # before the calls
 #   scripts/lease-tree.sh unpack                                      # after them
 #
 # A call takes the working tree with it (tracked files and untracked ones git does not
@@ -10,6 +11,11 @@
 #   - builds `pvrnn` (release) and strips it into lease/ (with --tests also the wgpu
 #     backend suite, agrees_with_cpu and device_times as lease/suite-wgpu,
 #     lease/agrees-with-cpu and lease/device-times); --no-build skips the building;
+#   - with --baseline REV, also builds commit REV's `pvrnn` (in a worktree beside this
+#     checkout, its own target folder) as lease/pvrnn-before.gz, stripped and compressed
+#     (about a third of its size: beside the rest it would not fit the 64 MiB); the call
+#     runs `gunzip -k lease/pvrnn-before.gz` first, then `scripts/gpu-measure.sh` with
+#     BASELINE=lease/pvrnn-before;
 #   - downloads the Vulkan loader's Debian packages into .gl/ if missing (docs/gpu.md:
 #     NVIDIA's driver needs glvnd's libraries beside the loader);
 #   - has .git/info/exclude ignore lease/ and .gl/ (the call carries them: `carry`
@@ -58,20 +64,29 @@ unpack)
     ;;
 pack) shift ;;
 *)
-    echo "usage: scripts/lease-tree.sh pack [--campaign] [--tests] [--no-build] | unpack" >&2
+    echo "usage: scripts/lease-tree.sh pack [--campaign] [--tests] [--no-build] [--baseline REV] | unpack" >&2
     exit 2
     ;;
 esac
 
-campaign=0 tests=0 build=1
-for option in "$@"; do
-    case "$option" in
+campaign=0 tests=0 build=1 baseline=
+while [ $# -gt 0 ]; do
+    case "$1" in
     --campaign) campaign=1 ;;
     --tests) tests=1 ;;
     --no-build) build=0 ;;
-    *) echo "unknown option $option" >&2; exit 2 ;;
+    --baseline)
+        baseline=${2:?--baseline needs a commit}
+        shift
+        ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
     esac
+    shift
 done
+if [ -n "$baseline" ] && ! git rev-parse -q --verify "$baseline^{commit}" >/dev/null; then
+    echo "--baseline $baseline: not a commit of this repository" >&2
+    exit 1
+fi
 if grep -qxF "$marker" "$exclude" 2>/dev/null; then
     echo "already packed: run scripts/lease-tree.sh unpack first" >&2
     exit 1
@@ -104,6 +119,21 @@ for line in sys.stdin:
         done
     fi
     strip "${built[@]}"
+fi
+if [ -n "$baseline" ]; then
+    # Beside the checkout, so that the build finds ../shared as this one does.
+    tree=$(realpath ..)/lease-baseline-$$
+    target=$(realpath "${CARGO_TARGET_DIR:-target}")/baseline
+    git worktree add -q --detach "$tree" "$baseline"
+    if ! (cd "$tree" && CARGO_TARGET_DIR="$target" cargo build --release -p pvrnn-cli --bin pvrnn); then
+        git worktree remove --force "$tree"
+        echo "--baseline $baseline: the build failed" >&2
+        exit 1
+    fi
+    git worktree remove --force "$tree"
+    cp "$target/release/pvrnn" lease/pvrnn-before
+    strip lease/pvrnn-before
+    gzip -9f lease/pvrnn-before
 fi
 if ! compgen -G ".gl/libvulkan1_*.deb" >/dev/null; then
     mkdir -p .gl

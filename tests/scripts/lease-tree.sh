@@ -56,4 +56,29 @@ scripts/lease-tree.sh unpack 2>/dev/null
 echo change >> crates/a/lib.rs
 git add crates/a/lib.rs
 ! scripts/lease-tree.sh pack --no-build 2>/dev/null || fail "pack over staged changes was allowed"
+
+# --baseline REV builds that commit's pvrnn in a worktree beside the checkout (a stand-in
+# cargo here writes /bin/true as the binary) and leaves it compressed in lease/, the
+# worktree gone; a name that is no commit is refused before anything is built.
+scripts/lease-tree.sh unpack 2>/dev/null || true
+git reset -q
+mkdir -p "$work/bin"
+cat > "$work/bin/cargo" <<'FAKE'
+#!/usr/bin/env bash
+[ "$1" = build ] || exit 1
+[ -f crates/a/lib.rs ] || { echo "not in a worktree of the repository" >&2; exit 1; }
+mkdir -p "$CARGO_TARGET_DIR/release"
+cp /bin/true "$CARGO_TARGET_DIR/release/pvrnn"
+FAKE
+chmod +x "$work/bin/cargo"
+! PATH="$work/bin:$PATH" scripts/lease-tree.sh pack --no-build --baseline no-such-commit 2>/dev/null ||
+    fail "--baseline with no such commit was allowed"
+PATH="$work/bin:$PATH" CARGO_TARGET_DIR="$work/target" \
+    scripts/lease-tree.sh pack --no-build --baseline HEAD 2> "$work/pack.log" ||
+    fail "pack --baseline: $(cat "$work/pack.log")"
+[ -f lease/pvrnn-before.gz ] || fail "no lease/pvrnn-before.gz"
+[ "$(gunzip -c lease/pvrnn-before.gz | head -c 4 | tail -c 3)" = ELF ] ||
+    fail "lease/pvrnn-before.gz is not the compressed binary"
+[ "$(git worktree list | wc -l)" = 1 ] || fail "the baseline's worktree was left: $(git worktree list)"
+scripts/lease-tree.sh unpack 2>/dev/null || fail "unpack after --baseline"
 echo "lease-tree test: passed"

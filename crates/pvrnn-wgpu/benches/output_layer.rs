@@ -105,7 +105,7 @@ fn main() {
     cases.extend(blocked_cases);
     // The blocked kernels' knobs on learning's full batch: without the weight gradient
     // (the forward and input-gradient products alone), the shallower tiles of a 16 KiB
-    // adapter, one chunk instead of 11, and other workgroup targets (the input gradient's
+    // adapter, one chunk instead of 6, and other workgroup targets (the input gradient's
     // column splits, the weight gradient's row ranges).
     let mut blocked_learning = |what: &str, grads: bool, tiling: Tiling| {
         let what = format!("learning, blocked, {what}");
@@ -136,10 +136,18 @@ fn main() {
         ..blocked
     };
     blocked_learning("scalar accesses", true, scalar_io);
+    // The forward product at 4 columns per thread (128 x 64 tiles, half the accumulators)
+    // against the default 8, with and without the weight gradient.
+    let narrow = Tiling {
+        wide_forward: false,
+        ..blocked
+    };
+    blocked_learning("4 columns per thread", true, narrow);
+    blocked_learning("4 columns per thread, no d W", false, narrow);
     // The fused kernels on learning's full batch: at the workgroup target they were
     // measured at before 2026-11-30, without the weight gradient (the row pass and its
     // reduce alone: the column pass is the difference), in one chunk of 768 MiB instead of
-    // 11 of 64, and with the row pass's other shapes (rows per workgroup, columns per step).
+    // 6 of 128, and with the row pass's other shapes (rows per workgroup, columns per step).
     let fused_1024 = Tiling {
         target_workgroups: 1024,
         ..fused

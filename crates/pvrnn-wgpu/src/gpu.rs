@@ -34,8 +34,9 @@ pub(crate) struct Kernels {
     /// The register-blocked output-layer kernels (`OutputKernels::Blocked`), deep and
     /// shallow ([`BlockedDepth`]), for widths with and without a padding lane to sum the
     /// biases in (`blocked_weight_grad.wgsl`), with the error gradients read and written
-    /// as scalars or as vec4s (`Tiling::vector_io`), compiled on first use.
-    blocked: [[[OnceLock<BlockedKernels>; 2]; 2]; 2],
+    /// as scalars or as vec4s (`Tiling::vector_io`), and with 8 or 4 columns per thread of
+    /// the forward product (`Tiling::forward_columns`), compiled on first use.
+    blocked: [[[[OnceLock<BlockedKernels>; 2]; 2]; 2]; 2],
 }
 
 /// Which kernels keep wgpu's runtime checks (bounds, loop bounding, integer division):
@@ -551,6 +552,7 @@ impl Gpu {
     /// The register-blocked kernels of `kernels`' width in vec4s (`hidden` units) with
     /// tiles `depth` deep (at most what the adapter's workgroup memory holds), the targets
     /// and error gradients as vec4s where `vector_io` (rows of a multiple of 4 columns),
+    /// the forward product with 8 columns per thread where `wide_forward` (else 4),
     /// compiled on first use.
     pub(crate) fn blocked_kernels<'k>(
         &self,
@@ -558,6 +560,7 @@ impl Gpu {
         depth: BlockedDepth,
         hidden: usize,
         vector_io: bool,
+        wide_forward: bool,
     ) -> &'k BlockedKernels {
         let depth = match BlockedDepth::for_limits(&self.limits()) {
             BlockedDepth::Shallow => BlockedDepth::Shallow,
@@ -565,10 +568,13 @@ impl Gpu {
         };
         let bias_lane = usize::from(!hidden.is_multiple_of(4));
         let vec_io = usize::from(vector_io);
-        kernels.blocked[depth as usize][bias_lane][vec_io].get_or_init(|| {
+        let wide = usize::from(wide_forward);
+        kernels.blocked[depth as usize][bias_lane][vec_io][wide].get_or_init(|| {
             let hv = kernels.hv;
             let (kc, kt) = (depth.forward_vec4s(), depth.tile());
             let threads = 16 * hv;
+            // The forward product's column quads per tile: 8 or 4 columns per thread.
+            let cl = if wide_forward { 32 } else { 16 };
             let forward = [
                 ("HV", hv),
                 ("KC", kc),
@@ -576,7 +582,11 @@ impl Gpu {
                 ("FULL", hv / kc),
                 ("TAIL", 4 * (hv % kc)),
                 ("CHUNKS", hv.div_ceil(kc)),
-                ("STAGE", 512 * kc),
+                ("CL", cl),
+                ("WIDE", wide),
+                // Two buffers of a chunk's rows (32 quads) and columns, at least the 512
+                // vec4s of the row losses' reduction.
+                ("STAGE", (2 * 4 * kc * (32 + cl)).max(512)),
                 ("VEC_IO", vec_io),
             ];
             // The input and weight gradients: two buffers of 32 kt error-gradient vec4s and

@@ -144,6 +144,11 @@ impl WgpuBackend {
             kernels,
             &mut tiling.profile_kernels,
         );
+        env_switch(
+            "PVRNN_WGPU_FORWARD_COLUMNS",
+            ["8", "4"],
+            &mut tiling.wide_forward,
+        );
         if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
             match value.parse() {
                 Ok(depth) => tiling.blocked_depth = Some(depth),

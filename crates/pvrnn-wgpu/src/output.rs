@@ -184,6 +184,13 @@ pub struct Tiling {
     /// are used (the kernels before 2026-11-30's fourth session, and the path of narrower
     /// widths; on an H200 about as fast, docs/gpu.md). Only tests turn it off.
     pub recurrence_early_loads: bool,
+    /// The blocked forward product with 8 columns per thread (a 128 x 128 tile, 64
+    /// accumulators per thread; the default) or, off, 4 (a 128 x 64 tile, 32 accumulators:
+    /// fewer registers, twice the tiles). On an H200 the forward product ran at 7.0
+    /// TFLOP/s against the gradient kernels' 15.5-18.1, which hold 32 accumulators per
+    /// thread; whether that is the cause is to be measured
+    /// (`PVRNN_WGPU_FORWARD_COLUMNS=8|4`).
+    pub wide_forward: bool,
 }
 
 impl Tiling {
@@ -207,8 +214,10 @@ impl Default for Tiling {
         Self {
             target_workgroups: 256,
             max_splits: 256,
-            // Below WebGPU's default 128 MiB per binding.
-            max_chunk_bytes: 64 << 20,
+            // WebGPU's default 128 MiB per binding. On an H200 (2026-12-01) 128 MiB took a
+            // paper-scale iteration from 0.0103 to 0.0100 s against 64 (fewer, deeper
+            // dispatches), for 66 MB more per network.
+            max_chunk_bytes: 128 << 20,
             weight_rows_per_split: 256,
             min_work: 4 << 20,
             replay_iterations: true,
@@ -224,6 +233,7 @@ impl Default for Tiling {
             profile_kernels: false,
             vector_io: true,
             recurrence_early_loads: true,
+            wide_forward: true,
         }
     }
 }
@@ -715,8 +725,13 @@ impl GpuOutputLayer {
     fn blocked_kernels<'l>(&self, layer: &'l Layer, k: usize) -> &'l crate::gpu::BlockedKernels {
         let depth = self.tiling.blocked_depth.unwrap_or(BlockedDepth::Deep);
         let vector_io = self.tiling.vector_io && k.is_multiple_of(4);
-        self.gpu
-            .blocked_kernels(&layer.kernels, depth, layer.hidden, vector_io)
+        self.gpu.blocked_kernels(
+            &layer.kernels,
+            depth,
+            layer.hidden,
+            vector_io,
+            self.tiling.wide_forward,
+        )
     }
 
     /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and

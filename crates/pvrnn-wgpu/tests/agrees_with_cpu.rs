@@ -191,6 +191,28 @@ fn the_blocked_output_kernels_match_the_cpu_backend() {
         4,
         40,
     );
+    // The forward product with 4 columns per thread (128 x 64 tiles): one split walking
+    // many tiles at both depths, and the default cut.
+    for depth in [BlockedDepth::Deep, BlockedDepth::Shallow] {
+        free_energy_and_gradients_agree(
+            blocked(Tiling {
+                target_workgroups: 1,
+                blocked_depth: Some(depth),
+                wide_forward: false,
+                ..every_call()
+            }),
+            4,
+            40,
+        );
+    }
+    free_energy_and_gradients_agree(
+        blocked(Tiling {
+            wide_forward: false,
+            ..every_call()
+        }),
+        3,
+        60,
+    );
     learning_with_resident_weights(blocked(every_call()), config(), None);
     learning_with_resident_weights(blocked(every_call()), other_readouts(), None);
     // Top hidden layers of whole vec4s (48 and 8 units): no padding lane to sum the
@@ -280,6 +302,49 @@ fn the_blocked_kernels_give_the_same_results_with_vec4_or_scalar_access() {
             assert_close(&format!("{shape}: d b"), s_b, v_b, 1e-6);
         }
         assert!(vectors.row_loss.iter().all(|l| l.is_finite() && *l > 0.0));
+    }
+}
+
+/// The blocked forward product with 4 columns per thread (`Tiling::wide_forward` off)
+/// computes each output's sum as with 8, in the same order: the same error gradients, so
+/// the same input and weight gradients; only the row losses are added in another grouping.
+/// Several chunks, splits of several tiles, a short last tile, both tile depths. The same
+/// bits on lavapipe; the check allows f32 rounding (1e-6) for drivers that fuse
+/// multiply-adds differently in the two variants.
+#[test]
+fn the_forward_product_gives_the_same_results_with_4_or_8_columns_per_thread() {
+    let Some(gpu) = gpu() else { return };
+    let config = config();
+    let model = Model::<f32>::init_on(&CpuBackend, config.clone(), 1, 4, 2).unwrap();
+    let dims = config.vision.dims();
+    for depth in [BlockedDepth::Deep, BlockedDepth::Shallow] {
+        let loss = |wide_forward| {
+            let tiling = Tiling {
+                output_kernels: OutputKernels::Blocked,
+                target_workgroups: 2,
+                max_chunk_bytes: 130 * dims * 4,
+                blocked_depth: Some(depth),
+                wide_forward,
+                ..every_call()
+            };
+            vision_loss(&gpu, &model, tiling, 300, dims)
+        };
+        let (wide, narrow) = (loss(true), loss(false));
+        let losses = |l: &[f64]| l.iter().map(|&v| v as f32).collect::<Vec<_>>();
+        let what = format!("{depth:?}");
+        let (w_loss, n_loss) = (losses(&wide.row_loss), losses(&narrow.row_loss));
+        assert_close(&format!("{what}: loss"), &w_loss, &n_loss, 1e-6);
+        assert_close(
+            &format!("{what}: d input"),
+            &wide.grad_in,
+            &narrow.grad_in,
+            1e-6,
+        );
+        let (Some(w_w), Some(n_w)) = (&wide.grad_w, &narrow.grad_w) else {
+            panic!("{what}: no weight gradients")
+        };
+        assert_close(&format!("{what}: d W"), w_w, n_w, 1e-6);
+        assert!(narrow.row_loss.iter().all(|l| l.is_finite() && *l > 0.0));
     }
 }
 

@@ -11,6 +11,12 @@
 // staged transposed in chunks of KC vec4s: per k, 4 vec4 loads (two of rows, two of
 // columns; consecutive threads read consecutive vec4s) for 64 multiply-adds.
 //
+// With WIDE = 0 (`Tiling::forward_columns` 4, for measuring) a thread owns 8 x 4 (the
+// `lo*` accumulators only) of a 128 x 64 tile: half the accumulators, so fewer registers
+// per thread and possibly more workgroups per SM, for twice the tiles and epilogues and 3
+// loads per 32 multiply-adds. Each output's sum is the same in the same order; the row
+// losses are added in another grouping.
+//
 // Double-buffered: while a chunk is multiplied, each staging thread already holds the next
 // chunk's 4 x 4 block in registers (loaded before the arithmetic, stored into the other
 // buffer after it), so one barrier per chunk and the device-memory latency under the
@@ -36,10 +42,11 @@ const KS: u32 = {{KS}}u;       // scalars of the width per staged chunk (4 KC)
 const FULL: u32 = {{FULL}}u;   // whole chunks of the width (HV / KC)
 const TAIL: u32 = {{TAIL}}u;   // scalars of the width in a last, partial chunk (0: none)
 const CHUNKS: u32 = {{CHUNKS}}u; // chunks per tile: FULL, and one more if TAIL > 0
+const CL: u32 = {{CL}}u;       // column quads per tile: 32 (WIDE) or 16
 const BM: u32 = 128u;          // rows per workgroup
-const BN: u32 = 128u;          // columns per tile
-const HALF: u32 = KS * 32u;    // vec4s of one operand's chunk
-const BUF: u32 = 2u * HALF;    // one buffer: the rows' chunk, then the columns'
+const BN: u32 = 4u * CL;       // columns per tile: 128 or 64
+const RH: u32 = KS * 32u;      // vec4s of the rows' chunk
+const BUF: u32 = RH + KS * CL; // one buffer: the rows' chunk, then the columns'
 
 struct Params {
     rows: u32,            // rows in this chunk
@@ -65,7 +72,7 @@ struct Params {
 //#end
 @group(0) @binding(6) var<storage, read_write> part_loss: array<f32>;  // [splits, rows]
 
-// Two buffers of [KS, 32] vec4s of rows then [KS, 32] of columns (vec4 = four consecutive
+// Two buffers of [KS, 32] vec4s of rows then [KS, CL] of columns (vec4 = four consecutive
 // rows or columns at one k); after the last tile, the row losses' reduction (512 vec4s).
 var<workgroup> stage: array<vec4<f32>, {{STAGE}}>;
 
@@ -78,10 +85,21 @@ struct Block {
     v3: vec4<f32>,
 }
 
-// The block of vec4 `h` of the width for rows (or columns) 4 lane .. 4 lane + 3: threads
-// below 32 KC stage rows, the next 32 KC columns, the others nothing (zeros, never stored).
-fn load_block(t: u32, r0: u32, c0: u32, c_end: u32, h: u32) -> Block {
-    let lane = t % 32u;
+// A staging thread's lane and vec4 of the chunk: threads below 32 KC stage rows, the next
+// CL KC columns, the others nothing.
+fn lane_of(t: u32) -> u32 {
+    return select((t - 32u * KC) % CL, t % 32u, t < 32u * KC);
+}
+
+fn vec4_of(t: u32) -> u32 {
+    return select((t - 32u * KC) / CL, t / 32u, t < 32u * KC);
+}
+
+// The block of chunk `chunk` for rows (or columns) 4 lane .. 4 lane + 3 (zeros past the
+// width, the rows, c_end, and for threads that stage nothing, never stored).
+fn load_block(t: u32, r0: u32, c0: u32, c_end: u32, chunk: u32) -> Block {
+    let lane = lane_of(t);
+    let h = chunk * KC + vec4_of(t);
     var v0 = vec4<f32>(0.0);
     var v1 = vec4<f32>(0.0);
     var v2 = vec4<f32>(0.0);
@@ -94,7 +112,7 @@ fn load_block(t: u32, r0: u32, c0: u32, c_end: u32, h: u32) -> Block {
             if (row + 1u < p.rows) { v1 = x[at + HV]; }
             if (row + 2u < p.rows) { v2 = x[at + 2u * HV]; }
             if (row + 3u < p.rows) { v3 = x[at + 3u * HV]; }
-        } else if (t < 64u * KC) {
+        } else if (t < (32u + CL) * KC) {
             let col = c0 + 4u * lane;
             let at = col * HV + h;
             if (col < c_end) { v0 = w[at]; }
@@ -112,14 +130,20 @@ fn load_block(t: u32, r0: u32, c0: u32, c_end: u32, h: u32) -> Block {
 }
 
 fn store_block(t: u32, buffer: u32, block: Block) {
-    if (t < 64u * KC) {
-        let lane = t % 32u;
-        let kk = (t / 32u) % KC;
-        let at = buffer + select(0u, HALF, t >= 32u * KC) + 4u * kk * 32u + lane;
+    let lane = lane_of(t);
+    let q = 4u * vec4_of(t);
+    if (t < 32u * KC) {
+        let at = buffer + q * 32u + lane;
         stage[at] = block.v0;
         stage[at + 32u] = block.v1;
         stage[at + 64u] = block.v2;
         stage[at + 96u] = block.v3;
+    } else if (t < (32u + CL) * KC) {
+        let at = buffer + RH + q * CL + lane;
+        stage[at] = block.v0;
+        stage[at + CL] = block.v1;
+        stage[at + 2u * CL] = block.v2;
+        stage[at + 3u * CL] = block.v3;
     }
 }
 
@@ -200,7 +224,6 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
     let r0 = wg.x * BM;
     let tx = t % 16u;
     let ty = t / 16u;
-    let kk = (t / 32u) % KC;
 
     //#unroll i 4
     var loss_a{i} = 0.0;
@@ -215,11 +238,13 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
     let steps = tiles * CHUNKS;
     //#unroll i 4
     var lo_a{i} = vec4<f32>(0.0);
-    var hi_a{i} = vec4<f32>(0.0);
     var lo_b{i} = vec4<f32>(0.0);
+//#if WIDE
+    var hi_a{i} = vec4<f32>(0.0);
     var hi_b{i} = vec4<f32>(0.0);
+//#end
     //#end
-    var block = load_block(t, r0, c_begin, c_end, kk);
+    var block = load_block(t, r0, c_begin, c_end, 0u);
     store_block(t, 0u, block);
     workgroupBarrier();
     for (var step = 0u; step < steps; step++) {
@@ -228,22 +253,26 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
         let more = step + 1u < steps;
         if (more) {
             let next = step + 1u;
-            block = load_block(t, r0, c_begin + (next / CHUNKS) * BN, c_end, (next % CHUNKS) * KC + kk);
+            block = load_block(t, r0, c_begin + (next / CHUNKS) * BN, c_end, next % CHUNKS);
         }
         let xb = (step % 2u) * BUF;
-        let wb = xb + HALF;
+        let wb = xb + RH;
         if (chunk < FULL) {
             //#unroll q KS
             {
                 let ra = stage[xb + {q}u * 32u + ty];
                 let rb = stage[xb + {q}u * 32u + 16u + ty];
-                let cl = stage[wb + {q}u * 32u + tx];
-                let ch = stage[wb + {q}u * 32u + 16u + tx];
+                let cl = stage[wb + {q}u * CL + tx];
+//#if WIDE
+                let ch = stage[wb + {q}u * CL + 16u + tx];
+//#end
                 //#unroll i 4
                 lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
-                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
+//#if WIDE
+                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
+//#end
                 //#end
             }
             //#end
@@ -255,13 +284,17 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
             {
                 let ra = stage[xb + {q}u * 32u + ty];
                 let rb = stage[xb + {q}u * 32u + 16u + ty];
-                let cl = stage[wb + {q}u * 32u + tx];
-                let ch = stage[wb + {q}u * 32u + 16u + tx];
+                let cl = stage[wb + {q}u * CL + tx];
+//#if WIDE
+                let ch = stage[wb + {q}u * CL + 16u + tx];
+//#end
                 //#unroll i 4
                 lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
-                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
+//#if WIDE
+                hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
+//#end
                 //#end
             }
             //#end
@@ -270,25 +303,33 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
             // The tile's errors, each row's low columns then its high ones, a row pair's
             // targets first (`targets`); then its accumulators start again at zero.
             let col_lo = c0 + 4u * tx;
-            let col_hi = col_lo + 64u;
             let bias_lo = biases(col_lo, c_end);
+//#if WIDE
+            let col_hi = col_lo + 64u;
             let bias_hi = biases(col_hi, c_end);
+//#end
             //#unroll i 4
             {
                 let row_a = r0 + 4u * ty + {i}u;
                 let row_b = row_a + 64u;
                 let y_alo = targets(row_a, col_lo, c_end);
-                let y_ahi = targets(row_a, col_hi, c_end);
                 let y_blo = targets(row_b, col_lo, c_end);
+//#if WIDE
+                let y_ahi = targets(row_a, col_hi, c_end);
                 let y_bhi = targets(row_b, col_hi, c_end);
+//#end
                 loss_a{i} += emit(row_a, col_lo, c_end, lo_a{i}, bias_lo, y_alo);
+//#if WIDE
                 loss_a{i} += emit(row_a, col_hi, c_end, hi_a{i}, bias_hi, y_ahi);
+//#end
                 loss_b{i} += emit(row_b, col_lo, c_end, lo_b{i}, bias_lo, y_blo);
+//#if WIDE
                 loss_b{i} += emit(row_b, col_hi, c_end, hi_b{i}, bias_hi, y_bhi);
-                lo_a{i} = vec4<f32>(0.0);
                 hi_a{i} = vec4<f32>(0.0);
-                lo_b{i} = vec4<f32>(0.0);
                 hi_b{i} = vec4<f32>(0.0);
+//#end
+                lo_a{i} = vec4<f32>(0.0);
+                lo_b{i} = vec4<f32>(0.0);
             }
             //#end
         }

@@ -81,7 +81,8 @@
 #                binary BASELINE names (set BASELINE to run them): two builds compared in
 #                one call, alternated, without a switch in the code
 # ITERATIONS=N and INFER_STEPS=N replace the training iterations and inference steps per
-# bench (10 and 20; 3 and 5 with --quick).
+# bench (10 and 20; 3 and 5 with --quick); TORCH_ITERATIONS=N the PyTorch peer's (eager
+# PyTorch took about 2 s per paper-scale iteration on an H200: 5 keep it under a minute).
 # THREADS="16" replaces the thread counts (default: all the host's, and 2); VARIANTS="wgpu
 # whole-5 torch-graph ..." runs only the variants it names (a lease too short for all).
 # `--quick` runs one round of 3 training iterations (a smoke check of the set-up); the
@@ -219,7 +220,8 @@ for round in $(seq "$rounds"); do
         for mode in eager graph; do
             wanted "torch-$mode" || continue
             # shellcheck disable=SC2086 # BENCH_ARGS is a list of options
-            python3 scripts/torch-reference.py time --mode "$mode" --iterations "$iterations" \
+            python3 scripts/torch-reference.py time --mode "$mode" \
+                --iterations "${TORCH_ITERATIONS:-$iterations}" \
                 $(echo " ${BENCH_ARGS:-}" | grep -oE -- '--(sequences|steps) [0-9]+' | tr '\n' ' ') \
                 >>"$out/torch-$mode-round$round.jsonl" 2>>"$out/log.txt" ||
                 echo "FAILED: torch $mode, round $round (see $out/log.txt)" | tee -a "$out/log.txt"

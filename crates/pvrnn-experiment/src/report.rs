@@ -1396,6 +1396,29 @@ fn direction_jobs(plan: &Plan, primary: &str) -> Vec<usize> {
         .collect()
 }
 
+/// The network job `id` belongs to, once its training and every inference run of it are
+/// done: its name (`network 2 (wiping 9 + repositioning 6)`). The runner asks after each
+/// job it finishes and rebuilds the report when one is named, so that a long campaign's
+/// report always holds what is done.
+pub fn network_completed_by(plan: &Plan, dir: &Path, id: usize) -> Option<String> {
+    let train = match &plan.jobs.get(id)?.kind {
+        JobKind::Train { .. } => id,
+        JobKind::Infer { train_job, .. } => *train_job,
+    };
+    let JobKind::Train {
+        network, condition, ..
+    } = &plan.jobs.get(train)?.kind
+    else {
+        return None;
+    };
+    let runs = plan
+        .jobs
+        .iter()
+        .filter(|j| matches!(j.kind, JobKind::Infer { train_job, .. } if train_job == train));
+    (plan.is_done(dir, train) && runs.into_iter().all(|j| plan.is_done(dir, j.id)))
+        .then(|| format!("network {network} ({condition})"))
+}
+
 /// The part of the design job `id` belongs to whose analysis runs before the whole plan
 /// is done (an interference direction of a two-direction plan), once every training and
 /// inference run of it is done: its name (`the repositioning direction`). The runner asks

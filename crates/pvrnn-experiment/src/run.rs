@@ -57,8 +57,9 @@ pub enum Event<'a> {
         step: usize,
     },
     /// Job `id` completed `part` of the design whose analysis runs before the whole plan
-    /// is done (an interference direction, [`crate::report::completed_by`]): the report was
-    /// rebuilt (its `report.md`), or could not be (why). Sent by
+    /// is done (an interference direction, [`crate::report::completed_by`]), or else a
+    /// network: its training and inference runs ([`crate::report::network_completed_by`]):
+    /// the report was rebuilt (its `report.md`), or could not be (why). Sent by
     /// [`crate::reporting::run_with`].
     Reported {
         id: usize,

@@ -350,7 +350,9 @@ fn interference_adds_the_same_sequences_per_bed_height_for_every_network() {
 /// alone the report gives descriptive means and no test; the job that finishes a direction
 /// is the one `report::completed_by` names (the front end then writes the report); and a
 /// complete direction has its ANOVA, every Holm contrast with its raw difference and
-/// interval, and the "no change" claim (Fig 6A) tested as equivalence.
+/// interval, and the "no change" claim (Fig 6A) tested as equivalence. Meanwhile each
+/// network's last job rebuilds the report (`report::network_completed_by`), once, and the
+/// report then counts that network as done.
 #[test]
 fn an_interference_direction_is_tested_once_complete() {
     let tmp = tempfile::tempdir().unwrap();
@@ -365,11 +367,30 @@ fn an_interference_direction_is_tested_once_complete() {
     plan.save(&out).unwrap();
     assert_eq!(plan.design.primary_tasks, ["repositioning", "wiping"]);
     let go = AtomicBool::new(false);
-    // (job, part completed, whether its report then held that part's tests)
+    // (job, direction completed, whether its report then held that direction's tests)
     let completed = std::sync::Mutex::new(Vec::new());
+    // (job, network completed, that network's inference runs in the report then)
+    let networks = std::sync::Mutex::new(Vec::new());
     let events = |e: Event<'_>| {
         if let Event::Reported { id, part, report } = e {
             let md = std::fs::read_to_string(report.unwrap()).unwrap();
+            if part.starts_with("network ") {
+                // The trials' job names end in the network's: `...-net0-<sequence>-...`.
+                let JobKind::Infer { train_job, .. } = plan.jobs[id].kind else {
+                    panic!("{part}: a network is finished by an inference run")
+                };
+                let net = plan.jobs[train_job].name.replace("train-", "infer-");
+                let trials = std::fs::read_to_string(out.join("report/trials.csv"))
+                    .unwrap()
+                    .lines()
+                    .filter(|l| l.split(',').nth(1).unwrap().starts_with(&format!("{net}-")))
+                    .count();
+                networks
+                    .lock()
+                    .unwrap()
+                    .push((id, part.to_string(), trials));
+                return;
+            }
             let primary = part.split(' ').nth(1).unwrap().to_string();
             let tested = !md.contains(&format!("### Primary task: {primary}\n\n**No test yet**"));
             completed
@@ -384,6 +405,36 @@ fn an_interference_direction_is_tested_once_complete() {
     };
     run(Selection::Network(0)).unwrap();
     assert!(completed.lock().unwrap().is_empty(), "{completed:?}");
+    // Network 0 of each of the 8 conditions, each once, by its last job, with all of that
+    // network's inference runs in the report it rebuilt.
+    {
+        let mut networks = networks.lock().unwrap();
+        assert_eq!(networks.len(), 8, "{networks:?}");
+        let mut parts: Vec<&str> = networks.iter().map(|n| n.1.as_str()).collect();
+        parts.sort_unstable();
+        parts.dedup();
+        assert_eq!(parts.len(), 8, "{parts:?}");
+        for (id, part, trials) in networks.iter() {
+            assert!(part.starts_with("network 0 ("), "{part}");
+            let JobKind::Infer { train_job, .. } = plan.jobs[*id].kind else {
+                unreachable!()
+            };
+            let runs = plan
+                .jobs
+                .iter()
+                .filter(|j| matches!(j.kind, JobKind::Infer { train_job: t, .. } if t == train_job))
+                .count();
+            assert!(
+                runs > 0 && *trials == runs,
+                "{part}: {trials} of {runs} runs reported"
+            );
+            assert_eq!(
+                report::network_completed_by(&plan, &out, *id).as_deref(),
+                Some(part.as_str())
+            );
+        }
+        networks.clear();
+    }
     let dir = report::write(&out).unwrap();
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert_eq!(
@@ -414,6 +465,14 @@ fn an_interference_direction_is_tested_once_complete() {
     );
 
     run(Selection::All).unwrap();
+    // Network 1 of each condition, but the two whose last job completed a direction: that
+    // names the direction instead.
+    let networks = networks.into_inner().unwrap();
+    assert_eq!(networks.len(), 6, "{networks:?}");
+    assert!(
+        networks.iter().all(|n| n.1.starts_with("network 1 (")),
+        "{networks:?}"
+    );
     let completed = completed.into_inner().unwrap();
     let names: Vec<&str> = completed.iter().map(|(_, part, _)| part.as_str()).collect();
     assert_eq!(

@@ -16,6 +16,12 @@ pub fn describe(threads: usize) -> String {
     )
 }
 
+/// [`describe`] with the worker threads of the current rayon pool (the threads a run
+/// computes with).
+pub fn here() -> String {
+    describe(rayon::current_num_threads())
+}
+
 /// The first processor's model name with its widest SIMD extension, from `/proc/cpuinfo`.
 fn cpu_name(info: &str) -> Option<String> {
     let field = |key: &str| {

@@ -124,7 +124,7 @@ pub fn validate(
         upsample: figure(Source::Upsample, &top),
         upsample_detail: figure(Source::UpsampleDetail, &top),
         mean: figure(Source::Mean, &top),
-        machine: Some(crate::machine::describe(rayon::current_num_threads())),
+        machine: Some(crate::machine::here()),
     })
 }
 

@@ -382,10 +382,14 @@ fn learning_curves(plan: &Plan, trains: &[TrainResult], md: &mut String) {
             if t.converged(flat) { "yes" } else { "**no**" },
             match &t.reused {
                 Some(p) => format!("reused `{p}`"),
-                None => match &t.backend {
-                    Some(b) => format!("{:.0} s ({b})", t.seconds),
-                    None => format!("{:.0} s", t.seconds),
-                },
+                None => {
+                    let on = t.machines.join("; then ");
+                    match (&t.backend, on.is_empty()) {
+                        (Some(b), false) => format!("{:.0} s ({b}; on {on})", t.seconds),
+                        (Some(b), true) => format!("{:.0} s ({b})", t.seconds),
+                        (None, _) => format!("{:.0} s", t.seconds),
+                    }
+                }
             }
         );
     }
@@ -486,7 +490,7 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
 /// One row per training.
 fn trainings_csv(scale: &str, trains: &[TrainResult], flat: f64) -> String {
     let mut out = String::from(
-        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend,stop,network_iteration,converged\n",
+        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend,stop,network_iteration,converged,machines\n",
     );
     for t in trains {
         let row = [
@@ -509,6 +513,7 @@ fn trainings_csv(scale: &str, trains: &[TrainResult], flat: f64) -> String {
             }),
             t.network_iteration.map_or(String::new(), |n| n.to_string()),
             t.converged(flat).to_string(),
+            csv_field(&t.machines.join("; then ")),
         ];
         out += &(row.join(",") + "\n");
     }

@@ -109,6 +109,12 @@ pub struct TrainResult {
     /// The validations of the convergence rule, in order.
     #[serde(default)]
     pub validations: Vec<ValidationRow>,
+    /// Where it ran, as `pvrnn_eval::machine::describe` names a machine (its CPU, cores and
+    /// threads; `backend` names a GPU): each validation's machine, then the one it finished
+    /// on, in order, a stretch on one machine named once. Empty in results written before 2026-12-01 and
+    /// for reused checkpoints (the validations' rows name theirs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub machines: Vec<String>,
 }
 
 /// Why a training under a convergence rule stopped.
@@ -765,10 +771,23 @@ impl<'p> TrainingRun<'p> {
                 backend: Some(backend_name.to_string()),
                 stop: stop_reason,
                 network_iteration: Some(network_iteration),
+                machines: machines_of(&validations, pvrnn_eval::machine::here()),
                 validations,
             },
         )
     }
+}
+
+/// The machines of `validations` and then `last`, in order, each run of one machine once.
+fn machines_of(validations: &[ValidationRow], last: String) -> Vec<String> {
+    let mut machines: Vec<String> = Vec::new();
+    let each = validations.iter().filter_map(|v| v.machine.clone());
+    for machine in each.chain(std::iter::once(last)) {
+        if machines.last() != Some(&machine) {
+            machines.push(machine);
+        }
+    }
+    machines
 }
 
 /// Training jobs `ids` (trainings of the same sequences, not reused: a cohort of seeds)
@@ -1113,6 +1132,7 @@ fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()>
             stop: None,
             network_iteration: Some(*iterations),
             validations: Vec::new(),
+            machines: Vec::new(),
         },
     )
 }
@@ -1730,5 +1750,31 @@ mod tests {
         assert_eq!(next(&[0, 2, 3], &[]), Some(1));
         assert_eq!(next(&[0, 1, 2, 3], &[]), Some(4));
         assert_eq!(next(&[0, 1, 2, 3, 4], &[]), None);
+    }
+
+    #[test]
+    fn a_trainings_machines_are_its_validations_then_the_last_each_stretch_once() {
+        let row = |iteration: u64, machine: Option<&str>| ValidationRow {
+            iteration,
+            failed_trials: 0,
+            trials: 1,
+            recon_vision_top: 0.01,
+            recon_joints: None,
+            recon_torques: None,
+            seconds: 1.0,
+            upsample: None,
+            upsample_detail: None,
+            mean: None,
+            machine: machine.map(str::to_string),
+        };
+        let rows = [
+            row(2000, Some("A")),
+            row(4000, Some("A")),
+            row(6000, None),
+            row(8000, Some("B")),
+        ];
+        assert_eq!(machines_of(&rows, "A".into()), ["A", "B", "A"]);
+        assert_eq!(machines_of(&rows, "B".into()), ["A", "B"]);
+        assert_eq!(machines_of(&[], "C".into()), ["C"]);
     }
 }

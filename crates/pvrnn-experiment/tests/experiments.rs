@@ -405,6 +405,15 @@ fn an_interference_direction_is_tested_once_complete() {
     };
     run(Selection::Network(0)).unwrap();
     assert!(completed.lock().unwrap().is_empty(), "{completed:?}");
+    // Every training says where it ran.
+    let trainings = std::fs::read_to_string(out.join("report/trainings.csv")).unwrap();
+    let mut lines = trainings.lines();
+    assert!(lines.next().unwrap().ends_with(",machines"), "{trainings}");
+    let here = pvrnn_eval::machine::here();
+    assert!(
+        lines.all(|l| l.ends_with(&format!("\"{here}\""))),
+        "{trainings}"
+    );
     // Network 0 of each of the 8 conditions, each once, by its last job, with all of that
     // network's inference runs in the report it rebuilt.
     {
@@ -884,6 +893,13 @@ fn a_cohort_validates_as_its_networks_validate_alone() {
             read_train_result(&plan.result_path(&together, id)).unwrap(),
         );
         assert!(!a.validations.is_empty(), "job {id} validated");
+        // Both ran here, validations and all: one machine, named as validations name it.
+        let here = [pvrnn_eval::machine::here()];
+        assert_eq!(
+            (&a.machines[..], &b.machines[..]),
+            (&here[..], &here[..]),
+            "job {id}"
+        );
         let scores = |r: &pvrnn_experiment::run::TrainResult| {
             r.validations
                 .iter()

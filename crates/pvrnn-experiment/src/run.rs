@@ -111,8 +111,8 @@ pub struct TrainResult {
     pub validations: Vec<ValidationRow>,
     /// Where it ran, as `pvrnn_eval::machine::describe` names a machine (its CPU, cores and
     /// threads; `backend` names a GPU): each validation's machine, then the one it finished
-    /// on, in order, a stretch on one machine named once. Empty in results written before 2026-12-01 and
-    /// for reused checkpoints (the validations' rows name theirs).
+    /// on, in order, a stretch on one machine named once. Empty in results written before
+    /// 2026-12-01 (their validations' rows name theirs) and for reused checkpoints.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub machines: Vec<String>,
 }

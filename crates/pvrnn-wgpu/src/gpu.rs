@@ -35,7 +35,7 @@ pub(crate) struct Kernels {
     /// shallow ([`BlockedDepth`]), for widths with and without a padding lane to sum the
     /// biases in (`blocked_weight_grad.wgsl`), with the error gradients read and written
     /// as scalars or as vec4s (`Tiling::vector_io`), and with 8 or 4 columns per thread of
-    /// the forward product (`Tiling::forward_columns`), compiled on first use.
+    /// the forward product (`Tiling::wide_forward`), compiled on first use.
     blocked: [[[[OnceLock<BlockedKernels>; 2]; 2]; 2]; 2],
 }
 

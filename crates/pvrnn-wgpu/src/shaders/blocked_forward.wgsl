@@ -11,7 +11,7 @@
 // staged transposed in chunks of KC vec4s: per k, 4 vec4 loads (two of rows, two of
 // columns; consecutive threads read consecutive vec4s) for 64 multiply-adds.
 //
-// With WIDE = 0 (`Tiling::forward_columns` 4, for measuring) a thread owns 8 x 4 (the
+// With WIDE = 0 (`Tiling::wide_forward` off, for measuring) a thread owns 8 x 4 (the
 // `lo*` accumulators only) of a 128 x 64 tile: half the accumulators, so fewer registers
 // per thread and possibly more workgroups per SM, for twice the tiles and epilogues and 3
 // loads per 32 multiply-adds. Each output's sum is the same in the same order; the row

@@ -56,6 +56,13 @@
 #                cache between the three products, larger ones dispatch less often (wgpu
 #                puts a barrier before nearly every dispatch, and the device drains
 #                at each; docs/results/gpu/notes.md, entry 17)
+#   whole-beside, whole-N-beside
+#                `whole` and `whole-N` with the output layers' weight gradients queued
+#                beside the recurrence's backward dispatch (PVRNN_WGPU_BESIDE_BACKWARD=on),
+#                which needs a call's rows in one chunk: PVRNN_WGPU_CHUNK_MB=1024 (the
+#                paper's targets are 697 MB); compare with whole-chunk1024 (CHUNKS="1024")
+#                for the same chunks in order, and run OVERLAP_BENCH for whether the
+#                device overlaps such dispatches at all
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
 #                default replays each run's recorded iteration)
@@ -93,7 +100,10 @@
 #
 # OUTPUT_BENCH=PATH (the output-layer kernel benchmark, built with `cargo bench -p
 # pvrnn-wgpu --bench output_layer --no-run`) also times the output layer's kernels alone,
-# fused and blocked, at the paper's shapes: OUT_DIR/output-layer.txt.
+# fused and blocked, at the paper's shapes: OUT_DIR/output-layer.txt. OVERLAP_BENCH=PATH
+# (`cargo bench -p pvrnn-wgpu --bench overlap --no-run`; lease-tree.sh pack --tests packs
+# it) also runs the overlap probe: whether the device runs two dispatches with no barrier
+# between them at once (OUT_DIR/overlap.txt).
 #
 # On a bare host whose image has the NVIDIA driver but no Vulkan loader: put the Debian
 # packages of the loader in .gl/ (`apt-get download libvulkan1`, plus what it needs) and
@@ -202,6 +212,11 @@ for round in $(seq "$rounds"); do
                 "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" \
                 $train_only
         done
+        PVRNN_WGPU_CHUNK_MB=1024 PVRNN_WGPU_BESIDE_BACKWARD=on bench whole-beside "$threads" \
+            "$round" --backend wgpu --gpu-recurrence $train_only
+        PVRNN_WGPU_CHUNK_MB=1024 PVRNN_WGPU_BESIDE_BACKWARD=on bench \
+            "whole-${NETWORKS:-5}-beside" "$threads" "$round" --backend wgpu --gpu-recurrence \
+            --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
             --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
         PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \
@@ -233,6 +248,11 @@ if [ -n "${OUTPUT_BENCH:-}" ]; then
     # Fused and blocked alternate within the run (the benchmark's own order).
     "$OUTPUT_BENCH" | tee "$out/output-layer.txt" ||
         echo "FAILED: the output-layer benchmark (see above)" | tee -a "$out/log.txt"
+fi
+
+if [ -n "${OVERLAP_BENCH:-}" ]; then
+    "$OVERLAP_BENCH" | tee "$out/overlap.txt" ||
+        echo "FAILED: the overlap probe (see above)" | tee -a "$out/log.txt"
 fi
 
 python3 - "$out" <<'EOF' | tee "$out/summary.txt"

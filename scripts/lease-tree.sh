@@ -10,7 +10,10 @@
 # more. `pack`:
 #   - builds `pvrnn` (release) and strips it into lease/ (with --tests also the wgpu
 #     backend suite, agrees_with_cpu and device_times as lease/suite-wgpu,
-#     lease/agrees-with-cpu and lease/device-times); --no-build skips the building;
+#     lease/agrees-with-cpu and lease/device-times, and the overlap probe, `cargo bench -p
+#     pvrnn-wgpu --bench overlap`, compressed as lease/overlap-bench.gz: the call runs
+#     `gunzip -k lease/overlap-bench.gz` and gives it to gpu-measure.sh as
+#     OVERLAP_BENCH=lease/overlap-bench); --no-build skips the building;
 #   - with --baseline REV, also builds commit REV's `pvrnn` (in a worktree beside this
 #     checkout, its own target folder) as lease/pvrnn-before.gz, stripped and compressed
 #     (about a third of its size: beside the rest it would not fit the 64 MiB); the call
@@ -117,6 +120,16 @@ for line in sys.stdin:
             cp "$executable" "lease/$name"
             built+=("lease/$name")
         done
+        probe=$(cargo bench -p pvrnn-wgpu --bench overlap --no-run --message-format=json \
+            2>/dev/null | python3 -c '
+import json, sys
+for line in sys.stdin:
+    message = json.loads(line)
+    if message.get("executable") and message["target"]["name"] == "overlap":
+        print(message["executable"])')
+        cp "$probe" lease/overlap-bench
+        strip lease/overlap-bench
+        gzip -9f lease/overlap-bench
     fi
     strip "${built[@]}"
 fi

@@ -37,7 +37,7 @@ cargo clippy --workspace --all-targets -- -D warnings
 # (also the check that the dataset crate and the simulator compile for WebAssembly)
 step "cargo clippy for WebAssembly (the explorer's web code, the core's wasm kernels, WebGPU)"
 # One invocation: apart, the GPU crate's features differ and faer, web-sys and wgpu were
-# checked twice. Every target but the GPU crate's benchmark (native only; the only one).
+# checked twice. Every target but the GPU crate's benchmarks (native only; the only ones).
 cargo clippy -p pvrnn-explorer -p pvrnn-core -p pvrnn-backend-tests -p pvrnn-dataset -p caresim \
     -p pvrnn-wgpu --target wasm32-unknown-unknown --lib --bins --tests --examples -- -D warnings
 
@@ -46,6 +46,9 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 
 step "native tests (the walkthrough apart, below, in a virtual display)"
 PVRNN_REQUIRE_PYTHON=1 PVRNN_REQUIRE_R=1 cargo test --workspace -- --skip the_walkthrough_runs_as_written
+
+step "the GPU overlap probe runs, its outputs checked (lavapipe: nothing overlaps there)"
+cargo test -p pvrnn-wgpu --bench overlap -- --quick
 
 step "the walkthrough as written, its explorer step in a virtual display (Xvfb)"
 PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \

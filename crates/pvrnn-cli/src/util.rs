@@ -449,6 +449,14 @@ impl BackendArgs {
                         name.push_str(", blocked output kernels");
                     }
                 }
+                if self.gpu_recurrence && gpu.tiling().weight_grads_beside_backward {
+                    // Only calls of one chunk move (Tiling::weight_grads_beside_backward).
+                    name.push_str(&format!(
+                        ", read-out weight gradients beside the backward where targets fit \
+                         one chunk ({} MiB)",
+                        gpu.tiling().max_chunk_bytes >> 20
+                    ));
+                }
                 if self.gpu_recurrence && !gpu.tiling().replay_iterations {
                     name.push_str(", every iteration encoded");
                 }

@@ -7,6 +7,9 @@
 //! gradients) and reads back only what the free energy needs: the read-outs' row losses
 //! and the KL terms per step and unit (summed on the host in f64, as the CPU backend sums
 //! them). Values move between the kernels' layouts with `shaders/strided_copy.wgsl`.
+//! With `Tiling::weight_grads_beside_backward` the output layers' weight gradients are
+//! queued right after the backward dispatch instead ([`crate::encode::ReadoutWork`]), for
+//! the device to run them beside it.
 //!
 //! Several learning runs of one shape (a cohort: an experiment condition's networks, other
 //! seeds) share a [`Stack`]: their recurrent weights, one network after another in the same
@@ -26,7 +29,7 @@ use pvrnn_core::params::Model;
 use pvrnn_core::{Error, Modality, ModelConfig, Result};
 
 use crate::copy::{Strided, encode_copy};
-use crate::encode::{DispatchList, bind, dispatch, grid, row_losses, vec4s};
+use crate::encode::{DispatchList, ReadoutWork, Recorder, bind, dispatch, grid, row_losses, vec4s};
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
@@ -118,9 +121,13 @@ struct Prepared {
 #[derive(Clone, Debug)]
 struct RunWork {
     /// Before the recurrence forward: the inputs; between forward and backward: the
-    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms.
+    /// read-outs; right after the backward dispatch, beside it on the device: the output
+    /// layers' weight gradients where `Tiling::weight_grads_beside_backward` moves them;
+    /// after the backward: their reduces, the adaptive variables' gradients and the KL
+    /// terms.
     inputs: Arc<DispatchList>,
     readouts: Arc<DispatchList>,
+    beside_backward: Arc<DispatchList>,
     after: Arc<DispatchList>,
     entries: Vec<WindowEntry>,
     /// What to read back (KL terms, each read-out's row losses) with its length.
@@ -326,7 +333,14 @@ impl Stack {
                 "device: read-outs (hidden and output layers, forward and backward)",
                 prepared.iter().map(|p| &*p.work.readouts).collect(),
             ),
-            ("device: recurrence backward", vec![backward]),
+            // The read-outs' weight gradients moved beside the backward share its pass
+            // (a pass boundary would let the device drain the backward first).
+            (
+                "device: recurrence backward",
+                std::iter::once(backward)
+                    .chain(prepared.iter().map(|p| &*p.work.beside_backward))
+                    .collect(),
+            ),
             ("device: recurrent weight gradients", vec![weight_grads]),
             (
                 "device: gradients into the optimiser's layout",
@@ -878,7 +892,7 @@ impl DeviceIteration {
             &per_module_at,
             &mut keep,
         );
-        let mut readout_work = DispatchList::default();
+        let mut readout_work = ReadoutWork::default();
         let mut readout_clears = Vec::new();
         let readouts = self.encode_readouts(
             gpu,
@@ -891,7 +905,11 @@ impl DeviceIteration {
         for buffer in &readout_clears {
             clears.clear_buffer(buffer, 0, None);
         }
-        let mut after = DispatchList::default();
+        let ReadoutWork {
+            in_order: readout_work,
+            beside_backward,
+            after_backward: mut after,
+        } = readout_work;
         self.encode_adaptive_grads(gpu, &mut after, &batch, &mut keep);
         let kl = self.encode_kl_terms(gpu, &mut after, &batch, &per_module_at, &mut keep);
         let mut sources = vec![((*kl).clone(), eps_flat.len())];
@@ -907,6 +925,7 @@ impl DeviceIteration {
         let work = RunWork {
             inputs: Arc::new(inputs),
             readouts: Arc::new(readout_work),
+            beside_backward: Arc::new(beside_backward),
             after: Arc::new(after),
             entries: batch.entries,
             sources,
@@ -1107,7 +1126,7 @@ impl DeviceIteration {
         &self,
         gpu: &Gpu,
         clears: &mut Vec<wgpu::Buffer>,
-        work: &mut DispatchList,
+        work: &mut ReadoutWork,
         batch: &Batch<'_>,
         data: &Observations<f32>,
         keep: &mut Vec<PooledBuffer>,
@@ -1399,7 +1418,7 @@ pub(crate) fn encode_readout_of_record(
     config: &ModelConfig,
     layout: &RecurrenceLayout,
     clears: &mut Vec<wgpu::Buffer>,
-    work: &mut DispatchList,
+    work: &mut dyn Recorder,
     at: RecordRows<'_>,
     modality: Modality,
     k: usize,

@@ -149,6 +149,11 @@ impl WgpuBackend {
             ["8", "4"],
             &mut tiling.wide_forward,
         );
+        env_switch(
+            "PVRNN_WGPU_BESIDE_BACKWARD",
+            ["on", "off"],
+            &mut tiling.weight_grads_beside_backward,
+        );
         if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
             match value.parse() {
                 Ok(depth) => tiling.blocked_depth = Some(depth),

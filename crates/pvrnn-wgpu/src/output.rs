@@ -191,6 +191,19 @@ pub struct Tiling {
     /// thread; whether that is the cause is to be measured
     /// (`PVRNN_WGPU_FORWARD_COLUMNS=8|4`).
     pub wide_forward: bool,
+    /// With the whole iteration on the device, a read-out's output-layer weight gradient
+    /// (`blocked_weight_grad.wgsl`) is queued right after the recurrence's backward
+    /// dispatch instead of with the rest of the read-out, and its reduce with the work
+    /// after the backward: nothing the backward computes is needed, and no buffer of the
+    /// two is in a state that makes wgpu put a barrier between them, so the device may run
+    /// the weight gradient on the processors the backward's few workgroups (one per
+    /// window) leave idle. Only where the call is one chunk of rows (the error gradient is
+    /// then kept whole until the backward: `PVRNN_WGPU_CHUNK_MB` above the targets' size,
+    /// 697 MB at the paper's scale) and the blocked kernels run. The same sums in the same
+    /// order. Off by default until timed on a GPU (`PVRNN_WGPU_BESIDE_BACKWARD=on|off`;
+    /// `cargo bench -p pvrnn-wgpu --bench overlap` asks whether the device overlaps such
+    /// dispatches at all).
+    pub weight_grads_beside_backward: bool,
 }
 
 impl Tiling {
@@ -234,6 +247,7 @@ impl Default for Tiling {
             vector_io: true,
             recurrence_early_loads: true,
             wide_forward: true,
+            weight_grads_beside_backward: false,
         }
     }
 }
@@ -698,8 +712,15 @@ impl GpuOutputLayer {
                 k,
                 scale,
             };
-            let params =
-                self.encode_loss_chunk(encoder, layer, &buffers, chunk_rows, cut, weight_grads);
+            let params = self.encode_loss_chunk(
+                encoder,
+                layer,
+                &buffers,
+                chunk_rows,
+                cut,
+                weight_grads,
+                n <= chunk,
+            );
             in_flight.extend(streamed);
             in_flight.extend(params);
             start += rows;
@@ -822,8 +843,10 @@ impl GpuOutputLayer {
     }
 
     /// One chunk of rows of a loss call: the row pass (forward, error, partial d input),
-    /// its reduction, and with `weight_grads` the column pass. Returns the chunk's
-    /// parameter buffers, to keep until the submission has run.
+    /// its reduction, and with `weight_grads` the column pass (`only_chunk`: the call's
+    /// only one, whose error gradient nothing overwrites before the submission's end).
+    /// Returns the chunk's parameter buffers, to keep until the submission has run.
+    #[allow(clippy::too_many_arguments)]
     fn encode_loss_chunk(
         &self,
         encoder: &mut dyn Recorder,
@@ -832,6 +855,7 @@ impl GpuOutputLayer {
         chunk: ChunkRows,
         cut: LossCut,
         weight_grads: bool,
+        only_chunk: bool,
     ) -> Vec<PooledBuffer> {
         let gpu = &*self.gpu;
         let hv = vec4s(layer.hidden);
@@ -903,7 +927,10 @@ impl GpuOutputLayer {
             match b.blocked {
                 None => params.push(self.encode_columns(encoder, layer, b, chunk)),
                 Some(scratch) => {
-                    params.extend(self.encode_blocked_weights(encoder, layer, b, scratch, chunk));
+                    let beside = only_chunk && self.tiling.weight_grads_beside_backward;
+                    params.extend(
+                        self.encode_blocked_weights(encoder, layer, b, scratch, chunk, beside),
+                    );
                 }
             }
         }
@@ -1003,7 +1030,10 @@ impl GpuOutputLayer {
 
     /// `OutputKernels::Blocked`'s third product for one chunk: d W and d b from the error
     /// gradient, per range of rows, then the ranges added into `b.gw`, `b.gb` (after the
-    /// earlier chunks'). Returns the parameters, to keep until the submission has run.
+    /// earlier chunks'). With `beside_backward`, where `encoder` takes such work
+    /// ([`Recorder::beside_backward`]), the product goes beside the recurrence's backward
+    /// and the reduce after it (`Tiling::weight_grads_beside_backward`). Returns the
+    /// parameters, to keep until the submission has run.
     fn encode_blocked_weights(
         &self,
         encoder: &mut dyn Recorder,
@@ -1011,6 +1041,7 @@ impl GpuOutputLayer {
         b: &LossBuffers<'_>,
         scratch: &BlockedScratch,
         chunk: ChunkRows,
+        beside_backward: bool,
     ) -> [PooledBuffer; 2] {
         let gpu = &*self.gpu;
         let kernels = self.blocked_kernels(layer, chunk.k);
@@ -1031,13 +1062,7 @@ impl GpuOutputLayer {
             &[&weight_params, b.x, &scratch.g, part_w, part_b],
         );
         let column_blocks = chunk.k.div_ceil(BLOCKED_TILE) as u32;
-        dispatch(
-            encoder,
-            &kernels.weight_grad,
-            &weights,
-            column_blocks,
-            splits as u32,
-        );
+        let product = (&kernels.weight_grad, &weights, column_blocks, splits as u32);
         let reduce_params = gpu.uniform(&BlockedReduceParams {
             k: chunk.k as u32,
             splits: splits as u32,
@@ -1050,7 +1075,19 @@ impl GpuOutputLayer {
             &[&reduce_params, part_w, part_b, b.gw, b.gb],
         );
         let (groups_x, groups_y) = grid(gpu, chunk.k * hv);
-        dispatch(encoder, &kernels.weight_reduce, &reduce, groups_x, groups_y);
+        let reduce = (&kernels.weight_reduce, &reduce, groups_x, groups_y);
+        let elsewhere = if beside_backward {
+            encoder.beside_backward()
+        } else {
+            None
+        };
+        if let Some((beside, after)) = elsewhere {
+            dispatch(beside, product.0, product.1, product.2, product.3);
+            dispatch(after, reduce.0, reduce.1, reduce.2, reduce.3);
+        } else {
+            dispatch(encoder, product.0, product.1, product.2, product.3);
+            dispatch(encoder, reduce.0, reduce.1, reduce.2, reduce.3);
+        }
         [weight_params, reduce_params]
     }
 

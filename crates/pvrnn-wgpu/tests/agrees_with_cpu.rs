@@ -409,6 +409,43 @@ fn whole_learning_iterations_on_the_device_follow_the_cpu() {
     learning_with_resident_weights(gpu, other, Some(vec![21, 9, 16]));
 }
 
+/// The output layers' weight gradients queued beside the recurrence's backward dispatch
+/// (`Tiling::weight_grads_beside_backward`: blocked kernels, one chunk of rows) give the
+/// same bits as queued with the rest of the read-outs: every iteration's free energy, and
+/// the weights, adaptive variables and optimiser moments after them.
+#[test]
+fn weight_gradients_beside_the_backward_give_the_same_bits() {
+    let Some(gpu) = gpu() else { return };
+    let gpu = gpu.with_recurrence_on_gpu(true);
+    let config = config();
+    // 150 rows: whole 128-row blocks and a short one, in one chunk.
+    let data = observations(&config, 3, 50);
+    let model = Model::<f32>::init_on(&CpuBackend, config, 3, 50, 7).unwrap();
+    let noise = NoiseMode::Sampled { seed: 3 };
+    let trainer = |beside| {
+        let backend = gpu.clone().with_tiling(Tiling {
+            output_kernels: OutputKernels::Blocked,
+            weight_grads_beside_backward: beside,
+            ..every_call()
+        });
+        Trainer::new(model.clone(), noise).with_backend(Box::new(backend))
+    };
+    let (mut in_order, mut beside) = (trainer(false), trainer(true));
+    for i in 0..4 {
+        let a = in_order.step(&data).unwrap().total;
+        let b = beside.step(&data).unwrap().total;
+        assert_eq!(
+            a.to_bits(),
+            b.to_bits(),
+            "iteration {i}: {a} in order, {b} beside"
+        );
+    }
+    assert!(
+        state_bits(&mut in_order) == state_bits(&mut beside),
+        "the weights after the iterations differ"
+    );
+}
+
 fn other_readouts() -> ModelConfig {
     let mut other = config();
     other.exteroceptive_readout.hidden = vec![50];

@@ -51,7 +51,7 @@
 #                instead of 4
 #   whole-chunkM, whole-N-chunkM
 #                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
-#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 64 512"; the
+#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 64 1024"; the
 #                default is 128, 64 before 2026-12-01): smaller chunks keep a chunk's error gradient in the L2
 #                cache between the three products, larger ones dispatch less often (wgpu
 #                puts a barrier before nearly every dispatch, and the device drains
@@ -60,8 +60,8 @@
 #                `whole` and `whole-N` with the output layers' weight gradients queued
 #                beside the recurrence's backward dispatch (PVRNN_WGPU_BESIDE_BACKWARD=on),
 #                which needs a call's rows in one chunk: PVRNN_WGPU_CHUNK_MB=1024 (the
-#                paper's targets are 697 MB); compare with whole-chunk1024 (CHUNKS="1024")
-#                for the same chunks in order, and run OVERLAP_BENCH for whether the
+#                paper's targets are 697 MB); compare with whole-chunk1024 for the same
+#                chunks in order, and run OVERLAP_BENCH for whether the
 #                device overlaps such dispatches at all
 #   whole-N-encoded
 #                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
@@ -205,7 +205,7 @@ for round in $(seq "$rounds"); do
                 "$threads" "$round" --backend wgpu --gpu-recurrence \
                 --networks "${NETWORKS:-5}" $train_only
         done
-        for mb in ${CHUNKS:-32 64 512}; do
+        for mb in ${CHUNKS:-32 64 1024}; do
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence $train_only
             PVRNN_WGPU_CHUNK_MB=$mb bench "whole-${NETWORKS:-5}-chunk$mb" "$threads" \

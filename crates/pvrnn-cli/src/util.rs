@@ -452,8 +452,8 @@ impl BackendArgs {
                 if self.gpu_recurrence && gpu.tiling().weight_grads_beside_backward {
                     // Only calls of one chunk move (Tiling::weight_grads_beside_backward).
                     name.push_str(&format!(
-                        ", read-out weight gradients beside the backward where targets fit \
-                         one chunk ({} MiB)",
+                        ", read-out weight gradients beside the backward where a call is \
+                         one chunk of at most {} MiB with blocked kernels",
                         gpu.tiling().max_chunk_bytes >> 20
                     ));
                 }

@@ -295,6 +295,8 @@ pub struct Gpu {
     iterations_encoded: AtomicU64,
     /// Submissions' recurrence parts encoded (not replayed) so far.
     recurrence_parts_encoded: AtomicU64,
+    /// Output-layer weight gradients encoded beside the recurrence's backward so far.
+    weight_grads_beside_backward: AtomicU64,
     /// Which kernels keep wgpu's runtime checks (see [`RuntimeChecks`]).
     checks: RuntimeChecks,
     /// Every kernel's label, for the profile's time per kernel.
@@ -347,6 +349,7 @@ impl Gpu {
             read_backs: AtomicU64::new(0),
             iterations_encoded: AtomicU64::new(0),
             recurrence_parts_encoded: AtomicU64::new(0),
+            weight_grads_beside_backward: AtomicU64::new(0),
             checks: RuntimeChecks::from_env(),
             kernel_names: Default::default(),
         })
@@ -450,6 +453,17 @@ impl Gpu {
 
     pub(crate) fn count_recurrence_part_encoded(&self) {
         self.recurrence_parts_encoded
+            .fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Output-layer weight gradients encoded beside the recurrence's backward dispatch so
+    /// far (`Tiling::weight_grads_beside_backward`): how a test sees that they moved.
+    pub fn weight_grads_beside_backward(&self) -> u64 {
+        self.weight_grads_beside_backward.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn count_weight_grads_beside_backward(&self) {
+        self.weight_grads_beside_backward
             .fetch_add(1, Ordering::Relaxed);
     }
 

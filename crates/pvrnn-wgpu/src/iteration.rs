@@ -333,8 +333,9 @@ impl Stack {
                 "device: read-outs (hidden and output layers, forward and backward)",
                 prepared.iter().map(|p| &*p.work.readouts).collect(),
             ),
-            // The read-outs' weight gradients moved beside the backward share its pass
-            // (a pass boundary would let the device drain the backward first).
+            // The read-outs' weight gradients moved beside the backward are in its part:
+            // while profiling (a pass per part, timestamps at its ends) they are timed
+            // together, the pass's end waiting for both.
             (
                 "device: recurrence backward",
                 std::iter::once(backward)

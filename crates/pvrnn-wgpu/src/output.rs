@@ -1082,6 +1082,7 @@ impl GpuOutputLayer {
             None
         };
         if let Some((beside, after)) = elsewhere {
+            gpu.count_weight_grads_beside_backward();
             dispatch(beside, product.0, product.1, product.2, product.3);
             dispatch(after, reduce.0, reduce.1, reduce.2, reduce.3);
         } else {

@@ -431,6 +431,7 @@ fn weight_gradients_beside_the_backward_give_the_same_bits() {
         Trainer::new(model.clone(), noise).with_backend(Box::new(backend))
     };
     let (mut in_order, mut beside) = (trainer(false), trainer(true));
+    let moved = gpu.gpu().weight_grads_beside_backward();
     for i in 0..4 {
         let a = in_order.step(&data).unwrap().total;
         let b = beside.step(&data).unwrap().total;
@@ -440,6 +441,8 @@ fn weight_gradients_beside_the_backward_give_the_same_bits() {
             "iteration {i}: {a} in order, {b} beside"
         );
     }
+    // Both read-outs' (vision and proprioception), encoded once and replayed after.
+    assert_eq!(gpu.gpu().weight_grads_beside_backward() - moved, 2);
     assert!(
         state_bits(&mut in_order) == state_bits(&mut beside),
         "the weights after the iterations differ"

@@ -74,7 +74,7 @@
 #   whole-N-checked, whole-N-unchecked
 #                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
 #                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
-#                the fused output-layer ones
+#                the output layers' main passes (fused and blocked)
 #   torch-eager, torch-graph
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training

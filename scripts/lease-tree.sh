@@ -12,13 +12,13 @@
 #     backend suite, agrees_with_cpu and device_times as lease/suite-wgpu,
 #     lease/agrees-with-cpu and lease/device-times, and the overlap probe, `cargo bench -p
 #     pvrnn-wgpu --bench overlap`, compressed as lease/overlap-bench.gz: the call runs
-#     `gunzip -k lease/overlap-bench.gz` and gives it to gpu-measure.sh as
-#     OVERLAP_BENCH=lease/overlap-bench); --no-build skips the building;
+#     `gunzip -c lease/overlap-bench.gz > /tmp/overlap && chmod +x /tmp/overlap` and gives
+#     it to gpu-measure.sh as OVERLAP_BENCH=/tmp/overlap); --no-build skips the building;
 #   - with --baseline REV, also builds commit REV's `pvrnn` (in a worktree beside this
 #     checkout, its own target folder) as lease/pvrnn-before.gz, stripped and compressed
 #     (about a third of its size: beside the rest it would not fit the 64 MiB); the call
-#     runs `gunzip -k lease/pvrnn-before.gz` first, then `scripts/gpu-measure.sh` with
-#     BASELINE=lease/pvrnn-before;
+#     runs `gunzip -c lease/pvrnn-before.gz > /tmp/pvrnn-before && chmod +x
+#     /tmp/pvrnn-before` first, then `scripts/gpu-measure.sh` with BASELINE=/tmp/pvrnn-before;
 #   - downloads the Vulkan loader's Debian packages into .gl/ if missing (docs/gpu.md:
 #     NVIDIA's driver needs glvnd's libraries beside the loader);
 #   - has .git/info/exclude ignore lease/ and .gl/ (the call carries them: `carry`

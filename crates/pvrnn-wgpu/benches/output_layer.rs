@@ -24,24 +24,15 @@
 //! the cases whose name contains `16x16`.
 #![allow(clippy::unwrap_used)] // a benchmark: a failed unwrap is a failed run
 
+mod common;
+use common::values;
+
 use std::time::Instant;
 
 use pvrnn_core::assembled::OutputLoss;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
 use pvrnn_wgpu::{BlockedDepth, GpuOutputLayer, OutputKernels, Tiling, WgpuBackend};
-
-fn values(n: usize, seed: u64) -> Vec<f32> {
-    let mut s = seed | 1;
-    (0..n)
-        .map(|_| {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 40) as f32 / (1u64 << 24) as f32) * 1.8 - 0.9
-        })
-        .collect()
-}
 
 fn main() {
     let backend = match WgpuBackend::new() {

@@ -33,6 +33,9 @@
 //! pick the adapter as for the backend; without one it fails unless `PVRNN_SKIP_WGPU` is set.
 #![allow(clippy::unwrap_used)] // a benchmark: a failed unwrap is a failed run
 
+mod common;
+use common::values;
+
 use std::time::Instant;
 
 use wgpu::util::DeviceExt;
@@ -128,18 +131,6 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_
 ",
         trips = s.trips,
     )
-}
-
-fn values(n: usize, seed: u64) -> Vec<f32> {
-    let mut s = seed | 1;
-    (0..n)
-        .map(|_| {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            ((s >> 40) as f32 / (1u64 << 24) as f32) * 1.8 - 0.9
-        })
-        .collect()
 }
 
 struct Probe {

@@ -232,7 +232,8 @@ fn the_interference_counts_in_the_prose_match_the_results() {
         }
     }
     let remain = planned - done;
-    let stated = format!("**What remains, and where it runs.** {remain} trainings:");
+    let noun = if remain == 1 { "training" } else { "trainings" };
+    let stated = format!("**What remains, and where it runs.** {remain} {noun}:");
     assert!(
         doc.contains(&stated),
         "the status should say `{stated}` ({done} of {planned} are done)"

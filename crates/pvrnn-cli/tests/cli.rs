@@ -519,6 +519,73 @@ fn train_trains_several_networks_together_as_each_alone() {
     assert!(e.contains("its own --out"), "{e}");
 }
 
+/// A real out-of-memory, not a stand-in: lavapipe's device memory is the process's own, so
+/// an address-space limit (`ulimit -v`, 4.5 GB) that the program and the 16 networks' host
+/// copies fit in, and their device buffers (about 3.6 GB at 4 sequences of 300 steps) with
+/// them do not, makes the device run out while the cohort is being made or its first
+/// iteration submitted. Either must be an error that says so and what to do, exit status
+/// 1: not wgpu's panic (101), an abort, or a hang. Measured on the 2-core CI machines'
+/// kind (2026-12-01): 16 networks fail cleanly from 3.5 to 4.5 GB; at 3 GB the host's own
+/// allocations run out first, and at 6 GB 8 networks train.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_cohort_the_device_memory_cannot_hold_is_a_clear_error() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let mut child = Command::new("sh")
+        .arg("-c")
+        .arg(r#"ulimit -v 4500000 && exec "$0" "$@""#)
+        .arg(env!("CARGO_BIN_EXE_pvrnn"))
+        .args([
+            "--threads",
+            "2",
+            "bench",
+            "--backend",
+            "wgpu",
+            "--gpu-recurrence",
+            "--only",
+            "train",
+            "--networks",
+            "16",
+            "--sequences",
+            "4",
+            "--steps",
+            "300",
+            "--train-iterations",
+            "1",
+        ])
+        // glibc's per-thread arenas reserve address space by the core count.
+        .env("MALLOC_ARENA_MAX", "2")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("runs pvrnn under sh");
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > std::time::Duration::from_secs(300) {
+            child.kill().ok();
+            panic!("pvrnn out of device memory did not finish in 300 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        status.code(),
+        Some(1),
+        "expected a clear error, got {status}:\n{err}"
+    );
+    assert!(
+        err.contains("of 16 networks trained together")
+            && err.contains("out of memory; train fewer networks at once"),
+        "{err}"
+    );
+}
+
 /// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
 /// backend's free energy to f32 summation order, and inference runs; a run says which
 /// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.

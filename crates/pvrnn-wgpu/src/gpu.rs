@@ -487,6 +487,29 @@ impl Gpu {
         buffer
     }
 
+    /// A long-lived buffer (not pooled) holding `data`, written at the next submission.
+    /// Not `create_buffer_init`: when the device is out of memory that maps an invalid
+    /// buffer and panics inside wgpu, where this leaves an error for [`Gpu::allocating`]'s
+    /// scope to report.
+    pub(crate) fn filled<P: bytemuck::Pod>(
+        &self,
+        label: &str,
+        data: &[P],
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (bytes.len() as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
+            usage: usage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
+        }
+        buffer
+    }
+
     /// A storage buffer of `floats` values whose contents are undefined (the pool's last
     /// user's): for results the kernels write before anything reads them.
     pub(crate) fn scratch(

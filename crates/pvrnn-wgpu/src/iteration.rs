@@ -80,6 +80,9 @@ struct Queue {
     /// Oldest first.
     in_flight: Vec<InFlight>,
     results: HashMap<u64, Vec<Vec<f32>>>,
+    /// The iterations whose submission failed (the device out of memory making the
+    /// recurrence's scratch), with what the device said: their results are that error.
+    failed: HashMap<u64, String>,
 }
 
 /// One submission on its way: its runs' tickets (`None`: withdrawn) with how many of the
@@ -248,27 +251,52 @@ impl Stack {
         self.submit_locked(&mut queue);
     }
 
+    /// Submitting allocates too (the recurrence's scratch, the read-back): where the
+    /// device runs out of memory, the submission's iterations fail with that error when
+    /// their results are claimed ([`Self::results_of`]), instead of wgpu's panic.
     fn submit_locked(&self, queue: &mut Queue) {
         let prepared = std::mem::take(&mut queue.prepared);
-        if !prepared.is_empty() {
-            let in_flight = self.submit(prepared);
-            queue.in_flight.push(in_flight);
+        if prepared.is_empty() {
+            return;
+        }
+        let tickets: Vec<u64> = prepared.iter().map(|p| p.ticket).collect();
+        let what = || match self.slots {
+            1 => "submit a learning iteration".to_string(),
+            n => format!("submit a learning iteration of {n} networks trained together"),
+        };
+        match self.gpu.allocating(what, || self.submit(prepared)) {
+            Ok(in_flight) => queue.in_flight.push(in_flight),
+            Err(error) => {
+                let message = match error {
+                    pvrnn_core::Error::Device(message) => message,
+                    other => other.to_string(),
+                };
+                for ticket in tickets {
+                    queue.failed.insert(ticket, message.clone());
+                }
+            }
         }
     }
 
     /// The read-back of `ticket`'s iteration: submitted with every other prepared one if it
     /// has not been yet, waited for (with the submissions before it).
-    fn results_of(&self, ticket: u64) -> Vec<Vec<f32>> {
+    fn results_of(&self, ticket: u64) -> Result<Vec<Vec<f32>>> {
         let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(results) = queue.results.remove(&ticket) {
-            return results;
+            return Ok(results);
         }
         if queue.prepared.iter().any(|p| p.ticket == ticket) {
             self.submit_locked(&mut queue);
         }
+        if let Some(message) = queue.failed.remove(&ticket) {
+            return Err(pvrnn_core::Error::Device(message));
+        }
         let holds = |f: &InFlight| f.tickets.iter().any(|&(t, _)| t == Some(ticket));
         let Some(last) = queue.in_flight.iter().position(holds) else {
-            return Vec::new();
+            return Err(pvrnn_core::Error::Device(format!(
+                "{}: a learning iteration's results were claimed but never submitted",
+                self.gpu.describe()
+            )));
         };
         let _phase = pvrnn_core::profile::phase("evaluate on the device: run and read back");
         for in_flight in queue.in_flight.drain(..=last).collect::<Vec<_>>() {
@@ -280,7 +308,12 @@ impl Stack {
                 }
             }
         }
-        queue.results.remove(&ticket).unwrap_or_default()
+        queue.results.remove(&ticket).ok_or_else(|| {
+            pvrnn_core::Error::Device(format!(
+                "{}: a learning iteration's results did not come back",
+                self.gpu.describe()
+            ))
+        })
     }
 
     /// Takes `ticket`'s iteration back: not submitted if it was not yet, its results not
@@ -288,6 +321,7 @@ impl Stack {
     fn withdraw(&self, ticket: u64) {
         let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         queue.prepared.retain(|p| p.ticket != ticket);
+        queue.failed.remove(&ticket);
         queue.results.remove(&ticket);
         for in_flight in &mut queue.in_flight {
             for (t, _) in &mut in_flight.tickets {
@@ -564,7 +598,7 @@ struct Ticket<'s> {
 }
 
 impl Ticket<'_> {
-    fn results(&self) -> Vec<Vec<f32>> {
+    fn results(&self) -> Result<Vec<Vec<f32>>> {
         self.stack.results_of(self.ticket)
     }
 }
@@ -777,9 +811,7 @@ impl DeviceIteration {
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
     ) -> Result<FreeEnergy> {
-        Ok(pvrnn_core::deferred::now(
-            self.free_energy_later(data, eps)?,
-        ))
+        pvrnn_core::deferred::now(self.free_energy_later(data, eps)?)
     }
 
     /// [`Self::free_energy`] prepared now and submitted (with every other run of the stack
@@ -788,7 +820,7 @@ impl DeviceIteration {
         &self,
         data: &Observations<f32>,
         eps: &[[Vec<f32>; 4]],
-    ) -> Result<impl std::future::Future<Output = FreeEnergy> + '_> {
+    ) -> Result<impl std::future::Future<Output = Result<FreeEnergy>> + '_> {
         let taken = {
             let mut ahead = self.ahead.lock().unwrap_or_else(|e| e.into_inner());
             match ahead.take() {
@@ -810,8 +842,8 @@ impl DeviceIteration {
             ticket,
         };
         Ok(async move {
-            let results = ticket.results();
-            self.free_energy_of(reading, results)
+            let results = ticket.results()?;
+            Ok(self.free_energy_of(reading, results))
         })
     }
 

@@ -449,7 +449,7 @@ impl Learner<f32> for GpuLearner {
     {
         let iteration = self.iteration.as_ref()?;
         Some(match iteration.free_energy_later(data, eps) {
-            Ok(later) => Box::pin(async move { Ok(later.await) }),
+            Ok(later) => Box::pin(later),
             Err(e) => pvrnn_core::deferred::ready(Err(e)),
         })
     }

@@ -8,7 +8,6 @@ use pvrnn_core::Modality;
 use pvrnn_core::assembled::{OutputLoss, ReadoutLoss};
 use pvrnn_core::deferred::Deferred;
 use pvrnn_core::params::Params;
-use wgpu::util::DeviceExt;
 
 use crate::encode::{
     Recorder, WORKGROUP, bind, dispatch, fits, grid, pad_rows, row_losses, unpad_rows, vec4s,
@@ -482,13 +481,11 @@ impl GpuOutputLayer {
                 .chunks(key.chunk_rows)
                 .map(|rows| {
                     // Long-lived (not pooled): they stay while their run uses them.
-                    self.gpu
-                        .device
-                        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                            label: Some("resident targets"),
-                            contents: bytemuck::cast_slice(&packed(rows, key.columns)),
-                            usage: wgpu::BufferUsages::STORAGE,
-                        })
+                    self.gpu.filled(
+                        "resident targets",
+                        &packed(rows, key.columns),
+                        wgpu::BufferUsages::STORAGE,
+                    )
                 })
                 .collect()
         })

@@ -6,7 +6,6 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use pvrnn_core::optim::RAdam;
 use pvrnn_core::params::Params;
-use wgpu::util::DeviceExt;
 
 use crate::encode::{fits, pad_rows};
 use crate::gpu::Gpu;
@@ -187,12 +186,9 @@ pub(crate) type TensorIndex<'a> = dyn Fn(&pvrnn_core::Tensor<f32>) -> Option<usi
 /// A long-lived storage buffer (not pooled: it lives as long as its learner).
 pub(crate) fn resident_buffer(gpu: &Gpu, label: &str, values: &[f32]) -> wgpu::Buffer {
     let values: &[f32] = if values.is_empty() { &[0.0] } else { values };
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: bytemuck::cast_slice(values),
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-        })
+    gpu.filled(
+        label,
+        values,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+    )
 }

@@ -99,7 +99,11 @@ pub fn the_prior_rollout_and_the_readouts_agree_with_evaluate<T: SuiteReal>(back
         resident_targets: None,
     };
     let loaded = backend.load(&model.params, &config);
-    let result = loaded.evaluate(&[window], &request).windows.remove(0);
+    let result = loaded
+        .evaluate(&[window], &request)
+        .unwrap()
+        .windows
+        .remove(0);
     // The rollout is the prior's pre-activations of the mean path from zero.
     let (a_mu, a_sigma) = loaded.prior_rollout(len);
     for m in 0..4 {
@@ -111,7 +115,7 @@ pub fn the_prior_rollout_and_the_readouts_agree_with_evaluate<T: SuiteReal>(back
     for modality in Modality::ALL {
         let d = &result.trace.modules[modality.module().index()].d;
         close(
-            &loaded.readout(modality, d, len),
+            &loaded.readout(modality, d, len).unwrap(),
             &to_f64(&result.outputs[modality.index()]),
             modality.name(),
         );

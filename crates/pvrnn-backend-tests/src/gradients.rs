@@ -264,6 +264,7 @@ fn window_energy<U: Real>(
     let r = backend
         .load(&params.cast::<U>(), config)
         .evaluate(&[window], &request)
+        .unwrap()
         .windows
         .remove(0);
     let f: f64 = r.accuracy.iter().flatten().sum::<f64>()
@@ -423,7 +424,8 @@ pub fn unobserved_outputs_get_no_weight_gradient<T: SuiteReal>(backend: &dyn Bac
     };
     let r = backend
         .load(&model.params, &config)
-        .evaluate(&[plain_window(&model, &data, &eps, 4)], &request);
+        .evaluate(&[plain_window(&model, &data, &eps, 4)], &request)
+        .unwrap();
     let g = r.grad_params.unwrap();
     let w = g.readouts[0].out.weight.data();
     let hidden = g.readouts[0].out.weight.shape()[1];
@@ -456,7 +458,8 @@ pub fn full_accuracy_normalisation_scales_by_the_observed_fraction<T: SuiteReal>
         };
         let mut r = backend
             .load(&model.params, &config)
-            .evaluate(&[plain_window(&model, &data, &eps, 3)], &request);
+            .evaluate(&[plain_window(&model, &data, &eps, 3)], &request)
+            .unwrap();
         r.windows.remove(0).accuracy
     };
     let by_observed = accuracy(AccuracyNormalisation::Observed);

@@ -11,7 +11,6 @@
 
 use std::sync::Arc;
 
-use crate::Real;
 use crate::backend::{
     BatchResult, FullOutputs, Grads, LoadedModel, Posterior, Request, Trace, Window, WindowResult,
 };
@@ -19,6 +18,7 @@ use crate::config::{Modality, ModelConfig, ModuleId};
 use crate::data::Ablation;
 use crate::deferred::Deferred;
 use crate::params::Params;
+use crate::{Real, Result};
 
 /// Gradients of one module's recurrent weights, summed over a batch's windows and steps
 /// (row-major, the parameters' shapes). `w_dh` is empty for the top module.
@@ -186,11 +186,22 @@ pub trait Readout<T: Real>: Send + Sync + std::fmt::Debug {
     fn predict<'a>(&'a self, modality: Modality, d: &[T], n: usize) -> Deferred<'a, Vec<T>>;
 }
 
+/// A device whose queued work can fail after the call that queued it has returned (out of
+/// memory, a lost device). Once it has failed, its pieces answer with values of the right
+/// shapes that mean nothing; the loaded model reports [`Self::failure`] instead of them.
+pub trait DeviceHealth: Send + Sync + std::fmt::Debug {
+    /// The device's first failure, if it has failed.
+    fn failure(&self) -> Option<crate::Error>;
+}
+
 /// The pieces a backend assembles a loaded model from.
 #[derive(Debug)]
 pub struct Parts<T: Real> {
     pub recurrence: Box<dyn Recurrence<T>>,
     pub readout: Box<dyn Readout<T>>,
+    /// Where the pieces compute on a device that can fail ([`DeviceHealth`]); `None` on
+    /// the host.
+    pub device: Option<Arc<dyn DeviceHealth>>,
 }
 
 /// A loaded model: one set of weights and the pieces that compute with them.
@@ -210,10 +221,18 @@ impl<T: Real> AssembledModel<T> {
             parts,
         }
     }
+
+    /// `value`, unless the pieces' device has failed (then what they computed means nothing).
+    fn checked<V>(&self, value: V) -> Result<V> {
+        match self.parts.device.as_ref().and_then(|d| d.failure()) {
+            Some(failure) => Err(failure),
+            None => Ok(value),
+        }
+    }
 }
 
 impl<T: Real> LoadedModel<T> for AssembledModel<T> {
-    fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T> {
+    fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> Result<BatchResult<T>> {
         crate::deferred::now(evaluate(self, windows, request))
     }
 
@@ -221,7 +240,7 @@ impl<T: Real> LoadedModel<T> for AssembledModel<T> {
         &'a self,
         windows: &'a [Window<'a, T>],
         request: &'a Request,
-    ) -> Deferred<'a, BatchResult<T>> {
+    ) -> Deferred<'a, Result<BatchResult<T>>> {
         Box::pin(evaluate(self, windows, request))
     }
 
@@ -233,8 +252,10 @@ impl<T: Real> LoadedModel<T> for AssembledModel<T> {
         self.parts.recurrence.prior_rollout(&self.config, steps)
     }
 
-    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T> {
-        crate::deferred::now(self.parts.readout.predict(modality, d, n))
+    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Result<Vec<T>> {
+        self.checked(())?;
+        let prediction = crate::deferred::now(self.parts.readout.predict(modality, d, n));
+        self.checked(prediction)
     }
 }
 
@@ -282,12 +303,14 @@ struct ModalityResults<T> {
 }
 
 /// One code path for every backend: awaits only where a piece computes elsewhere (see
-/// [`crate::deferred`]).
+/// [`crate::deferred`]). Fails where the pieces' device has failed: before (it would
+/// answer with nothing meaningful), after the read-outs, and at the end.
 async fn evaluate<T: Real>(
     model: &AssembledModel<T>,
     windows: &[Window<'_, T>],
     req: &Request,
-) -> BatchResult<T> {
+) -> Result<BatchResult<T>> {
+    model.checked(())?;
     let pass = {
         let _phase = crate::profile::phase("  recurrence forward");
         model.parts.recurrence.forward(windows, &req.ablation).await
@@ -308,6 +331,8 @@ async fn evaluate<T: Real>(
         &mut grad_params,
     );
     let per_modality = [vision, proprioception.await];
+    // A device that failed in the read-outs: the way back would compute with nothing.
+    model.checked(())?;
 
     let backward_phase = crate::profile::phase("  recurrence backward");
     let grads = if req.grads != Grads::None {
@@ -349,10 +374,10 @@ async fn evaluate<T: Real>(
             outputs: [e, p],
         });
     }
-    BatchResult {
+    model.checked(BatchResult {
         windows: results,
         grad_params,
-    }
+    })
 }
 
 /// One modality's read-out over the batch: its loss where it is observed (weight gradients

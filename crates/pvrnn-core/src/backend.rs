@@ -218,6 +218,12 @@ pub trait Learner<T: Real>: Backend<T> {
     /// the device into the host's slices.
     fn download(&self, index: usize, value: &mut [T], m: &mut [T], v: &mut [T]);
 
+    /// The device's first failure (out of memory, a lost device), after which what
+    /// [`Self::download`] gives means nothing. `None` (the default): it has not failed.
+    fn failure(&self) -> Option<crate::Error> {
+        None
+    }
+
     /// Whether this learner keeps every trainable tensor on its device and evaluates a
     /// learning iteration there whole ([`Self::free_energy`] then always answers).
     fn runs_whole_iterations(&self) -> bool {
@@ -283,7 +289,9 @@ pub trait Learner<T: Real>: Backend<T> {
 pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
     /// Forward pass, free energy and (optionally) back-propagation through time for a batch
     /// of windows. The free energy is F = sum_steps [accuracy terms + W * complexity terms].
-    fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> BatchResult<T>;
+    /// Fails where the device computing it failed ([`crate::Error::Device`]: out of memory,
+    /// a lost device), never with results that mean nothing.
+    fn evaluate(&self, windows: &[Window<'_, T>], request: &Request) -> Result<BatchResult<T>>;
 
     /// [`Self::evaluate`] for a backend whose results arrive through an event loop
     /// (WebGPU in the browser, see [`crate::deferred`]); the others finish it at once.
@@ -291,7 +299,7 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
         &'a self,
         windows: &'a [Window<'a, T>],
         request: &'a Request,
-    ) -> Deferred<'a, BatchResult<T>> {
+    ) -> Deferred<'a, Result<BatchResult<T>>> {
         crate::deferred::ready(self.evaluate(windows, request))
     }
 
@@ -306,6 +314,6 @@ pub trait LoadedModel<T: Real>: Send + Sync + std::fmt::Debug {
 
     /// The read-out of `n` module states `d` (`[n, d]` row-major) into predictions of every
     /// dimension of `modality` (`[n, dims]`): how a compact run's images and
-    /// proprioception are reconstructed.
-    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Vec<T>;
+    /// proprioception are reconstructed. Fails as [`Self::evaluate`].
+    fn readout(&self, modality: Modality, d: &[T], n: usize) -> Result<Vec<T>>;
 }

@@ -130,7 +130,7 @@ pub async fn free_energy_async<T: Real>(
     };
     let result = {
         let _phase = crate::profile::phase("evaluate");
-        loaded.evaluate_async(&windows, &request).await
+        loaded.evaluate_async(&windows, &request).await?
     };
     let _phase = crate::profile::phase("collect gradients");
 

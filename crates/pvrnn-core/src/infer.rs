@@ -390,7 +390,7 @@ impl<T: Real> OnlineInference<T> {
         ablation: Ablation,
         grads: Grads,
         full: FullOutputs,
-    ) -> crate::backend::WindowResult<T> {
+    ) -> Result<crate::backend::WindowResult<T>> {
         let window = self.window(std::array::from_fn(|m| eps[m].as_slice()));
         let request = Request {
             observed: self.settings.observed,
@@ -402,8 +402,8 @@ impl<T: Real> OnlineInference<T> {
         let mut result = self
             .loaded
             .evaluate_async(std::slice::from_ref(&window), &request)
-            .await;
-        result.windows.pop().expect("one window")
+            .await?;
+        Ok(result.windows.pop().expect("one window"))
     }
 
     /// The window as it stands: its held state, its adaptive variables, its targets.
@@ -435,23 +435,24 @@ impl<T: Real> OnlineInference<T> {
         })
     }
 
-    /// Runs up to `max` of the step's remaining updates; returns how many are left.
-    pub fn iterate(&mut self, max: usize) -> usize {
+    /// Runs up to `max` of the step's remaining updates; returns how many are left. Fails
+    /// where the backend's device failed.
+    pub fn iterate(&mut self, max: usize) -> Result<usize> {
         crate::parallel::in_pool(|| crate::deferred::now(self.iterate_here(max)))
     }
 
     /// [`Self::iterate`] on a backend whose results arrive through the browser's event loop
     /// (WebGPU; see [`crate::deferred`]). The same updates, in the same order.
-    pub async fn iterate_async(&mut self, max: usize) -> usize {
+    pub async fn iterate_async(&mut self, max: usize) -> Result<usize> {
         self.iterate_here(max).await
     }
 
-    async fn iterate_here(&mut self, max: usize) -> usize {
+    async fn iterate_here(&mut self, max: usize) -> Result<usize> {
         let t = self.steps_done as u64;
         let mut ran = 0;
         while ran < max {
             let Some(pending) = self.pending.as_ref() else {
-                return 0;
+                return Ok(0);
             };
             let done = pending.iterations_done;
             if done >= self.settings.iterations {
@@ -461,7 +462,7 @@ impl<T: Real> OnlineInference<T> {
             let ablation = self.settings.inference_ablation();
             let result = self
                 .window_pass(&eps, ablation, Grads::Adaptive, FullOutputs::None)
-                .await;
+                .await?;
             let (Some(g_mu), Some(g_sigma)) = (result.grad_a_mu, result.grad_a_sigma) else {
                 unreachable!("adaptive gradients requested")
             };
@@ -496,7 +497,7 @@ impl<T: Real> OnlineInference<T> {
                 pending.iterations_done += 1;
             }
         }
-        self.iterations_left()
+        Ok(self.iterations_left())
     }
 
     /// The step's window diverged: back to the step's start with half the rate (the same
@@ -530,7 +531,7 @@ impl<T: Real> OnlineInference<T> {
         }
         crate::parallel::in_pool(|| {
             crate::deferred::now(async {
-                self.iterate_here(usize::MAX).await;
+                self.iterate_here(usize::MAX).await?;
                 self.finish_here().await
             })
         })
@@ -544,7 +545,7 @@ impl<T: Real> OnlineInference<T> {
                 "finish_step called without begin_step".into(),
             ));
         }
-        self.iterate_here(usize::MAX).await;
+        self.iterate_here(usize::MAX).await?;
         self.finish_here().await
     }
 
@@ -556,20 +557,20 @@ impl<T: Real> OnlineInference<T> {
         let ablation = self.settings.inference_ablation();
         let result = self
             .window_pass(&eps, ablation, Grads::None, FullOutputs::LastStep)
-            .await;
+            .await?;
         let trace = &result.trace;
         let mut ablated_recon: Vec<[Vec<T>; 2]> = Vec::with_capacity(self.readout_ablations.len());
         for a in &self.readout_ablations {
             let pass = self
                 .window_pass(&eps, *a, Grads::None, FullOutputs::LastStep)
-                .await;
+                .await?;
             ablated_recon.push(pass.outputs);
         }
         // A `readout` ablation: the same pass re-read with z = 0; what the step reports.
         let readout = match self.settings.readout_only_ablation() {
             Some(a) => Some(
                 self.window_pass(&eps, a, Grads::None, FullOutputs::LastStep)
-                    .await,
+                    .await?,
             ),
             None => None,
         };
@@ -614,11 +615,11 @@ impl<T: Real> OnlineInference<T> {
                     &last_state(&r.trace, |m| &m.d),
                     self.settings.ablation,
                 )
-                .await
+                .await?
             }
             None => {
                 self.prior_prediction(t, &self.last_h, &self.last_d, ablation)
-                    .await
+                    .await?
             }
         };
         for (states, d) in modules.iter_mut().zip(prior_d) {
@@ -685,7 +686,7 @@ impl<T: Real> OnlineInference<T> {
         last_h: &[Vec<T>; 4],
         last_d: &[Vec<T>; 4],
         ablation: Ablation,
-    ) -> ([Vec<T>; 2], [Vec<T>; 4]) {
+    ) -> Result<([Vec<T>; 2], [Vec<T>; 4])> {
         let (pre_mu, pre_sigma) = self
             .loaded
             .prior_preactivations(std::array::from_fn(|m| last_d[m].as_slice()));
@@ -713,10 +714,10 @@ impl<T: Real> OnlineInference<T> {
         let mut result = self
             .loaded
             .evaluate_async(std::slice::from_ref(&window), &request)
-            .await;
+            .await?;
         let w = result.windows.pop().expect("one window");
         let [a, b, c, d] = w.trace.modules;
-        (w.outputs, [a.d, b.d, c.d, d.d])
+        Ok((w.outputs, [a.d, b.d, c.d, d.d]))
     }
 
     /// begin + all iterations + finish.

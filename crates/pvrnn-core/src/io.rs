@@ -479,6 +479,10 @@ pub fn save_checkpoint<T: Real>(
     last: Option<FreeEnergy>,
 ) -> Result<()> {
     let (iteration, noise) = (trainer.iteration, trainer.noise);
+    // The device's tensors brought to the host, then checked: a device that failed would
+    // have given values that mean nothing, and the last checkpoint must stay.
+    trainer.state();
+    trainer.check_device()?;
     let (model, optimizer) = trainer.state();
     let mut tensors = model_tensors(model, false);
     for ((name, m), v) in trainable_names(model)

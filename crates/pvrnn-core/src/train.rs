@@ -206,6 +206,16 @@ impl<T: Real> Trainer<T> {
         &self.model.config
     }
 
+    /// Fails where the learner's device has failed (out of memory, a lost device): the
+    /// tensors it keeps, brought to the host, would then mean nothing. A checkpoint checks
+    /// this before it is written ([`crate::io::save_checkpoint`]).
+    pub fn check_device(&self) -> Result<()> {
+        match self.learner.as_ref().and_then(|l| l.failure()) {
+            Some(failure) => Err(failure),
+            None => Ok(()),
+        }
+    }
+
     /// The model as learned so far.
     pub fn model(&mut self) -> &Model<T> {
         self.sync();

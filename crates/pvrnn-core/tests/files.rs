@@ -381,7 +381,8 @@ mod on_disk {
         let dw = config.exteroceptive.d;
         let d = &runs[0].modules[2].d[3 * dw..4 * dw];
         let again = pvrnn_core::backend::Backend::load(&CpuBackend, &model.params, &model.config)
-            .readout(pvrnn_core::Modality::Exteroceptive, d, 1);
+            .readout(pvrnn_core::Modality::Exteroceptive, d, 1)
+            .unwrap();
         let stored = runs[0].recon.as_ref().unwrap()[0].sub(&[3]);
         let worst = again
             .iter()

@@ -49,7 +49,7 @@ fn window_grows_then_slides() {
         .unwrap();
         assert_eq!(inf.window_len(), (t + 1).min(5));
         assert_eq!(inf.iterations_left(), 3);
-        assert_eq!(inf.iterate(2), 1);
+        assert_eq!(inf.iterate(2).unwrap(), 1);
         let out = inf.finish_step().unwrap();
         assert_eq!(out.t, t);
         assert_eq!(out.recon[0].len(), config.vision.dims());

@@ -470,6 +470,7 @@ async fn advance(job: &mut Job) -> Result<Option<CompactStep>, String> {
     let left = inf.iterate(CHUNK);
     #[cfg(target_arch = "wasm32")]
     let left = inf.iterate_async(CHUNK).await;
+    let left = left.map_err(|e| e.to_string())?;
     if left > 0 {
         return Ok(None);
     }

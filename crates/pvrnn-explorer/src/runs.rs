@@ -71,9 +71,9 @@ impl RunTrace {
             .map(|e| e.map(|v| v as f32))
             .collect();
         let p = ModuleId::Proprioceptive.index();
-        trace.proprio_recon = loaded.readout(Modality::Proprioceptive, &trace.modules[p].d, steps);
-        trace.proprio_prior =
-            loaded.readout(Modality::Proprioceptive, &trace.modules[p].prior_d, steps);
+        let proprio = Modality::Proprioceptive;
+        trace.proprio_recon = host_read_out(loaded, proprio, &trace.modules[p].d, steps);
+        trace.proprio_prior = host_read_out(loaded, proprio, &trace.modules[p].prior_d, steps);
         trace.steps = steps;
         trace
     }
@@ -382,4 +382,19 @@ fn note_fallback(reason: &str) {
     );
     #[cfg(not(target_arch = "wasm32"))]
     let _ = reason;
+}
+
+/// The read-out of `n` module states `d` into every dimension of `modality`, for a model
+/// loaded on the host: the explorer loads every bundle on the CPU backend (`Bundle::loaded`),
+/// whose read-outs cannot fail (only a device's can,
+/// [`pvrnn_core::backend::LoadedModel::readout`]).
+pub fn host_read_out(
+    loaded: &dyn pvrnn_core::backend::LoadedModel<f32>,
+    modality: Modality,
+    d: &[f32],
+    n: usize,
+) -> Vec<f32> {
+    loaded
+        .readout(modality, d, n)
+        .unwrap_or_else(|e| unreachable!("a read-out on the host failed: {e}"))
 }

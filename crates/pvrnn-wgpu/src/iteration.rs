@@ -281,6 +281,17 @@ impl Stack {
     /// The read-back of `ticket`'s iteration: submitted with every other prepared one if it
     /// has not been yet, waited for (with the submissions before it).
     fn results_of(&self, ticket: u64) -> Result<Vec<Vec<f32>>> {
+        let results = self.read_results_of(ticket)?;
+        // A device that failed (out of memory outside the checked scopes, a read-back
+        // refused) gave results that mean nothing.
+        match self.gpu.failure() {
+            Some(failure) => Err(failure),
+            None => Ok(results),
+        }
+    }
+
+    /// [`Self::results_of`] as they came back.
+    fn read_results_of(&self, ticket: u64) -> Result<Vec<Vec<f32>>> {
         let mut queue = self.queue.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(results) = queue.results.remove(&ticket) {
             return Ok(results);

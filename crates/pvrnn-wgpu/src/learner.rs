@@ -303,6 +303,10 @@ impl Learner<f32> for GpuLearner {
         &self.resident
     }
 
+    fn failure(&self) -> Option<pvrnn_core::Error> {
+        self.gpu().failure()
+    }
+
     fn update(&self, step: &RAdamStep) {
         let gpu = self.gpu();
         let updates = self.updates(step);

@@ -222,6 +222,7 @@ impl WgpuBackend {
         let parts = Parts {
             recurrence,
             readout: Box::new(GpuReadout::new(layer, params.clone())),
+            device: Some(self.gpu.clone()),
         };
         Box::new(AssembledModel::new(params, config, parts))
     }

@@ -4,13 +4,18 @@
 //! another thread's poll maps it), so it is ready then and synchronous callers finish it
 //! with [`pvrnn_core::deferred::now`]; until it is polled, the host may queue more work. WebGPU maps
 //! the copy when the browser's event loop runs: the future wakes its task then.
+//!
+//! A read-back that fails (the device lost, its mapping refused) records the device's
+//! failure ([`Gpu::failure`]) and gives zeros of the right sizes, which whoever returns
+//! results replaces with that failure: the callers' types stay those of a device that
+//! cannot fail, and nothing it computed after failing is taken for a result.
 
 use std::future::Future;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll, Waker};
 
-use crate::gpu::Gpu;
+use crate::gpu::{Gpu, record_failure};
 use crate::pool::PooledBuffer;
 
 /// Copies `sources` (each `floats` long) into one mappable buffer and submits; awaiting it
@@ -54,6 +59,8 @@ pub(crate) fn read_back(
         total,
         sizes,
         state,
+        failed: gpu.failure_slot(),
+        adapter: gpu.describe(),
         #[cfg(not(target_arch = "wasm32"))]
         device: gpu.device.clone(),
         #[cfg(not(target_arch = "wasm32"))]
@@ -73,6 +80,9 @@ pub(crate) struct ReadBack {
     total: usize,
     sizes: Vec<usize>,
     state: Arc<Mutex<MapState>>,
+    /// The device's failure slot ([`Gpu::failure`]) and its name, for a failed read-back.
+    failed: Arc<Mutex<Option<String>>>,
+    adapter: String,
     /// Natively, the device to poll and the submission to wait for: the wait comes at the
     /// first poll of the future, so a caller can queue several submissions (a cohort's
     /// networks, `pvrnn_core::train::step_together`) before it waits for the first.
@@ -94,9 +104,9 @@ impl ReadBack {
     /// Natively: polls the device until this copy is mapped (also when another thread's
     /// poll mapped it).
     #[cfg(not(target_arch = "wasm32"))]
-    fn wait(&self) {
+    fn wait(&self) -> Result<(), String> {
         if self.state.lock().map_or(true, |s| s.result.is_some()) {
-            return;
+            return Ok(());
         }
         let _wait = pvrnn_core::profile::phase("      GPU: wait for the device");
         // This submission only (and those before it), not whatever another thread sharing
@@ -107,7 +117,7 @@ impl ReadBack {
         };
         loop {
             if let Err(e) = self.device.poll(ours.clone()) {
-                panic!("waiting for the GPU failed: {e}");
+                return Err(format!("waiting for the GPU failed: {e}"));
             }
             if self.state.lock().map_or(true, |s| s.result.is_some()) {
                 break;
@@ -116,6 +126,17 @@ impl ReadBack {
             // mapping and is about to call back; ours returned first, with nothing left.
             std::thread::yield_now();
         }
+        Ok(())
+    }
+
+    /// The device's failure recorded (unless one came first), and zeros in place of the
+    /// results (see the module docs).
+    fn failed(&mut self, why: String) -> Vec<Vec<f32>> {
+        record_failure(&self.failed, format!("{}: {why}", self.adapter));
+        if let Some(staging) = self.staging.take() {
+            staging.discard();
+        }
+        self.sizes.iter().map(|&n| vec![0.0; n]).collect()
     }
 }
 
@@ -134,7 +155,9 @@ impl Future for ReadBack {
 
     fn poll(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Self::Output> {
         #[cfg(not(target_arch = "wasm32"))]
-        self.wait();
+        if let Err(why) = self.wait() {
+            return Poll::Ready(self.failed(why));
+        }
         let result = {
             let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
             match state.result.take() {
@@ -146,22 +169,28 @@ impl Future for ReadBack {
             }
         };
         if let Err(e) = result {
-            panic!("reading results back from the GPU failed: {e}");
+            return Poll::Ready(self.failed(format!("reading results back failed: {e}")));
         }
         let staging = self.staging.take().expect("a read-back is awaited once");
         let mut out = Vec::with_capacity(self.sizes.len());
+        let mapped = match staging
+            .slice(..(self.total.max(1) * 4) as u64)
+            .get_mapped_range()
         {
-            let slice = staging.slice(..(self.total.max(1) * 4) as u64);
-            let view = match slice.get_mapped_range() {
-                Ok(v) => v,
-                Err(e) => panic!("reading results back from the GPU failed: {e}"),
-            };
-            let all: &[f32] = bytemuck::cast_slice(&view);
-            let mut offset = 0;
-            for &n in &self.sizes {
-                out.push(all[offset..offset + n].to_vec());
-                offset += n;
+            Ok(view) => {
+                let all: &[f32] = bytemuck::cast_slice(&view);
+                let mut offset = 0;
+                for &n in &self.sizes {
+                    out.push(all[offset..offset + n].to_vec());
+                    offset += n;
+                }
+                Ok(())
             }
+            Err(e) => Err(e.to_string()),
+        };
+        if let Err(e) = mapped {
+            self.staging = Some(staging);
+            return Poll::Ready(self.failed(format!("reading results back failed: {e}")));
         }
         // Back to the pool unmapped.
         staging.unmap();

@@ -551,15 +551,16 @@ fn a_learners_model_reads_out_with_the_device_weights() {
             let d: Vec<f32> = (0..n * d_width)
                 .map(|i| ((i * 7 % 11) as f32 / 11.0) - 0.5)
                 .collect();
-            let got = on_device.readout(modality, &d, n);
+            let got = on_device.readout(modality, &d, n).unwrap();
             assert_close(
                 &format!("{} read-out", modality.name()),
-                &fresh.readout(modality, &d, n),
+                &fresh.readout(modality, &d, n).unwrap(),
                 &got,
                 1e-4,
             );
             let off = stale
                 .readout(modality, &d, n)
+                .unwrap()
                 .iter()
                 .zip(&got)
                 .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
@@ -601,8 +602,8 @@ fn a_learners_model_reads_out_with_the_device_weights() {
             ..request
         };
         for request in [request, vision_unobserved] {
-            let a = fresh.evaluate(&windows, &request);
-            let b = on_device.evaluate(&windows, &request);
+            let a = fresh.evaluate(&windows, &request).unwrap();
+            let b = on_device.evaluate(&windows, &request).unwrap();
             for (wa, wb) in a.windows.iter().zip(&b.windows) {
                 for mi in 0..2 {
                     assert_close("full read-outs", &wa.outputs[mi], &wb.outputs[mi], 1e-4);
@@ -1161,10 +1162,12 @@ fn the_recurrence_kernels_match_the_cpu_state_by_state() {
     assert!(direct.forward_on_gpu(&windows, &request.ablation).is_some());
     let on_cpu = CpuBackend
         .load(&model.params, &config)
-        .evaluate(&windows, &request);
+        .evaluate(&windows, &request)
+        .unwrap();
     let on_gpu = gpu
         .load(&model.params, &config)
-        .evaluate(&windows, &request);
+        .evaluate(&windows, &request)
+        .unwrap();
     for (w, (a, b)) in on_cpu.windows.iter().zip(&on_gpu.windows).enumerate() {
         let (a, b): (&WindowResult<f32>, &WindowResult<f32>) = (a, b);
         let fields = |t: &Trace<f32>, m: usize| {
@@ -1316,8 +1319,8 @@ fn online_inference_agrees(gpu: WgpuBackend) {
     let on_gpu = gpu.load(&model.params, &model.config);
     assert_close(
         "readout",
-        &on_cpu.readout(Modality::Exteroceptive, &d, n),
-        &on_gpu.readout(Modality::Exteroceptive, &d, n),
+        &on_cpu.readout(Modality::Exteroceptive, &d, n).unwrap(),
+        &on_gpu.readout(Modality::Exteroceptive, &d, n).unwrap(),
         1e-5,
     );
 }

@@ -72,7 +72,7 @@ async fn online_inference_on_webgpu_matches_the_cpu() {
         let p = data.step(Modality::Proprioceptive, 0, t);
         let want = on_cpu.step(x, p).unwrap();
         on_gpu.begin_step(x, p).unwrap();
-        on_gpu.iterate_async(usize::MAX).await;
+        on_gpu.iterate_async(usize::MAX).await.unwrap();
         let got = on_gpu.finish_step_async().await.unwrap();
         let (a, b) = (want.window_free_energy.total, got.window_free_energy.total);
         assert!((a - b).abs() <= 1e-4 * a.abs(), "step {t}: F {a} vs {b}");

@@ -140,13 +140,13 @@ fn states_note(
     one: &Observations<f32>,
     bits: u32,
     name: &str,
-) -> String {
-    let exact = stored_state_vision_error(shipped, first, one, StateStorage::F32);
-    let rounded = stored_state_vision_error(shipped, first, one, StateStorage::F16Mantissa(bits));
-    format!(
+) -> Result<String> {
+    let exact = stored_state_vision_error(shipped, first, one, StateStorage::F32)?;
+    let rounded = stored_state_vision_error(shipped, first, one, StateStorage::F16Mantissa(bits))?;
+    Ok(format!(
         "per-step states as f16 with {bits} of 10 mantissa bits (changes the vision reconstruction error read out of {name}'s states by {:+.3}%)",
         (rounded / exact - 1.0) * 100.0
-    )
+    ))
 }
 
 fn stored_state_vision_error(
@@ -154,7 +154,7 @@ fn stored_state_vision_error(
     run: &Run<f32>,
     data: &Observations<f32>,
     storage: StateStorage,
-) -> f64 {
+) -> Result<f64> {
     let d: Vec<f32> = run.modules[ModuleId::Exteroceptive.index()]
         .d
         .iter()
@@ -166,7 +166,7 @@ fn stored_state_vision_error(
         &model.params,
         &model.config,
     );
-    let recon = loaded.readout(Modality::Exteroceptive, &d, steps);
+    let recon = loaded.readout(Modality::Exteroceptive, &d, steps)?;
     let dims = data.dims(Modality::Exteroceptive);
     let sum: f64 = (0..steps)
         .flat_map(|t| {
@@ -176,7 +176,7 @@ fn stored_state_vision_error(
         })
         .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
         .sum();
-    sum / (steps * dims) as f64
+    Ok(sum / (steps * dims) as f64)
 }
 
 fn mean_recon_error(run: &Run<f32>, modality: usize) -> f64 {
@@ -286,7 +286,7 @@ pub fn run(a: Args) -> Result<()> {
         &data.select(&[0])?,
         a.state_bits,
         &names[0],
-    );
+    )?;
     eprintln!("runs: {states}");
 
     let card = model_card(

@@ -32,6 +32,7 @@ impl<T: Real> Backend<T> for CpuBackend {
         let parts = Parts {
             recurrence: Box::new(CpuRecurrence::new(&params, config)),
             readout: Box::new(CpuReadout::new(params.clone())),
+            device: None,
         };
         Box::new(AssembledModel::new(params, config, parts))
     }

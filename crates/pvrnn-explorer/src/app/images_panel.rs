@@ -21,7 +21,7 @@ pub(super) fn read_out_vision(bundle: &Bundle, rows: &[f32], count: usize) -> Ve
     if count == 0 {
         return Vec::new();
     }
-    bundle.loaded.readout(Modality::Exteroceptive, rows, count)
+    crate::runs::host_read_out(bundle.loaded.as_ref(), Modality::Exteroceptive, rows, count)
 }
 
 /// The runs the images at the cursor come from: the shown run, the same condition without

@@ -163,7 +163,10 @@ def two_group(a, b):
     # For comparison only: the exact difference with 80% power (noncentral t).
     tc = stats.t.ppf(1 - ALPHA / 2, df)
     def power(nc):
-        return stats.nct.sf(tc, df, nc) + stats.nct.cdf(-tc, df, nc) - POWER
+        # The lower tail is negligible at large nc, where scipy's nct.cdf can give NaN
+        # at few degrees of freedom (3 networks per group).
+        lower = stats.nct.cdf(-tc, df, nc)
+        return stats.nct.sf(tc, df, nc) + (lower if math.isfinite(lower) else 0.0) - POWER
     exact = brentq(power, 0.1, 10.0) * se
     return dict(diff=diff, ci=(ci.low, ci.high), d=diff / sd, t=res.statistic, p=res.pvalue,
                 df=df, se=se, detectable=detectable, detectable_exact=exact)
@@ -272,6 +275,7 @@ class Checker:
             print(f"   MISMATCH {p}: ours {o!r} vs summary {r!r} (rel {rel:.2e})")
         if not self.bad:
             print("   all agree to within 1e-6 (relative)")
+        return not self.bad
 
 
 # ---------------------------------------------------------------- main
@@ -397,7 +401,8 @@ def main():
                 chk.check(ab + ["ci95", i], a["ci"][i])
         if summary is not None and chk.get(["asymmetry"]) is None:
             print("  (summary.json has no asymmetry result to compare with)")
-    chk.report()
+    if chk.report() is False:
+        sys.exit(1)
 
 
 if __name__ == "__main__":

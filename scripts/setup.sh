@@ -95,16 +95,16 @@ if ! command -v Rscript >/dev/null 2>&1; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends r-base-core
 fi
 
-if ! python3 -c "import safetensors, numpy" 2>/dev/null; then
-    step "installing the Python packages the walkthrough's snippet uses (safetensors, numpy)"
+if ! python3 -c "import safetensors, numpy, scipy" 2>/dev/null; then
+    step "installing the Python packages the walkthrough's snippet (safetensors, numpy) and the statistics' rechecks (scipy) use"
     if ! python3 -m pip --version >/dev/null 2>&1; then
         apt-get update -qq && apt-get install -y -qq python3-pip
     fi
     # A distribution's own Python (Debian 12 and later, PEP 668) refuses installs outside a
-    # virtual environment; there the two packages go to the user's site-packages, which
+    # virtual environment; there the packages go to the user's site-packages, which
     # leaves the system's packages alone.
-    python3 -m pip install --quiet safetensors numpy 2>/dev/null ||
-        python3 -m pip install --quiet --no-warn-script-location --user --break-system-packages safetensors numpy
+    python3 -m pip install --quiet safetensors numpy scipy 2>/dev/null ||
+        python3 -m pip install --quiet --no-warn-script-location --user --break-system-packages safetensors numpy scipy
 fi
 
 if ! [ -x web/node_modules/.bin/wasm-opt ] || ! [ -d web/node_modules/playwright-core ]; then

@@ -50,6 +50,11 @@ PVRNN_REQUIRE_PYTHON=1 PVRNN_REQUIRE_R=1 cargo test --workspace -- --skip the_wa
 step "the GPU overlap probe runs, its outputs checked (lavapipe: nothing overlaps there)"
 cargo test -p pvrnn-wgpu --bench overlap -- --quick
 
+step "the committed experiments' statistics recomputed apart from the Rust code (Python: numpy, scipy)"
+python3 scripts/recheck-experiments.py docs/results/converged docs/results
+python3 scripts/recheck-interference.py docs/results/converged/interference/report/trials.csv
+python3 scripts/recheck-interference.py docs/results/interference/report/trials.csv --networks 3
+
 step "the walkthrough as written, its explorer step in a virtual display (Xvfb)"
 PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
     timeout 900 xvfb-run -a -s "-screen 0 1440x920x24" cargo test --workspace --test walkthrough

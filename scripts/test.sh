@@ -75,7 +75,7 @@ step "caresim writes the same bytes on aarch64 (cross-compiled, run under QEMU):
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc \
 CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu" \
     cargo test --profile cross-golden --target aarch64-unknown-linux-gnu -p caresim --test benchmark \
-    the_default_output_is_the_one_the_shipped_model_learned
+    golden_
 
 step "core tests and the CPU backend's suite as WebAssembly under Node"
 cargo test -p pvrnn-core -p pvrnn-backend-tests --target wasm32-unknown-unknown

@@ -1,4 +1,5 @@
 //! Renders a few frames of a trial at high resolution for a person to look at.
+//! `cargo run --release -p caresim --example look [TASK] [HEIGHT_MM] [REVISION]`
 #![allow(clippy::unwrap_used)] // an example script: a failed unwrap is a failed run
 use caresim::*;
 fn main() {
@@ -12,6 +13,9 @@ fn main() {
         index: 0,
         seed: 7,
         variability: 1.0,
+        revision: args
+            .get(3)
+            .map_or(Revision::default(), |r| Revision::parse(r).unwrap()),
     };
     let mut sim = Simulation::new(spec);
     let n = sim.len();

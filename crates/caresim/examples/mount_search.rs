@@ -14,6 +14,7 @@ fn score(mount: Mount) -> (f64, f64) {
                 index: 0,
                 seed: 3,
                 variability: 1.0,
+                revision: caresim::Revision::default(),
             };
             let mut sim = Simulation::with_robot(spec, Robot::with_mount(mount));
             for _ in 0..sim.len() {

@@ -62,6 +62,10 @@ pub struct IkTarget {
     pub fingers: DVec3,
     /// Metres per radian of direction error (0 = position only).
     pub direction_weight: f64,
+    /// The last joint (the wrist's roll about the fingers) set by the operator, as a turn
+    /// from its rest angle; `None` leaves it to the solver. It moves neither the palm nor
+    /// the finger direction, so setting it costs the other tasks nothing.
+    pub wrist_twist: Option<f64>,
 }
 
 /// How the inverse kinematics ended.
@@ -113,6 +117,10 @@ impl Arm {
             direction_error: f64::INFINITY,
             iterations: 0,
         };
+        let last = DOF - 1;
+        if let Some(twist) = target.wrist_twist {
+            q[last] = (rest[last] + twist).clamp(Q_MIN[last] + 1e-3, Q_MAX[last] - 1e-3);
+        }
         for it in 0..300 {
             let k = self.fk(q);
             let p = k.tcp.translation;
@@ -162,6 +170,9 @@ impl Arm {
             let largest = dq.iter().fold(0.0f64, |m, d| m.max(d.abs()));
             let scale = if largest > 0.15 { 0.15 / largest } else { 1.0 };
             for i in 0..DOF {
+                if i == last && target.wrist_twist.is_some() {
+                    continue;
+                }
                 q[i] = (q[i] + scale * dq[i]).clamp(Q_MIN[i] + 1e-3, Q_MAX[i] - 1e-3);
             }
         }
@@ -169,9 +180,26 @@ impl Arm {
     }
 
     /// Static joint torques: holding the links against gravity, plus reacting to the force
-    /// `hand_force` the environment applies at the palm (tau = -J^T F).
+    /// `hand_force` the environment applies at the palm's centre (tau = -J^T F).
     pub fn static_torques(&self, q: &[f64; DOF], hand_force: DVec3) -> [f64; DOF] {
+        self.static_torques_at(q, hand_force, 0.0)
+    }
+
+    /// [`Arm::static_torques`] with the force acting `contact_offset` metres from the palm's
+    /// centre along the hand's x axis, where the palm touches: off the wrist's axis, so the
+    /// load turns the wrist too.
+    pub fn static_torques_at(
+        &self,
+        q: &[f64; DOF],
+        hand_force: DVec3,
+        contact_offset: f64,
+    ) -> [f64; DOF] {
         let k = self.fk(q);
+        let contact = if contact_offset == 0.0 {
+            k.tcp.translation
+        } else {
+            k.tcp.translation + k.tcp.matrix3.x_axis * contact_offset
+        };
         let mut origins: Vec<DVec3> = k.joints.iter().map(|f| f.translation).collect();
         origins.push(k.tcp.translation);
         let com: Vec<DVec3> = (0..DOF)
@@ -186,7 +214,7 @@ impl Arm {
                 let weight = DVec3::new(0.0, 0.0, -LINK_MASS[i] * GRAVITY);
                 t -= axis.dot((com[i] - pj).cross(weight));
             }
-            t -= axis.dot((k.tcp.translation - pj).cross(hand_force));
+            t -= axis.dot((contact - pj).cross(hand_force));
             tau[j] = t;
         }
         tau

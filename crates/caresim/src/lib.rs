@@ -17,20 +17,25 @@
 //!
 //! Modules: [`arm`] kinematics and torques, [`body`] the mannequin, [`cloth`] the towel,
 //! [`shapes`] primitives and meshes, [`render`] the rasteriser, [`scene`] robot, bed, room
-//! and cameras, [`task`] the scripted tasks and their variability, [`sim`] running a trial.
+//! and cameras, [`task`] the scripted tasks and their variability, [`sim`] running a trial,
+//! [`revision`] which edition of the benchmark (revision 2 moves every joint).
 
 pub mod arm;
 pub mod body;
 pub mod cloth;
 mod math;
 pub mod render;
+pub mod revision;
 pub mod scene;
 pub mod shapes;
 pub mod sim;
 pub mod task;
 pub mod variability;
 
-pub use sim::{IMAGE_SIZE, Simulation, StepRecord, TrialSpec, simulate, simulate_with};
+pub use revision::Revision;
+pub use sim::{
+    IMAGE_SIZE, Simulation, StepRecord, TrialSpec, simulate, simulate_proprioception, simulate_with,
+};
 pub use task::Task;
 pub use variability::Variability;
 
@@ -49,6 +54,8 @@ pub struct DatasetSpec {
     pub learn_per_height: usize,
     pub test_per_height: usize,
     pub variability: Variability,
+    /// Which edition of the benchmark ([`Revision`]).
+    pub revision: Revision,
 }
 
 impl Default for DatasetSpec {
@@ -60,6 +67,7 @@ impl Default for DatasetSpec {
             learn_per_height: 3,
             test_per_height: 1,
             variability: Variability::PAPER,
+            revision: Revision::default(),
         }
     }
 }
@@ -92,6 +100,7 @@ impl DatasetSpec {
                             index,
                             seed,
                             variability: self.variability.of(task),
+                            revision: self.revision,
                         });
                     }
                 }

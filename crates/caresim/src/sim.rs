@@ -7,6 +7,7 @@ use crate::arm::DOF;
 use crate::body::Mannequin;
 use crate::cloth::Cloth;
 use crate::render::{self, Camera, Frame, Material};
+use crate::revision::Revision;
 use crate::scene::{self, Robot};
 use crate::shapes::{Mesh, Shape};
 use crate::task::{Plan, Script, SimRng, Task, Variation};
@@ -21,6 +22,8 @@ const TOWEL_PARTICLES: usize = 11;
 /// Sensor noise (std) of joint angles (rad) and torques (N m).
 const JOINT_NOISE: f64 = 2e-4;
 const TORQUE_NOISE: f64 = 0.05;
+/// Revision 2: where loads act, from the palm's centre along the hand's x axis (m).
+const PALM_CONTACT: f64 = 0.04;
 
 /// Which trial to simulate.
 #[derive(Clone, Debug, PartialEq)]
@@ -34,6 +37,8 @@ pub struct TrialSpec {
     /// The task's variability factor (1 = the default benchmark; see
     /// [`crate::variability`]).
     pub variability: f64,
+    /// Which edition of the benchmark.
+    pub revision: Revision,
 }
 
 impl TrialSpec {
@@ -108,7 +113,7 @@ impl Simulation {
             towel
         });
         let grasp = towel.as_ref().map(Cloth::grasp_point);
-        let script = Script::new(spec.task, variation, &body, bed_top, grasp);
+        let script = Script::new(spec.task, variation, &body, bed_top, grasp, spec.revision);
         let mut q = robot.rest;
         // Settle into the first targets from the rest posture.
         let first = script.at(0, &body);
@@ -166,7 +171,12 @@ impl Simulation {
                 towel.is_grasped().then_some(&tcp[1]),
             );
         }
-        let torques = [0, 1].map(|a| self.robot.arms[a].static_torques(&self.q[a], plan.forces[a]));
+        let contact = match self.spec.revision {
+            Revision::R1 => 0.0,
+            Revision::R2 => PALM_CONTACT,
+        };
+        let torques = [0, 1]
+            .map(|a| self.robot.arms[a].static_torques_at(&self.q[a], plan.forces[a], contact));
         self.step += 1;
         StepRecord {
             plan,
@@ -251,6 +261,48 @@ impl Simulation {
     }
 }
 
+/// A trial's proprioception alone: a sequence with no cameras whose joint angles, torques
+/// and subtasks are those [`simulate`] records, bytes and noise included (the sensor noise
+/// is drawn only for proprioception), at a small part of its cost: no frame is rendered.
+pub fn simulate_proprioception(spec: &TrialSpec) -> Sequence {
+    let mut sim = Simulation::new(spec.clone());
+    let t = sim.len();
+    let (mut joints, mut torques) = (Vec::with_capacity(t * 14), Vec::with_capacity(t * 14));
+    let mut subtask = Vec::with_capacity(t);
+    for _ in 0..t {
+        let record = sim.step();
+        let (j, tq) = sim.sensors(&record);
+        joints.extend(j);
+        torques.extend(tq);
+        subtask.push(record.plan.subtask);
+    }
+    Sequence {
+        info: sequence_info(spec, t),
+        cameras: 0,
+        image_size: 0,
+        images: Vec::new(),
+        joints,
+        torques,
+        subtask,
+        extra: Vec::new(),
+        images_without_robot: None,
+    }
+}
+
+fn sequence_info(spec: &TrialSpec, length: usize) -> SequenceInfo {
+    let name = spec.name();
+    SequenceInfo {
+        file: format!("{name}.safetensors"),
+        name,
+        task: spec.task.name().into(),
+        bed_height_mm: Some(spec.bed_height_mm as f64),
+        split: spec.split,
+        seed: Some(spec.seed),
+        length,
+        subtasks: spec.task.subtasks().iter().map(|s| s.to_string()).collect(),
+    }
+}
+
 /// Simulates a whole trial into a dataset sequence, with each step's state.
 pub fn simulate(spec: &TrialSpec) -> (Sequence, Vec<StepRecord>) {
     simulate_with(spec, false)
@@ -284,18 +336,8 @@ pub fn simulate_with(spec: &TrialSpec, robot_free: bool) -> (Sequence, Vec<StepR
         subtask.push(record.plan.subtask);
         records.push(record);
     }
-    let name = spec.name();
     let seq = Sequence {
-        info: SequenceInfo {
-            file: format!("{name}.safetensors"),
-            name,
-            task: spec.task.name().into(),
-            bed_height_mm: Some(spec.bed_height_mm as f64),
-            split: spec.split,
-            seed: Some(spec.seed),
-            length: t,
-            subtasks: spec.task.subtasks().iter().map(|s| s.to_string()).collect(),
-        },
+        info: sequence_info(spec, t),
         cameras: 2,
         image_size: IMAGE_SIZE,
         images,

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::arm::{GRAVITY, IkTarget};
 use crate::body::{Landmarks, Mannequin, Posture, UPPER_COM, UPPER_MASS};
 use crate::math::{cos, ln, sin};
+use crate::revision::Revision;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -147,6 +148,9 @@ pub struct Variation {
     pub posture: Posture,
     pub lift_max: f64,
     pub wipe: Option<WipePattern>,
+    /// How far this operator twists the wrists, as a factor on the scripted twists
+    /// (revision 2 only; drawn from a stream of its own, so revision 1's draws stay).
+    pub wrist_gain: f64,
     jitter: [Jitter; 2],
 }
 
@@ -190,11 +194,18 @@ impl Variation {
             Jitter::new(&mut raw_rng, amplitude),
             Jitter::new(&mut raw_rng, amplitude),
         ];
+        let mut wrist_rng = SimRng::new(seed ^ 0x0057_215E_7715);
+        let wrist_gain = Spread {
+            rng: &mut wrist_rng,
+            factor: variability,
+        }
+        .range(0.75, 1.25);
         Self {
             durations,
             posture,
             lift_max,
             wipe,
+            wrist_gain,
             jitter,
         }
     }
@@ -204,6 +215,17 @@ impl Variation {
     }
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+}
+
+/// Friction (coefficient 0.5) against a hand moving along `path` at step `t` while
+/// `normal` newtons press on it: horizontal, opposite the hand's horizontal motion.
+fn sliding_friction(path: &Path, t: f64, normal: f64) -> DVec3 {
+    let velocity = (path.at(t + 0.5).0 - path.at(t - 0.5).0).with_z(0.0);
+    if velocity.length() > 1e-6 && normal > 0.0 {
+        -velocity.normalize() * 0.5 * normal
+    } else {
+        DVec3::ZERO
     }
 }
 
@@ -275,6 +297,7 @@ pub struct Script {
     wipe_dirs: (DVec3, DVec3),
     surface: Vec<crate::shapes::Shape>,
     bed_top: f64,
+    revision: Revision,
 }
 
 impl Script {
@@ -285,6 +308,7 @@ impl Script {
         body: &Mannequin,
         bed_top: f64,
         grasp: Option<DVec3>,
+        revision: Revision,
     ) -> Self {
         let [d0, d1, d2] = variation.durations.map(|d| d as f64);
         let (t1, t2) = (d0, d0 + d1);
@@ -354,6 +378,7 @@ impl Script {
             surface: body.shapes(0.0),
             bed_top,
             variation,
+            revision,
         }
     }
 
@@ -384,6 +409,7 @@ impl Script {
             position: p + self.variation.jitter[hand].at(t),
             fingers: f,
             direction_weight: DIRECTION_WEIGHT,
+            wrist_twist: (self.revision == Revision::R2).then(|| self.wrist_twist(t, hand)),
         };
         let mut left = self.left.at(t);
         let mut right = self.right.at(t);
@@ -402,6 +428,10 @@ impl Script {
                 if t >= t1 + 0.9 * d1 {
                     forces[1] = DVec3::new(0.0, 0.0, 6.0);
                 }
+                if self.revision == Revision::R2 && t < t1 + 0.5 * d1 {
+                    // Sliding under the neck and back: the body's weight on the palm resists.
+                    forces[0] += sliding_friction(&self.left, t, -forces[0].z);
+                }
                 if t >= t2 {
                     let tau = (t - t2) / d2;
                     lift = self.variation.lift_max * min_jerk((tau - 0.08) / 0.8);
@@ -417,7 +447,14 @@ impl Script {
                     let lever = (self.back_local - DVec3::new(0.0, 0.0, 0.1)).length();
                     let full = UPPER_MASS * GRAVITY * UPPER_COM * cos(lift) / lever;
                     let support = 8.0 + (full - 8.0) * min_jerk(tau / 0.3);
-                    forces[0] = DVec3::new(0.0, 0.0, -support);
+                    forces[0] = match self.revision {
+                        Revision::R1 => DVec3::new(0.0, 0.0, -support),
+                        // The back presses along its own normal, which tilts with the lift.
+                        Revision::R2 => {
+                            DMat3::from_axis_angle(self.landmarks.pivot_axis, lift)
+                                * DVec3::new(0.0, 0.0, -support)
+                        }
+                    };
                     forces[1] = DVec3::new(0.0, 0.0, 6.0 + 6.0 * tau);
                 }
             }
@@ -475,6 +512,40 @@ impl Script {
             lift,
             forces,
             grasping,
+        }
+    }
+
+    /// Revision 2: how far the operator has turned hand `hand`'s wrist from rest at step
+    /// `t` (rad): the palm turns up to slide under the neck and back and eases as the body
+    /// rises; the knee hand turns the other way; the towel hand turns to pinch the towel,
+    /// rolls with every stroke and turns back once it lets go.
+    fn wrist_twist(&self, t: f64, hand: usize) -> f64 {
+        let [t1, t2, t3] = self.bounds;
+        let d0 = t1;
+        let (d1, d2) = (t2 - t1, t3 - t2);
+        let ramp = |from: f64, to: f64| min_jerk((t - from) / (to - from).max(1e-9));
+        let g = self.variation.wrist_gain;
+        match (self.task, hand) {
+            (Task::Repositioning, 0) => {
+                let under = 1.0 * ramp(0.15 * d0, 0.85 * d0);
+                g * (under - 0.5 * ramp(t2, t2 + 0.8 * d2))
+            }
+            (Task::Repositioning, _) => {
+                let knee = -0.7 * ramp(t1 + 0.35 * d1, t1 + 0.9 * d1);
+                g * (knee + 0.2 * ramp(t2, t3))
+            }
+            (Task::Wiping, 1) => {
+                let w = self.variation.wipe.as_ref().expect("wiping pattern");
+                let pinch = g * 0.6 + 0.4 * w.angle;
+                let roll = if (t1..t2).contains(&t) {
+                    let s = (t - t1) / d1;
+                    0.35 * g * sin(std::f64::consts::TAU * w.strokes as f64 * s)
+                } else {
+                    0.0
+                };
+                pinch * (ramp(0.1 * d0, 0.9 * d0) - ramp(t2 + 0.12 * d2, t2 + 0.6 * d2)) + roll
+            }
+            (Task::Wiping, _) => 0.0,
         }
     }
 

@@ -273,6 +273,16 @@ impl Normalisation {
         }
     }
 
+    /// A spread (a standard deviation) of dimension `i` in raw units, in model units.
+    pub fn noise_to_model(&self, i: usize, spread: f64) -> f64 {
+        let (lo, hi) = (self.proprio_min[i], self.proprio_max[i]);
+        if hi > lo {
+            spread / (hi - lo) * 1.8
+        } else {
+            0.0
+        }
+    }
+
     /// An 8-bit channel value to model units.
     pub fn vision_to_model(v: f64) -> f64 {
         v / 255.0 * 1.8 - 0.9

@@ -57,6 +57,41 @@ pub fn proprio_ranges(sequences: &[&Sequence]) -> Normalisation {
     }
 }
 
+/// Per proprioceptive dimension, the sensor noise's standard deviation estimated from the
+/// recordings (raw units): the standard deviation of step-to-step differences over sqrt 2,
+/// pooled over `sequences`. Motion between steps adds to the differences, so on a moving
+/// channel this overestimates the noise; on a channel that only carries noise it is the
+/// noise.
+pub fn proprio_noise_std(sequences: &[&Sequence]) -> Vec<f64> {
+    let dims = sequences.first().map_or(0, |s| s.proprio_layout().dims());
+    let (mut sum, mut sum_sq, mut count) = (vec![0.0; dims], vec![0.0; dims], 0usize);
+    for s in sequences {
+        let mut previous: Option<Vec<f32>> = None;
+        for t in 0..s.len() {
+            let row = s.proprio(t);
+            if let Some(p) = &previous {
+                for i in 0..dims {
+                    let d = (row[i] - p[i]) as f64;
+                    sum[i] += d;
+                    sum_sq[i] += d * d;
+                }
+                count += 1;
+            }
+            previous = Some(row);
+        }
+    }
+    (0..dims)
+        .map(|i| {
+            if count < 2 {
+                return 0.0;
+            }
+            let n = count as f64;
+            let variance = (sum_sq[i] - sum[i] * sum[i] / n) / (n - 1.0);
+            (variance.max(0.0) / 2.0).sqrt()
+        })
+        .collect()
+}
+
 /// Fails with a message naming both sides unless the model's vision layout is this
 /// dataset's pyramid.
 pub fn check_layout(manifest: &Manifest, layout: &VisionLayout) -> Result<()> {

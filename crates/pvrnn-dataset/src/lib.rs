@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 use pvrnn_core::io::{self, OutTensor, TensorFile};
 use serde::{Deserialize, Serialize};
 
-pub use inputs::{Selection, proprio_ranges};
+pub use inputs::{Selection, proprio_noise_std, proprio_ranges};
 
 /// Manifest format identifier.
 pub const FORMAT: &str = "pvrnn-dataset/1";

@@ -38,8 +38,8 @@ Definitions re-implemented (alpha 0.05, power 0.80):
     best log-likelihood - the best shared one). Beside it our noncentrality's 95% CI (the
     noncentral cdf inverted at our statistic) and the paper's scaled to our n (t sqrt(n/5),
     df1 F n/5). Verdicts: opposite direction disagrees; same and significant agrees; same,
-    not significant: disagrees when the LR p < 0.05, else undecided (null). Fig 4A: a
-    significant paired t disagrees, else equivalence agrees, else undecided. Not
+    not significant: disagrees when the LR p < 0.05, else undecided (null). Fig 4A:
+    equivalence agrees, else a significant paired t disagrees, else undecided. Not
     re-derived: Fig 5B's resolution-order verdict (means and aligned-rank orders).
   * hierarchy: the per-network mean contribution per module = map_mean_<module> of the
     everything-observed runs. Not in trials.csv, so skipped: contributions per subtask
@@ -54,6 +54,8 @@ from collections import defaultdict
 import numpy as np
 from scipy import stats
 from scipy.optimize import brentq, minimize_scalar
+
+import recheck_gate  # scripts/recheck_gate.py
 
 ALPHA, POWER, MARGIN, TIE = 0.05, 0.80, 0.10, 1e-10
 MODULES = ["executive", "associative", "exteroceptive", "proprioceptive"]
@@ -287,8 +289,8 @@ PTXT = r"(p < 0\.001|p = \d\.\d+)"
 class Checker:
     """Compares our figures with summary.json: counts them by kind, keeps the mismatches."""
 
-    def __init__(self, summary, rel, abs_):
-        self.s, self.rel, self.abs = summary, rel, abs_
+    def __init__(self, summary, rel, abs_, gated=True):
+        self.s, self.rel, self.abs, self.gated = summary, rel, abs_, gated
         self.count, self.worst, self.bad, self.seen = defaultdict(int), 0.0, [], set()
 
     def get(self, path):
@@ -330,7 +332,10 @@ class Checker:
         return (self.get(["paper", k]) or {}).get(field) or ""
 
     def label(self, path, ours, kind="labels"):
-        """Equality of a label (or, counted under its kind, a verdict)."""
+        """Equality of a label (or, counted under its kind, a verdict). A verdict needs every
+        network to pass the validity gate: otherwise there is none (null)."""
+        if kind == "paper verdict" and not self.gated:
+            ours = None
         ref = self.get(path)
         self._record(path, kind, ref == ours, ours, ref)
 
@@ -500,8 +505,9 @@ def uncertainty(rows, chk):
     for m, v in enumerate([e["mean"], *e["ci90"], e["margin"], e["p"], d["df"], d["t"], d["p"]]):
         chk.printed(["paper", 0, "ours"], g(m + 1), v)
     check_effect_text(chk, ["paper", 0, "effect"], chk.text(0, "effect"), d)
-    # Fig 4A's rule: a significant paired t disagrees, else equivalence agrees, else undecided.
-    chk.label(["paper", 0, "agrees"], False if d["p"] < ALPHA else (True if e["equivalent"] else None),
+    # Fig 4A's rule (amended 2026-12-06): equivalence within the margin agrees, else a
+    # significant paired t disagrees, else undecided.
+    chk.label(["paper", 0, "agrees"], True if e["equivalent"] else (False if d["p"] < ALPHA else None),
               "paper verdict")
     d, _ = ours[("sigma_p_change", "all modules")]
     g = search(rf"^t\((\d+)\) = {NUM}, {PTXT}$", chk.text(1, "ours"))
@@ -520,7 +526,8 @@ def hierarchy(rows, chk):
         chk.tree(["results", "contribution_per_network", m], list(nets.values()))
         print(f"  contribution {m:14s}: mean {np.mean(list(nets.values())):.6g} over {len(nets)} networks")
     # Internal: the tests from summary.json's own per-network values (inputs not re-derived).
-    tests = [(["results", "executive_boundary"], "near_minus_elsewhere_per_network")]
+    tests = [(["results", "executive_boundary"], "near_minus_elsewhere_per_network"),
+             (["results", "executive_boundary_matched"], "near_minus_elsewhere_per_network")]
     for name in chk.get(["results", "occlusion", "relative"]) or {}:
         tests.append((["results", "occlusion", "relative", name], "per_network"))
     for base, key in tests:
@@ -565,7 +572,10 @@ def main():
         print(f"\n################ {exp} ({summary.get('scale')} scale): {d}")
         print(f"  {len(rows)} runs with scores, {diverged} diverged (left out); "
               f"summary lists {len(summary.get('diverged', []))} diverged")
-        chk = Checker(summary, args.rel, args.abs)
+        gated, gate_bad = recheck_gate.recheck(os.path.join(d, "trainings.csv"), summary)
+        chk = Checker(summary, args.rel, args.abs, gated)
+        for b in gate_bad:
+            chk._record(["gate"], "validity gate", False, b, "trainings.csv")
         {"robustness": robustness, "uncertainty": uncertainty, "hierarchy": hierarchy}[exp](rows, chk)
         left = chk.not_compared(None)
         figures = sum(chk.count.values()) - chk.count.get("labels", 0)

@@ -44,6 +44,8 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import brentq
 
+import recheck_gate  # scripts/recheck_gate.py
+
 ALPHA, POWER, MARGIN = 0.05, 0.80, 0.10
 CAMERAS, CHANNELS, RESOLUTIONS, PROPRIO_DIMS = 2, 3, (16, 32, 64), 28
 MEASURES = ["pooled", "vision", "proprioception", "equal weight"]
@@ -401,7 +403,13 @@ def main():
                 chk.check(ab + ["ci95", i], a["ci"][i])
         if summary is not None and chk.get(["asymmetry"]) is None:
             print("  (summary.json has no asymmetry result to compare with)")
-    if chk.report() is False:
+    gate_bad = []
+    trainings = os.path.join(os.path.dirname(os.path.abspath(args.trials_csv)), "trainings.csv")
+    if summary is not None and os.path.exists(trainings):
+        _, gate_bad = recheck_gate.recheck(trainings, summary)
+        for b in gate_bad:
+            print(f"  MISMATCH (validity gate) {b}")
+    if chk.report() is False or gate_bad:
         sys.exit(1)
 
 

@@ -12,6 +12,7 @@
 //! - [`report`]: aggregation (per trial, then mean ± SE) and the JSON, Markdown and CSV files.
 //! - [`plots`]: PNG pictures (error over time with the subtask bar; actual vs predicted
 //!   images), and training curves from a training log.
+//! - [`gate`]: the validity gate: does a network beat the strongest baseline on held-out data?
 //! - [`machine`]: where a result was computed, in words.
 //! - [`progress`]: error against training iterations, from several evaluations.
 //! - [`recipes`]: the recipe search's table, from each recipe's validation files.
@@ -20,6 +21,7 @@
 
 pub mod baselines;
 pub mod evaluate;
+pub mod gate;
 pub mod groups;
 pub mod machine;
 pub mod metrics;

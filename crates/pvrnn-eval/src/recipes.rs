@@ -253,6 +253,7 @@ mod tests {
             upsample_detail: None,
             mean: None,
             machine: Some("AMD EPYC (AVX2), 2 cores, 1 thread".into()),
+            ..Default::default()
         }
     }
 

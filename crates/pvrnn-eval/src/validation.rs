@@ -6,7 +6,8 @@
 //! paper's Fig. 5 question: the lowest vision resolution and proprioception observed, one
 //! noise trial (seed 0). Its score is the reconstruction error of the highest (unobserved)
 //! resolution; a trial whose inference diverges beyond repair counts against the
-//! checkpoint before any error does.
+//! checkpoint before any error does. Each validation also records the baselines of the
+//! validity gate ([`crate::gate`]): whether the network beats what needs no learning.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -23,7 +24,7 @@ use crate::report::{Pixels, figures, trial_values};
 use crate::{Error, Result, write_file};
 
 /// One validation of a training run (a row of `<run>.validation.csv`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ValidationRow {
     pub iteration: u64,
     /// Trials whose online inference diverged beyond repair (left out of the errors).
@@ -50,6 +51,26 @@ pub struct ValidationRow {
     /// too. Absent in older logs.
     #[serde(default)]
     pub machine: Option<String>,
+    /// The validity gate's other baselines (docs/experiments.md, "The validity gate"),
+    /// absent in logs written before 2026-12-06. Vision: the nearest learning frame (the
+    /// held-out dataset's learning frame whose observed inputs are closest, never the
+    /// sequence's own).
+    #[serde(default)]
+    pub nearest: Option<f64>,
+    /// Proprioception: the model's one-step prediction of the joint angles and torques, the
+    /// previous value's and the mean learning input's errors for it.
+    #[serde(default)]
+    pub next_joints: Option<f64>,
+    #[serde(default)]
+    pub next_torques: Option<f64>,
+    #[serde(default)]
+    pub previous_joints: Option<f64>,
+    #[serde(default)]
+    pub previous_torques: Option<f64>,
+    #[serde(default)]
+    pub mean_joints: Option<f64>,
+    #[serde(default)]
+    pub mean_torques: Option<f64>,
 }
 
 impl ValidationRow {
@@ -95,22 +116,24 @@ pub fn validate(
         trials: 1,
         change_threshold: 8.0,
         image_columns: 1,
-        nearest_neighbour: false,
+        nearest_neighbour: true,
     };
     let eval = evaluate(model, backend, dataset, &Selection::All, &settings, &|| {})?;
     let figures = figures(&eval, &trial_values(&eval));
-    let figure = |source: Source, group: &str| {
+    let figure_of = |target: Target, source: Source, group: &str| {
         figures
             .iter()
             .find(|f| {
                 f.scope == "all"
-                    && f.target == Target::Recon
+                    && f.target == target
                     && f.source == source
                     && f.group == group
                     && f.pixels == Pixels::All
             })
             .map(|f| f.mean)
     };
+    let figure = |source: Source, group: &str| figure_of(Target::Recon, source, group);
+    let next = |source: Source, group: &str| figure_of(Target::Next, source, group);
     let recon = |group: &str| figure(Source::Model, group);
     let top = format!("v{}", eval.resolutions.last().copied().unwrap_or(0));
     Ok(ValidationRow {
@@ -125,6 +148,13 @@ pub fn validate(
         upsample_detail: figure(Source::UpsampleDetail, &top),
         mean: figure(Source::Mean, &top),
         machine: Some(crate::machine::here()),
+        nearest: figure(Source::Nearest, &top),
+        next_joints: next(Source::Model, "joints"),
+        next_torques: next(Source::Model, "torques"),
+        previous_joints: next(Source::Previous, "joints"),
+        previous_torques: next(Source::Previous, "torques"),
+        mean_joints: next(Source::Mean, "joints"),
+        mean_torques: next(Source::Mean, "torques"),
     })
 }
 
@@ -174,6 +204,7 @@ mod tests {
             upsample_detail: None,
             mean: Some(0.015),
             machine: Some("AMD EPYC (AVX2), 2 cores, 1 thread".into()),
+            ..Default::default()
         }
     }
 

@@ -15,6 +15,8 @@
 //! paper gives a statistic, the verdict tests whether one effect fits both studies
 //! ([`crate::compatibility`]): if they differ it disagrees, if one fits both it is
 //! undecided (too small a design to tell).
+//! Every verdict needs networks that pass the validity gate ([`gated`]); on networks that
+//! lose to a baseline without dynamics a finding is "not testable on these networks".
 
 use serde::Serialize;
 use serde_json::Value;
@@ -258,6 +260,28 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
         verdict(p, true, difference.is_none_or(|d| d > 0.0)),
     )
     .with_effect(effect_text(&boundary["difference"]))];
+    let matched = &r["executive_boundary_matched"];
+    if !matched.is_null() {
+        let difference = mean_of(&matched["near_minus_elsewhere_per_network"]);
+        let p = num(&matched["difference"]["p"]);
+        out.push(
+            finding(
+                "The executive module's latent state changes most at subtask boundaries, onset kept, within its time constant (Figs 2A, 3A)",
+                "described from single runs, no test",
+                match difference {
+                    Some(d) => format!(
+                        "mean absolute Δμ_q within ±{} steps − elsewhere (steps t ≥ 1) = {d:.3e}; across networks, two-sided one-sample t: {}; within runs, two-sided permutation: {}",
+                        matched["half_width"],
+                        p_text(p),
+                        p_text(num(&matched["p"]))
+                    ),
+                    None => "no run with a subtask boundary".into(),
+                },
+                verdict(p, true, difference.is_none_or(|d| d > 0.0)),
+            )
+            .with_effect(effect_text(&matched["difference"])),
+        );
+    }
     if r["occlusion"].is_null() {
         out.push(finding(
             "Body parts hidden by the arms are inferred (Fig 3B)",
@@ -592,10 +616,12 @@ fn resolution_verdict(
     }
 }
 
-/// The verdict on a "no difference" claim (Figs 4A and 6A), one rule for both: a
-/// significant difference test (`p`: the paired t or the omnibus ANOVA) disagrees, even
-/// when the difference lies inside the equivalence margin; without one, equivalence (TOST
-/// JSON `tost`) agrees; neither is undecided. `differ` says what a significant test means.
+/// The verdict on a "no difference" claim (Figs 4A and 6A), one rule for both (amended
+/// 2026-12-06, docs/experiments.md): equivalence within the margin (TOST JSON `tost`) agrees,
+/// with a significant difference test (`p`: the paired t or the omnibus ANOVA) stated
+/// beside it (`inside`: a difference smaller than the margin the claim allows); without
+/// equivalence, a significant difference disagrees; neither is undecided. `differ` says
+/// what a significant test means.
 fn no_difference_verdict(
     tost: &Value,
     p: Option<f64>,
@@ -604,15 +630,12 @@ fn no_difference_verdict(
 ) -> (Option<bool>, String) {
     let equivalent = tost["equivalent"].as_bool();
     match (p, equivalent) {
-        (Some(p), equivalent) if p < ALPHA => (
-            Some(false),
-            if equivalent == Some(true) {
-                format!("{differ}, though {inside}")
-            } else {
-                differ.into()
-            },
+        (Some(p), Some(true)) if p < ALPHA => (
+            Some(true),
+            format!("equivalent within the margin; {differ}, but {inside}"),
         ),
         (_, Some(true)) => (Some(true), String::new()),
+        (Some(p), _) if p < ALPHA => (Some(false), differ.into()),
         (_, Some(false)) => (
             None,
             "undecided: neither a difference nor equivalence within the margin is shown".into(),
@@ -738,9 +761,9 @@ fn no_change_finding(v: &Value) -> Finding {
         Some(t) => format!("{t}; {}", f_text(effect)),
         None => f_text(effect),
     };
-    // Fig 4A's rule: a change the ANOVA finds disagrees even within the margin; without
-    // one, "no change" needs equivalence (so the rule can only turn the old p ≥ 0.05
-    // reading into "undecided", never into agreement).
+    // Fig 4A's rule: "no change" needs equivalence within the margin, and then agrees
+    // whatever the ANOVA says (stated beside it); without equivalence a change the ANOVA
+    // finds disagrees.
     let verdict = no_difference_verdict(
         tost,
         num(&effect["p"]),
@@ -939,11 +962,51 @@ fn untested(findings: &mut [Finding], note: &str) {
     }
 }
 
+/// How many of a report's networks pass the validity gate ([`pvrnn_eval::gate`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GateSummary {
+    pub passing: usize,
+    pub networks: usize,
+}
+
+impl GateSummary {
+    pub fn all_pass(&self) -> bool {
+        self.networks > 0 && self.passing == self.networks
+    }
+}
+
+/// A finding is drawn only from networks that pass the validity gate: while any of the
+/// report's networks fails it (or was not gated), every finding keeps our statistics for
+/// the record but has no verdict, "not testable on these networks" (docs/experiments.md,
+/// "The validity gate").
+pub fn gated(findings: Vec<Finding>, gate: &GateSummary) -> Vec<Finding> {
+    if gate.all_pass() {
+        return findings;
+    }
+    findings
+        .into_iter()
+        .map(|f| Finding {
+            agrees: None,
+            note: format!(
+                "not testable on these networks: {} of {} pass the validity gate (trainings.csv){}",
+                gate.passing,
+                gate.networks,
+                if f.note.is_empty() {
+                    String::new()
+                } else {
+                    format!("; without the gate: {}", f.note)
+                }
+            ),
+            ..f
+        })
+        .collect()
+}
+
 /// The findings as a Markdown section; `coverage` says how much of the design the results
 /// cover ("5 of the design's 5 networks").
 pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
     let mut md = format!(
-        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. A result in the paper's direction that is not significant disagrees when the two studies' effects differ (a likelihood-ratio test of one effect per network for both, from the paper's t or F, or the smallest t its p allows) and is undecided when one effect fits both; our noncentrality's 95% interval and the paper's estimate at our networks are printed beside it. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
+        "## Compared with the paper ({stamp})\n\nThe paper's numbers (5 networks x 100,000 iterations, 5 trials) beside this run's ({coverage}). A verdict needs every network to pass the validity gate (on held-out data it beats the strongest baseline of vision and of proprioception; trainings.csv); otherwise the finding is not testable on these networks and its verdict without the gate is printed for the record only. Agrees = same direction and same verdict at p < 0.05 (a \"no difference\" or \"no change\", Figs 4A and 6A: no significant difference and equivalence within the stated margin). Directions are judged on the mean errors; where the aligned ranks a rank test uses point the other way, the verdict is undecided. A result in the paper's direction that is not significant disagrees when the two studies' effects differ (a likelihood-ratio test of one effect per network for both, from the paper's t or F, or the smallest t its p allows) and is undecided when one effect fits both; our noncentrality's 95% interval and the paper's estimate at our networks are printed beside it. Effect: our difference with its 95% CI, Cohen's d (d_z for paired differences), and the smallest difference this design detects with 80% power (two-sided, 0.05, from the observed variance).\n\n| finding | paper | ours | effect | agrees |\n|---|---|---|---|---|\n"
     );
     for f in findings {
         debug_assert!(!format!("{}{}{}", f.finding, f.paper, f.ours).contains('|'));
@@ -965,6 +1028,37 @@ pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
 mod tests {
     use super::*;
     use serde_json::json;
+
+    #[test]
+    fn a_verdict_needs_every_network_to_pass_the_gate() {
+        let f = vec![finding(
+            "claim",
+            "p",
+            "ours".into(),
+            (Some(false), "why".into()),
+        )];
+        let all = GateSummary {
+            passing: 5,
+            networks: 5,
+        };
+        assert_eq!(gated(f.clone(), &all), f);
+        let some = GateSummary {
+            passing: 4,
+            networks: 5,
+        };
+        let g = gated(f.clone(), &some);
+        assert_eq!(g[0].agrees, None);
+        assert_eq!(
+            g[0].note,
+            "not testable on these networks: 4 of 5 pass the validity gate (trainings.csv); without the gate: why"
+        );
+        assert_eq!(g[0].ours, "ours", "the statistics stay for the record");
+        let none = GateSummary {
+            passing: 0,
+            networks: 0,
+        };
+        assert_eq!(gated(f, &none)[0].agrees, None);
+    }
 
     #[test]
     fn verdicts_follow_direction_then_significance() {
@@ -1017,9 +1111,15 @@ mod tests {
             findings(Experiment::Uncertainty, &r(false, 0.01))[0].agrees,
             Some(false)
         );
-        // Fig 6A's rule too: a significant difference disagrees, even inside the margin.
+        // Fig 6A's rule too (amended 2026-12-06): equivalence within the margin agrees, a
+        // significant difference stated beside it.
         let inside = findings(Experiment::Uncertainty, &r(true, 0.01));
-        assert_eq!(inside[0].agrees, Some(false), "{:?}", inside[0]);
+        assert_eq!(inside[0].agrees, Some(true), "{:?}", inside[0]);
+        assert!(
+            inside[0]
+                .note
+                .starts_with("equivalent within the margin; the tasks differ")
+        );
         assert!(inside[0].note.contains("less than the equivalence margin"));
         // Significant, but wiping's change is the smaller: the opposite of the paper.
         assert_eq!(f[1].agrees, Some(false));
@@ -1313,9 +1413,10 @@ mod tests {
         assert_eq!(f[0].agrees, None, "{:?}", f[0]);
         assert!(f[0].note.contains("undecided"), "{}", f[0].note);
         assert_eq!(agrees(false, 0.01)[0].agrees, Some(false));
-        // A change the ANOVA finds disagrees, even within the margin, or without a TOST.
+        // A change the ANOVA finds within the margin agrees, the change stated beside it;
+        // without a TOST it disagrees.
         let f = agrees(true, 0.01);
-        assert_eq!(f[0].agrees, Some(false), "{:?}", f[0]);
+        assert_eq!(f[0].agrees, Some(true), "{:?}", f[0]);
         assert!(f[0].note.contains("ANOVA significant"), "{}", f[0].note);
         assert!(
             f[0].note.contains("9 added against none lies within"),

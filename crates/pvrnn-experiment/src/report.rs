@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use pvrnn_core::{AblationMode, ModelConfig, ModuleId};
+use pvrnn_eval::gate::Gate;
 use pvrnn_eval::plots::{Bar, bar_chart, write_png};
 use pvrnn_eval::report::sig;
 use rand::{RngExt, SeedableRng};
@@ -200,13 +201,25 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Robustness => robustness(&results, &out_dir, &stamp, &mut md)?,
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
-    let findings = crate::paper::findings(plan.experiment, &body);
+    let gates = network_gates(&results.trains);
+    let gate_summary = crate::paper::GateSummary {
+        passing: gates
+            .iter()
+            .filter(|g| g.as_ref().is_some_and(Gate::passes))
+            .count(),
+        networks: gates.len(),
+    };
+    let findings = crate::paper::gated(
+        crate::paper::findings(plan.experiment, &body),
+        &gate_summary,
+    );
     md.push_str(&crate::paper::markdown(
         &findings,
         &stamp,
         &coverage(&plan, &results),
     ));
     summary["results"] = body;
+    summary["gate"] = serde_json::to_value(&gate_summary)?;
     summary["paper"] = serde_json::to_value(&findings)?;
     let scale = plan.scale.name();
     pvrnn_core::io::write_atomic(
@@ -227,6 +240,7 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         trainings_csv(
             scale,
             &results.trains,
+            &gates,
             plan.design.flat_change.unwrap_or(FLAT_CHANGE),
         )
         .as_bytes(),
@@ -488,11 +502,48 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
 }
 
 /// One row per training.
-fn trainings_csv(scale: &str, trains: &[TrainResult], flat: f64) -> String {
+/// Each training's validity gate: the validation of the network used (`None`: the training
+/// has no validation at that iteration, so nothing held out says what it learned).
+fn network_gates(trains: &[TrainResult]) -> Vec<Option<Gate>> {
+    trains
+        .iter()
+        .map(|t| {
+            let used = t.network_iteration.unwrap_or(t.iterations);
+            t.validations
+                .iter()
+                .find(|v| v.iteration == used)
+                .map(Gate::of)
+        })
+        .collect()
+}
+
+/// What a gate's log lacks, as `measure: name name; ...` (empty when complete).
+fn not_recorded(gate: &Gate) -> String {
+    gate.checks
+        .iter()
+        .filter(|c| !c.missing.is_empty())
+        .map(|c| format!("{}: {}", c.measure, c.missing.join(" ")))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+fn trainings_csv(scale: &str, trains: &[TrainResult], gates: &[Option<Gate>], flat: f64) -> String {
     let mut out = String::from(
-        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend,stop,network_iteration,converged,machines\n",
+        "scale,job,network,training,sequences,iterations,final_free_energy,seconds,last_tenth_change,reused,backend,stop,network_iteration,converged,machines,held_out_vision,vision_baseline,vision_baseline_error,held_out_joints_next,joints_baseline_error,held_out_torques_next,torques_baseline_error,held_out_diverged,not_recorded,gate,gate_detail\n",
     );
-    for t in trains {
+    for (t, gate) in trains.iter().zip(gates) {
+        let check = |measure: &str| {
+            gate.as_ref()
+                .and_then(|g| g.checks.iter().find(|c| c.measure == measure))
+        };
+        let model = |measure: &str| csv_number(check(measure).and_then(|c| c.model));
+        let baseline = |measure: &str| {
+            csv_number(
+                check(measure)
+                    .map(|c| c.baseline_error)
+                    .filter(|e| e.is_finite()),
+            )
+        };
         let row = [
             csv_field(scale),
             csv_field(&t.job),
@@ -514,6 +565,21 @@ fn trainings_csv(scale: &str, trains: &[TrainResult], flat: f64) -> String {
             t.network_iteration.map_or(String::new(), |n| n.to_string()),
             t.converged(flat).to_string(),
             csv_field(&t.machines.join("; then ")),
+            model("vision"),
+            csv_field(check("vision").map_or("", |c| c.baseline)),
+            baseline("vision"),
+            model("joints"),
+            baseline("joints"),
+            model("torques"),
+            baseline("torques"),
+            gate.as_ref()
+                .map_or(String::new(), |g| g.failed_trials.to_string()),
+            csv_field(&gate.as_ref().map_or(String::new(), not_recorded)),
+            csv_field(gate.as_ref().map_or("not gated", |g| g.verdict.name())),
+            csv_field(&gate.as_ref().map_or(
+                "no held-out validation of the network used".into(),
+                Gate::describe,
+            )),
         ];
         out += &(row.join(",") + "\n");
     }
@@ -601,7 +667,7 @@ fn hierarchy(plan: &Plan, r: &Results, out: &Path, stamp: &str, md: &mut String)
         .design
         .inference_window
         .unwrap_or(ModelConfig::default().inference.window);
-    let (per_net, observed_difference, p) = boundary_test(&observed, window);
+    let (per_net, observed_difference, p) = boundary_test(&observed, window, BOUNDARY_HALF_WIDTH);
     let _ = writeln!(
         md,
         "## Executive latent change near subtask boundaries ({stamp})\n\nMean |Δμ_q| of the executive module per step, within ±{BOUNDARY_HALF_WIDTH} steps of a subtask boundary minus elsewhere; per network, then over networks. Boundaries: the onset of the first subtask (step 0, as the paper counts it) and every change of subtask. Only steps t ≥ H = {window} count: before the inference window is full online inference warms up and the posterior moves more everywhere, which would confound the comparison (so the onset's own neighbourhood, inside the warm-up, drops out at H = {window}). Permutation test: each run's analysed series circularly shifted against its labels, {PERMUTATIONS} permutations, two-sided.\n"
@@ -624,6 +690,7 @@ fn hierarchy(plan: &Plan, r: &Results, out: &Path, stamp: &str, md: &mut String)
             "No test run has a subtask boundary with steps on both sides: nothing to test.\n\n",
         ),
     }
+    let matched = matched_boundary_test(&observed, md);
     let occlusion = occlusion_section(r, stamp, md);
     Ok(json!({
         "ablation_mode": mode.name(),
@@ -639,7 +706,47 @@ fn hierarchy(plan: &Plan, r: &Results, out: &Path, stamp: &str, md: &mut String)
             "permutations": PERMUTATIONS,
             "p": p,
         },
+        "executive_boundary_matched": matched,
     }))
+}
+
+/// The executive module's time constants, the paper's: the half-width of the matched
+/// boundary test is the slower one.
+fn executive_half_width() -> usize {
+    let tau = ModelConfig::default().executive.tau;
+    tau[0].max(tau[1]).round() as usize
+}
+
+/// The boundary test with the paper's reading of its figures (pre-specified 2026-12-06,
+/// beside the one above): "near" spans the executive's slower time constant on either side
+/// of a boundary, and the onset at step 0 is kept (every step from 1 counts, the warm-up
+/// included, as in the paper's figures).
+fn matched_boundary_test(
+    observed: &[(InferResult, Option<Vec<Vec<f32>>>)],
+    md: &mut String,
+) -> Value {
+    let half_width = executive_half_width();
+    let (per_net, difference, p) = boundary_test(observed, 0, half_width);
+    let nets: Vec<f64> = per_net.values().copied().collect();
+    let across = stats::difference(&nets, &vec![0.0; nets.len()], true);
+    if difference.is_some() {
+        let _ = writeln!(
+            md,
+            "With a window matched to the executive's slower time constant (±{half_width} steps) and the onset kept (every step from 1, the warm-up included, as the paper's figures show it): near − elsewhere {} (over networks); across networks, two-sided one-sample t: p = {}; within runs, permutation p = {}.\n",
+            mean_se_text(&nets),
+            p_text(across.as_ref().and_then(|d| d.p)),
+            p_text(p)
+        );
+    }
+    json!({
+        "half_width": half_width,
+        "from_step": 1,
+        "two_sided": true,
+        "near_minus_elsewhere_per_network": per_net,
+        "difference": across,
+        "permutations": PERMUTATIONS,
+        "p": p,
+    })
 }
 
 /// Contribution per module and subtask phase (per task): a table of means ± SE over
@@ -960,12 +1067,14 @@ fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
 
 /// Near-minus-elsewhere executive change per network, its mean over networks, and the
 /// two-sided permutation p-value. Boundaries: the onset of the first subtask (step 0) and
-/// every change of subtask label. Only steps `t >= window` count: before the inference
-/// window is full, online inference is still warming up and the posterior moves more
-/// everywhere (the onset's neighbourhood then lies in the warm-up and drops out).
+/// every change of subtask label; "near" is within `half_width` steps of one. Only steps
+/// `t >= window` count (at least step 1, the first change): before the inference window is
+/// full, online inference is still warming up and the posterior moves more everywhere (the
+/// onset's neighbourhood then lies in the warm-up and drops out; `window` 0 keeps it).
 fn boundary_test(
     infers: &[(InferResult, Option<Vec<Vec<f32>>>)],
     window: usize,
+    half_width: usize,
 ) -> (BTreeMap<usize, f64>, Option<f64>, Option<f64>) {
     // Per run: the analysed changes (step t >= max(window, 1); index t-1 of the series) and
     // their near-boundary mask.
@@ -977,11 +1086,7 @@ fn boundary_test(
                 .chain((1..steps).filter(|&t| r.subtask[t] != r.subtask[t - 1]))
                 .collect();
             let first = window.max(1);
-            let near = |t: usize| {
-                boundaries
-                    .iter()
-                    .any(|&b| t.abs_diff(b) <= BOUNDARY_HALF_WIDTH)
-            };
+            let near = |t: usize| boundaries.iter().any(|&b| t.abs_diff(b) <= half_width);
             let values: Vec<f64> = (first..steps)
                 .filter_map(|t| r.executive_change.get(t - 1).copied())
                 .collect();
@@ -1719,18 +1824,65 @@ mod tests {
     }
 
     #[test]
+    fn the_matched_boundary_test_spans_the_executives_slower_time_constant_and_keeps_the_onset() {
+        assert_eq!(
+            executive_half_width(),
+            16,
+            "the paper's executive tau 8 and 16"
+        );
+        // A change that lasts 10 steps after each boundary, the onset's included: the
+        // matched window (±16 from step 1) holds all of it, ±3 from t >= 10 a little.
+        let runs: Vec<_> = (0..3)
+            .flat_map(|n| [run_with(n, "a", 0.0), run_with(n, "b", 0.0)])
+            .map(|(mut r, m)| {
+                for (i, v) in r.executive_change.iter_mut().enumerate() {
+                    let t = i + 1;
+                    if [0usize, 20, 40].iter().any(|&b| t >= b && t < b + 10) {
+                        *v += 0.2;
+                    }
+                }
+                (r, m)
+            })
+            .collect();
+        let (_, narrow, _) = boundary_test(&runs, 10, BOUNDARY_HALF_WIDTH);
+        let mut md = String::new();
+        let matched = matched_boundary_test(&runs, &mut md);
+        assert_eq!(
+            (
+                matched["half_width"].as_u64(),
+                matched["from_step"].as_u64()
+            ),
+            (Some(16), Some(1))
+        );
+        let wide = mean_se(
+            &matched["near_minus_elsewhere_per_network"]
+                .as_object()
+                .unwrap()
+                .values()
+                .map(|v| v.as_f64().unwrap())
+                .collect::<Vec<_>>(),
+        )
+        .0;
+        assert!(
+            wide > 0.05 && narrow.unwrap() < wide,
+            "{wide} vs {narrow:?}"
+        );
+        assert!(md.contains("±16 steps"), "{md}");
+    }
+
+    #[test]
     fn boundary_test_detects_change_at_subtask_boundaries_only_when_there_is_some() {
         let bumped: Vec<_> = (0..3)
             .flat_map(|n| [run_with(n, "a", 0.2), run_with(n, "b", 0.2)])
             .collect();
-        let (per_net, observed, p) = boundary_test(&bumped, 10);
+        let (per_net, observed, p) = boundary_test(&bumped, 10, BOUNDARY_HALF_WIDTH);
         assert_eq!(per_net.len(), 3);
         assert!((observed.unwrap() - 0.2).abs() < 0.05, "{observed:?}");
         assert!(p.unwrap() < 0.01, "{p:?}");
         let flat: Vec<_> = (0..3)
             .flat_map(|n| [run_with(n, "a", 0.0), run_with(n, "b", 0.0)])
             .collect();
-        let (_, _, p) = boundary_test(&flat, 10);
+        let (_, _, p) = boundary_test(&flat, 10, BOUNDARY_HALF_WIDTH);
         assert!(p.unwrap() > 0.05, "{p:?}");
         // A warm-up (large changes before the window is full) is left out; counted, it
         // moves the statistic (the old test's confound).
@@ -1744,11 +1896,11 @@ mod tests {
                 (r, m.clone())
             })
             .collect();
-        let (_, with_warm_up, _) = boundary_test(&warm, 10);
-        let (_, without, _) = boundary_test(&flat, 10);
+        let (_, with_warm_up, _) = boundary_test(&warm, 10, BOUNDARY_HALF_WIDTH);
+        let (_, without, _) = boundary_test(&flat, 10, BOUNDARY_HALF_WIDTH);
         assert_eq!(with_warm_up, without);
-        let (_, counted, _) = boundary_test(&warm, 0);
-        let (_, flat_all, _) = boundary_test(&flat, 0);
+        let (_, counted, _) = boundary_test(&warm, 0, BOUNDARY_HALF_WIDTH);
+        let (_, flat_all, _) = boundary_test(&flat, 0, BOUNDARY_HALF_WIDTH);
         assert!(
             (counted.unwrap() - flat_all.unwrap()).abs() > 0.01,
             "{counted:?}"

@@ -1766,6 +1766,7 @@ mod tests {
             upsample_detail: None,
             mean: None,
             machine: machine.map(str::to_string),
+            ..Default::default()
         };
         let rows = [
             row(2000, Some("A")),

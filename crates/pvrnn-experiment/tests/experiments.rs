@@ -408,10 +408,16 @@ fn an_interference_direction_is_tested_once_complete() {
     // Every training says where it ran.
     let trainings = std::fs::read_to_string(out.join("report/trainings.csv")).unwrap();
     let mut lines = trainings.lines();
-    assert!(lines.next().unwrap().ends_with(",machines"), "{trainings}");
+    let header = lines.next().unwrap();
+    assert!(
+        header.contains(",machines,") && header.ends_with(",gate,gate_detail"),
+        "{trainings}"
+    );
+    // Every training says where it ran; smoke trainings have no held-out validation, so
+    // the validity gate cannot judge them (their findings are not testable).
     let here = pvrnn_eval::machine::here();
     assert!(
-        lines.all(|l| l.ends_with(&format!("\"{here}\""))),
+        lines.all(|l| l.contains(&format!(",\"{here}\",")) && l.contains(",not gated,")),
         "{trainings}"
     );
     // Network 0 of each of the 8 conditions, each once, by its last job, with all of that
@@ -463,9 +469,11 @@ fn an_interference_direction_is_tested_once_complete() {
     assert!(repositioning["art"].is_null() && repositioning["equivalence"].is_null());
     let findings = summary["paper"].as_array().unwrap();
     assert!(
-        findings.iter().all(
-            |f| f["agrees"].is_null() && f["note"].as_str().unwrap().starts_with("no test yet")
-        ),
+        findings.iter().all(|f| f["agrees"].is_null()
+            && f["note"]
+                .as_str()
+                .unwrap()
+                .contains("without the gate: no test yet")),
         "{findings:?}"
     );
     assert!(
@@ -663,6 +671,7 @@ fn convergence_rule_stops_at_the_validation_best_a_flat_curve_or_the_cap() {
         upsample_detail: None,
         mean: None,
         machine: None,
+        ..Default::default()
     };
     let falling: Vec<f64> = (0..60).map(|i| 100.0 - i as f64).collect();
     let flat = vec![50.0; 60];
@@ -777,6 +786,36 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
         }
         other => panic!("stopped by {other:?}"),
     }
+    // Every validation records the validity gate's baselines beside the network's errors;
+    // a 20-iteration network has not learned, so the gate fails it and the report says so.
+    for r in &trained.validations {
+        assert!(
+            [r.nearest, r.next_joints, r.next_torques, r.previous_joints]
+                .iter()
+                .chain([&r.previous_torques, &r.mean_joints, &r.mean_torques])
+                .all(|v| v.is_some_and(f64::is_finite)),
+            "{r:?}"
+        );
+    }
+    let gate = pvrnn_eval::gate::Gate::of(best);
+    assert_eq!(
+        gate.verdict,
+        pvrnn_eval::gate::GateVerdict::Fail,
+        "{}",
+        gate.describe()
+    );
+    pvrnn_experiment::report::write(&out).unwrap();
+    let trainings = std::fs::read_to_string(out.join("report/trainings.csv")).unwrap();
+    let row = trainings.lines().nth(1).unwrap();
+    assert!(
+        row.contains(",fail,vision ") && row.contains("(lost)"),
+        "{trainings}"
+    );
+    let summary = std::fs::read_to_string(out.join("report/summary.json")).unwrap();
+    assert!(
+        summary.contains("not testable on these networks: 0 of 1 pass the validity gate"),
+        "{summary}"
+    );
     let file = pvrnn_core::io::TensorFile::open(&path).unwrap();
     assert_eq!(
         pvrnn_core::io::checkpoint_iteration(&file),

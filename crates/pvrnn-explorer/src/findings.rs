@@ -35,6 +35,9 @@ pub enum Verdict {
     Undecided,
     /// The paper describes figures; there is nothing to test.
     Descriptive,
+    /// The networks behind it do not pass the validity gate (they lose to a baseline
+    /// without dynamics on held-out data): no verdict either way.
+    NotTestable,
 }
 
 impl Verdict {
@@ -45,6 +48,7 @@ impl Verdict {
             Self::Disagrees => "**Disagrees**",
             Self::Undecided => "**Undecided**",
             Self::Descriptive => "No verdict (the paper describes figures)",
+            Self::NotTestable => "**Not testable on these networks**",
         }
     }
 
@@ -54,6 +58,7 @@ impl Verdict {
             Self::Disagrees => "disagrees with the paper",
             Self::Undecided => "undecided",
             Self::Descriptive => "no verdict: the paper describes figures",
+            Self::NotTestable => "not testable on these networks (they fail the validity gate)",
         }
     }
 }
@@ -80,7 +85,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "described, no test",
         ours: "near − elsewhere (t ≥ 30) −0.0003; across networks two-sided t(4), p = 0.79; within runs permutation p = 0.80",
         effect: "−0.0003 [−0.0030, +0.0024], d = −0.13; ±0.0036",
-        verdict: Verdict::Disagrees,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &[],
         view: Some("seq=wiping_650mm_test0&t=83&d=0"),
@@ -92,7 +97,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "pictures",
         ours: "reconstruction −0.0108, t(4) = −45.2, p < 0.001; from the 16x16 input −0.0107, p < 0.001; prior prediction −0.0108, p < 0.001",
         effect: "reconstruction −0.0108 [−0.0115, −0.0102], d = −20.2; ±0.0009",
-        verdict: Verdict::Agrees,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/hierarchy/report/contribution_maps.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&contours=1"),
@@ -104,7 +109,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "t(4) = 1.67, p = 0.17",
         ours: "TOST vs ±0.125: 90% CI [+0.0048, +0.0127], p < 0.001: equivalent; paired t(4) = 4.70, p = 0.009",
         effect: "+0.0087 [+0.0036, +0.0139], d = 2.1; ±0.0069",
-        verdict: Verdict::Disagrees,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/uncertainty/report/sigma_p.png"],
         view: Some("seq=wiping_650mm_test0&t=150"),
@@ -116,7 +121,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "t(4) = −8.15, p = 0.0012",
         ours: "t(4) = −2.28, p = 0.085",
         effect: "−0.0013 [−0.0029, +0.0003], d = −1.0; ±0.0021",
-        verdict: Verdict::Undecided,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/uncertainty/report/sigma_p_change.png"],
         view: Some("seq=repositioning_650mm_test0&t=150"),
@@ -128,7 +133,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(2, 20) = 105.57, p < 0.001",
         ours: "ART F(2, 20) = 12.98, p < 0.001; 64 / 32+16 / 16: 0.00688 / 0.00674 / 0.00698",
         effect: "16 − 64 (proprio on): +0.00008 [−0.0007, +0.0009], d = 0.12; ±0.0011",
-        verdict: Verdict::Undecided,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/robustness/report/robustness.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&compare=vision"),
@@ -140,7 +145,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(1, 20) = 46.09, p < 0.001",
         ours: "ART F(1, 20) = 0.39, p = 0.54; on / off 0.00685 / 0.00689",
         effect: "off − on at 64: +0.00001 [−0.00017, +0.00019], d = 0.09; ±0.00024",
-        verdict: Verdict::Disagrees,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, networks 0-4 (5 networks, each trained 12,000-16,000 iterations to its validation best; 2 trials x 6 test sequences each)",
         figures: &["converged/robustness/report/robustness.png"],
         view: Some("seq=repositioning_650mm_test0&t=120&compare=vision&vision=1&proprio=0"),
@@ -152,7 +157,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(3, 16) = 0.62, p = 0.61",
         ours: "ART F(3, 16) = 28.51, p < 0.001 (pooled over all 32,284 sensory dimensions); TOST 9 added vs none: 90% CI [+2.30e-4, +3.26e-4] vs ±3.03e-4 (±10% of none's mean), p = 0.18: not equivalent",
         effect: "9 added − none, pooled: +2.78e-4 [+2.18e-4, +3.38e-4], d = 6.8; ±8.3e-5",
-        verdict: Verdict::Disagrees,
+        verdict: Verdict::NotTestable,
         scale: "converged campaign, repositioning direction: 5 networks per condition x 4 conditions (20 trainings of 12,000-30,000 iterations to their validation best, one stopped at the cap; 2 trials x 3 test sequences each)",
         figures: &["converged/interference/report/interference_repositioning.png"],
         view: None,
@@ -164,7 +169,7 @@ pub const FINDINGS: &[Finding] = &[
         paper: "F(3, 16) = 19.16, p < 0.001",
         ours: "ART F(3, 8) = 1.07, p = 0.414 (pooled over all 32,284 sensory dimensions)",
         effect: "9 added − none: −1.1e-4 [−8.3e-4, +6.0e-4]; ±9.6e-4",
-        verdict: Verdict::Undecided,
+        verdict: Verdict::NotTestable,
         scale: "reduced scale: 3 x 5,000 per condition (networks x iterations)",
         figures: &["interference/report/interference_wiping.png"],
         view: None,

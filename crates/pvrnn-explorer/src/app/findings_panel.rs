@@ -68,7 +68,10 @@ impl ExplorerApp {
                     "Each claim of the paper with our verdict (by the rules of \
                      docs/experiments.md), the paper's statistic, ours as measured (effect with \
                      its 95% interval; docs/results/experiments.md), the scale it was measured \
-                     at, and the view of the shipped network that shows it.",
+                     at, and the view of the shipped network that shows it. A verdict needs \
+                     networks that pass the validity gate (on held-out data they beat the \
+                     strongest baseline without dynamics); the November 2026 networks do not, \
+                     so their findings are not testable and are shown for the record.",
                 );
                 for (i, finding) in FINDINGS.iter().enumerate() {
                     let panel = FindingPanel { finding, index: i };
@@ -159,7 +162,7 @@ fn header(ui: &egui::Ui, f: &Finding) -> egui::text::LayoutJob {
         Verdict::Agrees => Color32::from_rgb(52, 168, 83),
         Verdict::Disagrees => visuals.error_fg_color,
         Verdict::Undecided => visuals.warn_fg_color,
-        Verdict::Descriptive => visuals.weak_text_color(),
+        Verdict::Descriptive | Verdict::NotTestable => visuals.weak_text_color(),
     };
     let mut job = egui::text::LayoutJob::default();
     for text in [

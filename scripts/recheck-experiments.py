@@ -528,8 +528,9 @@ def hierarchy(rows, chk):
     # Internal: the tests from summary.json's own per-network values (inputs not re-derived).
     tests = [(["results", "executive_boundary"], "near_minus_elsewhere_per_network"),
              (["results", "executive_boundary_matched"], "near_minus_elsewhere_per_network")]
-    for name in chk.get(["results", "occlusion", "relative"]) or {}:
-        tests.append((["results", "occlusion", "relative", name], "per_network"))
+    for group in ("relative", "against_baselines"):
+        for name in chk.get(["results", "occlusion", group]) or {}:
+            tests.append((["results", "occlusion", group, name], "per_network"))
     for base, key in tests:
         vals = chk.get(base + [key])
         vals = list(vals.values()) if isinstance(vals, dict) else vals

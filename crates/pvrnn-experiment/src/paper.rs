@@ -331,7 +331,66 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
             .with_effect(effect_text(d)),
         );
     }
+    if let Some(against) = r["occlusion"]["against_baselines"].as_object() {
+        out.push(against_baselines_finding(against));
+    }
     out
+}
+
+/// Fig 3B against what needs no model (pre-specified 2026-12-06): the reconstruction must be
+/// closer to the hidden body than both observation-only baselines. Significantly farther
+/// than either disagrees; significantly closer than both agrees; anything else undecided.
+fn against_baselines_finding(against: &serde_json::Map<String, Value>) -> Finding {
+    let tests: Vec<(&String, Option<f64>, Option<f64>)> = against
+        .iter()
+        .map(|(k, v)| (k, num(&v["difference"]["mean"]), num(&v["difference"]["p"])))
+        .collect();
+    let ours = tests
+        .iter()
+        .map(|(k, m, p)| match m {
+            Some(m) => format!("model − {k} = {m:.3e}, one-sample t, {}", p_text(*p)),
+            None => format!("model − {k}: –"),
+        })
+        .collect::<Vec<_>>()
+        .join("; ");
+    let significant = |p: &Option<f64>| p.is_some_and(|p| p < ALPHA);
+    let verdict = if tests.iter().any(|(_, m, _)| m.is_none()) {
+        (None, "no test: too few complete networks".to_string())
+    } else if tests
+        .iter()
+        .any(|(_, m, p)| m.is_some_and(|m| m > 0.0) && significant(p))
+    {
+        (
+            Some(false),
+            "an observation-only baseline is closer to the hidden body than the reconstruction"
+                .to_string(),
+        )
+    } else if tests
+        .iter()
+        .all(|(_, m, p)| m.is_some_and(|m| m < 0.0) && significant(p))
+    {
+        (Some(true), String::new())
+    } else {
+        (
+            None,
+            "undecided: not closer than every observation-only baseline, not significantly farther"
+                .to_string(),
+        )
+    };
+    let strongest = against
+        .values()
+        .max_by(|a, b| {
+            let m = |v: &Value| num(&v["difference"]["mean"]).unwrap_or(f64::NEG_INFINITY);
+            m(a).total_cmp(&m(b))
+        })
+        .map_or(Value::Null, |v| v["difference"].clone());
+    finding(
+        "Body parts hidden by the arms are inferred (Fig 3B): the reconstruction (everything observed) is closer to the hidden body than the observation-only baselines (the mean image, each pixel's last unhidden observation)",
+        "shown in pictures, not measured",
+        ours,
+        verdict,
+    )
+    .with_effect(effect_text(&strongest))
 }
 
 fn uncertainty(r: &Value) -> Vec<Finding> {
@@ -1028,6 +1087,34 @@ pub fn markdown(findings: &[Finding], stamp: &str, coverage: &str) -> String {
 mod tests {
     use super::*;
     use serde_json::json;
+
+    #[test]
+    fn the_hidden_body_must_be_drawn_better_than_what_needs_no_model() {
+        let against = |mean: f64, p_mean: f64, last: f64, p_last: f64| {
+            let d = |m: f64, p: f64| json!({"difference": {"mean": m, "p": p, "ci95": [m - 0.01, m + 0.01], "cohen_d": 1.0, "detectable": 0.02, "paired": true}});
+            json!({"mean image": d(mean, p_mean), "last seen": d(last, p_last)})
+                .as_object()
+                .unwrap()
+                .clone()
+        };
+        assert_eq!(
+            against_baselines_finding(&against(-0.02, 0.01, -0.01, 0.02)).agrees,
+            Some(true)
+        );
+        // The November networks: farther from the body than the last unhidden frame.
+        let f = against_baselines_finding(&against(0.026, 0.001, 0.036, 0.001));
+        assert_eq!(f.agrees, Some(false));
+        assert!(f.effect.starts_with("Δ = 3.600e-2"), "{}", f.effect);
+        assert!(
+            f.ours.contains("model − last seen = 3.600e-2"),
+            "{}",
+            f.ours
+        );
+        assert_eq!(
+            against_baselines_finding(&against(-0.02, 0.01, -0.01, 0.3)).agrees,
+            None
+        );
+    }
 
     #[test]
     fn a_verdict_needs_every_network_to_pass_the_gate() {

@@ -1014,11 +1014,53 @@ fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
         absolute_json.insert(label.to_string(), json!(nets));
     }
     md.push('\n');
+    let against = against_observation_baselines(r, md);
     json!({
         "threshold": crate::occlusion::HIDDEN_THRESHOLD,
         "relative": tests,
         "absolute": absolute_json,
+        "against_baselines": against,
     })
+}
+
+/// The model's reconstruction (everything observed) on the hidden pixels against each
+/// observation-only baseline (pre-specified 2026-12-06): d(model, body) − d(baseline, body)
+/// per network, two-sided one-sample t. Inferring the hidden body means beating what needs
+/// no model: the mean learning image and each pixel's last unhidden observation.
+fn against_observation_baselines(r: &Results, md: &mut String) -> Value {
+    type Pick = fn(&OcclusionScores) -> f64;
+    let baselines: [(&str, Pick); 2] = [
+        ("mean image", |o| o.model - o.mean_image),
+        ("last seen", |o| o.model - o.last_seen),
+    ];
+    md.push_str("Against the observation-only baselines (reconstruction, everything observed; d(model, body) − d(baseline, body), negative = the model closer to the hidden body):\n\n| baseline | model − baseline | 95% CI | d_z | p |\n|---|---|---|---|---|\n");
+    let mut out = serde_json::Map::new();
+    for (label, pick) in baselines {
+        let nets: Vec<f64> = per_network(&r.infers, &everything_observed, &|x| {
+            x.occlusion.as_ref().map(pick)
+        })
+        .into_values()
+        .collect();
+        let diff = stats::difference(&nets, &vec![0.0; nets.len()], true);
+        let _ = match &diff {
+            Some(d) => writeln!(
+                md,
+                "| {label} | {} | [{}, {}] | {} | {} |",
+                mean_se_text(&nets),
+                sig(d.ci95[0]),
+                sig(d.ci95[1]),
+                sig(d.cohen_d),
+                p_text(d.p)
+            ),
+            None => writeln!(md, "| {label} | {} | – | | |", mean_se_text(&nets)),
+        };
+        out.insert(
+            label.to_string(),
+            json!({"per_network": nets, "difference": diff}),
+        );
+    }
+    md.push('\n');
+    Value::Object(out)
 }
 
 /// Writes the four modules' maps (rows) for each camera (columns) as one PNG.

@@ -34,19 +34,33 @@ def gate_of(row):
     return "incomplete" if row.get("not_recorded") else "pass"
 
 
+def vision_passes(row):
+    """The vision measure alone (what a finding about images needs)."""
+    m, b = _num(row.get("held_out_vision")), _num(row.get("vision_baseline_error"))
+    missing = any(part.strip().startswith("vision:") for part in row.get("not_recorded", "").split(";"))
+    return ((_num(row.get("held_out_diverged")) or 0) == 0 and m is not None and b is not None
+            and m < b and not missing)
+
+
 def recheck(path, summary):
-    """Recomputes every network's gate from trainings.csv; returns (all pass, mismatches)."""
+    """Recomputes every network's gate from trainings.csv; returns ({need: every network
+    passes it}, mismatches), needs as summary.json's findings name them (`gate_needs`)."""
     rows = list(csv.DictReader(open(path, newline="")))
     bad = []
     if rows and "gate" not in rows[0]:
-        return False, [f"{path}: no gate column (a report written before the gate)"]
+        return {}, [f"{path}: no gate column (a report written before the gate)"]
     for r in rows:
         ours = gate_of(r)
         if ours != r["gate"]:
             bad.append(f"{r['job']}: gate {r['gate']!r} in trainings.csv, {ours!r} recomputed")
     passing = sum(gate_of(r) == "pass" for r in rows)
+    passing_vision = sum(vision_passes(r) for r in rows)
     ref = summary.get("gate") or {}
-    if (ref.get("passing"), ref.get("networks")) != (passing, len(rows)):
-        bad.append(f"summary gate {ref} against {passing} of {len(rows)} passing in trainings.csv")
-    print(f"  validity gate: {passing} of {len(rows)} networks pass (recomputed from trainings.csv)")
-    return bool(rows) and passing == len(rows), bad
+    ours = {"passing": passing, "passing_vision": passing_vision, "networks": len(rows)}
+    if {k: ref.get(k) for k in ours} != ours:
+        bad.append(f"summary gate {ref} against {ours} recomputed from trainings.csv")
+    print(f"  validity gate: {passing} of {len(rows)} networks pass, {passing_vision} on vision "
+          "(recomputed from trainings.csv)")
+    every = bool(rows)
+    return {"vision_and_proprioception": every and passing == len(rows),
+            "vision": every and passing_vision == len(rows)}, bad

@@ -121,6 +121,16 @@ impl Gate {
         self.verdict == GateVerdict::Pass
     }
 
+    /// Passes on the vision measure alone (what a finding about images needs).
+    pub fn passes_vision(&self) -> bool {
+        self.failed_trials == 0
+            && self
+                .checks
+                .iter()
+                .find(|c| c.measure == "vision")
+                .is_some_and(|c| !c.lost() && c.missing.is_empty())
+    }
+
     /// One line: each measure as `vision 0.00627 vs upsample_detail 0.00607 (lost)`.
     pub fn describe(&self) -> String {
         let mut parts: Vec<String> = self
@@ -223,11 +233,10 @@ mod tests {
                 .describe()
                 .contains("vision 0.00630 vs upsample_detail 0.00610 (lost)")
         );
-        // Joints predicted worse than copying the previous value: fail.
-        assert_eq!(
-            Gate::of(&complete(0.0050, 0.0160)).verdict,
-            GateVerdict::Fail
-        );
+        // Joints predicted worse than copying the previous value: fail, but vision passes.
+        let joints = Gate::of(&complete(0.0050, 0.0160));
+        assert_eq!(joints.verdict, GateVerdict::Fail);
+        assert!(joints.passes_vision() && !vision.passes_vision());
         // A diverged trial fails whatever the errors.
         let diverged = ValidationRow {
             failed_trials: 1,

@@ -35,6 +35,28 @@ pub struct Finding {
     pub agrees: Option<bool>,
     /// Why they disagree or cannot be compared, when they do not simply agree.
     pub note: String,
+    /// What the validity gate must find the networks have learned for a verdict.
+    #[serde(rename = "gate_needs")]
+    pub needs: GateNeed,
+}
+
+/// The measures of the validity gate a finding depends on: what it measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GateNeed {
+    /// The finding measures the reconstructed images (Figs 3B, 5B).
+    Vision,
+    /// The finding measures the whole network: latent states, pooled errors (Figs 2-4, 6).
+    VisionAndProprioception,
+}
+
+impl GateNeed {
+    fn words(self) -> &'static str {
+        match self {
+            GateNeed::Vision => "vision measure",
+            GateNeed::VisionAndProprioception => "vision and proprioception measures",
+        }
+    }
 }
 
 const ALPHA: f64 = 0.05;
@@ -170,6 +192,7 @@ fn finding(
         effect: "–".into(),
         agrees,
         note,
+        needs: GateNeed::VisionAndProprioception,
     }
 }
 
@@ -194,6 +217,12 @@ fn effect_text(d: &Value) -> String {
 impl Finding {
     fn with_effect(mut self, effect: String) -> Self {
         self.effect = effect;
+        self
+    }
+
+    /// A finding about the reconstructed images only.
+    fn on_vision(mut self) -> Self {
+        self.needs = GateNeed::Vision;
         self
     }
 }
@@ -233,7 +262,10 @@ pub fn findings(experiment: Experiment, results: &Value) -> Vec<Finding> {
     match experiment {
         Experiment::Hierarchy => hierarchy(results),
         Experiment::Uncertainty => uncertainty(results),
-        Experiment::Robustness => robustness(results),
+        Experiment::Robustness => robustness(results)
+            .into_iter()
+            .map(Finding::on_vision)
+            .collect(),
         Experiment::Interference => interference(results),
     }
 }
@@ -283,12 +315,15 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
         );
     }
     if r["occlusion"].is_null() {
-        out.push(finding(
-            "Body parts hidden by the arms are inferred (Fig 3B)",
-            "shown in pictures, not measured",
-            "no robot-free renders in the data".into(),
-            (None, "not testable here".into()),
-        ));
+        out.push(
+            finding(
+                "Body parts hidden by the arms are inferred (Fig 3B)",
+                "shown in pictures, not measured",
+                "no robot-free renders in the data".into(),
+                (None, "not testable here".into()),
+            )
+            .on_vision(),
+        );
         return out;
     }
     for (label, what) in [
@@ -328,11 +363,12 @@ fn hierarchy(r: &Value) -> Vec<Finding> {
                     verdict(p, true, closer)
                 },
             )
-            .with_effect(effect_text(d)),
+            .with_effect(effect_text(d))
+            .on_vision(),
         );
     }
     if let Some(against) = r["occlusion"]["against_baselines"].as_object() {
-        out.push(against_baselines_finding(against));
+        out.push(against_baselines_finding(against).on_vision());
     }
     out
 }
@@ -808,6 +844,7 @@ fn asymmetry_finding(a: &Value) -> Finding {
         effect,
         agrees: verdict.0,
         note: verdict.1,
+        needs: GateNeed::VisionAndProprioception,
     }
 }
 
@@ -1021,42 +1058,55 @@ fn untested(findings: &mut [Finding], note: &str) {
     }
 }
 
-/// How many of a report's networks pass the validity gate ([`pvrnn_eval::gate`]).
+/// How many of a report's networks pass the validity gate ([`pvrnn_eval::gate`]): on
+/// every measure, and on vision alone.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct GateSummary {
     pub passing: usize,
+    pub passing_vision: usize,
     pub networks: usize,
 }
 
 impl GateSummary {
-    pub fn all_pass(&self) -> bool {
-        self.networks > 0 && self.passing == self.networks
+    /// Every network passes what `need` asks.
+    pub fn all_pass(&self, need: GateNeed) -> bool {
+        self.networks > 0 && self.passing_for(need) == self.networks
+    }
+
+    fn passing_for(&self, need: GateNeed) -> usize {
+        match need {
+            GateNeed::Vision => self.passing_vision,
+            GateNeed::VisionAndProprioception => self.passing,
+        }
     }
 }
 
-/// A finding is drawn only from networks that pass the validity gate: while any of the
-/// report's networks fails it (or was not gated), every finding keeps our statistics for
-/// the record but has no verdict, "not testable on these networks" (docs/experiments.md,
-/// "The validity gate").
+/// A finding is drawn only from networks that pass the validity gate on what it measures:
+/// while any of the report's networks does not (or was not gated), the finding keeps our
+/// statistics for the record but has no verdict, "not testable on these networks"
+/// (docs/experiments.md, "The validity gate").
 pub fn gated(findings: Vec<Finding>, gate: &GateSummary) -> Vec<Finding> {
-    if gate.all_pass() {
-        return findings;
-    }
     findings
         .into_iter()
-        .map(|f| Finding {
-            agrees: None,
-            note: format!(
-                "not testable on these networks: {} of {} pass the validity gate (trainings.csv){}",
-                gate.passing,
-                gate.networks,
-                if f.note.is_empty() {
-                    String::new()
-                } else {
-                    format!("; without the gate: {}", f.note)
-                }
-            ),
-            ..f
+        .map(|f| {
+            if gate.all_pass(f.needs) {
+                return f;
+            }
+            Finding {
+                agrees: None,
+                note: format!(
+                    "not testable on these networks: {} of {} pass the validity gate's {} (trainings.csv){}",
+                    gate.passing_for(f.needs),
+                    gate.networks,
+                    f.needs.words(),
+                    if f.note.is_empty() {
+                        String::new()
+                    } else {
+                        format!("; without the gate: {}", f.note)
+                    }
+                ),
+                ..f
+            }
         })
         .collect()
 }
@@ -1118,33 +1168,36 @@ mod tests {
 
     #[test]
     fn a_verdict_needs_every_network_to_pass_the_gate() {
-        let f = vec![finding(
-            "claim",
-            "p",
-            "ours".into(),
-            (Some(false), "why".into()),
-        )];
-        let all = GateSummary {
-            passing: 5,
+        let f = vec![
+            finding("claim", "p", "ours".into(), (Some(false), "why".into())),
+            finding("images", "p", "ours".into(), (Some(true), String::new())).on_vision(),
+        ];
+        let gate = |passing, passing_vision| GateSummary {
+            passing,
+            passing_vision,
             networks: 5,
         };
-        assert_eq!(gated(f.clone(), &all), f);
-        let some = GateSummary {
-            passing: 4,
-            networks: 5,
-        };
-        let g = gated(f.clone(), &some);
+        assert_eq!(gated(f.clone(), &gate(5, 5)), f);
+        let g = gated(f.clone(), &gate(4, 5));
         assert_eq!(g[0].agrees, None);
         assert_eq!(
             g[0].note,
-            "not testable on these networks: 4 of 5 pass the validity gate (trainings.csv); without the gate: why"
+            "not testable on these networks: 4 of 5 pass the validity gate's vision and proprioception measures (trainings.csv); without the gate: why"
         );
         assert_eq!(g[0].ours, "ours", "the statistics stay for the record");
+        // A finding about images needs the vision measure only.
+        assert_eq!(g[1], f[1]);
+        let g = gated(f.clone(), &gate(0, 4));
+        assert_eq!(g[1].agrees, None);
+        assert!(g[1].note.starts_with(
+            "not testable on these networks: 4 of 5 pass the validity gate's vision measure"
+        ));
         let none = GateSummary {
             passing: 0,
+            passing_vision: 0,
             networks: 0,
         };
-        assert_eq!(gated(f, &none)[0].agrees, None);
+        assert_eq!(gated(f, &none)[1].agrees, None);
     }
 
     #[test]

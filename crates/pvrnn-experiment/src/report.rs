@@ -202,11 +202,15 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
         Experiment::Interference => interference(&plan, &results, &out_dir, &stamp, &mut md)?,
     };
     let gates = network_gates(&results.trains);
-    let gate_summary = crate::paper::GateSummary {
-        passing: gates
+    let count = |pass: fn(&Gate) -> bool| {
+        gates
             .iter()
-            .filter(|g| g.as_ref().is_some_and(Gate::passes))
-            .count(),
+            .filter(|g| g.as_ref().is_some_and(pass))
+            .count()
+    };
+    let gate_summary = crate::paper::GateSummary {
+        passing: count(Gate::passes),
+        passing_vision: count(Gate::passes_vision),
         networks: gates.len(),
     };
     let findings = crate::paper::gated(

@@ -813,7 +813,7 @@ fn a_converged_design_validates_and_reads_the_network_it_chose() {
     );
     let summary = std::fs::read_to_string(out.join("report/summary.json")).unwrap();
     assert!(
-        summary.contains("not testable on these networks: 0 of 1 pass the validity gate"),
+        summary.contains("not testable on these networks: 0 of 1 pass the validity gate's"),
         "{summary}"
     );
     let file = pvrnn_core::io::TensorFile::open(&path).unwrap();

@@ -635,7 +635,7 @@ impl<'p> TrainingRun<'p> {
             plan,
             dir,
             id,
-            trainer.iteration,
+            (trainer.iteration, *iterations),
             &scored_tasks(plan, id, chosen),
         )?;
         if let Some(rule) = rule.as_mut()
@@ -738,6 +738,7 @@ impl<'p> TrainingRun<'p> {
         let iteration = self.trainer.iteration;
         let mut stop_reason = self.stop_reason;
         if let Some(rule) = &self.rule
+            && rule.stops
             && stop_reason.is_none()
         {
             // The job's iterations are the cap (the design's, when the plan was made).
@@ -818,14 +819,15 @@ fn train(
         std::fs::create_dir_all(checkpoint.parent().expect("a folder"))
             .with_context(|| format!("cannot create {}", checkpoint.display()))?;
     }
-    if let Some(source) = reuse {
-        return train_reused(plan, dir, ids[0], source);
-    }
     let dataset = cache.dataset(&plan.dataset)?;
     let chosen: Vec<Sequence> = sequences(&dataset, names)?
         .into_iter()
         .map(|s| truncated(s, plan.design.train_steps))
         .collect();
+    if let Some(source) = reuse {
+        let tasks = scored_tasks(plan, ids[0], &chosen);
+        return train_reused(plan, dir, ids[0], source, backend, &tasks);
+    }
     let chosen_refs: Vec<&Sequence> = chosen.iter().collect();
     let mut runs = ids
         .iter()
@@ -954,12 +956,40 @@ fn scored_tasks<'a>(
     if scored.is_empty() { learned } else { scored }
 }
 
+/// The plan's held-out dataset, its sequences of `tasks` only (`None` when the plan names
+/// none).
+fn held_out(plan: &Plan, tasks: &std::collections::BTreeSet<&str>) -> Result<Option<Dataset>> {
+    let Some(data) = plan.validation_dataset.as_ref() else {
+        return Ok(None);
+    };
+    let mut dataset =
+        Dataset::open(data).with_context(|| format!("validation dataset {}", data.display()))?;
+    dataset
+        .manifest
+        .sequences
+        .retain(|s| tasks.contains(s.task.as_str()));
+    dataset
+        .sequences
+        .retain(|s| tasks.contains(s.info.task.as_str()));
+    ensure!(
+        !dataset.sequences.is_empty(),
+        "validation dataset {}: no sequence of the tasks the network learns ({})",
+        data.display(),
+        tasks.iter().copied().collect::<Vec<_>>().join(", ")
+    );
+    Ok(Some(dataset))
+}
+
 /// The convergence rule's state during one training: the held-out data, the validations
 /// so far (up to the checkpoint's iteration: a resumed run forgets later ones) and where
 /// the log and the best checkpoint go.
 struct ConvergenceRule {
     dataset: Dataset,
     every: u64,
+    /// Whether the rule stops the training (a convergence rule); without one, a design
+    /// with held-out data validates its network once, at its last iteration, for the
+    /// validity gate.
+    stops: bool,
     /// `Design::select_from`: the first iteration whose validation may be the network.
     select_from: u64,
     rows: Vec<ValidationRow>,
@@ -968,44 +998,34 @@ struct ConvergenceRule {
 }
 
 impl ConvergenceRule {
-    /// `tasks`: the tasks the network is validated on ([`scored_tasks`]).
+    /// `tasks`: the tasks the network is validated on ([`scored_tasks`]); `last`: the
+    /// training's last iteration.
     fn open(
         plan: &Plan,
         dir: &Path,
         id: usize,
-        iteration: u64,
+        (iteration, last): (u64, u64),
         tasks: &std::collections::BTreeSet<&str>,
     ) -> Result<Option<Self>> {
-        let Some(every) = plan.design.validate_every else {
+        ensure!(
+            plan.design.validate_every.is_none() || plan.validation_dataset.is_some(),
+            "the {} design validates its networks, but the plan names no validation dataset",
+            plan.scale.name()
+        );
+        let Some(dataset) = held_out(plan, tasks)? else {
             return Ok(None);
         };
-        let data = plan.validation_dataset.as_ref().with_context(|| {
-            format!(
-                "the {} design validates its networks, but the plan names no validation dataset",
-                plan.scale.name()
-            )
-        })?;
-        let mut dataset = Dataset::open(data)
-            .with_context(|| format!("validation dataset {}", data.display()))?;
-        dataset
-            .manifest
-            .sequences
-            .retain(|s| tasks.contains(s.task.as_str()));
-        dataset
-            .sequences
-            .retain(|s| tasks.contains(s.info.task.as_str()));
-        ensure!(
-            !dataset.sequences.is_empty(),
-            "validation dataset {}: no sequence of the tasks the network learns ({})",
-            data.display(),
-            tasks.iter().copied().collect::<Vec<_>>().join(", ")
-        );
+        let (every, stops) = match plan.design.validate_every {
+            Some(every) => (every, true),
+            None => (last, false),
+        };
         let log = plan.validation_log_path(dir, id);
         let mut rows = validation::read_log(&log)?;
         rows.retain(|r| r.iteration <= iteration);
         Ok(Some(Self {
             dataset,
             every: every.max(1),
+            stops,
             select_from: plan.design.select_from.unwrap_or(0),
             rows,
             log,
@@ -1023,7 +1043,7 @@ impl ConvergenceRule {
     }
 
     fn check(&self, design: &Design, log: &Path, iteration: u64) -> Option<Stop> {
-        if !self.due(iteration) && iteration < design.train_iterations {
+        if !self.stops || (!self.due(iteration) && iteration < design.train_iterations) {
             return None;
         }
         convergence(
@@ -1079,7 +1099,16 @@ fn open_trainer(
 
 /// A training job whose network is a kept checkpoint of the same training: copied in, its
 /// result read from the log it came with.
-fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()> {
+/// A reused network is validated once on the plan's held-out data, if it names any, so that
+/// the validity gate can judge it.
+fn train_reused(
+    plan: &Plan,
+    dir: &Path,
+    id: usize,
+    source: &Path,
+    backend: &Arc<dyn Backend<f32>>,
+    tasks: &std::collections::BTreeSet<&str>,
+) -> Result<()> {
     let job = &plan.jobs[id];
     let JobKind::Train {
         network,
@@ -1114,6 +1143,18 @@ fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()>
     .map(|p| training_log::totals(p, *iterations))
     .find(|t| !t.is_empty())
     .unwrap_or_default();
+    let validations = match held_out(plan, tasks)? {
+        Some(data) => {
+            let model = Arc::new(io::load_model(&checkpoint)?);
+            vec![validation::validate(
+                model,
+                backend.as_ref(),
+                &data,
+                *iterations,
+            )?]
+        }
+        None => Vec::new(),
+    };
     write_train_result(
         plan,
         dir,
@@ -1131,8 +1172,11 @@ fn train_reused(plan: &Plan, dir: &Path, id: usize, source: &Path) -> Result<()>
             backend: None,
             stop: None,
             network_iteration: Some(*iterations),
-            validations: Vec::new(),
-            machines: Vec::new(),
+            machines: validations
+                .iter()
+                .filter_map(|v| v.machine.clone())
+                .collect(),
+            validations,
         },
     )
 }

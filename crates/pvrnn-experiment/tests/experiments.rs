@@ -1037,3 +1037,61 @@ fn networks_of_one_condition_train_together_as_they_train_alone() {
         );
     }
 }
+
+/// A fixed-iteration design (the paper's protocol) given held-out data validates its network
+/// once, at its last iteration, so that the validity gate can judge it, and is not stopped
+/// early; a reused checkpoint is validated the same way.
+#[test]
+fn a_fixed_design_with_held_out_data_validates_its_network_once_for_the_gate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, held_out) = learning_and_held_out(tmp.path());
+    let plan = Plan::new(
+        Experiment::Robustness,
+        Scale::Smoke,
+        &data,
+        None,
+        Some(&held_out),
+    )
+    .unwrap();
+    assert!(plan.design.validate_every.is_none());
+    let out = tmp.path().join("robustness");
+    plan.save(&out).unwrap();
+    let go = AtomicBool::new(false);
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(0), &go, &|_| {}).unwrap();
+    let trained = read_train_result(&plan.result_path(&out, 0)).unwrap();
+    let JobKind::Train { iterations, .. } = plan.jobs[0].kind else {
+        panic!("a training first")
+    };
+    assert_eq!((trained.iterations, trained.stop), (iterations, None));
+    let validated: Vec<u64> = trained.validations.iter().map(|v| v.iteration).collect();
+    assert_eq!(validated, [iterations]);
+    assert_eq!(trained.network_iteration, Some(iterations));
+    assert!(trained.validations[0].nearest.is_some());
+    // The same network reused as network 0 of another plan: validated too.
+    let checkpoint = plan.checkpoint_path(&out, 0);
+    let again = Plan::new(
+        Experiment::Robustness,
+        Scale::Smoke,
+        &data,
+        Some(&checkpoint),
+        Some(&held_out),
+    )
+    .unwrap();
+    let out = tmp.path().join("reused");
+    again.save(&out).unwrap();
+    pvrnn_experiment::run::run(&out, &cpu(), "cpu", 1, Selection::Job(0), &go, &|_| {}).unwrap();
+    let reused = read_train_result(&again.result_path(&out, 0)).unwrap();
+    assert!(reused.reused.is_some());
+    assert_eq!(
+        reused
+            .validations
+            .iter()
+            .map(|v| v.iteration)
+            .collect::<Vec<_>>(),
+        [iterations]
+    );
+    assert_eq!(
+        reused.validations[0].recon_vision_top, trained.validations[0].recon_vision_top,
+        "the same network, the same held-out score"
+    );
+}

@@ -1,22 +1,28 @@
 #!/usr/bin/env bash
-# Runs the paper's four experiments at one scale (SCALE: reduced, the default, or
-# converged), network by network, so that a run cut short (a session's end, a reboot)
-# leaves complete networks and resumes where it stopped (docs/experiments.md):
+# Runs the paper's four experiments at one scale (SCALE: reduced, the default, converged, or
+# paper: the paper's protocol, 100,000 iterations, a GPU job) on one caresim revision
+# (REVISION: 1, the default, or 2: docs/caresim.md, "Revisions"), network by network, so
+# that a run cut short (a session's end, a reboot) leaves complete networks and resumes
+# where it stopped (docs/experiments.md):
 #
 #   scripts/experiments.sh                              # reduced: everything not done yet
 #   scripts/experiments.sh shared 1                     # network 1 of the shared experiments
 #   scripts/experiments.sh interference 2               # network 2 of interference
 #   SCALE=converged scripts/experiments.sh shared 0     # converged scale, network 0
 #   SCALE=converged scripts/experiments.sh interference # converged interference, plan order
+#   REVISION=2 SCALE=converged scripts/experiments.sh shared 0   # the same on revision 2
 #
-# Reduced results go to docs/results/<experiment>/, converged ones to
-# docs/results/converged/<experiment>/. hierarchy, uncertainty and robustness share their
-# networks (training/<scale>-networks/, trained once, by whichever experiment comes first);
-# interference trains its own (reduced: in the same folder; converged:
-# training/converged-interference/). The data is caresim seed 0 with robot-free renders
-# (data/caresim-robotfree, made here if missing: its learning sequences are byte for byte
-# those of `pvrnn simulate`); the converged scale validates on caresim seed 1
-# (data/caresim-seed1, made here if missing). Each step
+# Revision 1's reduced results go to docs/results/<experiment>/, converged ones to
+# docs/results/converged/<experiment>/; revision 2's to docs/results/r2/<scale>/<experiment>/,
+# with data/r2-robotfree, data/r2-seed1 and training/r2-<scale>-networks/ (interference:
+# training/r2-<scale>-interference/). At the paper scale (fixed 100,000 iterations) the
+# networks are validated once at the end on seed 1 for the validity gate. hierarchy,
+# uncertainty and robustness share their networks (training/<scale>-networks/, trained
+# once, by whichever experiment comes first); interference trains its own (reduced: in the
+# same folder; converged: training/converged-interference/). The data is caresim seed 0
+# with robot-free renders (data/caresim-robotfree, made here if missing: its learning
+# sequences are byte for byte those of `pvrnn simulate`); the converged and paper scales
+# validate on caresim seed 1 (data/caresim-seed1, made here if missing). Each step
 # ends with the experiment's report rebuilt from what is done. THREADS (default 2) sets the
 # worker threads, JOBS (default 1) the jobs run at once, BACKEND (cpu or wgpu; default cpu)
 # what computes, PVRNN the executable (default target/release/pvrnn). COHORT=N (without a
@@ -38,7 +44,7 @@ cd "$(dirname "$0")/.."
 
 kept=training/in-flight
 if [ "${1:-}" = keep ]; then
-    checkpoint=$(ls -t training/converged-*/*.safetensors 2>/dev/null |
+    checkpoint=$(ls -t training/*converged-*/*.safetensors training/*paper-*/*.safetensors 2>/dev/null |
         grep -v '\.best\.safetensors$' | head -n 1 || true)
     [ -n "$checkpoint" ] || { echo "no converged training has a checkpoint" >&2; exit 1; }
     stem=${checkpoint%.safetensors}
@@ -79,35 +85,44 @@ threads=${THREADS:-2}
 jobs=${JOBS:-1}
 backend=${BACKEND:-cpu}
 scale=${SCALE:-reduced}
-data=data/caresim-robotfree
-validation=data/caresim-seed1
+revision=${REVISION:-1}
+case "$revision" in
+1) data=data/caresim-robotfree validation=data/caresim-seed1 prefix="" ;;
+2) data=data/r2-robotfree validation=data/r2-seed1 prefix=r2- ;;
+*) echo "REVISION must be 1 or 2, not $revision" >&2; exit 2 ;;
+esac
 case "$scale" in
 reduced) results=docs/results count=3 ;;
 converged) results=docs/results/converged count=5 ;;
-*) echo "SCALE must be reduced or converged, not $scale" >&2; exit 2 ;;
+paper) results=docs/results/paper count=5 ;;
+*) echo "SCALE must be reduced, converged or paper, not $scale" >&2; exit 2 ;;
 esac
+[ "$revision" = 1 ] || results=docs/results/r2/$scale
 if [ -z "${PVRNN:-}" ]; then
     # Always from the current sources: a stale binary could plan another design.
     cargo build --release --bin pvrnn
 fi
 pvrnn=${PVRNN:-target/release/pvrnn}
+validated=true
+[ "$scale" != reduced ] || validated=false
 [ -f "$data/dataset.json" ] ||
-    "$pvrnn" --threads "$threads" simulate --robot-free --no-previews --out "$data"
-[ "$scale" != converged ] || [ -f "$validation/dataset.json" ] ||
-    "$pvrnn" --threads "$threads" simulate --seed 1 --no-previews --out "$validation"
+    "$pvrnn" --threads "$threads" simulate --revision "$revision" --robot-free --no-previews --out "$data"
+[ "$validated" = false ] || [ -f "$validation/dataset.json" ] ||
+    "$pvrnn" --threads "$threads" simulate --revision "$revision" --seed 1 --no-previews --out "$validation"
 
 # One network of one experiment: its trainings (or the shared ones, already trained), then
 # its inference runs, then the report.
 run() {
     local experiment=$1 network=$2 out=$results/$1
-    local networks=training/$scale-networks
-    [ "$scale/$experiment" != converged/interference ] || networks=training/converged-interference
+    local networks=training/$prefix$scale-networks
+    [ "$experiment" != interference ] || [ "$scale" = reduced ] ||
+        networks=training/$prefix$scale-interference
     local args=(--scale "$scale" --out "$out" --jobs "$jobs" --backend "$backend")
     if [ -n "$network" ]; then args+=(--network "$network"); fi
     if [ -n "${COHORT:-}" ]; then args+=(--cohort "$COHORT"); fi
     if [ -n "${GPU_RECURRENCE:-}" ]; then args+=(--gpu-recurrence); fi
     [ -f "$out/plan.json" ] || args+=(--dataset "$data" --networks "$networks")
-    [ -f "$out/plan.json" ] || [ "$scale" != converged ] || args+=(--validate "$validation")
+    [ -f "$out/plan.json" ] || [ "$validated" = false ] || args+=(--validate "$validation")
     echo "== $experiment, network ${network:-all} ($(date -u +%H:%M:%S))" >&2
     local start
     start=$(date +%s)
@@ -124,7 +139,7 @@ if [ "$which" = all ] || [ "$which" = shared ]; then
     done
 fi
 if [ "$which" = all ] || [ "$which" = interference ]; then
-    if [ -z "$only" ] && { [ -n "${COHORT:-}" ] || [ "$scale" = converged ]; }; then
+    if [ -z "$only" ] && { [ -n "${COHORT:-}" ] || [ "$scale" != reduced ]; }; then
         # Plan order: a condition's networks one after another (or together with COHORT),
         # so that a direction's trainings, which its test needs, finish first.
         run interference ""

@@ -14,6 +14,22 @@
 //! central finite differences of the free energy computed in f64 on the CPU, for the same
 //! values rounded to the backend's precision; the small calls with their definitions. The
 //! tolerance is the precision's ([`SuiteReal`]).
+//!
+//! - [`gradients`]: analytic gradients against central finite differences (learning with
+//!   optional biases, slow-first taus, a log-sigma bound, unequal lengths; an inference
+//!   window from a held state under partial observation and ablation), unobserved rows
+//!   without gradient, the accuracy normalisation.
+//! - [`contract`]: the small calls of a loaded model against `evaluate` and their
+//!   definitions.
+//! - [`branching`]: a run continued from its own state is the same run, and a branch shares
+//!   its past.
+//! - [`learning`]: learning lowers the free energy and online inference then tracks the
+//!   sequence; runs stepped together equal each run alone; a diverging iteration leaves
+//!   the run as it was.
+//! - [`fixtures`]: the small models and data the checks run on.
+//!
+//! The backends' test files: `tests/cpu.rs` (also run as WebAssembly under Node) and
+//! `tests/wgpu.rs` (the first adapter the machine offers: lavapipe in CI).
 #![allow(clippy::unwrap_used)] // a test suite: a failed unwrap is a failed test
 
 pub mod branching;

@@ -1,4 +1,12 @@
 //! `pvrnn`: the command-line face of the scalable PV-RNN.
+//!
+//! - This file: the subcommands and their dispatch.
+//! - `commands`: one file per subcommand (`init` also serves `config`), each with its
+//!   arguments and its `run`.
+//! - `condition`: the inference condition flags `infer` and `evaluate` share.
+//! - `inputs`: `--inputs`, an inputs file or a dataset folder.
+//! - `util`: the thread pool, configuration files, progress bars, and the backend the
+//!   flags choose (`--backend`, `--gpu-recurrence`, `--weights-on-host`).
 
 mod commands;
 mod condition;

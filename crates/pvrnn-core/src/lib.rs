@@ -4,13 +4,27 @@
 //!
 //! - [`config`]: the model configuration (paper defaults, every open point a field).
 //! - [`params`]: weights and adaptive variables with the spec's tensor names; [`Model`].
-//! - [`free_energy`]: F, its terms, and exact gradients ([`free_energy::free_energy`]).
-//! - [`train`]: full-batch RAdam learning ([`train::Trainer`]).
-//! - [`infer`]: online inference over a sliding window ([`infer::OnlineInference`]).
+//! - [`data`]: model inputs ([`Observations`]), which dimensions count ([`Observed`]) and
+//!   ablations.
+//! - [`free_energy`]: F, its terms, and exact gradients ([`free_energy::free_energy`]);
+//!   [`terms`]: the value and its accuracy and complexity terms ([`FreeEnergy`]).
+//! - [`train`]: full-batch RAdam learning ([`train::Trainer`]), several runs stepped
+//!   together; [`optim`]: RAdam.
+//! - [`infer`]: online inference over a sliding window ([`infer::OnlineInference`]), whole
+//!   runs, and a run's state between two steps, to continue it under other settings.
 //! - [`io`]: safetensors files for models, checkpoints, gradients, inputs and runs.
-//! - [`backend`]: the arithmetic interface; [`assembled`]: the backend-neutral driver over a
+//! - [`backend`]: the arithmetic interface; everything costly is one call,
+//!   [`backend::LoadedModel::evaluate`]. [`assembled`]: the backend-neutral driver over a
 //!   backend's pieces; [`cpu`] supplies the CPU's pieces (the `pvrnn-wgpu` crate the GPU's).
+//! - [`deferred`]: results that arrive later, so one `async` driver serves the CPU, a native
+//!   GPU and WebGPU in the browser.
 //! - [`defaults`]: the one place a default backend (the CPU) is chosen.
+//! - [`noise`]: seeded ChaCha8 streams keyed by purpose, iteration and sequence.
+//! - `kernels` and [`real`]: SIMD dispatch, padded small matrix-vector products, vectorised
+//!   element-wise maths; [`Real`] is `f32` or `f64`. `parallel`: rayon natively, a plain loop on
+//!   wasm, pieces that do not depend on the thread count.
+//! - [`tensor`]: the owned n-dimensional array; [`error`]: the one error type;
+//!   [`profile`]: wall-clock seconds per named phase (`pvrnn bench --profile`).
 //!
 //! The crate has no GUI or OS dependency beyond files in [`io`] and compiles to
 //! `wasm32-unknown-unknown`.

@@ -18,6 +18,18 @@
 //!
 //! [`Dataset::observations`] turns sequences into model inputs exactly as the model spec's
 //! "Data layout" says (see [`inputs`]). `docs/dataset.md` documents the format for users.
+//!
+//! - This module: the manifest ([`Manifest`]), a sequence in memory ([`Sequence`]), a whole
+//!   dataset ([`Dataset`]), and a robot's proprioceptive channels by name ([`Channels`],
+//!   [`ProprioLayout`]).
+//! - [`inputs`]: from a dataset to model inputs (the resolution pyramid, normalisation, the
+//!   learning split's ranges for models without their own).
+//! - [`import`]: real robot recordings (frames and a proprioception CSV) into the format;
+//!   [`resample`]: camera frames of any size to the dataset's square images.
+//! - [`preview`]: a contact sheet (PNG) and an animation (GIF) of a sequence.
+//! - [`bundle`]: the bundle manifest, `bundle.json`, that `pvrnn bundle` writes and the
+//!   explorer reads; [`card`]: the model card inside it.
+//! - [`synthetic`]: a small caresim-shaped dataset for tests.
 
 pub mod bundle;
 pub mod card;

@@ -25,6 +25,24 @@
 //! Results match the CPU backend to f32 summation order (the tests in `tests/` check the
 //! free energy and every gradient against it on a CPU Vulkan device, and in headless
 //! Chromium on SwiftShader's WebGPU adapter).
+//!
+//! Modules (the design and every kernel: the crate's README.md):
+//! - `gpu`: the device, its queue, the compiled kernels (one set per hidden width), the
+//!   targets kept on the device between calls.
+//! - `output`: the read-outs' output layers ([`GpuOutputLayer`]) and how a call is cut
+//!   into work ([`Tiling`], [`OutputKernels`]); `readout`: both read-outs as one piece
+//!   ([`GpuReadout`]).
+//! - `recurrence`: the recurrence forward and backward, one workgroup per window
+//!   ([`GpuRecurrence`]).
+//! - `learner`: learning with the read-outs resident ([`GpuLearner`]); `resident`: a
+//!   learner's tensors on the device; `iteration`: a whole learning iteration on the
+//!   device, and a cohort of runs sharing one stack.
+//! - `copy`: moving values between the kernels' layouts; `encode`: bind groups, dispatches
+//!   and their replay; `pool`: reused buffers; `readback`: read-backs as futures.
+//! - `template`: the kernels' sources expanded before compilation (shape constants,
+//!   unrolled blocks, variants).
+//! - `timing`, `kernel_names`: the device's own time per part and per kernel while
+//!   profiling.
 
 /// A kernel's source as the crate embeds it: `src/shaders/NAME` with its comments blanked
 /// (`build.rs`), for a smaller web site.

@@ -175,7 +175,8 @@ impl ViewState {
                 .map(|s| s.info.name.clone());
             if let Some(unknown) = &self.sequence {
                 notes.push(format!(
-                    "no sequence `{unknown}` in this model's data: showing `{}`",
+                    "no sequence `{}` in this model's data: showing `{}`",
+                    quoted(unknown),
                     first.as_deref().unwrap_or("none")
                 ));
                 self.t = 0;
@@ -346,12 +347,34 @@ impl ViewState {
         let notes = if ignored.is_empty() {
             Vec::new()
         } else {
+            let shown: Vec<String> = ignored.iter().take(6).map(|e| quoted(e)).collect();
+            let more = ignored.len().saturating_sub(shown.len());
             vec![format!(
-                "ignored in the view's address: `{}` (unknown key or value out of range)",
-                ignored.join("`, `")
+                "ignored in the view's address: `{}`{} (unknown key or value out of range)",
+                shown.join("`, `"),
+                if more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                }
             )]
         };
         (v, notes)
+    }
+}
+
+/// A value from the address as a message quotes it: at most 48 characters, control
+/// characters shown as `?`, so that a long or hostile address cannot fill or garble the
+/// status line.
+pub fn quoted(value: &str) -> String {
+    const MAX: usize = 48;
+    let clean = |c: char| if c.is_control() { '?' } else { c };
+    let count = value.chars().count();
+    if count <= MAX {
+        value.chars().map(clean).collect()
+    } else {
+        let head: String = value.chars().take(MAX).map(clean).collect();
+        format!("{head}… ({count} characters)")
     }
 }
 
@@ -503,5 +526,26 @@ mod tests {
         }
         assert_eq!(parse_units("4, 2-3"), Some(vec![2, 3, 4]));
         assert_eq!(parse_units("a"), None);
+    }
+
+    #[test]
+    fn long_or_hostile_address_values_are_shortened_in_messages() {
+        let long = format!("t={}", "9".repeat(400));
+        let odd = "x=\u{1b}[2Jboo";
+        let many: String = (0..20).map(|i| format!("&k{i}=v")).collect();
+        let (_, notes) = ViewState::from_hash(
+            &format!("{long}&{odd}{many}"),
+            &ViewState::default(),
+            standard(),
+        );
+        let note = &notes[0];
+        assert!(note.chars().count() < 400, "{note}");
+        assert!(note.contains("… (402 characters)"), "{note}");
+        assert!(
+            note.contains("x=?[2Jboo") && !note.contains('\u{1b}'),
+            "{note}"
+        );
+        assert!(note.contains(" and 16 more"), "{note}");
+        assert_eq!(quoted("seq=ok"), "seq=ok");
     }
 }

@@ -134,6 +134,15 @@ fn the_panel_lists_every_claim_and_its_link_opens_the_view() {
         assert!(labels.contains(text), "no `{text}`");
     }
     assert!(!labels.contains("figure not available"), "{labels}");
+    // A figure opens full size in a window of its own, at its own pixel size.
+    let first = FINDINGS[0].figures[0];
+    h.get_by_label(&format!("figure {first}")).click();
+    h.run_steps(3);
+    let labels = format!("{:?}", h.root());
+    assert!(
+        labels.contains(&format!("docs/results/{first}")),
+        "{labels}"
+    );
     h.get_by_label("Show it on the shipped network").click();
     h.run_steps(2);
     let view = h.state().view();

@@ -951,6 +951,7 @@ fn the_tour_is_offered_once_and_can_be_skipped_or_restarted() {
     assert_eq!(h.state().tour_stop(), Some(0));
     let labels = format!("{:?}", h.root());
     assert!(labels.contains("Tour 1 of 6: What you see"), "{labels}");
+    assert!(labels.contains("A PV-RNN trained on "), "{labels}");
     for stop in 1..6 {
         h.get_by_label("next").click();
         // A new stop is a new window: egui sizes it before it shows.
@@ -1049,6 +1050,27 @@ fn another_robot_s_cameras_and_channels_label_the_views() {
     for paper_only in common::PAPER_ONLY_LABELS {
         assert!(!labels.contains(paper_only), "`{paper_only}` in the view");
     }
+    // Its data names no bed height: no bed picker.
+    assert!(
+        labels.contains("Task") && !labels.contains("Bed"),
+        "{labels}"
+    );
+    // The tour speaks of this robot, not of caregiving.
+    let mut h = harness(ExplorerApp::new(
+        Some(common::three_camera_bundle()),
+        ViewState::default(),
+    ));
+    h.get_by_label("Tour").click();
+    h.run_steps(6);
+    assert_eq!(h.state().tour_stop(), Some(0));
+    let labels = format!("{:?}", h.root());
+    assert!(
+        labels.contains(
+            "A PV-RNN trained on one task (handover) from vision (3 cameras) and proprioception (3 joint angles, 2 torques, 1 other channels)."
+        ),
+        "{labels}"
+    );
+    assert!(!labels.contains("caregiving"), "{labels}");
 }
 
 /// The paper's robot: its two arms' channels in two colour groups the plot names.

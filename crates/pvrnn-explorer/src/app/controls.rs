@@ -176,16 +176,19 @@ impl ExplorerApp {
             .collect();
         heights.sort();
         heights.dedup();
-        let l = ui.label("Bed");
-        egui::ComboBox::from_id_salt("bed")
-            .selected_text(&bed)
-            .show_ui(ui, |ui| {
-                for h in &heights {
-                    ui.selectable_value(&mut bed, h.clone(), h);
-                }
-            })
-            .response
-            .labelled_by(l.id);
+        // caresim's bed heights; a robot whose recordings name none has no use for it.
+        if seqs.iter().any(|s| s.info.bed_height_mm.is_some()) {
+            let l = ui.label("Bed");
+            egui::ComboBox::from_id_salt("bed")
+                .selected_text(&bed)
+                .show_ui(ui, |ui| {
+                    for h in &heights {
+                        ui.selectable_value(&mut bed, h.clone(), h);
+                    }
+                })
+                .response
+                .labelled_by(l.id);
+        }
         let l = ui.label("Split");
         egui::ComboBox::from_id_salt("split")
             .selected_text(&split)

@@ -5,10 +5,12 @@
 use super::*;
 use crate::findings::{FINDINGS, Finding, Verdict};
 
-/// The findings' figures as textures, read when the panel first shows them.
+/// The findings' figures as textures, read when the panel first shows them, and the one
+/// opened full size (a click on a figure).
 #[derive(Default)]
 pub(super) struct FigureCache {
     textures: HashMap<&'static str, Result<TextureHandle, String>>,
+    full_size: Option<&'static str>,
     #[cfg(target_arch = "wasm32")]
     fetches: crate::browser::Fetches,
 }
@@ -33,6 +35,26 @@ impl FigureCache {
             self.textures.insert(path, texture);
         }
         self.textures.get(path)
+    }
+
+    /// The figure opened full size, in a window of its own that scrolls.
+    fn full_size_ui(&mut self, ctx: &egui::Context) {
+        let Some(path) = self.full_size else { return };
+        let Some(Ok(texture)) = self.get(ctx, path) else {
+            return;
+        };
+        let texture = texture.clone();
+        let mut open = true;
+        egui::Window::new(format!("docs/results/{path}"))
+            .open(&mut open)
+            .default_size(texture.size_vec2().min(ctx.content_rect().size() * 0.9))
+            .scroll(true)
+            .show(ctx, |ui| {
+                ui.add(egui::Image::new(&texture).fit_to_exact_size(texture.size_vec2()));
+            });
+        if !open {
+            self.full_size = None;
+        }
     }
 
     #[cfg(not(target_arch = "wasm32"))]
@@ -81,6 +103,9 @@ impl ExplorerApp {
                 }
             });
         self.show_findings = open;
+        if open {
+            self.figures.full_size_ui(ctx);
+        }
         if let Some(view) = follow {
             self.apply_hash(view);
         }
@@ -120,13 +145,23 @@ impl FindingPanel<'_> {
                             Some(Ok(texture)) => {
                                 let size = texture.size_vec2();
                                 let width = 340.0f32.min(size.x);
-                                ui.add(
-                                    egui::Image::new(texture).fit_to_exact_size(egui::vec2(
-                                        width,
-                                        width * size.y / size.x,
-                                    )),
-                                )
-                                .on_hover_text(format!("docs/results/{path}"));
+                                let clicked = ui
+                                    .add(
+                                        egui::Image::new(texture)
+                                            .fit_to_exact_size(egui::vec2(
+                                                width,
+                                                width * size.y / size.x,
+                                            ))
+                                            .alt_text(format!("figure {path}"))
+                                            .sense(egui::Sense::click()),
+                                    )
+                                    .on_hover_text(format!(
+                                        "docs/results/{path}: click to open it full size"
+                                    ))
+                                    .clicked();
+                                if clicked {
+                                    figures.full_size = Some(path);
+                                }
                             }
                             Some(Err(e)) => {
                                 ui.weak(format!("figure not available: {e}"));

@@ -5,16 +5,9 @@
 use super::*;
 
 /// Each stop: its title, what it says, and where its window stands (by the panel it
-/// explains).
+/// explains). The first stop's text is the model's own ([`intro`]).
 const STOPS: [(&str, &str, egui::Align2); 6] = [
-    (
-        "What you see",
-        "A PV-RNN trained on caregiving tasks (repositioning a person, wiping with a towel) \
-         from vision and proprioception. The explorer runs its online inference: at every \
-         step the network infers its latent states from what it has seen and felt so far. \
-         Runs not precomputed are computed live, beside the page.",
-        egui::Align2::CENTER_CENTER,
-    ),
+    ("What you see", "", egui::Align2::CENTER_CENTER),
     (
         "Images (left)",
         "Each camera's actual image at every resolution, and the network's posterior \
@@ -76,6 +69,11 @@ impl ExplorerApp {
     pub(super) fn tour_ui(&mut self, ctx: &egui::Context) {
         let Some(stop) = self.tour else { return };
         let (title, text, anchor) = STOPS[stop.min(STOPS.len() - 1)];
+        let text = if text.is_empty() {
+            intro(self.bundle.as_ref())
+        } else {
+            text.to_string()
+        };
         let mut next = Some(stop);
         egui::Window::new(format!("Tour {} of {}: {title}", stop + 1, STOPS.len()))
             .anchor(anchor, egui::vec2(0.0, 0.0) + offset(anchor))
@@ -103,6 +101,58 @@ impl ExplorerApp {
         }
         self.tour = next;
     }
+}
+
+/// The tour's first words, in the terms of the model's own data: its tasks, cameras and
+/// proprioceptive channels (caresim's tasks described as caregiving, any other robot's by
+/// their names).
+pub fn intro(bundle: Option<&Bundle>) -> String {
+    let what = match bundle {
+        Some(b) => {
+            let m = &b.dataset.manifest;
+            let mut tasks: Vec<&str> = b
+                .dataset
+                .sequences
+                .iter()
+                .map(|s| s.info.task.as_str())
+                .collect();
+            tasks.sort_unstable();
+            tasks.dedup();
+            let tasks = if m.source.starts_with("caresim") {
+                "the caregiving tasks of caresim (repositioning a person, wiping with a towel)"
+                    .to_string()
+            } else {
+                let n = tasks.len();
+                format!(
+                    "{} ({})",
+                    if n == 1 { "one task" } else { "its tasks" },
+                    tasks.join(", ")
+                )
+            };
+            let torques = if m.torques.is_empty() {
+                String::new()
+            } else {
+                format!(", {} torques", m.torques.len())
+            };
+            format!(
+                "A PV-RNN trained on {tasks} from vision ({} camera{}) and proprioception ({} joint angles{torques}{}).",
+                m.cameras.len(),
+                if m.cameras.len() == 1 { "" } else { "s" },
+                m.joints.len(),
+                if m.extra.is_empty() {
+                    String::new()
+                } else {
+                    format!(", {} other channels", m.extra.len())
+                }
+            )
+        }
+        None => "A PV-RNN trained from vision and proprioception.".to_string(),
+    };
+    format!(
+        "{what} The explorer runs its online inference: at every step the network infers its \
+         latent states from what it has seen and felt so far. Runs not precomputed are \
+         computed live, beside the page."
+    )
 }
 
 /// Keeps the tour's window off the panel edges.

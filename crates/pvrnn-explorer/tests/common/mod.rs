@@ -89,6 +89,8 @@ pub fn three_camera_bundle() -> Bundle {
     };
     let robot = |name: &str, split, t: usize, seed: u32| {
         let mut s = sequence(name, "handover", split, t, seed);
+        // Not caresim: no bed.
+        s.info.bed_height_mm = None;
         s.cameras = 3;
         s.images = (0..t * 3 * 8 * 8 * 3)
             .map(|i| ((i as u32 * 29 + seed) % 256) as u8)

@@ -8,11 +8,14 @@
 #
 # RECIPE: paper | data-x3 (3x the learning sequences: 9 per task and bed height, new
 # seeds; the paper's 18 among them) | any training/recipes/NAME.toml (w-half, w-double,
-# log-sigma-bound, ...). Writes WORKDIR/RECIPE/run.safetensors (resumable), its log,
+# log-sigma-bound, ...). Writes WORKDIR/RECIPE/run.safetensors (revision 2:
+# WORKDIR/r2-RECIPE/; resumable), its log,
 # run.validation.csv, run.best.safetensors (the validation-best checkpoint) and
 # run.iter<N>.safetensors every VALIDATE_EVERY iterations. Environment: THREADS (default
 # 1: two recipes train side by side on two cores), VALIDATE_EVERY (2000), PATIENCE (none),
-# BACKEND (cpu; `wgpu` on a GPU machine), PVRNN (the binary; default target/release/pvrnn).
+# BACKEND (cpu; `wgpu` on a GPU machine), PVRNN (the binary; default target/release/pvrnn),
+# REVISION (caresim's, 1 or 2; default 1: docs/caresim.md, "Revisions"; revision 2's data
+# goes to WORKDIR/data/r2-*).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -24,11 +27,17 @@ pvrnn=${PVRNN:-target/release/pvrnn}
 [ -x "$pvrnn" ] || cargo build --release -p pvrnn-cli
 every=${VALIDATE_EVERY:-2000}
 
-data=$work/data/caresim
+revision=${REVISION:-1}
+case "$revision" in
+1) prefix=caresim ;;
+2) prefix=r2 ;;
+*) echo "REVISION must be 1 or 2, not $revision" >&2; exit 2 ;;
+esac
+data=$work/data/$prefix
 config=()
 case "$recipe" in
 paper) ;;
-data-x3) data=$work/data/caresim-x3 ;;
+data-x3) data=$work/data/$prefix-x3 ;;
 *)
     toml=training/recipes/$recipe.toml
     [ -f "$toml" ] || { echo "no recipe $recipe (no $toml)" >&2; exit 2; }
@@ -37,17 +46,19 @@ data-x3) data=$work/data/caresim-x3 ;;
 esac
 
 simulate() { # folder, extra flags
-    [ -f "$1/dataset.json" ] || "$pvrnn" simulate --out "$1" --no-previews "${@:2}"
+    [ -f "$1/dataset.json" ] ||
+        "$pvrnn" simulate --out "$1" --no-previews --revision "$revision" "${@:2}"
 }
-simulate "$work/data/caresim" --seed 0
-simulate "$work/data/caresim-seed1" --seed 1
+simulate "$work/data/$prefix" --seed 0
+simulate "$work/data/$prefix-seed1" --seed 1
 [ "$recipe" = data-x3 ] && simulate "$data" --seed 0 --learn-per-height 9
 
 run=$work/$recipe
+[ "$revision" = 1 ] || run=$work/r2-$recipe
 mkdir -p "$run"
 flags=(--inputs "$data" --out "$run/run.safetensors" --iterations "$iterations"
     --checkpoint-every 500 --keep-every "$every"
-    --validate "$work/data/caresim-seed1" --validate-every "$every")
+    --validate "$work/data/$prefix-seed1" --validate-every "$every")
 [ -n "${PATIENCE:-}" ] && flags+=(--patience "$PATIENCE")
 [ -n "${BACKEND:-}" ] && flags+=(--backend "$BACKEND")
 if [ -f "$run/run.safetensors" ]; then

@@ -16,73 +16,24 @@
 #                iteration there (recurrent weights and adaptive variables resident, one
 #                submission, only the free-energy terms read back); training only (online
 #                inference keeps the recurrence on the CPU: it would time `wgpu` again)
-#   every-call   the wgpu backend with PVRNN_WGPU_MIN_WORK=0: online inference's small
-#                calls on the GPU too (the path before the threshold); inference only, and
-#                not with --quick
 #   whole-N      `--gpu-recurrence --networks N` (N = 5, the paper's networks per
 #                condition; NETWORKS overrides): N networks trained together, one
 #                recurrence dispatch for all of them; training only
-#   wgpu-fused, whole-fused, whole-N-fused
-#                `wgpu`, `whole` and `whole-N` with the fused output-layer kernels in
-#                every call at their workgroup target of 1,024 (PVRNN_WGPU_OUTPUT_KERNELS=fused
-#                PVRNN_WGPU_WORKGROUPS=1024: the default before 2026-11-30; the default
-#                now runs the register-blocked kernels for learning's calls)
-#   whole-waited, whole-N-waited
-#                `whole` and `whole-N` with each iteration's free energy read back before
-#                its update and the next iteration are queued (PVRNN_WGPU_AHEAD=off; the
-#                default queues them first, the updates skipping on the device after a
-#                diverged iteration: the path before 2026-11-30's third session)
 #   whole-kernels, whole-N-kernels
 #                `whole` and `whole-N` with every dispatch timed apart
-#                (PVRNN_WGPU_PROFILE_KERNELS=on): the summary's device table then lists
-#                each kernel's milliseconds per iteration ("kernel <label>"); a pass per
+#                (`--profile-kernels`): the summary's device table then lists each
+#                kernel's milliseconds per iteration ("kernel <label>"); a pass per
 #                dispatch adds to the totals, so these time where, not how fast
-#   whole-kernels-wgW
-#                `whole-kernels` at a workgroup target of W for the output layer's passes
-#                (PVRNN_WGPU_WORKGROUPS=W, W in KERNEL_WORKGROUPS, default "128 512 1024";
-#                the default is 256): the forward product, the input and the weight
-#                gradient share the target, and each kernel's time says which wants what
-#   whole-loadsL, whole-N-loadsL
-#                `whole` and `whole-N` with L loads in flight per batch of the recurrence's
-#                dot products (PVRNN_WGPU_RECURRENCE_LOADS=L, L in LOADS, default "16 30",
-#                both kernels; the defaults are 8 forward and 30 backward since
-#                2026-12-01, when an H200 took the forward from 1.44 to 1.93 ms at 30 and
-#                the backward from 3.03 to 2.70): 30-long sums in 2 or 1 round trips
-#                instead of 4
-#   whole-chunkM, whole-N-chunkM
-#                `whole` and `whole-N` with the output layer's chunks of rows at M MiB of
-#                targets (PVRNN_WGPU_CHUNK_MB=M, M in CHUNKS, default "32 64 1024"; the
-#                default is 128, 64 before 2026-12-01): smaller chunks keep a chunk's error gradient in the L2
-#                cache between the three products, larger ones dispatch less often (wgpu
-#                puts a barrier before nearly every dispatch, and the device drains
-#                at each; docs/results/gpu/notes.md, entry 17)
-#   whole-beside, whole-N-beside
-#                `whole` and `whole-N` with the output layers' weight gradients queued
-#                beside the recurrence's backward dispatch (PVRNN_WGPU_BESIDE_BACKWARD=on),
-#                which needs a call's rows in one chunk: PVRNN_WGPU_CHUNK_MB=1024 (the
-#                paper's targets are 697 MB); compare with whole-chunk1024 for the same
-#                chunks in order, and run OVERLAP_BENCH for whether the
-#                device overlaps such dispatches at all
-#   whole-N-encoded
-#                `whole-N` with every iteration encoded anew (PVRNN_WGPU_REPLAY=off; the
-#                default replays each run's recorded iteration)
-#   whole-rec128, whole-N-rec128
-#                `whole` and `whole-N` with the recurrence kernels as before 2026-11-28:
-#                128 threads per window and 4 loads per batch
-#                (PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4; the
-#                default is one thread per item of a step's widest phase, 8 loads)
 #   whole-N-checked, whole-N-unchecked
-#                `whole-N` with wgpu's runtime checks in every kernel (PVRNN_WGPU_CHECKS=all)
-#                and in none (PVRNN_WGPU_CHECKS=none); the default checks every kernel but
+#                `whole-N` with wgpu's runtime checks in every kernel (`--wgpu-checks all`)
+#                and in none (`--wgpu-checks none`); the default checks every kernel but
 #                the output layers' main passes (fused and blocked)
+# (The variants of the switches deleted on 2026-12-06, which lost their measurements or
+# were never timed, are in docs/gpu.md, "What was tried, measured and deleted".)
 #   torch-eager, torch-graph
 #                the same model in PyTorch on the same GPU (scripts/torch-reference.py),
 #                eager and with the whole iteration captured in a CUDA graph; training
 #                only, where python3 imports torch with CUDA
-#   whole-narrow, whole-N-narrow, whole-kernels-narrow
-#                `whole`, `whole-N` and `whole-kernels` with the blocked forward product at
-#                4 columns per thread, 128 x 64 tiles (PVRNN_WGPU_FORWARD_COLUMNS=4; the
-#                default is 8, 128 x 128): half the accumulators per thread
 #   base-whole, base-whole-N, base-whole-kernels
 #                `whole`, `whole-N` and `whole-kernels` run with another build, the
 #                binary BASELINE names (set BASELINE to run them): two builds compared in
@@ -165,69 +116,19 @@ for round in $(seq "$rounds"); do
                 --gpu-recurrence $train_only
             bin=$BASELINE bench "base-whole-${NETWORKS:-5}" "$threads" "$round" \
                 --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-            bin=$BASELINE PVRNN_WGPU_PROFILE_KERNELS=on bench base-whole-kernels "$threads" \
-                "$round" --backend wgpu --gpu-recurrence $train_only
-        fi
-        if [ "$quick" = 0 ]; then
-            PVRNN_WGPU_MIN_WORK=0 bench every-call "$threads" "$round" --backend wgpu --only infer
+            bin=$BASELINE bench base-whole-kernels "$threads" "$round" --backend wgpu \
+                --gpu-recurrence --profile-kernels $train_only
         fi
         bench "whole-${NETWORKS:-5}" "$threads" "$round" --backend wgpu --gpu-recurrence \
             --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
-            bench wgpu-fused "$threads" "$round" --backend wgpu
-        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
-            bench whole-fused "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
-        PVRNN_WGPU_OUTPUT_KERNELS=fused PVRNN_WGPU_WORKGROUPS=1024 \
-            bench "whole-${NETWORKS:-5}-fused" "$threads" "$round" --backend wgpu \
-            --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_AHEAD=off bench whole-waited "$threads" "$round" --backend wgpu \
-            --gpu-recurrence $train_only
-        PVRNN_WGPU_AHEAD=off bench "whole-${NETWORKS:-5}-waited" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_PROFILE_KERNELS=on bench whole-kernels "$threads" "$round" --backend wgpu \
-            --gpu-recurrence $train_only
-        PVRNN_WGPU_PROFILE_KERNELS=on bench "whole-${NETWORKS:-5}-kernels" "$threads" \
-            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_FORWARD_COLUMNS=4 bench whole-narrow "$threads" "$round" --backend wgpu \
-            --gpu-recurrence $train_only
-        PVRNN_WGPU_FORWARD_COLUMNS=4 bench "whole-${NETWORKS:-5}-narrow" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_FORWARD_COLUMNS=4 bench whole-kernels-narrow \
-            "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
-        for wg in ${KERNEL_WORKGROUPS:-128 512 1024}; do
-            PVRNN_WGPU_PROFILE_KERNELS=on PVRNN_WGPU_WORKGROUPS=$wg bench "whole-kernels-wg$wg" \
-                "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
-        done
-        for loads in ${LOADS:-16 30}; do
-            PVRNN_WGPU_RECURRENCE_LOADS=$loads bench "whole-loads$loads" "$threads" "$round" \
-                --backend wgpu --gpu-recurrence $train_only
-            PVRNN_WGPU_RECURRENCE_LOADS=$loads bench "whole-${NETWORKS:-5}-loads$loads" \
-                "$threads" "$round" --backend wgpu --gpu-recurrence \
-                --networks "${NETWORKS:-5}" $train_only
-        done
-        for mb in ${CHUNKS:-32 64 1024}; do
-            PVRNN_WGPU_CHUNK_MB=$mb bench "whole-chunk$mb" "$threads" "$round" \
-                --backend wgpu --gpu-recurrence $train_only
-            PVRNN_WGPU_CHUNK_MB=$mb bench "whole-${NETWORKS:-5}-chunk$mb" "$threads" \
-                "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" \
-                $train_only
-        done
-        PVRNN_WGPU_CHUNK_MB=1024 PVRNN_WGPU_BESIDE_BACKWARD=on bench whole-beside "$threads" \
-            "$round" --backend wgpu --gpu-recurrence $train_only
-        PVRNN_WGPU_CHUNK_MB=1024 PVRNN_WGPU_BESIDE_BACKWARD=on bench \
-            "whole-${NETWORKS:-5}-beside" "$threads" "$round" --backend wgpu --gpu-recurrence \
-            --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_REPLAY=off bench "whole-${NETWORKS:-5}-encoded" "$threads" "$round" \
-            --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
-        PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 bench whole-rec128 \
-            "$threads" "$round" --backend wgpu --gpu-recurrence $train_only
-        PVRNN_WGPU_RECURRENCE_THREADS=128 PVRNN_WGPU_RECURRENCE_LOADS=4 \
-            bench "whole-${NETWORKS:-5}-rec128" "$threads" \
-            "$round" --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+        bench whole-kernels "$threads" "$round" --backend wgpu --gpu-recurrence \
+            --profile-kernels $train_only
+        bench "whole-${NETWORKS:-5}-kernels" "$threads" "$round" --backend wgpu \
+            --gpu-recurrence --profile-kernels --networks "${NETWORKS:-5}" $train_only
         for checks in all none; do
             name=$([ "$checks" = all ] && echo checked || echo unchecked)
-            PVRNN_WGPU_CHECKS=$checks bench "whole-${NETWORKS:-5}-$name" "$threads" "$round" \
-                --backend wgpu --gpu-recurrence --networks "${NETWORKS:-5}" $train_only
+            bench "whole-${NETWORKS:-5}-$name" "$threads" "$round" --backend wgpu \
+                --gpu-recurrence --wgpu-checks "$checks" --networks "${NETWORKS:-5}" $train_only
         done
         bench cpu "$threads" "$round" --backend cpu
     done
@@ -291,12 +192,12 @@ if device:
     print()
     print("device ms per training iteration (timestamp queries)")
     for variant, phases in device.items():
-        # Kernels ("kernel <label>", PVRNN_WGPU_PROFILE_KERNELS=on) are inside the parts.
+        # Kernels ("kernel <label>", --profile-kernels) are inside the parts.
         ms = {k: statistics.mean(m for m, _ in v) for k, v in phases.items()}
         total = sum(m for k, m in ms.items() if not k.startswith('kernel '))
         print(f"{variant:36} total {total:9.3f}")
         for phase, v in phases.items():
-            # A kernel's dispatches per iteration (PVRNN_WGPU_PROFILE_KERNELS=on).
+            # A kernel's dispatches per iteration (--profile-kernels).
             times = statistics.mean(t for _, t in v)
             count = f"  x{times:g}" if phase.startswith('kernel ') else ""
             print(f"    {phase:70} {ms[phase]:9.3f}{count}")

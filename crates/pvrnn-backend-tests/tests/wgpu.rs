@@ -1,8 +1,7 @@
 //! The suite on the wgpu backend: the first adapter the machine offers (a GPU, or Mesa's
 //! lavapipe CPU Vulkan device in CI), every call on the device however small, with the
-//! recurrence on the CPU and on the GPU, and with the register-blocked output-layer kernels
-//! (with the recurrence on the GPU: their weight gradients queued beside its backward
-//! dispatch, `Tiling::weight_grads_beside_backward`, so that a cohort's runs all move).
+//! recurrence on the CPU and on the GPU, and with the fused and the register-blocked
+//! output-layer kernels.
 //! Without an adapter the tests fail, naming the problem, unless `PVRNN_SKIP_WGPU` is set.
 #![cfg(not(target_arch = "wasm32"))]
 
@@ -12,14 +11,6 @@ use pvrnn_backend_tests::Shared;
 use pvrnn_wgpu::{OutputKernels, Tiling, WgpuBackend};
 
 fn wgpu(recurrence_on_gpu: bool, output_kernels: OutputKernels) -> Option<Shared<f32>> {
-    wgpu_with(recurrence_on_gpu, output_kernels, false)
-}
-
-fn wgpu_with(
-    recurrence_on_gpu: bool,
-    output_kernels: OutputKernels,
-    weight_grads_beside_backward: bool,
-) -> Option<Shared<f32>> {
     match WgpuBackend::new() {
         // Every call on the GPU, however small (the suite's shapes are).
         Ok(backend) => Some(Arc::new(
@@ -27,7 +18,6 @@ fn wgpu_with(
                 .with_tiling(Tiling {
                     min_work: 0,
                     output_kernels,
-                    weight_grads_beside_backward,
                     ..Tiling::default()
                 })
                 .with_recurrence_on_gpu(recurrence_on_gpu),
@@ -52,7 +42,7 @@ pvrnn_backend_tests::backend_suite!(
     wgpu(false, OutputKernels::Blocked)
 );
 pvrnn_backend_tests::backend_suite!(
-    wgpu_recurrence_on_gpu_blocked_beside_backward_f32,
+    wgpu_recurrence_on_gpu_blocked_f32,
     f32,
-    wgpu_with(true, OutputKernels::Blocked, true)
+    wgpu(true, OutputKernels::Blocked)
 );

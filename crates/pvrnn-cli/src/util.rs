@@ -358,12 +358,45 @@ pub struct BackendArgs {
     /// comparing the two on one machine; results agree to f32 rounding.
     #[arg(long)]
     pub weights_on_host: bool,
+    /// With `--backend wgpu`: which kernels keep wgpu's runtime checks (bounds, loop
+    /// bounding, division). `audited`: every kernel but the output layers' five main ones,
+    /// whose indices are audited and whose checks cost them a fourth of their time on an
+    /// H200; `all`: every kernel, to rule the unchecked ones out when a result looks wrong;
+    /// `none`: no kernel, to measure what the checks cost (docs/gpu.md).
+    #[arg(long, value_enum, default_value_t = ChecksArg::Audited)]
+    pub wgpu_checks: ChecksArg,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BackendKind {
     Cpu,
     Wgpu,
+}
+
+/// `--wgpu-checks`: [`pvrnn_wgpu::RuntimeChecks`] on the command line.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ChecksArg {
+    Audited,
+    All,
+    None,
+}
+
+impl ChecksArg {
+    fn checks(self) -> pvrnn_wgpu::RuntimeChecks {
+        match self {
+            Self::Audited => pvrnn_wgpu::RuntimeChecks::Audited,
+            Self::All => pvrnn_wgpu::RuntimeChecks::All,
+            Self::None => pvrnn_wgpu::RuntimeChecks::None,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Self::Audited => "audited",
+            Self::All => "all",
+            Self::None => "none",
+        }
+    }
 }
 
 /// A backend, what it runs on in words, and its GPU device if it has one.
@@ -387,7 +420,21 @@ impl BackendArgs {
         if self.weights_on_host {
             flags.push_str(" --weights-on-host");
         }
+        if self.wgpu_checks != ChecksArg::Audited {
+            flags.push_str(" --wgpu-checks ");
+            flags.push_str(self.wgpu_checks.name());
+        }
         flags
+    }
+
+    /// The wgpu backend's options these flags choose.
+    pub fn wgpu_options(&self) -> pvrnn_wgpu::WgpuOptions {
+        pvrnn_wgpu::WgpuOptions {
+            recurrence_on_gpu: self.gpu_recurrence,
+            weights_on_host: self.weights_on_host,
+            checks: self.wgpu_checks.checks(),
+            profile_kernels: false,
+        }
     }
 
     /// [`Self::open`] for a command that only runs online inference (`infer`, `evaluate`),
@@ -416,13 +463,22 @@ impl BackendArgs {
     /// [`Self::open`], with the GPU device when the backend has one (for its memory
     /// figures).
     pub fn open_with_gpu(&self) -> Result<OpenedBackend> {
+        self.open_with(self.wgpu_options())
+    }
+
+    /// [`Self::open_with_gpu`] with the wgpu backend's `options` ([`Self::wgpu_options`]
+    /// and what a command adds: `bench --profile-kernels`).
+    pub fn open_with(&self, options: pvrnn_wgpu::WgpuOptions) -> Result<OpenedBackend> {
         Ok(match self.backend {
             BackendKind::Cpu => {
-                if self.gpu_recurrence {
-                    bail!("--gpu-recurrence needs --backend wgpu");
-                }
-                if self.weights_on_host {
-                    bail!("--weights-on-host needs --backend wgpu");
+                let wgpu_only = [
+                    (options.recurrence_on_gpu, "--gpu-recurrence"),
+                    (options.weights_on_host, "--weights-on-host"),
+                    (options.checks != Default::default(), "--wgpu-checks"),
+                    (options.profile_kernels, "--profile-kernels"),
+                ];
+                if let Some((_, flag)) = wgpu_only.iter().find(|(set, _)| *set) {
+                    bail!("{flag} needs --backend wgpu");
                 }
                 (
                     Box::new(pvrnn_core::cpu::CpuBackend),
@@ -431,34 +487,21 @@ impl BackendArgs {
                 )
             }
             BackendKind::Wgpu => {
-                let gpu = pvrnn_wgpu::WgpuBackend::new()
-                    .context("--backend wgpu")?
-                    .with_recurrence_on_gpu(self.gpu_recurrence)
-                    .with_resident_learning(!self.weights_on_host);
+                let gpu = pvrnn_wgpu::WgpuBackend::new_with(options).context("--backend wgpu")?;
                 let mut name = format!("wgpu on {}", gpu.adapter_name());
-                if self.gpu_recurrence {
+                if options.recurrence_on_gpu {
                     name.push_str(", recurrence on the GPU");
                 }
-                if self.weights_on_host {
+                if options.weights_on_host {
                     name.push_str(", weights on the host");
                 }
-                match gpu.tiling().output_kernels {
-                    pvrnn_wgpu::OutputKernels::Auto => {}
-                    pvrnn_wgpu::OutputKernels::Fused => name.push_str(", fused output kernels"),
-                    pvrnn_wgpu::OutputKernels::Blocked => {
-                        name.push_str(", blocked output kernels");
-                    }
+                match options.checks {
+                    pvrnn_wgpu::RuntimeChecks::Audited => {}
+                    pvrnn_wgpu::RuntimeChecks::All => name.push_str(", every kernel checked"),
+                    pvrnn_wgpu::RuntimeChecks::None => name.push_str(", no kernel checked"),
                 }
-                if self.gpu_recurrence && gpu.tiling().weight_grads_beside_backward {
-                    // Only calls of one chunk move (Tiling::weight_grads_beside_backward).
-                    name.push_str(&format!(
-                        ", read-out weight gradients beside the backward where a call is \
-                         one chunk of at most {} MiB with blocked kernels",
-                        gpu.tiling().max_chunk_bytes >> 20
-                    ));
-                }
-                if self.gpu_recurrence && !gpu.tiling().replay_iterations {
-                    name.push_str(", every iteration encoded");
+                if options.profile_kernels {
+                    name.push_str(", each kernel profiled");
                 }
                 let device = gpu.gpu().clone();
                 (Box::new(gpu), name, Some(device))

@@ -12,8 +12,6 @@ use pvrnn_core::io::{self, TensorFile};
 fn pvrnn(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_pvrnn"))
         .args(args)
-        // `--backend wgpu` sends every call to the GPU, however small (these shapes are).
-        .env("PVRNN_WGPU_MIN_WORK", "0")
         .output()
         .expect("runs pvrnn")
 }
@@ -632,6 +630,90 @@ fn bench_under_memory_limit(
     (status, String::from_utf8_lossy(&out.stderr).into_owned())
 }
 
+/// The wgpu backend's defaults learn bit for bit as the build before its switches became
+/// typed options and the variants without a measured win were deleted (2026-12-06): six
+/// iterations of the small model on 24 rows (the fused output kernels), on 160 rows (the
+/// blocked ones), and on 160 rows with `--gpu-recurrence` (the whole iteration on the
+/// device, replayed and queued ahead), each final free energy as that build gave it on
+/// lavapipe (Mesa 22.3.6, the tests' CPU Vulkan device). Another adapter or driver may
+/// round otherwise: skipped there. `PVRNN_SKIP_WGPU=1` skips it too.
+#[test]
+fn the_wgpu_defaults_learn_the_bits_they_learned_before() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let x = Scratch::new();
+    setup(&x);
+    write_inputs(&x.path("x40.safetensors"), &small_config(), 4, 40, false);
+    let config = x.s("small.toml");
+    let m40 = x.s("m40.safetensors");
+    let init = [
+        "init",
+        "--config",
+        &config,
+        "--sequences",
+        "4",
+        "--steps",
+        "40",
+    ];
+    ok(&[&init[..], &["--seed", "1", "--out", &m40]].concat());
+    let train = |model: &str, inputs: &str, extra: &[&str]| {
+        let out = x.s("out.safetensors");
+        let mut args = vec![
+            "--threads",
+            "2",
+            "train",
+            "--model",
+            model,
+            "--inputs",
+            inputs,
+        ];
+        args.extend([
+            "--out",
+            &out,
+            "--overwrite",
+            "--iterations",
+            "6",
+            "--seed",
+            "5",
+        ]);
+        args.extend(["--backend", "wgpu"]);
+        args.extend_from_slice(extra);
+        let out = pvrnn(&args);
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "train {extra:?} failed:\n{err}");
+        let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (report["total"].as_f64().unwrap(), err)
+    };
+    let (m12, x12, x40) = (
+        x.s("m.safetensors"),
+        x.s("x.safetensors"),
+        x.s("x40.safetensors"),
+    );
+    let (fused, err) = train(&m12, &x12, &[]);
+    if !(err.contains("llvmpipe") && err.contains("Mesa 22.3.6")) {
+        eprintln!("skipped: the recorded bits are lavapipe's (Mesa 22.3.6):\n{err}");
+        return;
+    }
+    let (blocked, _) = train(&m40, &x40, &[]);
+    let (whole, _) = train(&m40, &x40, &["--gpu-recurrence"]);
+    let got = [fused, blocked, whole].map(f64::to_bits);
+    // 5.184906377458855, 29.55531036540866 and 29.55531037936608, recorded with the build
+    // of commit 443c14a.
+    let before: [u64; 3] = [
+        4617523704034756556,
+        4629012297978908508,
+        4629012297982837173,
+    ];
+    assert_eq!(
+        got,
+        before,
+        "free energies {:?} against {:?} before",
+        got.map(f64::from_bits),
+        before.map(f64::from_bits)
+    );
+}
+
 /// `--backend wgpu` (on a CPU Vulkan device where there is no GPU): learning gives the CPU
 /// backend's free energy to f32 summation order, and inference runs; a run says which
 /// backend it used. `PVRNN_SKIP_WGPU=1` skips it on a machine without a Vulkan driver.
@@ -692,6 +774,26 @@ fn train_and_infer_run_on_the_wgpu_backend() {
         (cpu - all_gpu).abs() <= 1e-4 * cpu.abs(),
         "after 10 iterations: cpu F {cpu}, wgpu with the recurrence F {all_gpu}"
     );
+    // wgpu's runtime checks in every kernel (`--wgpu-checks all`) and in none: the same
+    // learning, and the run says so.
+    for (checks, said) in [
+        ("all", "every kernel checked"),
+        ("none", "no kernel checked"),
+    ] {
+        let args = [
+            "--backend",
+            "wgpu",
+            "--gpu-recurrence",
+            "--wgpu-checks",
+            checks,
+        ];
+        let (checked, err) = train(&args);
+        assert!(err.contains(said), "{err}");
+        assert!(
+            (all_gpu - checked).abs() <= 1e-5 * all_gpu.abs(),
+            "after 10 iterations: wgpu F {all_gpu}, with --wgpu-checks {checks} F {checked}"
+        );
+    }
     ok(&[
         "infer",
         "--model",
@@ -710,25 +812,28 @@ fn train_and_infer_run_on_the_wgpu_backend() {
         f.shape("recon.exteroceptive"),
         Some(&[1, 12, small_config().vision.dims()][..])
     );
-    // free-energy on either backend: the same terms to f32 summation order.
-    let free_energy = |backend: &str| {
-        let out = ok(&[
-            "free-energy",
-            "--model",
-            &x.s("m.safetensors"),
-            "--inputs",
-            &x.s("x.safetensors"),
-            "--backend",
-            backend,
-        ]);
+    // free-energy on either backend: the same terms to f32 summation order (the small
+    // model's output layers stay on the CPU, its recurrence runs on the GPU with
+    // `--gpu-recurrence`).
+    let (model, inputs) = (x.s("m.safetensors"), x.s("x.safetensors"));
+    let free_energy = |backend: &[&str]| {
+        let mut args = vec!["free-energy", "--model", &model, "--inputs", &inputs];
+        args.extend_from_slice(backend);
+        let out = ok(&args);
         let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
         v["total"].as_f64().unwrap()
     };
-    let (cpu, gpu) = (free_energy("cpu"), free_energy("wgpu"));
-    assert!(
-        (cpu - gpu).abs() <= 1e-5 * cpu.abs(),
-        "free-energy: cpu {cpu}, wgpu {gpu}"
-    );
+    let cpu = free_energy(&["--backend", "cpu"]);
+    for backend in [
+        &["--backend", "wgpu"][..],
+        &["--backend", "wgpu", "--gpu-recurrence"],
+    ] {
+        let gpu = free_energy(backend);
+        assert!(
+            (cpu - gpu).abs() <= 1e-5 * cpu.abs(),
+            "free-energy: cpu {cpu}, {backend:?} {gpu}"
+        );
+    }
 }
 
 /// An experiment on the wgpu backend, two jobs at once sharing one device (lavapipe where
@@ -890,6 +995,41 @@ fn bench_profile_names_the_phases_of_an_iteration() {
     );
 }
 
+/// `pvrnn bench --profile --profile-kernels` on the wgpu backend with the recurrence there
+/// lists each kernel's device time beside each part's ("device: kernel <label>"), where
+/// the adapter has timestamp queries; without `--profile` the flag is refused.
+#[test]
+fn bench_profile_kernels_on_the_wgpu_backend_lists_each_kernel() {
+    if std::env::var_os("PVRNN_SKIP_WGPU").is_some() {
+        return;
+    }
+    let wgpu = ["--backend", "wgpu", "--gpu-recurrence", "--profile"];
+    let phases = |extra: &[&str]| -> Vec<String> {
+        let args: Vec<&str> = wgpu.iter().chain(extra).copied().collect();
+        let v = small_train_bench(&args);
+        v["profile"][0]["phases"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["phase"].as_str().unwrap().trim().to_string())
+            .collect()
+    };
+    let parts = phases(&[]);
+    let kernel = |p: &String| p.starts_with("device: kernel ");
+    assert!(!parts.iter().any(kernel), "{parts:?}");
+    if parts.iter().any(|p| p.starts_with("device: ")) {
+        let kernels = phases(&["--profile-kernels"]);
+        assert!(
+            kernels
+                .iter()
+                .any(|p| p == "device: kernel recurrence backward"),
+            "{kernels:?}"
+        );
+    }
+    let e = fails(&["bench", "--backend", "wgpu", "--profile-kernels"]);
+    assert!(e.contains("--profile"), "{e}");
+}
+
 /// `--networks N` trains N networks together: the figures are per iteration of all of
 /// them, network 0's free energies are the single run's, and on a GPU (lavapipe here)
 /// the device memory its buffers hold grows with N. `PVRNN_SKIP_WGPU=1` skips the GPU part.
@@ -1036,6 +1176,16 @@ fn bad_inputs_give_clear_errors() {
         "--weights-on-host",
     ]);
     assert!(e.contains("--weights-on-host needs --backend wgpu"), "{e}");
+    let e = fails(&[
+        "free-energy",
+        "--model",
+        &m,
+        "--inputs",
+        &x.s("x.safetensors"),
+        "--wgpu-checks",
+        "all",
+    ]);
+    assert!(e.contains("--wgpu-checks needs --backend wgpu"), "{e}");
     // A learning option, refused by the commands that only run online inference.
     let e = fails(&[
         "infer",

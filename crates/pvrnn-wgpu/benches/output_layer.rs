@@ -9,12 +9,11 @@
 //! batch) and learning's full batch with the blocked kernels' knobs (no weight gradient,
 //! shallow tiles, one chunk, other workgroup targets, scalar accesses). Then the fused kernels' knobs:
 //! learning's full batch at the workgroup target before 2026-11-30 (1,024), without the
-//! weight gradient, in one chunk, and with the row pass's other shapes
-//! (`Tiling::row_pass_rows`, `Tiling::row_pass_step`), and inference's everything-observed
-//! case under caps on the column splits (`Tiling::max_splits`), the knob that trades the
-//! row pass's parallelism against the length of the reduce pass's sums; with
-//! `PVRNN_WGPU_CHECKS=all` every case runs with wgpu's runtime checks (the fused kernels run
-//! without them by default), with `PVRNN_WGPU_CHECKS=none` no kernel has them.
+//! weight gradient, in one chunk, and inference's everything-observed case under caps on
+//! the column splits (`Tiling::max_splits`), the knob that trades the row pass's
+//! parallelism against the length of the reduce pass's sums. With `-- --checks=all` every
+//! case runs with wgpu's runtime checks (the output-layer kernels run without them by
+//! default), with `-- --checks=none` no kernel has them (`RuntimeChecks`).
 //!
 //! `cargo bench -p pvrnn-wgpu --bench output_layer` prints milliseconds per call and the
 //! arithmetic rate counted as the CPU backend's products (2 N K H per product: three with
@@ -32,17 +31,32 @@ use std::time::Instant;
 use pvrnn_core::assembled::OutputLoss;
 use pvrnn_core::params::Params;
 use pvrnn_core::{Modality, ModelConfig};
-use pvrnn_wgpu::{BlockedDepth, GpuOutputLayer, OutputKernels, Tiling, WgpuBackend};
+use pvrnn_wgpu::{
+    BlockedDepth, GpuOutputLayer, OutputKernels, RuntimeChecks, Tiling, WgpuBackend, WgpuOptions,
+};
 
 fn main() {
-    let backend = match WgpuBackend::new() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let checks: RuntimeChecks = args
+        .iter()
+        .find_map(|a| a.strip_prefix("--checks="))
+        .map_or(Ok(RuntimeChecks::default()), str::parse)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let options = WgpuOptions {
+        checks,
+        ..WgpuOptions::default()
+    };
+    let backend = match WgpuBackend::new_with(options) {
         Ok(b) => b,
         Err(e) => {
             eprintln!("no GPU: {e}");
             return;
         }
     };
-    println!("adapter: {}", backend.adapter_name());
+    println!(
+        "adapter: {}, runtime checks {checks:?}",
+        backend.adapter_name()
+    );
     let config = ModelConfig::default();
     let params = Params::<f32>::init(&config, 0);
     let hidden = *config.exteroceptive_readout.hidden.last().unwrap();
@@ -127,18 +141,10 @@ fn main() {
         ..blocked
     };
     blocked_learning("scalar accesses", true, scalar_io);
-    // The forward product at 4 columns per thread (128 x 64 tiles, half the accumulators)
-    // against the default 8, with and without the weight gradient.
-    let narrow = Tiling {
-        wide_forward: false,
-        ..blocked
-    };
-    blocked_learning("4 columns per thread", true, narrow);
-    blocked_learning("4 columns per thread, no d W", false, narrow);
     // The fused kernels on learning's full batch: at the workgroup target they were
     // measured at before 2026-11-30, without the weight gradient (the row pass and its
-    // reduce alone: the column pass is the difference), in one chunk of 768 MiB instead of
-    // 6 of 128, and with the row pass's other shapes (rows per workgroup, columns per step).
+    // reduce alone: the column pass is the difference), and in one chunk of 768 MiB
+    // instead of 6 of 128.
     let fused_1024 = Tiling {
         target_workgroups: 1024,
         ..fused
@@ -171,17 +177,6 @@ fn main() {
         20,
         one_chunk,
     ));
-    for row_pass_rows in [32, 64, 128] {
-        for row_pass_step in [1, 2, 4, 8] {
-            let tiling = Tiling {
-                row_pass_rows,
-                row_pass_step,
-                ..fused
-            };
-            let what = format!("learning, row pass {row_pass_rows} rows, {row_pass_step} per step");
-            cases.push((what, 5400, dims, true, 20, tiling));
-        }
-    }
     for max_splits in [1024, 256, 128, 64, 32, 16] {
         let tiling = Tiling {
             max_splits,
@@ -191,10 +186,7 @@ fn main() {
         cases.push((what, 30, dims, false, 50, tiling));
     }
     // `cargo bench ... -- WORD` runs the cases whose name contains WORD.
-    let filter: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .collect();
+    let filter: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
     let mut references: Vec<((usize, usize, bool), OutputLoss<f32>)> = Vec::new();
     for (what, n, k, weight_grads, reps, tiling) in cases {
         if !filter.iter().all(|f| what.contains(f.as_str())) {

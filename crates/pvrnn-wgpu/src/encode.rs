@@ -67,13 +67,6 @@ pub(crate) fn bind(
 /// inference's updates: bind groups and passes cost the host more than the small kernels).
 pub(crate) trait Recorder {
     fn record(&mut self, pipeline: &wgpu::ComputePipeline, group: &wgpu::BindGroup, x: u32, y: u32);
-
-    /// Where work that may run beside the recurrence's backward pass goes, and where what
-    /// reads its results goes (after the backward): a whole learning iteration's
-    /// read-outs ([`ReadoutWork`]) take it; elsewhere `None`, and it stays in order.
-    fn beside_backward(&mut self) -> Option<(&mut DispatchList, &mut DispatchList)> {
-        None
-    }
 }
 
 impl Recorder for wgpu::CommandEncoder {
@@ -138,33 +131,6 @@ impl DispatchList {
             pass.set_bind_group(0, group, &[]);
             pass.dispatch_workgroups(*x, *y, 1);
         }
-    }
-}
-
-/// A learning run's read-outs as a whole iteration on the device encodes them: in order
-/// between the recurrence's forward and backward dispatches, but for the output layers'
-/// weight gradients that may run beside the backward (`Tiling::weight_grads_beside_backward`)
-/// and their reduces after it.
-#[derive(Debug, Default)]
-pub(crate) struct ReadoutWork {
-    pub(crate) in_order: DispatchList,
-    pub(crate) beside_backward: DispatchList,
-    pub(crate) after_backward: DispatchList,
-}
-
-impl Recorder for ReadoutWork {
-    fn record(
-        &mut self,
-        pipeline: &wgpu::ComputePipeline,
-        group: &wgpu::BindGroup,
-        x: u32,
-        y: u32,
-    ) {
-        self.in_order.record(pipeline, group, x, y);
-    }
-
-    fn beside_backward(&mut self) -> Option<(&mut DispatchList, &mut DispatchList)> {
-        Some((&mut self.beside_backward, &mut self.after_backward))
     }
 }
 

@@ -7,9 +7,6 @@
 //! gradients) and reads back only what the free energy needs: the read-outs' row losses
 //! and the KL terms per step and unit (summed on the host in f64, as the CPU backend sums
 //! them). Values move between the kernels' layouts with `shaders/strided_copy.wgsl`.
-//! With `Tiling::weight_grads_beside_backward` the output layers' weight gradients are
-//! queued right after the backward dispatch instead ([`crate::encode::ReadoutWork`]), for
-//! the device to run them beside it.
 //!
 //! Several learning runs of one shape (a cohort: an experiment condition's networks, other
 //! seeds) share a [`Stack`]: their recurrent weights, one network after another in the same
@@ -29,7 +26,7 @@ use pvrnn_core::params::Model;
 use pvrnn_core::{Error, Modality, ModelConfig, Result};
 
 use crate::copy::{Strided, encode_copy};
-use crate::encode::{DispatchList, ReadoutWork, Recorder, bind, dispatch, grid, row_losses, vec4s};
+use crate::encode::{DispatchList, Recorder, bind, dispatch, grid, row_losses, vec4s};
 use crate::gpu::{Gpu, RecurrenceKernels};
 use crate::output::{EncodedReadout, GpuOutputLayer, Tiling};
 use crate::pool::PooledBuffer;
@@ -45,13 +42,11 @@ pub(crate) struct Stack {
     gpu: Arc<Gpu>,
     layout: RecurrenceLayout,
     kernels: Arc<RecurrenceKernels>,
-    /// `Tiling::recurrence_weight_partials`.
-    weight_partials: bool,
-    /// `Tiling::profile_kernels`.
+    /// `WgpuOptions::profile_kernels`.
     profile_kernels: bool,
     /// The recurrence part of the last submission, with the runs (slot, windows) it was
-    /// encoded for, replayed while they stay (`Tiling::replay_iterations`; `None`: off).
-    recurrence_recording: Option<Mutex<Option<RecordedRecurrence>>>,
+    /// encoded for, replayed while they stay.
+    recurrence_recording: Mutex<Option<RecordedRecurrence>>,
     slots: usize,
     sequences: usize,
     steps: usize,
@@ -112,11 +107,8 @@ struct Prepared {
     /// Clears of what starts from zero (and the read-outs' own), before everything else;
     /// taken when submitted.
     clears: Option<wgpu::CommandBuffer>,
+    /// Its dispatches (the buffers they use are kept by the run's [`Recording`]).
     work: RunWork,
-    /// Buffers the submission uses, kept from the pool until it has run (none when the
-    /// run's [`Recording`] keeps them).
-    _keep: Vec<PooledBuffer>,
-    _readouts: Vec<EncodedReadout>,
 }
 
 /// A run's dispatches of one iteration and what reading its results needs (shared by a
@@ -124,13 +116,9 @@ struct Prepared {
 #[derive(Clone, Debug)]
 struct RunWork {
     /// Before the recurrence forward: the inputs; between forward and backward: the
-    /// read-outs; right after the backward dispatch, beside it on the device: the output
-    /// layers' weight gradients where `Tiling::weight_grads_beside_backward` moves them;
-    /// after the backward: their reduces, the adaptive variables' gradients and the KL
-    /// terms.
+    /// read-outs; after the backward: the adaptive variables' gradients and the KL terms.
     inputs: Arc<DispatchList>,
     readouts: Arc<DispatchList>,
-    beside_backward: Arc<DispatchList>,
     after: Arc<DispatchList>,
     entries: Vec<WindowEntry>,
     /// What to read back (KL terms, each read-out's row losses) with its length.
@@ -153,10 +141,12 @@ impl Stack {
     }
 
     /// Device buffers for `slots` runs of `model`'s shapes; `None` where the kernels do not
-    /// hold them ([`Self::fits`]).
+    /// hold them ([`Self::fits`]). With `profile_kernels` ([`crate::WgpuOptions`]) each
+    /// dispatch is timed apart while profiling.
     pub(crate) fn new(
         gpu: &Arc<Gpu>,
         tiling: Tiling,
+        profile_kernels: bool,
         model: &Model<f32>,
         slots: usize,
     ) -> Option<Arc<Self>> {
@@ -172,14 +162,9 @@ impl Stack {
         let p = packed.len();
         Some(Arc::new(Self {
             gpu: gpu.clone(),
-            kernels: gpu.recurrence_kernels(
-                threads,
-                tiling.recurrence_loads(),
-                tiling.recurrence_early_loads,
-            ),
-            weight_partials: tiling.recurrence_weight_partials,
-            profile_kernels: tiling.profile_kernels,
-            recurrence_recording: tiling.replay_iterations.then(Mutex::default),
+            kernels: gpu.recurrence_kernels(threads, tiling.recurrence_early_loads),
+            profile_kernels,
+            recurrence_recording: Mutex::default(),
             slots,
             sequences,
             steps,
@@ -378,15 +363,7 @@ impl Stack {
                 "device: read-outs (hidden and output layers, forward and backward)",
                 prepared.iter().map(|p| &*p.work.readouts).collect(),
             ),
-            // The read-outs' weight gradients moved beside the backward are in its part:
-            // while profiling (a pass per part, timestamps at its ends) they are timed
-            // together, the pass's end waiting for both.
-            (
-                "device: recurrence backward",
-                std::iter::once(backward)
-                    .chain(prepared.iter().map(|p| &*p.work.beside_backward))
-                    .collect(),
-            ),
+            ("device: recurrence backward", vec![backward]),
             ("device: recurrent weight gradients", vec![weight_grads]),
             (
                 "device: gradients into the optimiser's layout",
@@ -445,7 +422,7 @@ impl Stack {
     }
 
     /// The timestamps of a submission's passes while profiling: a pass per part, or with
-    /// `Tiling::profile_kernels` a pass per dispatch (then `true`), its time added to its
+    /// `WgpuOptions::profile_kernels` a pass per dispatch (then `true`), its time added to its
     /// part and to its kernel. A submission of more dispatches than one query set times
     /// (wgpu's `QUERY_SET_MAX_QUERIES`, two queries each) is timed per part.
     fn pass_times(
@@ -483,10 +460,10 @@ impl Stack {
     /// The recurrence's part of a submission for these runs: the one recorded for the same
     /// runs and windows when replaying, else encoded anew (and recorded).
     fn recurrence_work(&self, prepared: &[Prepared]) -> Arc<RecurrenceWork> {
-        let Some(recording) = &self.recurrence_recording else {
-            return Arc::new(self.encode_recurrence(prepared));
-        };
-        let mut recorded = recording.lock().unwrap_or_else(|e| e.into_inner());
+        let mut recorded = self
+            .recurrence_recording
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         let same_runs = |last: &&RecordedRecurrence| {
             last.runs.len() == prepared.len()
                 && last
@@ -569,7 +546,6 @@ impl Stack {
             &mut weight_grads,
             buffers,
             &networks,
-            self.weight_partials,
         ));
         keep.push(table);
         RecurrenceWork {
@@ -632,8 +608,8 @@ pub(crate) struct DeviceIteration {
     adaptive: [[wgpu::Buffer; 2]; 4],
     adaptive_grads: [[wgpu::Buffer; 2]; 4],
     readouts: GpuOutputLayer,
-    /// The run's part of an iteration as last encoded, to replay (`Tiling::replay_iterations`).
-    recording: Option<Mutex<Option<Recording>>>,
+    /// The run's part of an iteration as last encoded, to replay.
+    recording: Mutex<Option<Recording>>,
     /// The evaluation queued ahead of its call (`Learner::queue_free_energy`).
     ahead: Mutex<Option<Ahead>>,
     /// The run's divergence mark: cleared as an evaluation starts and set when its
@@ -742,6 +718,7 @@ impl DeviceIteration {
     pub(crate) fn new(
         gpu: &Arc<Gpu>,
         tiling: Tiling,
+        profile_kernels: bool,
         model: &Model<f32>,
         optimizer: &RAdam<f32>,
         layers: &[Option<Arc<ResidentLayer>>; 2],
@@ -754,7 +731,7 @@ impl DeviceIteration {
         }
         let (stack, slot) = match in_stack {
             Some((stack, slot)) => (stack, slot),
-            None => (Stack::new(gpu, tiling, model, 1)?, 0),
+            None => (Stack::new(gpu, tiling, profile_kernels, model, 1)?, 0),
         };
         if slot >= stack.slots || !stack.holds(model) {
             return None;
@@ -800,7 +777,7 @@ impl DeviceIteration {
             adaptive,
             adaptive_grads,
             readouts: GpuOutputLayer::with_resident(gpu.clone(), tiling, &model.params, layers),
-            recording: tiling.replay_iterations.then(Mutex::default),
+            recording: Mutex::default(),
             ahead: Mutex::default(),
             diverged: resident_buffer(gpu, "divergence mark", &[0.0]),
         })
@@ -914,14 +891,8 @@ impl DeviceIteration {
         let key = (data.id(), batch.lengths.to_vec(), eps_flat.len());
         let mut clears = gpu.device.create_command_encoder(&Default::default());
         self.clear(&mut clears);
-        let mut recording = self
-            .recording
-            .as_ref()
-            .map(|r| r.lock().unwrap_or_else(|e| e.into_inner()));
-        if let Some(Some(r)) = recording
-            .as_deref()
-            .filter(|r| r.as_ref().is_some_and(|r| r.key == key))
-        {
+        let mut recording = self.recording.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(r) = recording.as_ref().filter(|r| r.key == key) {
             return Ok(self.replay(r, &eps_flat, clears));
         }
         gpu.count_iteration_encoded();
@@ -936,7 +907,7 @@ impl DeviceIteration {
             &per_module_at,
             &mut keep,
         );
-        let mut readout_work = ReadoutWork::default();
+        let mut readout_work = DispatchList::default();
         let mut readout_clears = Vec::new();
         let readouts = self.encode_readouts(
             gpu,
@@ -949,11 +920,7 @@ impl DeviceIteration {
         for buffer in &readout_clears {
             clears.clear_buffer(buffer, 0, None);
         }
-        let ReadoutWork {
-            in_order: readout_work,
-            beside_backward,
-            after_backward: mut after,
-        } = readout_work;
+        let mut after = DispatchList::default();
         self.encode_adaptive_grads(gpu, &mut after, &batch, &mut keep);
         let kl = self.encode_kl_terms(gpu, &mut after, &batch, &per_module_at, &mut keep);
         let mut sources = vec![((*kl).clone(), eps_flat.len())];
@@ -969,7 +936,6 @@ impl DeviceIteration {
         let work = RunWork {
             inputs: Arc::new(inputs),
             readouts: Arc::new(readout_work),
-            beside_backward: Arc::new(beside_backward),
             after: Arc::new(after),
             entries: batch.entries,
             sources,
@@ -979,33 +945,22 @@ impl DeviceIteration {
                 divisors,
             },
         };
-        let mut prepared = Prepared {
+        let prepared = Prepared {
             ticket: 0,
             slot: self.slot,
             clears: Some(clears.finish()),
             work: work.clone(),
-            _keep: Vec::new(),
-            _readouts: Vec::new(),
         };
-        match recording.as_deref_mut() {
-            // The buffers stay with the recording, for the next iterations.
-            Some(slot) => {
-                *slot = Some(Recording {
-                    key,
-                    eps: eps_buffer,
-                    clears: readout_clears,
-                    work,
-                    marks: self.readouts.learner_marks(),
-                    _keep: keep,
-                    _readouts: readouts,
-                })
-            }
-            None => {
-                keep.push(eps_buffer);
-                prepared._keep = keep;
-                prepared._readouts = readouts;
-            }
-        }
+        // The buffers stay with the recording, for the next iterations.
+        *recording = Some(Recording {
+            key,
+            eps: eps_buffer,
+            clears: readout_clears,
+            work,
+            marks: self.readouts.learner_marks(),
+            _keep: keep,
+            _readouts: readouts,
+        });
         Ok(prepared)
     }
 
@@ -1029,8 +984,6 @@ impl DeviceIteration {
             slot: self.slot,
             clears: Some(clears.finish()),
             work: r.work.clone(),
-            _keep: Vec::new(),
-            _readouts: Vec::new(),
         }
     }
 
@@ -1170,7 +1123,7 @@ impl DeviceIteration {
         &self,
         gpu: &Gpu,
         clears: &mut Vec<wgpu::Buffer>,
-        work: &mut ReadoutWork,
+        work: &mut DispatchList,
         batch: &Batch<'_>,
         data: &Observations<f32>,
         keep: &mut Vec<PooledBuffer>,

@@ -1,8 +1,8 @@
 //! Each kernel's label, kept by pipeline, so that the profile can name the kernel of each
-//! dispatch it times apart (`Tiling::profile_kernels`, `timing.rs`).
+//! dispatch it times apart (`WgpuOptions::profile_kernels`, `timing.rs`).
 
 /// Each kernel's label, by pipeline, for timing every dispatch of a submission apart
-/// (`Tiling::profile_kernels`): the profile then lists `device: kernel <label>` beside
+/// (`WgpuOptions::profile_kernels`): the profile then lists `device: kernel <label>` beside
 /// the parts. Native only (nothing is kept in the browser, where profiling is off).
 #[derive(Debug, Default)]
 pub(crate) struct KernelNames {

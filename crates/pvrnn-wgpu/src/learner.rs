@@ -60,9 +60,8 @@ pub struct GpuLearner {
     /// Their tensors (ranges of the packed recurrent weights, the adaptive variables).
     more: Vec<ResidentTensor>,
     resident: Vec<usize>,
-    /// The update as first encoded, to replay with each step's scalars
-    /// (`Tiling::replay_iterations`; `None`: encoded every time).
-    recorded_update: Option<Mutex<Option<RecordedUpdate>>>,
+    /// The update as first encoded, to replay with each step's scalars.
+    recorded_update: Mutex<Option<RecordedUpdate>>,
     /// What the updates read to skip after a diverged iteration: the whole iteration's
     /// divergence mark, or one never set when the host checks the free energy first.
     divergence_mark: wgpu::Buffer,
@@ -112,6 +111,7 @@ impl GpuLearner {
                 DeviceIteration::new(
                     backend.gpu(),
                     backend.tiling(),
+                    backend.options().profile_kernels,
                     model,
                     optimizer,
                     &layers,
@@ -137,7 +137,7 @@ impl GpuLearner {
             iteration,
             more,
             resident,
-            recorded_update: backend.tiling().replay_iterations.then(Mutex::default),
+            recorded_update: Mutex::default(),
         })
     }
 
@@ -163,7 +163,14 @@ impl GpuLearner {
             .find(|&slots| Stack::fits(backend.gpu(), first, slots))?;
         let mut learners = Vec::with_capacity(runs.len());
         for chunk in runs.chunks(per_stack) {
-            let stack = Stack::new(backend.gpu(), backend.tiling(), first, chunk.len())?;
+            let profile_kernels = backend.options().profile_kernels;
+            let stack = Stack::new(
+                backend.gpu(),
+                backend.tiling(),
+                profile_kernels,
+                first,
+                chunk.len(),
+            )?;
             for (slot, (model, optimizer)) in chunk.iter().enumerate() {
                 let learner =
                     Self::in_stack(backend, model, optimizer, Some((stack.clone(), slot)))
@@ -312,11 +319,10 @@ impl Learner<f32> for GpuLearner {
         let updates = self.updates(step);
         let mut recorded = self
             .recorded_update
-            .as_ref()
-            .map(|r| r.lock().unwrap_or_else(|e| e.into_inner()));
-        let fresh;
-        let update: &RecordedUpdate = match recorded.as_deref_mut() {
-            Some(Some(r)) if r.params.len() == updates.len() => {
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        let update: &RecordedUpdate = match &mut *recorded {
+            Some(r) if r.params.len() == updates.len() => {
                 // The same dispatches: only their parameters change (written before the
                 // submission below runs: queue order).
                 for (uniform, (_, params)) in r.params.iter().zip(&updates) {
@@ -325,11 +331,7 @@ impl Learner<f32> for GpuLearner {
                 }
                 r
             }
-            Some(slot) => slot.insert(self.record_update(&updates)),
-            None => {
-                fresh = self.record_update(&updates);
-                &fresh
-            }
+            slot => slot.insert(self.record_update(&updates)),
         };
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         let transposes = self.iteration.as_ref().zip(update.transposes.as_ref());
@@ -349,9 +351,7 @@ impl Learner<f32> for GpuLearner {
         if let Some(times) = &times {
             times.resolve(&mut encoder);
         }
-        // Queued, not waited for: the next iteration's submissions run after it. A fresh
-        // update's uniforms may go back to the pool at once: a later user writes them
-        // through the queue, which orders that write after this submission.
+        // Queued, not waited for: the next iteration's submissions run after it.
         gpu.queue.submit([encoder.finish()]);
         if let Some(times) = times {
             times.collect(gpu);
@@ -422,10 +422,12 @@ impl Learner<f32> for GpuLearner {
         Some(iteration.free_energy(data, eps))
     }
 
-    /// With the whole iteration on the device, and `Tiling::queue_ahead`: its updates read
-    /// the run's divergence mark (`shaders/finite_check.wgsl`).
+    /// With the whole iteration on the device: its updates read the run's divergence mark
+    /// (`shaders/finite_check.wgsl`), so the trainer queues the next iteration before it
+    /// reads this one's free energy back. On an H200 (2026-12-01) that took one network's
+    /// iteration from 0.0122 to 0.0103 s and five networks' from 0.0420 to 0.0325 s.
     fn guards_updates(&self) -> bool {
-        self.iteration.is_some() && self.backend.tiling().queue_ahead
+        self.iteration.is_some()
     }
 
     fn queue_free_energy(

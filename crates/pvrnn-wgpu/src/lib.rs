@@ -32,6 +32,10 @@
 //! - `output`: the read-outs' output layers ([`GpuOutputLayer`]) and how a call is cut
 //!   into work ([`Tiling`], [`OutputKernels`]); `readout`: both read-outs as one piece
 //!   ([`GpuReadout`]).
+//! - This file: the backend and what a user chooses of it ([`WgpuOptions`], the `pvrnn`
+//!   command's `--gpu-recurrence`, `--weights-on-host`, `--wgpu-checks` and `bench
+//!   --profile-kernels`). No environment variable changes what it computes; wgpu's own
+//!   `WGPU_ADAPTER_NAME` and `WGPU_BACKEND` choose the adapter.
 //! - `recurrence`: the recurrence forward and backward, one workgroup per window
 //!   ([`GpuRecurrence`]).
 //! - `learner`: learning with the read-outs resident ([`GpuLearner`]); `resident`: a
@@ -78,112 +82,79 @@ use pvrnn_core::params::{Model, Params};
 
 #[cfg(not(target_arch = "wasm32"))]
 pub use gpu::probe_now;
-pub use gpu::{BlockedDepth, Gpu, GpuError, probe};
+pub use gpu::{BlockedDepth, Gpu, GpuError, RuntimeChecks, probe};
 pub use learner::GpuLearner;
 pub use output::{GpuOutputLayer, OutputKernels, Tiling};
 pub use readout::GpuReadout;
 pub use recurrence::GpuRecurrence;
+
+/// What a user chooses of the wgpu backend; the defaults are what ships. Each non-default
+/// value is either one that won a measurement for some work (`recurrence_on_gpu`, for
+/// learning) or a way to compare, check or profile (docs/gpu.md, "Settings", says which
+/// measurement each stands on). How a call is cut into work is [`Tiling`], which only tests
+/// and benchmarks change.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WgpuOptions {
+    /// Learning and the free energy run the recurrence on the GPU too (`--gpu-recurrence`;
+    /// see [`WgpuBackend::with_recurrence_on_gpu`]).
+    pub recurrence_on_gpu: bool,
+    /// Learning uploads the weights and reads their gradients back every iteration,
+    /// updating them on the CPU (`--weights-on-host`; see
+    /// [`WgpuBackend::with_resident_learning`]): to time the two paths on one machine.
+    pub weights_on_host: bool,
+    /// Which kernels keep wgpu's runtime checks (`--wgpu-checks`).
+    pub checks: RuntimeChecks,
+    /// While profiling (`pvrnn bench --profile --profile-kernels`), each dispatch of a
+    /// whole iteration on the device runs in a timed pass of its own, so that the profile
+    /// lists each kernel's device time (`device: kernel <label>`) as well as each part's.
+    /// Off by default: a pass per dispatch lets the device drain between them, which adds
+    /// to the parts' times.
+    pub profile_kernels: bool,
+}
 
 /// The model's arithmetic with the output layers on a GPU (see the crate docs).
 #[derive(Clone, Debug)]
 pub struct WgpuBackend {
     gpu: Arc<Gpu>,
     tiling: Tiling,
-    recurrence_on_gpu: bool,
-    resident_learning: bool,
+    options: WgpuOptions,
 }
 
 impl WgpuBackend {
     /// Opens the first suitable adapter (high performance preferred; `WGPU_ADAPTER_NAME`
-    /// and `WGPU_BACKEND` choose another). Fails with a message a user can act on when the
-    /// machine has none.
+    /// and `WGPU_BACKEND` choose another) with the default options. Fails with a message a
+    /// user can act on when the machine has none.
     #[cfg(not(target_arch = "wasm32"))]
     pub fn new() -> Result<Self, GpuError> {
-        Ok(Self::on(Arc::new(Gpu::new()?)))
+        Self::new_with(WgpuOptions::default())
+    }
+
+    /// [`Self::new`] with `options`.
+    #[cfg(not(target_arch = "wasm32"))]
+    pub fn new_with(options: WgpuOptions) -> Result<Self, GpuError> {
+        Ok(Self::on(Arc::new(Gpu::new(options.checks)?), options))
     }
 
     /// [`Self::new`] without blocking (the browser's WebGPU; see [`Gpu::open`]).
     pub async fn open() -> Result<Self, GpuError> {
-        Ok(Self::on(Arc::new(Gpu::open().await?)))
+        let options = WgpuOptions::default();
+        Ok(Self::on(
+            Arc::new(Gpu::open(options.checks).await?),
+            options,
+        ))
     }
 
-    fn on(gpu: Arc<Gpu>) -> Self {
-        let mut tiling = Tiling::default();
-        // The threshold below which calls stay on the CPU, for measuring and for tests
-        // that want every call on the GPU (`PVRNN_WGPU_MIN_WORK=0`), and the output layer's
-        // cut (docs/gpu.md), for measuring other cuts on one GPU.
-        env_number("PVRNN_WGPU_MIN_WORK", &mut tiling.min_work);
-        let mut chunk_mb = tiling.max_chunk_bytes >> 20;
-        env_number("PVRNN_WGPU_CHUNK_MB", &mut chunk_mb);
-        tiling.max_chunk_bytes = chunk_mb.max(1) << 20;
-        env_number("PVRNN_WGPU_WORKGROUPS", &mut tiling.target_workgroups);
-        env_number("PVRNN_WGPU_MAX_SPLITS", &mut tiling.max_splits);
-        env_number("PVRNN_WGPU_ROW_PASS_ROWS", &mut tiling.row_pass_rows);
-        env_number("PVRNN_WGPU_ROW_PASS_STEP", &mut tiling.row_pass_step);
-        let mut recurrence_threads = 0;
-        env_number("PVRNN_WGPU_RECURRENCE_THREADS", &mut recurrence_threads);
-        tiling.recurrence_threads = (recurrence_threads > 0).then_some(recurrence_threads);
-        let mut loads = 0;
-        env_number("PVRNN_WGPU_RECURRENCE_LOADS", &mut loads);
-        if loads > 0 {
-            tiling.recurrence_forward_loads = loads;
-            tiling.recurrence_backward_loads = loads;
-        }
-        env_number(
-            "PVRNN_WGPU_RECURRENCE_BACKWARD_LOADS",
-            &mut tiling.recurrence_backward_loads,
-        );
-        // The output layer's kernels, for comparing them on one GPU
-        // (`PVRNN_WGPU_OUTPUT_KERNELS=blocked`).
-        if let Ok(value) = std::env::var("PVRNN_WGPU_OUTPUT_KERNELS") {
-            match value.parse() {
-                Ok(kernels) => tiling.output_kernels = kernels,
-                Err(e) => eprintln!(
-                    "PVRNN_WGPU_OUTPUT_KERNELS: {e}; using the default, {:?}",
-                    tiling.output_kernels
-                ),
-            }
-        }
-        let weights = ["windows", "serial"];
-        env_switch(
-            "PVRNN_WGPU_RECURRENCE_WEIGHTS",
-            weights,
-            &mut tiling.recurrence_weight_partials,
-        );
-        env_switch(
-            "PVRNN_WGPU_REPLAY",
-            ["on", "off"],
-            &mut tiling.replay_iterations,
-        );
-        env_switch("PVRNN_WGPU_AHEAD", ["on", "off"], &mut tiling.queue_ahead);
-        let kernels = ["on", "off"];
-        env_switch(
-            "PVRNN_WGPU_PROFILE_KERNELS",
-            kernels,
-            &mut tiling.profile_kernels,
-        );
-        env_switch(
-            "PVRNN_WGPU_FORWARD_COLUMNS",
-            ["8", "4"],
-            &mut tiling.wide_forward,
-        );
-        env_switch(
-            "PVRNN_WGPU_BESIDE_BACKWARD",
-            ["on", "off"],
-            &mut tiling.weight_grads_beside_backward,
-        );
-        if let Ok(value) = std::env::var("PVRNN_WGPU_BLOCKED_DEPTH") {
-            match value.parse() {
-                Ok(depth) => tiling.blocked_depth = Some(depth),
-                Err(e) => eprintln!("PVRNN_WGPU_BLOCKED_DEPTH: {e}; as deep as the adapter allows"),
-            }
-        }
+    fn on(gpu: Arc<Gpu>, options: WgpuOptions) -> Self {
         Self {
             gpu,
-            tiling,
-            recurrence_on_gpu: false,
-            resident_learning: true,
+            tiling: Tiling::default(),
+            options,
         }
+    }
+
+    /// The options it was opened with, as the builders below left them.
+    pub fn options(&self) -> WgpuOptions {
+        self.options
     }
 
     /// Runs the recurrence (forward, back-propagation through time and its weight
@@ -194,13 +165,13 @@ impl WgpuBackend {
     /// and online inference, when it ran there too, slower (21 against 35 steps/s with
     /// 16x16 and proprioception; docs/gpu.md).
     pub fn with_recurrence_on_gpu(mut self, on: bool) -> Self {
-        self.recurrence_on_gpu = on;
+        self.options.recurrence_on_gpu = on;
         self
     }
 
     /// Whether the recurrence runs on the GPU (see [`Self::with_recurrence_on_gpu`]).
     pub fn recurrence_on_gpu(&self) -> bool {
-        self.recurrence_on_gpu
+        self.options.recurrence_on_gpu
     }
 
     /// Whether learning keeps the output layers' weights and RAdam moments on the GPU
@@ -208,13 +179,20 @@ impl WgpuBackend {
     /// uploads the weights and reads their gradients back, and RAdam runs on the CPU: the
     /// way to compare the two on one machine.
     pub fn with_resident_learning(mut self, on: bool) -> Self {
-        self.resident_learning = on;
+        self.options.weights_on_host = !on;
         self
     }
 
     /// Whether learning keeps weights on the GPU (see [`Self::with_resident_learning`]).
     pub fn resident_learning(&self) -> bool {
-        self.resident_learning && !cfg!(target_arch = "wasm32")
+        !self.options.weights_on_host && !cfg!(target_arch = "wasm32")
+    }
+
+    /// Each dispatch of a whole iteration on the device timed apart while profiling
+    /// ([`WgpuOptions::profile_kernels`]).
+    pub fn with_kernel_profile(mut self, on: bool) -> Self {
+        self.options.profile_kernels = on;
+        self
     }
 
     /// Loads `params` with the output layers in `resident` taken from a learner's buffers.
@@ -268,7 +246,7 @@ impl WgpuBackend {
 
 impl Backend<f32> for WgpuBackend {
     fn load(&self, params: &Params<f32>, config: &ModelConfig) -> Box<dyn LoadedModel<f32>> {
-        self.load_with_layers(params, config, &[None, None], self.recurrence_on_gpu)
+        self.load_with_layers(params, config, &[None, None], self.recurrence_on_gpu())
     }
 
     /// The output layers on the GPU, the recurrence always on the CPU: online inference
@@ -317,34 +295,5 @@ impl Backend<f32> for WgpuBackend {
                     .map(|(model, optimizer)| self.learner(model, optimizer))
                     .collect(),
             })
-    }
-}
-
-/// `*value` set by the environment variable `name`, if set: true for `words[0]`, false
-/// for `words[1]`; anything else is reported and the default kept.
-fn env_switch(name: &str, words: [&str; 2], value: &mut bool) {
-    if let Ok(text) = std::env::var(name) {
-        match text.trim() {
-            word if word == words[0] => *value = true,
-            word if word == words[1] => *value = false,
-            _ => {
-                let default = words[usize::from(!*value)];
-                eprintln!(
-                    "{name}={text} is neither `{}` nor `{}`; using the default, {default}",
-                    words[0], words[1]
-                );
-            }
-        }
-    }
-}
-
-/// `*value` replaced by the whole number in the environment variable `name`, if set; a
-/// value that is not one is reported and the default kept.
-fn env_number(name: &str, value: &mut usize) {
-    if let Ok(text) = std::env::var(name) {
-        match text.trim().parse() {
-            Ok(number) => *value = number,
-            Err(_) => eprintln!("{name}={text} is not a whole number; using the default, {value}"),
-        }
     }
 }

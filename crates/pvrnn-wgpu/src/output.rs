@@ -63,27 +63,15 @@ impl OutputKernels {
     }
 }
 
-impl std::str::FromStr for OutputKernels {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.trim() {
-            "auto" => Ok(Self::Auto),
-            "fused" => Ok(Self::Fused),
-            "blocked" => Ok(Self::Blocked),
-            other => Err(format!(
-                "unknown output-layer kernels {other:?}: `auto`, `fused` or `blocked`"
-            )),
-        }
-    }
-}
 /// Rows per workgroup of `predict.wgsl`.
 const PREDICT_ROWS: usize = 4;
 
 /// How a call is cut into work: column splits of the row pass (each with its own split-K
-/// partial) and chunks of rows (each binding at most `max_chunk_bytes`). Results do not
-/// depend on it beyond f32 summation order; tests shrink it to run every path on small
-/// shapes.
+/// partial) and chunks of rows (each binding at most `max_chunk_bytes`), and which of the
+/// kernels' equivalent paths run. Results do not depend on it beyond f32 summation order;
+/// the defaults are what ships, and only tests and benchmarks change it
+/// ([`crate::WgpuBackend::with_tiling`]): to run every path on small shapes, and each
+/// kernel's paths against each other.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tiling {
     /// Workgroups a chunk's passes aim for (the row pass's and the blocked input
@@ -111,63 +99,24 @@ pub struct Tiling {
     /// fixed 0.2-0.3 ms per call on an H200). Online inference makes such calls 50 times a
     /// step: proprioception (30 x 28 x 40 = 34 k) and 16x16 vision (30 x 1,536 x 50 = 2.3 M),
     /// where 2 CPU threads measured 53.6 steps/s against 25.5 on the GPU (H200, 2026-11-26:
-    /// docs/results/gpu/notes.md, "Measured figures of earlier paths").
+    /// docs/results/gpu/notes.md, "Measured figures of earlier paths"; every call on the GPU
+    /// lost again on 2026-11-28, 28.1 against 35.4 steps/s).
     /// Everything observed (48 M) and learning (87 M and more) stay on the GPU. A learner's
     /// resident layers always run on the GPU (their weights live there). Tests set 0 to
     /// run their small shapes on the GPU.
     pub min_work: usize,
-    /// With the whole iteration on the device, each run's part of it is encoded once and
-    /// replayed while its data and shapes stay (only eps uploaded anew): the host's
-    /// encoding was 8.4 ms of a five-network iteration's 97 on an H200, the device idle
-    /// meanwhile. `PVRNN_WGPU_REPLAY=off` encodes every iteration (for measuring).
-    pub replay_iterations: bool,
-    /// The output layer's kernels.
+    /// The output layer's kernels: by default each call's by its rows
+    /// ([`OutputKernels::Auto`]); tests and benchmarks force either set.
     pub output_kernels: OutputKernels,
     /// How deep the blocked kernels' tiles are; `None`: as deep as the adapter allows
-    /// (`PVRNN_WGPU_BLOCKED_DEPTH`).
+    /// (tests force the shallow tiles that WebGPU's default limits get).
     pub blocked_depth: Option<BlockedDepth>,
-    /// Rows per workgroup of the fused row pass (`loss_rows.wgsl`, one per thread): 32, 64
-    /// (the default) or 128 (23.7 KiB of workgroup memory at the paper's width: on an
-    /// adapter with WebGPU's default 16 KiB it runs 64). For measuring per adapter
-    /// (`PVRNN_WGPU_ROW_PASS_ROWS`).
-    pub row_pass_rows: usize,
-    /// Columns per step of the row pass's inner loop: 1, 2 (the default), 4 or 8
-    /// independent dot products in flight per thread, more registers each
-    /// (`PVRNN_WGPU_ROW_PASS_STEP`).
-    pub row_pass_step: usize,
     /// Threads per window's workgroup of the recurrence kernels; `None`: one per item of a
-    /// step's widest phase, as the adapter allows (384 at the paper's shapes; 128 before
-    /// 2026-11-28). For measuring (`PVRNN_WGPU_RECURRENCE_THREADS`).
+    /// step's widest phase, as the adapter allows (384 at the paper's shapes, where 128, the
+    /// width before 2026-11-28, made an iteration 0.0208 s against 0.0188 on an H200).
+    /// Narrower widths are what an adapter with fewer invocations per workgroup gets
+    /// (WebGPU's default 256); tests force them.
     pub recurrence_threads: Option<usize>,
-    /// Loads the recurrence's forward kernel issues before its multiply-adds in each dot
-    /// product (1 to 32): a step's phases are chains of dependent loads, and a 30-long sum
-    /// takes 4 round trips at 8 against 8 at 4 (the width before 2026-11-28). On an H200
-    /// (2026-12-01) the forward took 1.44 ms an iteration at 8 and 1.93 at 30. For measuring
-    /// (`PVRNN_WGPU_RECURRENCE_LOADS`, both directions).
-    pub recurrence_forward_loads: usize,
-    /// The same for the backward kernel, whose sums are over the units above and below:
-    /// on the same H200 the backward took 2.70 ms at 30 (one round trip per 30-long sum)
-    /// against 3.03 at 8 (`PVRNN_WGPU_RECURRENCE_BACKWARD_LOADS`; 8 before 2026-12-01).
-    pub recurrence_backward_loads: usize,
-    /// The recurrent weights' gradients as a partial sum per window (one thread per weight
-    /// and window), added in window order by a second pass, instead of one thread per
-    /// weight over all of a network's windows (`PVRNN_WGPU_RECURRENCE_WEIGHTS=windows|serial`).
-    /// The serial sum is a chain of 5,400 steps on about 19,000 threads at the paper's
-    /// scale, too few to fill a large GPU.
-    pub recurrence_weight_partials: bool,
-    /// With the whole iteration on the device, the trainer queues an iteration's update
-    /// and the next iteration before it reads the free energy back (the updates skip on
-    /// the device after a diverged iteration: `Learner::guards_updates`), so that the
-    /// device does not wait for the host between iterations: 3.1-3.2 ms of one network's
-    /// 13.8 ms iteration and 14.1-14.5 of five networks' 48.5 on an H200 (2026-11-30,
-    /// before this). `PVRNN_WGPU_AHEAD=off` waits for each free energy first.
-    pub queue_ahead: bool,
-    /// While profiling (`pvrnn bench --profile`), each dispatch of a whole iteration on the
-    /// device in a timed pass of its own, so that the profile lists each kernel's device
-    /// time (`device: kernel <label>`) as well as each part's. Off by default: a pass per
-    /// dispatch lets the device drain between them, which adds to the parts' times.
-    /// `PVRNN_WGPU_PROFILE_KERNELS=on` turns it on.
-    pub profile_kernels: bool,
     /// The blocked output kernels read the targets and read and write the error gradient
     /// as vec4s of four consecutive columns where a row's observed columns are a multiple
     /// of 4 (every caresim layout's): a fourth of the accesses, each four times as wide;
@@ -183,41 +132,13 @@ pub struct Tiling {
     /// are used (the kernels before 2026-11-30's fourth session, and the path of narrower
     /// widths; on an H200 about as fast, docs/gpu.md). Only tests turn it off.
     pub recurrence_early_loads: bool,
-    /// The blocked forward product with 8 columns per thread (a 128 x 128 tile, 64
-    /// accumulators per thread; the default) or, off, 4 (a 128 x 64 tile, 32 accumulators:
-    /// fewer registers, twice the tiles). On an H200 the forward product ran at 7.0
-    /// TFLOP/s against the gradient kernels' 15.5-18.1, which hold 32 accumulators per
-    /// thread; whether that is the cause is to be measured
-    /// (`PVRNN_WGPU_FORWARD_COLUMNS=8|4`).
-    pub wide_forward: bool,
-    /// With the whole iteration on the device, a read-out's output-layer weight gradient
-    /// (`blocked_weight_grad.wgsl`) is queued right after the recurrence's backward
-    /// dispatch instead of with the rest of the read-out, and its reduce with the work
-    /// after the backward: nothing the backward computes is needed, and no buffer of the
-    /// two is in a state that makes wgpu put a barrier between them, so the device may run
-    /// the weight gradient on the processors the backward's few workgroups (one per
-    /// window) leave idle. Only where the call is one chunk of rows (the error gradient is
-    /// then kept whole until the backward: `PVRNN_WGPU_CHUNK_MB` above the targets' size,
-    /// 697 MB at the paper's scale) and the blocked kernels run. The same sums in the same
-    /// order. Off by default until timed on a GPU (`PVRNN_WGPU_BESIDE_BACKWARD=on|off`;
-    /// `cargo bench -p pvrnn-wgpu --bench overlap` asks whether the device overlaps such
-    /// dispatches at all).
-    pub weight_grads_beside_backward: bool,
 }
 
 impl Tiling {
-    /// The recurrence kernels' loads per batch, `[forward, backward]`.
-    pub(crate) fn recurrence_loads(&self) -> [usize; 2] {
-        [
-            self.recurrence_forward_loads,
-            self.recurrence_backward_loads,
-        ]
-    }
-
-    /// The row pass's shape for a hidden width of `hv` vec4s on `gpu`, made valid.
+    /// The row pass's shape for a hidden width of `hv` vec4s on `gpu`.
     pub(crate) fn row_pass(&self, hv: usize, gpu: &Gpu) -> RowPass {
         let workgroup_bytes = gpu.limits().max_compute_workgroup_storage_size as usize;
-        RowPass::new(hv, self.row_pass_rows, self.row_pass_step, workgroup_bytes)
+        RowPass::new(hv, workgroup_bytes)
     }
 }
 
@@ -232,21 +153,11 @@ impl Default for Tiling {
             max_chunk_bytes: 128 << 20,
             weight_rows_per_split: 256,
             min_work: 4 << 20,
-            replay_iterations: true,
             output_kernels: OutputKernels::Auto,
             blocked_depth: None,
-            row_pass_rows: 64,
-            row_pass_step: 2,
             recurrence_threads: None,
-            recurrence_forward_loads: 8,
-            recurrence_backward_loads: 30,
-            recurrence_weight_partials: true,
-            queue_ahead: true,
-            profile_kernels: false,
             vector_io: true,
             recurrence_early_loads: true,
-            wide_forward: true,
-            weight_grads_beside_backward: false,
         }
     }
 }
@@ -709,15 +620,8 @@ impl GpuOutputLayer {
                 k,
                 scale,
             };
-            let params = self.encode_loss_chunk(
-                encoder,
-                layer,
-                &buffers,
-                chunk_rows,
-                cut,
-                weight_grads,
-                n <= chunk,
-            );
+            let params =
+                self.encode_loss_chunk(encoder, layer, &buffers, chunk_rows, cut, weight_grads);
             in_flight.extend(streamed);
             in_flight.extend(params);
             start += rows;
@@ -743,13 +647,8 @@ impl GpuOutputLayer {
     fn blocked_kernels<'l>(&self, layer: &'l Layer, k: usize) -> &'l crate::gpu::BlockedKernels {
         let depth = self.tiling.blocked_depth.unwrap_or(BlockedDepth::Deep);
         let vector_io = self.tiling.vector_io && k.is_multiple_of(4);
-        self.gpu.blocked_kernels(
-            &layer.kernels,
-            depth,
-            layer.hidden,
-            vector_io,
-            self.tiling.wide_forward,
-        )
+        self.gpu
+            .blocked_kernels(&layer.kernels, depth, layer.hidden, vector_io)
     }
 
     /// How a loss call is cut: rows per chunk (the chunk's targets fit one binding), and
@@ -840,9 +739,7 @@ impl GpuOutputLayer {
     }
 
     /// One chunk of rows of a loss call: the row pass (forward, error, partial d input),
-    /// its reduction, and with `weight_grads` the column pass (`only_chunk`: the call's
-    /// only one, whose error gradient nothing overwrites before the submission's end).
-    /// Returns the chunk's parameter buffers, to keep until the submission has run.
+    /// its reduction, and with `weight_grads` the column pass. Returns the chunk's parameter buffers, to keep until the submission has run.
     #[allow(clippy::too_many_arguments)]
     fn encode_loss_chunk(
         &self,
@@ -852,7 +749,6 @@ impl GpuOutputLayer {
         chunk: ChunkRows,
         cut: LossCut,
         weight_grads: bool,
-        only_chunk: bool,
     ) -> Vec<PooledBuffer> {
         let gpu = &*self.gpu;
         let hv = vec4s(layer.hidden);
@@ -924,10 +820,7 @@ impl GpuOutputLayer {
             match b.blocked {
                 None => params.push(self.encode_columns(encoder, layer, b, chunk)),
                 Some(scratch) => {
-                    let beside = only_chunk && self.tiling.weight_grads_beside_backward;
-                    params.extend(
-                        self.encode_blocked_weights(encoder, layer, b, scratch, chunk, beside),
-                    );
+                    params.extend(self.encode_blocked_weights(encoder, layer, b, scratch, chunk));
                 }
             }
         }
@@ -1027,10 +920,7 @@ impl GpuOutputLayer {
 
     /// `OutputKernels::Blocked`'s third product for one chunk: d W and d b from the error
     /// gradient, per range of rows, then the ranges added into `b.gw`, `b.gb` (after the
-    /// earlier chunks'). With `beside_backward`, where `encoder` takes such work
-    /// ([`Recorder::beside_backward`]), the product goes beside the recurrence's backward
-    /// and the reduce after it (`Tiling::weight_grads_beside_backward`). Returns the
-    /// parameters, to keep until the submission has run.
+    /// earlier chunks'). Returns the parameters, to keep until the submission has run.
     fn encode_blocked_weights(
         &self,
         encoder: &mut dyn Recorder,
@@ -1038,7 +928,6 @@ impl GpuOutputLayer {
         b: &LossBuffers<'_>,
         scratch: &BlockedScratch,
         chunk: ChunkRows,
-        beside_backward: bool,
     ) -> [PooledBuffer; 2] {
         let gpu = &*self.gpu;
         let kernels = self.blocked_kernels(layer, chunk.k);
@@ -1059,7 +948,6 @@ impl GpuOutputLayer {
             &[&weight_params, b.x, &scratch.g, part_w, part_b],
         );
         let column_blocks = chunk.k.div_ceil(BLOCKED_TILE) as u32;
-        let product = (&kernels.weight_grad, &weights, column_blocks, splits as u32);
         let reduce_params = gpu.uniform(&BlockedReduceParams {
             k: chunk.k as u32,
             splits: splits as u32,
@@ -1072,20 +960,10 @@ impl GpuOutputLayer {
             &[&reduce_params, part_w, part_b, b.gw, b.gb],
         );
         let (groups_x, groups_y) = grid(gpu, chunk.k * hv);
-        let reduce = (&kernels.weight_reduce, &reduce, groups_x, groups_y);
-        let elsewhere = if beside_backward {
-            encoder.beside_backward()
-        } else {
-            None
-        };
-        if let Some((beside, after)) = elsewhere {
-            gpu.count_weight_grads_beside_backward();
-            dispatch(beside, product.0, product.1, product.2, product.3);
-            dispatch(after, reduce.0, reduce.1, reduce.2, reduce.3);
-        } else {
-            dispatch(encoder, product.0, product.1, product.2, product.3);
-            dispatch(encoder, reduce.0, reduce.1, reduce.2, reduce.3);
-        }
+        let (product, splits) = (&kernels.weight_grad, splits as u32);
+        dispatch(encoder, product, &weights, column_blocks, splits);
+        let sum = &kernels.weight_reduce;
+        dispatch(encoder, sum, &reduce, groups_x, groups_y);
         [weight_params, reduce_params]
     }
 

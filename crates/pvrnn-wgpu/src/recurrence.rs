@@ -320,8 +320,6 @@ pub struct GpuRecurrence {
     pub(crate) weights_t: PooledBuffer,
     /// The CPU's recurrence with the same weights, for the windows the kernels do not hold.
     cpu: CpuRecurrence<f32>,
-    /// `Tiling::recurrence_weight_partials`.
-    weight_partials: bool,
 }
 
 impl GpuRecurrence {
@@ -338,7 +336,6 @@ impl GpuRecurrence {
         Self {
             kernels: gpu.recurrence_kernels(
                 layout.threads(&gpu, tiling.recurrence_threads),
-                tiling.recurrence_loads(),
                 tiling.recurrence_early_loads,
             ),
             weights: gpu.upload("recurrent weights", &weights),
@@ -346,7 +343,6 @@ impl GpuRecurrence {
             gpu,
             layout,
             cpu: CpuRecurrence::new(params, config),
-            weight_partials: tiling.recurrence_weight_partials,
         }
     }
 }
@@ -432,7 +428,7 @@ impl RecurrenceLayout {
 
 impl RecurrenceLayout {
     /// Threads per window's workgroup of the forward and backward kernels: `wanted`
-    /// (`Tiling::recurrence_threads`), else one per item of a step's widest phase (the
+    /// (`Tiling::recurrence_threads`, tests), else one per item of a step's widest phase (the
     /// forward's priors and recurrent sums, 2z + d per module; the backward's W_dd^T, W_dz^T
     /// and W_dh^T sums, 2d + z), in whole 64-thread groups, at most what the adapter allows.
     /// A step's phases are chains of dependent loads, so a thread walking three dot
@@ -596,12 +592,13 @@ impl RecurrenceLayout {
     }
 
     /// Encodes the weight gradients of each network in `networks` (its windows of the
-    /// table, and where its gradients start in `grads`, the packed weights' layout). With
-    /// `partials` (`Tiling::recurrence_weight_partials`), where the partial sums fit one
-    /// binding and the dispatch grid: one dispatch of a partial sum per window for all the
-    /// networks' windows, then one reduce per network in window order; else one dispatch
-    /// per network, a thread per weight over all its windows. Returns the buffers to keep
-    /// until the submission has run.
+    /// table, and where its gradients start in `grads`, the packed weights' layout). Where
+    /// the partial sums fit one binding and the dispatch grid: one dispatch of a partial
+    /// sum per window for all the networks' windows, then one reduce per network in window
+    /// order; else one dispatch per network, a thread per weight over all its windows
+    /// (which leaves a large GPU mostly idle: on an H200, 2026-11-30, the weight gradients
+    /// took 3.05 ms that way against 0.40 per window, one network). Returns the buffers to
+    /// keep until the submission has run.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn encode_weight_grads(
         &self,
@@ -610,7 +607,6 @@ impl RecurrenceLayout {
         encoder: &mut dyn Recorder,
         buffers: WeightGradBuffers<'_>,
         networks: &[(std::ops::Range<usize>, usize)],
-        partials: bool,
     ) -> Vec<PooledBuffer> {
         let WeightGradBuffers {
             table,
@@ -624,8 +620,7 @@ impl RecurrenceLayout {
         let first = networks.iter().map(|(w, _)| w.start).min().unwrap_or(0);
         let end = networks.iter().map(|(w, _)| w.end).max().unwrap_or(0);
         let limits = gpu.limits();
-        let partials = partials
-            && end > first
+        let partials = end > first
             && 4 * (end - first) * total <= limits.max_storage_buffer_binding_size as usize
             && end - first <= limits.max_compute_workgroups_per_dimension as usize;
         let mut keep = Vec::new();
@@ -903,14 +898,7 @@ impl RecurrencePass<f32> for GpuPass<'_> {
                 back: &back,
                 grads: &grads,
             };
-            layout.encode_weight_grads(
-                gpu,
-                &r.kernels,
-                &mut encoder,
-                buffers,
-                &[(0..windows, 0)],
-                r.weight_partials,
-            )
+            layout.encode_weight_grads(gpu, &r.kernels, &mut encoder, buffers, &[(0..windows, 0)])
         });
         let mut sources = vec![(&*back, self.steps * s.back)];
         if weight_grads {

@@ -12,7 +12,7 @@
 use crate::gpu::Gpu;
 
 /// A submission's timed passes: the profile's phases each adds its time to (a part, and
-/// with `Tiling::profile_kernels` its kernel too), the queries, and where they are
+/// with `WgpuOptions::profile_kernels` its kernel too), the queries, and where they are
 /// resolved.
 #[cfg(not(target_arch = "wasm32"))]
 pub(crate) struct PassTimes {

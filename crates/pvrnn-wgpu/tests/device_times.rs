@@ -13,7 +13,7 @@ use common::{config, observations};
 use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::train::Trainer;
 use pvrnn_core::{Model, NoiseMode};
-use pvrnn_wgpu::{Tiling, WgpuBackend};
+use pvrnn_wgpu::WgpuBackend;
 
 /// Profiling is global to the process: the tests take turns.
 static PROFILE: Mutex<()> = Mutex::new(());
@@ -73,7 +73,7 @@ fn profiled(gpu: &WgpuBackend, iterations: usize) -> Vec<(&'static str, f64, u64
 /// While profiling, each part of a whole iteration on the device and of its update runs in
 /// a pass of its own, timed by the device (`timing.rs`): every part is in the profile once
 /// per iteration (an evaluation once more: the last step queued the next iteration's,
-/// `Tiling::queue_ahead`), and the free energies are those of a run without profiling.
+/// `Learner::guards_updates`), and the free energies are those of a run without profiling.
 #[test]
 fn the_profile_times_each_part_of_a_whole_iteration_on_the_device() {
     let Some(gpu) = timed_gpu() else { return };
@@ -103,18 +103,14 @@ fn the_profile_times_each_part_of_a_whole_iteration_on_the_device() {
     );
 }
 
-/// With `Tiling::profile_kernels` every dispatch of the submission is timed apart: each
+/// With `WgpuOptions::profile_kernels` every dispatch of the submission is timed apart: each
 /// kernel is in the profile under its label, as often as it runs, and the kernels' times
 /// add up to the parts' (each pass's time goes to both).
 #[test]
 fn the_profile_times_each_kernel_when_asked() {
     let Some(gpu) = timed_gpu() else { return };
-    let tiling = Tiling {
-        profile_kernels: true,
-        ..gpu.tiling()
-    };
     let iterations = 2;
-    let phases = profiled(&gpu.with_tiling(tiling), iterations);
+    let phases = profiled(&gpu.with_kernel_profile(true), iterations);
     let evaluations = iterations as u64 + 1;
     let kernels: Vec<_> = phases
         .iter()

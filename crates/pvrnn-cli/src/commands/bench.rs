@@ -13,7 +13,7 @@ use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json\n  pvrnn bench --backend wgpu --only train --profile\n  pvrnn bench --backend wgpu --gpu-recurrence --only train --networks 5"
+    after_help = "Example:\n  pvrnn bench --threads 2\n  pvrnn bench --threads 2 --json > bench.json\n  pvrnn bench --backend wgpu --only train --profile\n  pvrnn bench --backend wgpu --gpu-recurrence --only train --networks 5\n  pvrnn bench --backend wgpu --gpu-recurrence --only train --profile --profile-kernels"
 )]
 pub struct Args {
     /// Print one JSON object instead of a table.
@@ -45,6 +45,12 @@ pub struct Args {
     /// iteration ("device: ...", from timestamp queries where the GPU has them).
     #[arg(long)]
     profile: bool,
+    /// With `--profile --backend wgpu --gpu-recurrence`: each dispatch of a training
+    /// iteration in a timed pass of its own, so that the profile lists each kernel's device
+    /// time ("device: kernel <label>") beside each part's. The parts then take longer than
+    /// in the default profile: the device drains between the passes.
+    #[arg(long, requires = "profile")]
+    profile_kernels: bool,
     #[command(flatten)]
     backend: crate::util::BackendArgs,
 }
@@ -101,7 +107,7 @@ struct PhaseTime {
     phase: String,
     ms: f64,
     /// Times the phase was entered (or a device's time added to it) per unit: a kernel's
-    /// dispatches per iteration, with `PVRNN_WGPU_PROFILE_KERNELS=on`.
+    /// dispatches per iteration, with `--profile-kernels`.
     times: f64,
 }
 
@@ -207,7 +213,9 @@ fn train_networks(
     let (s, t) = (a.sequences, a.steps);
     let networks = a.networks as usize;
     // One device for all the networks: they share its queue.
-    let (backend, backend_name, gpu) = a.backend.open_with_gpu()?;
+    let mut options = a.backend.wgpu_options();
+    options.profile_kernels = a.profile_kernels;
+    let (backend, backend_name, gpu) = a.backend.open_with(options)?;
     let backend: Arc<dyn Backend<f32>> = Arc::from(backend);
     let mut trainers = Vec::with_capacity(networks);
     for seed in 0..networks as u64 {

@@ -11,12 +11,6 @@
 // staged transposed in chunks of KC vec4s: per k, 4 vec4 loads (two of rows, two of
 // columns; consecutive threads read consecutive vec4s) for 64 multiply-adds.
 //
-// With WIDE = 0 (`Tiling::wide_forward` off, for measuring) a thread owns 8 x 4 (the
-// `lo*` accumulators only) of a 128 x 64 tile: half the accumulators, so fewer registers
-// per thread and possibly more workgroups per SM, for twice the tiles and epilogues and 3
-// loads per 32 multiply-adds. Each output's sum is the same in the same order; the row
-// losses are added in another grouping.
-//
 // Double-buffered: while a chunk is multiplied, each staging thread already holds the next
 // chunk's 4 x 4 block in registers (loaded before the arithmetic, stored into the other
 // buffer after it), so one barrier per chunk and the device-memory latency under the
@@ -42,9 +36,9 @@ const KS: u32 = {{KS}}u;       // scalars of the width per staged chunk (4 KC)
 const FULL: u32 = {{FULL}}u;   // whole chunks of the width (HV / KC)
 const TAIL: u32 = {{TAIL}}u;   // scalars of the width in a last, partial chunk (0: none)
 const CHUNKS: u32 = {{CHUNKS}}u; // chunks per tile: FULL, and one more if TAIL > 0
-const CL: u32 = {{CL}}u;       // column quads per tile: 32 (WIDE) or 16
+const CL: u32 = {{CL}}u;       // column quads per tile: 32
 const BM: u32 = 128u;          // rows per workgroup
-const BN: u32 = 4u * CL;       // columns per tile: 128 or 64
+const BN: u32 = 4u * CL;       // columns per tile: 128
 const RH: u32 = KS * 32u;      // vec4s of the rows' chunk
 const BUF: u32 = RH + KS * CL; // one buffer: the rows' chunk, then the columns'
 
@@ -239,10 +233,8 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
     //#unroll i 4
     var lo_a{i} = vec4<f32>(0.0);
     var lo_b{i} = vec4<f32>(0.0);
-//#if WIDE
     var hi_a{i} = vec4<f32>(0.0);
     var hi_b{i} = vec4<f32>(0.0);
-//#end
     //#end
     var block = load_block(t, r0, c_begin, c_end, 0u);
     store_block(t, 0u, block);
@@ -263,16 +255,12 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
                 let ra = stage[xb + {q}u * 32u + ty];
                 let rb = stage[xb + {q}u * 32u + 16u + ty];
                 let cl = stage[wb + {q}u * CL + tx];
-//#if WIDE
                 let ch = stage[wb + {q}u * CL + 16u + tx];
-//#end
                 //#unroll i 4
                 lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
                 lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
-//#if WIDE
                 hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
-//#end
                 //#end
             }
             //#end
@@ -285,16 +273,12 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
                 let ra = stage[xb + {q}u * 32u + ty];
                 let rb = stage[xb + {q}u * 32u + 16u + ty];
                 let cl = stage[wb + {q}u * CL + tx];
-//#if WIDE
                 let ch = stage[wb + {q}u * CL + 16u + tx];
-//#end
                 //#unroll i 4
                 lo_a{i} = fma(vec4<f32>(ra[{i}]), cl, lo_a{i});
                 lo_b{i} = fma(vec4<f32>(rb[{i}]), cl, lo_b{i});
-//#if WIDE
                 hi_a{i} = fma(vec4<f32>(ra[{i}]), ch, hi_a{i});
                 hi_b{i} = fma(vec4<f32>(rb[{i}]), ch, hi_b{i});
-//#end
                 //#end
             }
             //#end
@@ -304,30 +288,22 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) t
             // targets first (`targets`); then its accumulators start again at zero.
             let col_lo = c0 + 4u * tx;
             let bias_lo = biases(col_lo, c_end);
-//#if WIDE
             let col_hi = col_lo + 64u;
             let bias_hi = biases(col_hi, c_end);
-//#end
             //#unroll i 4
             {
                 let row_a = r0 + 4u * ty + {i}u;
                 let row_b = row_a + 64u;
                 let y_alo = targets(row_a, col_lo, c_end);
                 let y_blo = targets(row_b, col_lo, c_end);
-//#if WIDE
                 let y_ahi = targets(row_a, col_hi, c_end);
                 let y_bhi = targets(row_b, col_hi, c_end);
-//#end
                 loss_a{i} += emit(row_a, col_lo, c_end, lo_a{i}, bias_lo, y_alo);
-//#if WIDE
                 loss_a{i} += emit(row_a, col_hi, c_end, hi_a{i}, bias_hi, y_ahi);
-//#end
                 loss_b{i} += emit(row_b, col_lo, c_end, lo_b{i}, bias_lo, y_blo);
-//#if WIDE
                 loss_b{i} += emit(row_b, col_hi, c_end, hi_b{i}, bias_hi, y_bhi);
                 hi_a{i} = vec4<f32>(0.0);
                 hi_b{i} = vec4<f32>(0.0);
-//#end
                 lo_a{i} = vec4<f32>(0.0);
                 lo_b{i} = vec4<f32>(0.0);
             }

@@ -47,7 +47,7 @@ pub struct Args {
     profile: bool,
     /// With `--profile --backend wgpu --gpu-recurrence`: each dispatch of a training
     /// iteration in a timed pass of its own, so that the profile lists each kernel's device
-    /// time ("device: kernel <label>") beside each part's. The parts then take longer than
+    /// time (`device: kernel <label>`) beside each part's. The parts then take longer than
     /// in the default profile: the device drains between the passes.
     #[arg(long, requires = "profile")]
     profile_kernels: bool,

@@ -147,6 +147,82 @@ fn no_crate_s_modules_import_each_other_in_a_circle() {
     );
 }
 
+/// Within each module folder, the files that name each other through `super::` (a sibling
+/// file's module), per folder of every crate: `folder -> {file -> siblings it imports}`.
+fn sibling_imports() -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
+    let mut folders = BTreeMap::new();
+    let mut stack: Vec<PathBuf> = std::fs::read_dir(crates_dir())
+        .expect("the crates folder")
+        .filter_map(|e| Some(e.ok()?.path().join("src")))
+        .filter(|p| p.is_dir())
+        .collect();
+    while let Some(dir) = stack.pop() {
+        let mut files = BTreeMap::new();
+        for entry in std::fs::read_dir(&dir).expect("a source folder") {
+            let path = entry.expect("a source entry").path();
+            if path.is_dir() {
+                stack.push(path);
+                continue;
+            }
+            let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+            if path.extension().is_none_or(|e| e != "rs") || ["mod", "lib", "main"].contains(&stem)
+            {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).expect("a readable source");
+            let text = text.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
+            let code: String = text
+                .lines()
+                .filter(|line| !line.trim_start().starts_with("//"))
+                .map(|line| format!("{line}\n"))
+                .collect();
+            files.insert(stem.to_string(), code);
+        }
+        let graph: BTreeMap<String, BTreeSet<String>> = files
+            .iter()
+            .map(|(name, code)| {
+                let used = code
+                    .match_indices("super::")
+                    .filter_map(|(at, _)| {
+                        let rest = &code[at + "super::".len()..];
+                        let next = rest
+                            .split(|c: char| !c.is_alphanumeric() && c != '_')
+                            .next()?;
+                        (next != name && files.contains_key(next)).then(|| next.to_string())
+                    })
+                    .collect();
+                (name.clone(), used)
+            })
+            .collect();
+        folders.insert(dir.display().to_string(), graph);
+    }
+    folders
+}
+
+/// The rule above at every depth: the files of one module folder (the explorer's `app/`,
+/// the core's `cpu/`) do not import each other in a circle either.
+#[test]
+fn no_files_of_one_folder_import_each_other_in_a_circle() {
+    let circles: Vec<String> = sibling_imports()
+        .iter()
+        .filter_map(|(folder, graph)| {
+            find_circle(graph).map(|c| format!("{folder}: {}", c.join(" -> ")))
+        })
+        .collect();
+    assert!(
+        circles.is_empty(),
+        "files that import each other in a circle:\n{}",
+        circles.join("\n")
+    );
+    // The reader sees sibling imports: the explorer's traces draw the summaries.
+    let app = sibling_imports()
+        .into_iter()
+        .find(|(folder, _)| folder.ends_with("pvrnn-explorer/src/app"))
+        .expect("the explorer's app folder")
+        .1;
+    assert!(app["traces"].contains("summaries"), "{app:?}");
+}
+
 #[test]
 fn only_the_cpu_backend_and_the_defaults_name_the_cpu_backend() {
     let named: Vec<String> = modules("pvrnn-core")

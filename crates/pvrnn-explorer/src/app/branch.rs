@@ -3,7 +3,8 @@
 //! errors, and each module's KL. The branch's predicted images are in the images panel.
 
 use super::controls::condition_ui;
-use super::traces::{REFERENCE, StepPlot, paired_error_lines, unit_colour};
+use super::palette::unit_colour;
+use super::traces::{REFERENCE, StepPlot, paired_error_lines};
 use super::*;
 use crate::state::BranchView;
 

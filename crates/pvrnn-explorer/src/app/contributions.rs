@@ -6,7 +6,8 @@
 //! ablation runs arrive, so the window never waits for all of them.
 
 use super::images_panel::{camera_name, read_out_vision};
-use super::traces::{StepPlot, unit_colour};
+use super::palette::unit_colour;
+use super::traces::StepPlot;
 use super::*;
 
 /// Steps read out per frame (five read-outs each).

@@ -27,6 +27,7 @@ mod controls;
 mod export;
 mod findings_panel;
 mod images_panel;
+mod palette;
 mod second;
 mod status;
 mod summaries;

@@ -1,6 +1,6 @@
 //! Summaries: the paper's Fig. 4 uncertainty numbers of the shown run.
 
-use super::traces::unit_colour;
+use super::palette::unit_colour;
 use super::*;
 
 /// Fig. 4 for the shown run: per module, the mean prior sigma and its mean absolute change

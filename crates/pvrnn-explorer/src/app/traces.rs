@@ -1,6 +1,7 @@
 //! Latent traces: mu and sigma (prior and posterior) and d per module, proprioception
 //! actual and predicted.
 
+use super::palette::unit_colour;
 use super::*;
 
 impl ExplorerApp {
@@ -477,13 +478,6 @@ impl TracesPanel<'_> {
         });
         seek
     }
-}
-
-pub(super) fn unit_colour(k: usize) -> Color32 {
-    // Evenly spaced hues.
-    let hue = (k as f32 * 0.618_034) % 1.0;
-    let c = egui::ecolor::Hsva::new(hue, 0.7, 0.95, 1.0);
-    c.into()
 }
 
 /// Plots of at most this many channels name them in a legend.

@@ -1692,6 +1692,45 @@ fn simulate_then_learn_and_infer_from_the_dataset_folder() {
     );
     let e = fails(&["report", "recipes", &format!("none={}", x.s("recipes"))]);
     assert!(e.contains("no run.validation.csv"), "{e}");
+    // The results' index: the validation log listed with its best iteration and gate;
+    // `--check` passes on the index just written and fails once the files change.
+    let index = x.s("recipes/index.md");
+    ok(&["report", "index", &x.s("recipes"), "--out", &index]);
+    let md = std::fs::read_to_string(&index).unwrap();
+    assert!(
+        md.contains(&format!(
+            "| [early/run.validation.csv](early/run.validation.csv) | {} |",
+            pvrnn_eval::validation::read_log(&recipe.join("run.validation.csv"))
+                .unwrap()
+                .len()
+        )) && md.contains(&format!(" | {} | ", best.iteration)),
+        "{md}"
+    );
+    ok(&[
+        "report",
+        "index",
+        &x.s("recipes"),
+        "--out",
+        &index,
+        "--check",
+    ]);
+    std::fs::copy(
+        recipe.join("run.validation.csv"),
+        x.path("recipes/early/second.validation.csv"),
+    )
+    .unwrap();
+    let e = fails(&[
+        "report",
+        "index",
+        &x.s("recipes"),
+        "--out",
+        &index,
+        "--check",
+    ]);
+    assert!(
+        e.contains("is not the index of") && e.contains("pvrnn report index"),
+        "{e}"
+    );
     let table = x.s("progress.md");
     ok(&["report", "table", &eval, "--out", &table]);
     let md = std::fs::read_to_string(&table).unwrap();

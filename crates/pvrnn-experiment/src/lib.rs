@@ -6,6 +6,7 @@
 //! - [`occlusion`]: scoring what the model makes of body parts the arms hide.
 //! - [`stats`]: paired t-tests, Holm, aligned rank transform ANOVA and ART-C contrasts.
 //! - [`report`]: figures, statistics and `report.md` / `summary.json` from the results alone.
+//! - [`index`]: the results' index (`docs/results/index.md`) generated from their files.
 //! - [`paper`]: the paper's findings beside ours (the table every report ends with).
 //! - [`compatibility`]: whether a non-significant result and the paper's differ (one effect
 //!   for both studies, tested).
@@ -14,6 +15,7 @@
 //! - [`slurm`]: the same plan as Slurm job arrays.
 
 pub mod compatibility;
+pub mod index;
 pub mod occlusion;
 pub mod paper;
 pub mod plan;

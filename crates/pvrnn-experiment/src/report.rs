@@ -178,6 +178,17 @@ pub fn write(dir: &Path) -> Result<PathBuf> {
     let plan = Plan::load(dir)?;
     let results = collect(&plan, dir)?;
     let out_dir = dir.join("report");
+    let built_from = jobs_done_in_report(&out_dir);
+    anyhow::ensure!(
+        built_from <= results.done,
+        "{}: the report there was built from {built_from} finished jobs, and only {} have \
+         their result files here: the others' files are missing (a clean clone of this \
+         repository keeps only the reports of docs/results, not the per-trial inference \
+         outputs; docs/results/README.md says how to regenerate them); the report is left \
+         as it is (delete report/summary.json to build it from fewer)",
+        dir.display(),
+        results.done
+    );
     std::fs::create_dir_all(&out_dir)?;
     let stamp = format!("{} scale", plan.scale.name());
     let mut md = String::new();
@@ -508,17 +519,17 @@ fn trials_csv(scale: &str, runs: &[&InferResult]) -> String {
 /// One row per training.
 /// Each training's validity gate: the validation of the network used (`None`: the training
 /// has no validation at that iteration, so nothing held out says what it learned).
+/// How many finished jobs the report in `out_dir` was built from (0 where there is none).
+fn jobs_done_in_report(out_dir: &Path) -> usize {
+    std::fs::read_to_string(out_dir.join("summary.json"))
+        .ok()
+        .and_then(|text| serde_json::from_str::<Value>(&text).ok())
+        .and_then(|summary| summary["jobs_done"].as_u64())
+        .map_or(0, |n| n as usize)
+}
+
 fn network_gates(trains: &[TrainResult]) -> Vec<Option<Gate>> {
-    trains
-        .iter()
-        .map(|t| {
-            let used = t.network_iteration.unwrap_or(t.iterations);
-            t.validations
-                .iter()
-                .find(|v| v.iteration == used)
-                .map(Gate::of)
-        })
-        .collect()
+    trains.iter().map(TrainResult::gate).collect()
 }
 
 /// What a gate's log lacks, as `measure: name name; ...` (empty when complete).

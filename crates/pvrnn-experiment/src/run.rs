@@ -137,6 +137,16 @@ impl Stop {
 }
 
 impl TrainResult {
+    /// The validity gate on the held-out validation of the network the inference runs
+    /// read (`None`: no validation of it was recorded).
+    pub fn gate(&self) -> Option<pvrnn_eval::gate::Gate> {
+        let used = self.network_iteration.unwrap_or(self.iterations);
+        self.validations
+            .iter()
+            .find(|v| v.iteration == used)
+            .map(pvrnn_eval::gate::Gate::of)
+    }
+
     /// Whether the network counts as converged: it stopped by the convergence rule, or
     /// (trained a fixed number of iterations) its free energy ended flat by `flat_change`.
     pub fn converged(&self, flat_change: f64) -> bool {

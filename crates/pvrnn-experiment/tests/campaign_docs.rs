@@ -1,8 +1,6 @@
-//! The converged campaign's status tables in `docs/results/experiments.md` are written by
-//! hand as trainings finish; this test holds them to the committed result files, so that
-//! they cannot drift: one row per finished training (no more, no fewer), and each row's
-//! iterations, network used, validation error, last-tenth change and training time as its
-//! `train-*.json` records them; and the interference status's prose to the same files (how
+//! The results' index (`docs/results/index.md`: every training's table, generated from the
+//! result files) regenerated and compared with the committed one; and the prose of
+//! `docs/results/experiments.md` that restates the same files held to them (how
 //! many of the plan's trainings are done and remain, and by how much every finished
 //! network beats the best baseline its validations recorded, per primary task); and
 //! `docs/experiments.md`'s count and time range of the same trainings.
@@ -18,89 +16,6 @@ const INTERFERENCE: &str = "docs/results/converged/interference";
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// The body rows of the markdown table whose header line starts with `header`, each split
-/// into its trimmed cells.
-fn table(doc: &str, header: &str) -> Vec<Vec<String>> {
-    let mut lines = doc.lines().skip_while(|l| !l.starts_with(header));
-    assert!(
-        lines.next().is_some(),
-        "docs/results/experiments.md has no table headed `{header}`"
-    );
-    lines
-        .skip(1) // the |---| line
-        .take_while(|l| l.starts_with('|'))
-        .map(|l| {
-            l.trim_matches('|')
-                .split('|')
-                .map(|cell| cell.trim().to_string())
-                .collect()
-        })
-        .collect()
-}
-
-/// The leading number of a cell ("16,000", "0.006221 (2k-16k: ...)", "−3.1%",
-/// "4,742 s on 2 threads"), with the typographic minus.
-fn leading_number(cell: &str) -> f64 {
-    let text: String = cell
-        .replace('−', "-")
-        .replace(',', "")
-        .chars()
-        .take_while(|c| c.is_ascii_digit() || *c == '.' || *c == '-')
-        .collect();
-    text.parse()
-        .unwrap_or_else(|_| panic!("no number at the start of `{cell}`"))
-}
-
-/// The validation error of the network a training's inference runs read.
-fn used_network_error(result: &TrainResult) -> f64 {
-    let used = result
-        .network_iteration
-        .expect("a converged training names its network");
-    result
-        .validations
-        .iter()
-        .find(|v| v.iteration == used)
-        .unwrap_or_else(|| panic!("{}: no validation at iteration {used}", result.job))
-        .recon_vision_top
-}
-
-/// Checks one row (`cells[1..]`: stopped at, network used, validation error, last-tenth
-/// change, training time) against its result, as the table rounds them.
-fn check_row(cells: &[String], result: &TrainResult) {
-    let what = &cells[0];
-    assert_eq!(
-        leading_number(&cells[1]),
-        result.iterations as f64,
-        "{what}: stopped at"
-    );
-    let used = result
-        .network_iteration
-        .expect("a converged training names its network");
-    assert_eq!(
-        leading_number(&cells[2]),
-        used as f64,
-        "{what}: network used"
-    );
-    let validated = used_network_error(result);
-    let error = leading_number(&cells[3]);
-    assert!(
-        (error - validated).abs() <= 0.5e-6,
-        "{what}: validation error {error} in the table, {validated} in the result"
-    );
-    let change = 100.0 * result.last_tenth_change.expect("a last-tenth change");
-    assert!(
-        (leading_number(&cells[4]) - change).abs() <= 0.05 + 1e-9,
-        "{what}: last-tenth change {} in the table, {change:.2}% in the result",
-        cells[4]
-    );
-    assert!(
-        (leading_number(&cells[5]) - result.seconds).abs() <= 0.5 + 1e-9,
-        "{what}: training time {} in the table, {:.1} s in the result",
-        cells[5],
-        result.seconds
-    );
 }
 
 /// The training results committed in `dir` (`results/train-*.json`), by job name.
@@ -123,49 +38,30 @@ fn doc() -> String {
     read_doc("docs/results/experiments.md")
 }
 
+/// The leading number of a cell ("16,000", "0.006221 (2k-16k: ...)", "−3.1%"), with the
+/// typographic minus.
+fn leading_number(cell: &str) -> f64 {
+    let text: String = cell
+        .replace('−', "-")
+        .replace(',', "")
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.' || *c == '-')
+        .collect();
+    text.parse()
+        .unwrap_or_else(|_| panic!("no number at the start of `{cell}`"))
+}
+
 fn read_doc(path: &str) -> String {
     std::fs::read_to_string(repo().join(path)).unwrap_or_else(|e| panic!("{path}: {e}"))
 }
 
-/// The table headed `header` against the trainings of `dir`: as many rows as results, and
-/// each result's row (the one whose first cell starts with `row_start(result)`) as it.
-fn check_table(header: &str, dir: &str, row_start: impl Fn(&TrainResult) -> String) {
-    let rows = table(&doc(), header);
-    let results = results(dir);
-    assert_eq!(
-        rows.len(),
-        results.len(),
-        "the table `{header}` has {} rows, and {} trainings are done: one row each",
-        rows.len(),
-        results.len()
-    );
-    for result in &results {
-        let start = row_start(result);
-        let row = rows
-            .iter()
-            .find(|r| r[0].starts_with(&start))
-            .unwrap_or_else(|| panic!("no row `{start}...` for {}", result.job));
-        check_row(row, result);
-    }
-}
-
 #[test]
-fn the_shared_networks_table_matches_their_results() {
-    // "0 (seed 0)"
-    check_table(
-        "| network | stopped at | network used |",
-        "docs/results/converged/hierarchy",
-        |result| format!("{} ", result.network),
-    );
-}
-
-#[test]
-fn the_interference_table_has_a_row_for_every_finished_training() {
-    // "repositioning 9 + wiping 3, net 1 (seed 1)"
-    check_table(
-        "| training | stopped at | network used |",
-        INTERFERENCE,
-        |result| format!("{}, net {} ", result.condition, result.network),
+fn the_results_index_is_what_the_result_files_give() {
+    let fresh = pvrnn_experiment::index::index(&repo().join("docs/results")).unwrap();
+    let committed = read_doc("docs/results/index.md");
+    assert!(
+        committed == fresh,
+        "docs/results/index.md is not what the result files give: run `pvrnn report index docs/results --out docs/results/index.md`"
     );
 }
 
@@ -286,7 +182,15 @@ fn every_finished_interference_network_is_stated_against_the_best_baseline() {
         // Percent below the best baseline, per network (negative: above it).
         let margins: Vec<f64> = results
             .iter()
-            .map(|result| 100.0 * (1.0 - used_network_error(result) / best))
+            .map(|result| {
+                100.0
+                    * (1.0
+                        - result
+                            .gate()
+                            .and_then(|g| g.checks.iter().find(|c| c.measure == "vision")?.model)
+                            .expect("a validation of the network used")
+                            / best)
+            })
             .collect();
         let beating: Vec<f64> = margins.iter().copied().filter(|&m| m > 0.0).collect();
         let above: Vec<f64> = margins.iter().map(|m| -m).filter(|&m| m >= 0.0).collect();

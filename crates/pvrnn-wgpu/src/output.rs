@@ -86,7 +86,7 @@ pub struct Tiling {
     /// split per 32-column tile: 1,008) it becomes the slow part, and with too few the row
     /// pass runs out of parallelism. 256 was the fastest cap for inference's window on an
     /// H200 and leaves learning's paper-scale chunks (112 splits) as they were
-    /// (docs/results/gpu/notes.md, "Measured figures of earlier paths").
+    /// (docs/results/gpu/README.md, "2026-11-26: H200, several calls").
     pub max_splits: usize,
     /// Largest buffer a chunk binds (the device's binding limit applies too).
     pub max_chunk_bytes: usize,
@@ -99,7 +99,7 @@ pub struct Tiling {
     /// fixed 0.2-0.3 ms per call on an H200). Online inference makes such calls 50 times a
     /// step: proprioception (30 x 28 x 40 = 34 k) and 16x16 vision (30 x 1,536 x 50 = 2.3 M),
     /// where 2 CPU threads measured 53.6 steps/s against 25.5 on the GPU (H200, 2026-11-26:
-    /// docs/results/gpu/notes.md, "Measured figures of earlier paths"; every call on the GPU
+    /// docs/results/gpu/README.md, "2026-11-26: H200, several calls"; every call on the GPU
     /// lost again on 2026-11-28, 28.1 against 35.4 steps/s).
     /// Everything observed (48 M) and learning (87 M and more) stay on the GPU. A learner's
     /// resident layers always run on the GPU (their weights live there). Tests set 0 to

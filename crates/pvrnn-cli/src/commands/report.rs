@@ -1,5 +1,6 @@
 //! `pvrnn report`: learning curves from a training log, validation curves of one or more
-//! runs, and the error-against-iterations table from several evaluations of one run.
+//! runs, the error-against-iterations table from several evaluations of one run, and the
+//! index of a results folder.
 
 use std::path::PathBuf;
 
@@ -70,6 +71,22 @@ pub enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// The index of a results folder, generated from its files: every experiment folder
+    /// (plan.json, results/train-*.json, report/summary.json) with its trainings, the
+    /// validity gate and its findings' readings, and every validation log.
+    #[command(
+        after_help = "Example:\n  pvrnn report index docs/results --out docs/results/index.md\n  pvrnn report index docs/results --out docs/results/index.md --check"
+    )]
+    Index {
+        /// The results folder.
+        root: PathBuf,
+        /// Write the index here instead of printing it.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Only check that --out holds what would be written (exit status 1 if not).
+        #[arg(long, requires = "out")]
+        check: bool,
+    },
 }
 
 pub fn run(command: Command) -> Result<()> {
@@ -117,6 +134,24 @@ pub fn run(command: Command) -> Result<()> {
                 read.push(progress::read_summary(&text, &file.display().to_string())?);
             }
             write_or_print(out, &progress::markdown(&read))?;
+        }
+        Command::Index { root, out, check } => {
+            let index = pvrnn_experiment::index::index(&root)?;
+            match out {
+                Some(out) if check => {
+                    let written = std::fs::read_to_string(&out).unwrap_or_default();
+                    anyhow::ensure!(
+                        written == index,
+                        "{} is not the index of {} as its files are now: run `pvrnn report index {} --out {}`",
+                        out.display(),
+                        root.display(),
+                        root.display(),
+                        out.display()
+                    );
+                    eprintln!("{} is up to date", out.display());
+                }
+                out => write_or_print(out, &index)?,
+            }
         }
     }
     Ok(())

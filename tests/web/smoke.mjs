@@ -176,6 +176,21 @@ try {
     if (wrong) fail(`finding link #${view}: ${wrong}`);
   }
   console.log(`findings' links: ${views.length} views opened without a correction`);
+  // A second network from the address: `second=` names a bundle relative to the site (the
+  // shipped one again here); it downloads and opens beside the first.
+  {
+    const before = logs.length;
+    await page.evaluate(() => { location.hash = 'second=models%2Fdefault%2F'; });
+    const until = Date.now() + 90_000;
+    let opened;
+    while (!(opened = logs.slice(before).find((l) => l.startsWith('status: second network:'))) && Date.now() < until) {
+      const error = logs.slice(before).find((l) => l.startsWith('status (error)'));
+      if (error) { fail(`second=models/default/: ${error}`); break; }
+      await page.waitForTimeout(250);
+    }
+    if (opened) console.log(`second network from the address: ${opened}`);
+    else fail('second=models/default/: the second network did not open within 90 s');
+  }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();
 

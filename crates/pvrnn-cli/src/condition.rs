@@ -1,8 +1,8 @@
 //! The inference condition flags `infer` and `evaluate` share.
 
 use anyhow::Result;
-use pvrnn_core::infer::InferenceSettings;
-use pvrnn_core::{Ablation, AblationMode, ModelConfig, NoiseMode, Observed};
+use pvrnn_core::infer::{Condition, InferenceSettings};
+use pvrnn_core::{ModelConfig, NoiseMode};
 
 use crate::util;
 
@@ -31,7 +31,7 @@ pub struct ConditionArgs {
     /// Learning rate of the window's adaptive variables (default: the model's configuration, 1.0).
     #[arg(long)]
     pub lr: Option<f64>,
-    /// Seed of the noise draws.
+    /// Seed of the noise draws (0 to 4294967295).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// No noise: z = mu (eps = 0) instead of a seeded sample (for debugging).
@@ -40,24 +40,22 @@ pub struct ConditionArgs {
 }
 
 impl ConditionArgs {
+    /// The condition these flags state for a model (the core's one condition type).
+    pub fn condition(&self, config: &ModelConfig) -> Result<Condition> {
+        Ok(Condition::parse(
+            config,
+            &self.vision,
+            self.proprio,
+            &self.ablate,
+            &self.ablation_mode,
+            (self.window, self.iterations, self.lr),
+            self.seed,
+        )?)
+    }
+
     /// The inference settings these flags give for a model.
     pub fn settings(&self, config: &ModelConfig) -> Result<InferenceSettings> {
-        let mut settings = InferenceSettings::from_config(config, self.seed);
-        settings.observed = Observed {
-            vision_levels: Observed::parse_vision(&self.vision, config)?,
-            proprio: self.proprio,
-        };
-        settings.ablation = Ablation::parse(&self.ablate)?;
-        settings.ablation_mode = AblationMode::parse(&self.ablation_mode)?;
-        if let Some(h) = self.window {
-            settings.window = h;
-        }
-        if let Some(n) = self.iterations {
-            settings.iterations = n;
-        }
-        if let Some(lr) = self.lr {
-            settings.optimizer.lr = lr;
-        }
+        let mut settings = self.condition(config)?.settings(config);
         if self.zero_noise {
             settings.noise = NoiseMode::Zero;
         }

@@ -306,6 +306,16 @@ impl Ablation {
     pub fn is_none(&self) -> bool {
         !self.0.iter().any(|&a| a)
     }
+    /// The ablation mode a condition with this ablation states: `mode`, or the default
+    /// when nothing is ablated (the mode then changes nothing), so that equal runs compare
+    /// equal.
+    pub fn canonical_mode(&self, mode: AblationMode) -> AblationMode {
+        if self.is_none() {
+            AblationMode::default()
+        } else {
+            mode
+        }
+    }
     /// e.g. `executive+proprioceptive`, or `none`.
     pub fn label(&self) -> String {
         let names: Vec<&str> = ModuleId::ALL

@@ -17,9 +17,12 @@
 //! - [`progress`]: error against training iterations, from several evaluations.
 //! - [`recipes`]: the recipe search's table, from each recipe's validation files.
 //! - [`training_log`]: the per-iteration CSV log every training writes beside its checkpoint.
-//! - [`validation`]: early stopping, a training run scored on held-out sequences as it goes.
+//! - [`validation`]: one validation: a training run scored on held-out sequences, and its log.
+//! - [`early_stopping`]: when to validate, which network is best, when the run has turned:
+//!   the one type behind `pvrnn train --validate` and the experiments' convergence rule.
 
 pub mod baselines;
+pub mod early_stopping;
 pub mod evaluate;
 pub mod gate;
 pub mod groups;

@@ -212,6 +212,8 @@ pub enum DownloadPoll {
 #[derive(Default)]
 pub struct WebState {
     download: Option<Rc<RefCell<Download>>>,
+    /// The second network's bundle on its way, and the address it came from.
+    second: Option<(String, Rc<RefCell<Download>>)>,
     dropped: Rc<RefCell<(usize, Vec<DroppedFile>)>>,
     /// Wakes the app when a file it was reading arrives (the reads end between frames).
     repaint: Rc<RefCell<Option<eframe::egui::Context>>>,
@@ -231,21 +233,31 @@ impl std::fmt::Debug for WebState {
 impl WebState {
     /// Downloads `base` + bundle.json, then the dataset manifest, then every file.
     pub fn start_download(&mut self, base: &str) {
-        let d = Rc::new(RefCell::new(Download {
-            base: base.to_string(),
-            started_ms: now_ms(),
-            ..Default::default()
-        }));
-        self.download = Some(d.clone());
-        let url = format!("{base}{BUNDLE_MANIFEST}");
-        fetch(
-            &url,
-            |_, _| {},
-            move |r| match r {
-                Err(e) => d.borrow_mut().error = Some(e),
-                Ok(bytes) => manifest_arrived(d, bytes),
-            },
-        );
+        self.download = Some(begin_download(base));
+    }
+
+    /// Downloads the second network's bundle from `base` (the address's `second=`).
+    pub fn start_second_download(&mut self, base: &str) {
+        self.second = Some((base.to_string(), begin_download(base)));
+    }
+
+    /// The address of the second network's bundle on its way, if one is.
+    pub fn second_address(&self) -> Option<&str> {
+        self.second.as_ref().map(|(address, _)| address.as_str())
+    }
+
+    /// The second network's bundle once it is in (or why it could not be read); `None`
+    /// while it downloads or when none does.
+    pub fn poll_second(&mut self) -> Option<Result<Box<Bundle>, String>> {
+        let mut slot = self.second.as_ref().map(|(_, d)| d.clone());
+        let polled = poll_download(&mut slot);
+        if slot.is_none() {
+            self.second = None;
+        }
+        match polled {
+            Some(DownloadPoll::Done(result)) => Some(result),
+            _ => None,
+        }
     }
 
     /// Logs the status line's message to the console when it changes (what a view was
@@ -340,75 +352,100 @@ impl WebState {
         None
     }
 
-    /// Whether a bundle is on its way.
+    /// Whether a bundle (the first network's or the second's) is on its way.
     pub fn downloading(&self) -> bool {
-        self.download.is_some()
+        self.download.is_some() || self.second.is_some()
     }
 
     /// How the download goes: its progress, or the bundle (or the error) once it ends;
     /// `None` when nothing is downloading.
     pub fn poll(&mut self) -> Option<DownloadPoll> {
-        let d = self.download.as_ref()?.clone();
-        let d = d.borrow();
-        if let Some(e) = &d.error {
-            let e = format!("could not load the bundle: {e}");
-            drop(d);
-            self.download = None;
-            return Some(DownloadPoll::Done(Err(e)));
-        }
-        let waiting = d
-            .expected
-            .iter()
-            .filter(|f| !d.files.contains_key(*f))
-            .count();
-        let first_in = !d.first.is_empty() && d.first.iter().all(|f| d.files.contains_key(f));
-        if first_in && !d.first_shown && waiting > 0 {
-            let part = Bundle::from_part_of_files(&d.files);
-            log(&format!(
-                "first view's files in after {:.0} ms ({} of {} files; page time {:.0} ms)",
-                now_ms() - d.started_ms,
-                d.expected.len() - waiting,
-                d.expected.len(),
-                now_ms()
-            ));
-            drop(d);
-            let download = self.download.as_ref()?;
-            download.borrow_mut().first_shown = true;
-            // A first part that cannot be read waits for the whole bundle, which says why.
-            return part.ok().map(|b| DownloadPoll::First(Box::new(b)));
-        }
-        if d.expected.is_empty() || waiting > 0 {
-            let (loaded, total) = d
-                .progress
-                .values()
-                .fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
-            let what = if d.first_shown {
-                "loading the other sequences and runs of"
-            } else {
-                "loading"
-            };
-            return Some(DownloadPoll::Progress {
-                what: format!(
-                    "{what} {} ({:.1} / {:.1} MB, {} of {} files)",
-                    d.base,
-                    loaded / 1e6,
-                    total / 1e6,
-                    d.expected.len() - waiting,
-                    d.expected.len()
-                ),
-                fraction: (total > 0.0).then(|| (loaded / total) as f32),
-            });
-        }
-        let result = Bundle::from_files(&d.files);
+        poll_download(&mut self.download)
+    }
+}
+
+/// Starts downloading `base` + bundle.json, then the dataset manifest, then every file.
+fn begin_download(base: &str) -> Rc<RefCell<Download>> {
+    let d = Rc::new(RefCell::new(Download {
+        base: base.to_string(),
+        started_ms: now_ms(),
+        ..Default::default()
+    }));
+    let url = format!("{base}{BUNDLE_MANIFEST}");
+    let handle = d.clone();
+    fetch(
+        &url,
+        |_, _| {},
+        move |r| match r {
+            Err(e) => handle.borrow_mut().error = Some(e),
+            Ok(bytes) => manifest_arrived(handle, bytes),
+        },
+    );
+    d
+}
+
+/// How the download in `slot` goes (emptied once it ends).
+fn poll_download(slot: &mut Option<Rc<RefCell<Download>>>) -> Option<DownloadPoll> {
+    let d = slot.as_ref()?.clone();
+    let d = d.borrow();
+    if let Some(e) = &d.error {
+        let e = format!("could not load the bundle: {e}");
+        drop(d);
+        *slot = None;
+        return Some(DownloadPoll::Done(Err(e)));
+    }
+    let waiting = d
+        .expected
+        .iter()
+        .filter(|f| !d.files.contains_key(*f))
+        .count();
+    let first_in = !d.first.is_empty() && d.first.iter().all(|f| d.files.contains_key(f));
+    if first_in && !d.first_shown && waiting > 0 {
+        let part = Bundle::from_part_of_files(&d.files);
         log(&format!(
-            "bundle ready after {:.0} ms (page time {:.0} ms)",
+            "first view's files in after {:.0} ms ({} of {} files; page time {:.0} ms)",
             now_ms() - d.started_ms,
+            d.expected.len() - waiting,
+            d.expected.len(),
             now_ms()
         ));
         drop(d);
-        self.download = None;
-        Some(DownloadPoll::Done(result.map(Box::new)))
+        let download = slot.as_ref()?;
+        download.borrow_mut().first_shown = true;
+        // A first part that cannot be read waits for the whole bundle, which says why.
+        return part.ok().map(|b| DownloadPoll::First(Box::new(b)));
     }
+    if d.expected.is_empty() || waiting > 0 {
+        let (loaded, total) = d
+            .progress
+            .values()
+            .fold((0.0, 0.0), |(a, b), (l, t)| (a + l, b + t));
+        let what = if d.first_shown {
+            "loading the other sequences and runs of"
+        } else {
+            "loading"
+        };
+        return Some(DownloadPoll::Progress {
+            what: format!(
+                "{what} {} ({:.1} / {:.1} MB, {} of {} files)",
+                d.base,
+                loaded / 1e6,
+                total / 1e6,
+                d.expected.len() - waiting,
+                d.expected.len()
+            ),
+            fraction: (total > 0.0).then(|| (loaded / total) as f32),
+        });
+    }
+    let result = Bundle::from_files(&d.files);
+    log(&format!(
+        "bundle ready after {:.0} ms (page time {:.0} ms)",
+        now_ms() - d.started_ms,
+        now_ms()
+    ));
+    drop(d);
+    *slot = None;
+    Some(DownloadPoll::Done(result.map(Box::new)))
 }
 
 /// The sequence the page's address asks for, if any (its files come first).

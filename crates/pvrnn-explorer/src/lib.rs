@@ -54,7 +54,7 @@ pub mod web;
 #[cfg(target_arch = "wasm32")]
 pub mod worker;
 
-pub use app::ExplorerApp;
+pub use app::{ExplorerApp, TourTarget};
 pub use bundle::Bundle;
 pub use condition::Condition;
 pub use state::ViewState;

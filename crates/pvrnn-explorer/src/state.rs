@@ -56,6 +56,9 @@ pub struct ViewState {
     pub branch_traces: bool,
     /// Trials (noise seeds from the condition's on) the contributions over time average.
     pub map_trials: u8,
+    /// A second network to open beside the first: a bundle's address relative to the site
+    /// (in the browser) or to the working folder (on the desktop), e.g. `models/early/`.
+    pub second: Option<String>,
 }
 
 /// A branch of the shown run: the same run up to step `at`, then under `condition`.
@@ -83,6 +86,7 @@ impl Default for ViewState {
             branch: None,
             branch_traces: false,
             map_trials: 1,
+            second: None,
         }
     }
 }
@@ -239,6 +243,9 @@ impl ViewState {
         if let Some(c) = self.compare {
             parts.push(format!("compare={}", c.name()));
         }
+        if let Some(second) = &self.second {
+            parts.push(format!("second={}", encode(second)));
+        }
         for (key, on) in [
             ("d", self.show_d),
             ("prior", self.prior_images),
@@ -311,6 +318,17 @@ impl ViewState {
                     };
                     (set.map(|set| v.compare = set).is_some(), false)
                 }
+                "second" if value == "off" => {
+                    v.second = None;
+                    (true, false)
+                }
+                "second" => (
+                    decode(value)
+                        .filter(|a| relative_address(a))
+                        .map(|a| v.second = Some(a))
+                        .is_some(),
+                    false,
+                ),
                 "branch" if value == "off" => {
                     branch_given = false;
                     (true, false)
@@ -361,6 +379,18 @@ impl ViewState {
         };
         (v, notes)
     }
+}
+
+/// Whether `address` names a place relative to the site (or the working folder): not
+/// absolute, no scheme (`https:`, `data:`, `javascript:`), no drive, and of a sane length.
+/// A link may open a second network from the site it was made on, not from anywhere.
+pub fn relative_address(address: &str) -> bool {
+    let first = address.split('/').next().unwrap_or("");
+    !address.is_empty()
+        && address.len() <= 300
+        && !address.starts_with(['/', '\\'])
+        && !first.contains(':')
+        && !address.chars().any(char::is_control)
 }
 
 /// A value from the address as a message quotes it: at most 48 characters, control
@@ -460,6 +490,38 @@ mod tests {
     }
 
     #[test]
+    fn a_second_network_is_named_only_relative_to_the_site() {
+        for ok in ["models/early/", "../runs/late", "early", "models/a b/"] {
+            assert!(relative_address(ok), "{ok}");
+        }
+        for hostile in [
+            "",
+            "/etc/models",
+            "//evil.example/m/",
+            "https://evil.example/m/",
+            "javascript:alert(1)",
+            "data:text/plain,x",
+            "C:\\models",
+            "\\\\server\\share",
+            "models/\nnewline",
+        ] {
+            assert!(!relative_address(hostile), "{hostile:?}");
+        }
+        let base = ViewState::default();
+        let (v, notes) =
+            ViewState::from_hash("second=https%3A%2F%2Fevil.example%2F", &base, standard());
+        assert_eq!(v.second, None);
+        assert!(notes[0].contains("second=https"), "{notes:?}");
+        let (v, notes) = ViewState::from_hash("second=models%2Fearly%2F", &base, standard());
+        assert_eq!(
+            (v.second.as_deref(), notes.len()),
+            (Some("models/early/"), 0)
+        );
+        let (v, _) = ViewState::from_hash("second=off", &v, standard());
+        assert_eq!(v.second, None);
+    }
+
+    #[test]
     fn hash_round_trip() {
         let mut c = standard();
         c.vision_levels = 1;
@@ -482,6 +544,7 @@ mod tests {
             branch_traces: true,
             map_trials: 3,
             compare: Some(CompareSet::Vision),
+            second: Some("models/early checkpoint/".into()),
             branch: Some(BranchView {
                 at: 80,
                 condition: Condition {

@@ -975,6 +975,118 @@ fn the_tour_is_offered_once_and_can_be_skipped_or_restarted() {
     assert_eq!(h.state().tour_stop(), None);
 }
 
+/// A second network named by the view's address (`second=`, relative to the working folder
+/// on the desktop, to the site in the browser) opens beside the first; one that cannot be
+/// compared is refused with a message and the address stops naming it; closing it takes it
+/// out of the address.
+#[test]
+fn a_second_network_opens_from_the_address() {
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
+    let view = ViewState {
+        second: Some("../../models/default".into()),
+        ..ViewState::default()
+    };
+    let app = ExplorerApp::new(Some(Bundle::open_dir(&shipped).unwrap()), view.clone());
+    let mut h = Harness::builder()
+        .with_size(eframe::egui::vec2(1400.0, 1000.0))
+        .build_ui_state(|ui, app: &mut ExplorerApp| app.show(ui), app);
+    h.run_steps(4);
+    let status = format!("{:?}", h.state().status());
+    assert!(status.contains("second network: "), "{status}");
+    assert!(
+        h.state()
+            .view()
+            .to_hash()
+            .contains("second=..%2F..%2Fmodels%2Fdefault")
+    );
+    h.get_by_label("close the second network").click();
+    h.run_steps(2);
+    assert_eq!(h.state().view().second, None);
+    // The shipped network beside a small one of other cameras: refused, and forgotten.
+    let app = ExplorerApp::new(Some(common::bundle()), view);
+    let mut h = Harness::builder()
+        .with_size(eframe::egui::vec2(1400.0, 1000.0))
+        .build_ui_state(|ui, app: &mut ExplorerApp| app.show(ui), app);
+    h.run_steps(4);
+    let status = format!("{:?}", h.state().status());
+    assert!(
+        status.contains("the second network") && status.contains("cannot be compared"),
+        "{status}"
+    );
+    assert_eq!(h.state().view().second, None);
+}
+
+/// Each stop of the tour stands beside the widget it names and outlines it: the images
+/// panel on the left, the latent states in the centre, the conditions above, the time bar
+/// below, the question buttons; the first stop is in the middle of the window.
+#[test]
+fn each_stop_of_the_tour_stands_beside_the_widget_it_names() {
+    use pvrnn_explorer::TourTarget;
+    let mut app = ExplorerApp::new(Some(common::bundle()), ViewState::default());
+    app.start_tour();
+    let mut h = harness(app);
+    h.run_steps(6);
+    let window = |h: &Harness<'static, ExplorerApp>, stop: usize| {
+        let title = format!("Tour {} of 6", stop + 1);
+        let labels = format!("{:?}", h.root());
+        assert!(labels.contains(&title), "no `{title}` window: {labels}");
+        // The window's buttons: its rect is theirs and its text's.
+        h.get_by_label(if stop == 5 { "done" } else { "next" })
+            .rect()
+    };
+    let (target, rect) = h.state().tour_target().unwrap();
+    assert_eq!((target, rect), (TourTarget::Everything, None));
+    let middle = window(&h, 0).center().x;
+    assert!((middle - 700.0).abs() < 200.0, "first stop at x = {middle}");
+    let expected = [
+        TourTarget::Images,
+        TourTarget::Latents,
+        TourTarget::Conditions,
+        TourTarget::Time,
+        TourTarget::Questions,
+    ];
+    for (stop, want) in (1..6).zip(expected) {
+        h.get_by_label("next").click();
+        h.run_steps(6);
+        let (target, rect) = h.state().tour_target().unwrap();
+        assert_eq!(target, want, "stop {stop}");
+        let rect = rect.unwrap_or_else(|| panic!("stop {stop}: {want:?} was not drawn"));
+        let buttons = window(&h, stop);
+        match want {
+            // Right of the images panel, level with its upper part.
+            TourTarget::Images => assert!(
+                buttons.left() > rect.right() && buttons.left() < rect.right() + 420.0,
+                "{buttons:?} beside {rect:?}"
+            ),
+            // Inside the central panel, near its top.
+            TourTarget::Latents => assert!(
+                rect.contains(buttons.center()) && buttons.top() < rect.top() + 400.0,
+                "{buttons:?} in {rect:?}"
+            ),
+            // Just below the controls.
+            TourTarget::Conditions => assert!(
+                buttons.top() > rect.bottom() && buttons.top() < rect.bottom() + 400.0,
+                "{buttons:?} under {rect:?}"
+            ),
+            // Just above the time bar.
+            TourTarget::Time => assert!(
+                buttons.bottom() < rect.top() && buttons.bottom() > rect.top() - 100.0,
+                "{buttons:?} over {rect:?}"
+            ),
+            // Under the buttons it explains, from their left edge on.
+            TourTarget::Questions => {
+                let findings = h.get_by_label("Findings").rect();
+                assert!(rect.contains(findings.center()), "{findings:?} in {rect:?}");
+                assert!(
+                    buttons.top() > rect.bottom() && buttons.top() < rect.bottom() + 400.0,
+                    "{buttons:?} under {rect:?}"
+                );
+            }
+            TourTarget::Everything => unreachable!(),
+        }
+    }
+}
+
 /// Another robot: one camera, one 6-joint arm without torque sensing, a gripper channel.
 #[test]
 fn a_robot_of_another_shape_is_shown_with_its_own_channels() {

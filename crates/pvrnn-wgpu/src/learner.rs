@@ -50,7 +50,7 @@ struct RAdamParams {
 
 /// A learning run on [`WgpuBackend`] with its read-outs resident (see the module docs), and
 /// with the recurrence on the GPU ([`WgpuBackend::with_recurrence_on_gpu`]) everything
-/// else too (`iteration.rs`).
+/// else too (`iteration/`).
 #[derive(Debug)]
 pub struct GpuLearner {
     backend: WgpuBackend,

@@ -17,7 +17,7 @@
 //! (pvrnn-core's [`Learner`] seam) keeps both read-outs' weights, biases and RAdam moments
 //! on the GPU for the whole run, runs their hidden layers there too (`shaders/dense_*.wgsl`)
 //! and updates them there (`shaders/radam.wgsl`); with the recurrence on the GPU it keeps
-//! everything and runs a whole learning iteration in one submission (`iteration.rs`),
+//! everything and runs a whole learning iteration in one submission (`iteration/`),
 //! reading back only the free-energy terms. In the browser (wasm32, wgpu's `webgpu`
 //! feature) the same pieces run on WebGPU and their read-backs are awaited
 //! ([`WgpuBackend::open`], [`pvrnn_core::deferred`]).
@@ -270,7 +270,7 @@ impl Backend<f32> for WgpuBackend {
     }
 
     /// With the recurrence on the GPU, runs of one shape share a stack: one forward and one
-    /// backward dispatch compute every window of all of them (`iteration.rs`). Fails
+    /// backward dispatch compute every window of all of them (`iteration/`). Fails
     /// naming the cohort's size when the device runs out of memory making their buffers.
     fn learners(
         &self,

@@ -8,6 +8,7 @@ use pvrnn_core::{FreeEnergy, NoiseMode, io};
 
 use crate::{inputs, util};
 use pvrnn_dataset::Split;
+use pvrnn_eval::early_stopping::{EarlyStopping, StoppingRule};
 use pvrnn_eval::training_log::TrainingLog;
 use pvrnn_eval::validation;
 
@@ -105,15 +106,10 @@ pub fn validation_paths(out: &Path) -> (PathBuf, PathBuf) {
     )
 }
 
-/// Early stopping's state: the held-out data, the scores so far (of iterations up to the
-/// checkpoint's: a resumed run forgets the rest) and the paths.
+/// Early stopping (`pvrnn_eval::early_stopping`, the experiments' type too) with the
+/// command's messages; the best network is kept as a whole checkpoint.
 struct Validation {
-    dataset: pvrnn_dataset::Dataset,
-    every: u64,
-    patience: Option<usize>,
-    rows: Vec<validation::ValidationRow>,
-    log: PathBuf,
-    best: PathBuf,
+    stopping: EarlyStopping,
 }
 
 impl Validation {
@@ -133,31 +129,19 @@ impl Validation {
         pvrnn_dataset::inputs::check_layout(&dataset.manifest, &config.vision)
             .and_then(|()| pvrnn_dataset::inputs::check_proprio(&dataset.manifest, config))
             .with_context(|| format!("--validate {}: the model does not fit it", dir.display()))?;
-        let iteration = trainer.iteration;
         let (log, best) = validation_paths(out);
-        let mut rows = validation::read_log(&log)?;
-        rows.retain(|r| r.iteration <= iteration);
-        Ok(Self {
-            dataset,
+        let rule = StoppingRule {
             every,
             patience,
-            rows,
-            log,
-            best,
-        })
+            select_from: 0,
+        };
+        let stopping = EarlyStopping::open(dataset, rule, log, best, trainer.iteration)?;
+        Ok(Self { stopping })
     }
 
     /// The best row, when --patience validations since have not beaten it.
     fn stalled(&self) -> Option<&validation::ValidationRow> {
-        validation::stalled(&self.rows, self.patience?)
-    }
-
-    /// Whether the checkpoint's own iteration is due a validation that is not in the log
-    /// (the run stopped during it).
-    fn missed(&self, iteration: u64) -> bool {
-        iteration > 0
-            && iteration.is_multiple_of(self.every)
-            && self.rows.last().map(|r| r.iteration) != Some(iteration)
+        self.stopping.stalled()
     }
 
     /// Scores the trainer's model; keeps its checkpoint when it is the best so far.
@@ -168,13 +152,11 @@ impl Validation {
         bar: &util::Progress,
     ) -> Result<()> {
         bar.set_message("validating".into());
-        let row = validation::validate(
+        let (row, is_best) = self.stopping.score(
             Arc::new(trainer.model().clone()),
             trainer.backend(),
-            &self.dataset,
             trainer.iteration,
         )?;
-        let is_best = validation::best(&self.rows).is_none_or(|b| row.better_than(b));
         bar.println(format!(
             "validation at iteration {}: reconstruction error {:.5} ({} of {} trials diverged, {:.0} s){}",
             row.iteration,
@@ -183,16 +165,15 @@ impl Validation {
             row.trials,
             row.seconds,
             if is_best {
-                format!("; best so far, kept {}", self.best.display())
+                format!("; best so far, kept {}", self.stopping.best_path().display())
             } else {
                 String::new()
             }
         ));
         if is_best {
-            io::save_checkpoint(&self.best, trainer, last)?;
+            io::save_checkpoint(self.stopping.best_path(), trainer, last)?;
         }
-        self.rows.push(row);
-        validation::write_log(&self.log, &self.rows)?;
+        self.stopping.record(row)?;
         Ok(())
     }
 }
@@ -248,7 +229,7 @@ pub fn run(a: Args) -> Result<()> {
     bar.set_position(runs.iter().map(|r| r.trainer.iteration).min().unwrap_or(0));
     for run in &mut runs {
         if let Some(v) = run.validation.as_mut()
-            && v.missed(run.trainer.iteration)
+            && v.stopping.missed(run.trainer.iteration)
         {
             v.run(&mut run.trainer, None, &bar)?;
         }
@@ -463,7 +444,7 @@ fn after_step(
     }
     if let Some(v) = run.validation.as_mut()
         && !stop
-        && trainer.iteration.is_multiple_of(v.every)
+        && v.stopping.due(trainer.iteration)
     {
         v.run(trainer, run.last, bar)?;
         bar.set_message(format!("F {:.4}", report.total));

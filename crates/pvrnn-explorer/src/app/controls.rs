@@ -30,22 +30,26 @@ impl ExplorerApp {
             {
                 self.start_tour();
             }
-            ui.toggle_value(&mut self.show_findings, "Findings")
+            let findings = ui.toggle_value(&mut self.show_findings, "Findings")
                 .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
+            self.tour.targets.add_question(findings.rect);
             let l = ui.label("Compare");
             let text = |c: Option<CompareSet>| match c {
                 None => "off",
                 Some(CompareSet::Vision) => "vision x proprio",
                 Some(CompareSet::Ablation) => "ablations",
             };
-            egui::ComboBox::from_id_salt("compare")
+            self.tour.targets.add_question(l.rect);
+            let compare = egui::ComboBox::from_id_salt("compare")
                 .selected_text(text(self.view.compare))
                 .show_ui(ui, |ui| {
                     for c in [None, Some(CompareSet::Vision), Some(CompareSet::Ablation)] {
                         ui.selectable_value(&mut self.view.compare, c, text(c));
                     }
                 })
-                .response
+                .response;
+            self.tour.targets.add_question(compare.rect);
+            compare
                 .labelled_by(l.id)
                 .on_hover_text("Set conditions side by side at the cursor: every observed resolution with proprioception on and off (Fig. 5), or each module ablated (Fig. 2B)");
             self.export_ui(ui);
@@ -63,7 +67,7 @@ impl ExplorerApp {
                     self.open_with_dialog(folder);
                 }
             }
-            ui.menu_button("Second network", |ui| {
+            let second = ui.menu_button("Second network", |ui| {
                 for (label, folder) in [
                     ("Open a bundle folder", true),
                     ("Open files (a checkpoint of this dataset, or a bundle's files)", false),
@@ -84,6 +88,7 @@ impl ExplorerApp {
             })
             .response
             .on_hover_text("Show another network (another bundle, or an earlier or later checkpoint) beside this one, on the same sequence under the same condition");
+            self.tour.targets.add_question(second.rect);
             ui.separator();
             self.sequence_picker(ui);
             ui.separator();

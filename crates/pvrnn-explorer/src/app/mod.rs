@@ -45,6 +45,7 @@ pub use controls::condition_label;
 pub use export::png_bytes;
 use images_panel::ImageCache;
 pub use summaries::uncertainty;
+pub use tour::TourTarget;
 
 /// Time given to online inference per frame.
 const COMPUTE_BUDGET: Duration = Duration::from_millis(14);
@@ -85,8 +86,8 @@ pub struct ExplorerApp {
     second: Option<second::SecondNetwork>,
     /// The next files opened go to the second network.
     opening_second: bool,
-    /// The guided tour's stop, while it is on.
-    tour: Option<usize>,
+    /// The guided tour: its stop while it is on, and where the widgets it names are.
+    tour: tour::Tour,
     /// Where the desktop app remembers the tour was seen.
     #[cfg(not(target_arch = "wasm32"))]
     config_dir: Option<std::path::PathBuf>,
@@ -192,7 +193,7 @@ impl ExplorerApp {
             show_findings: false,
             second: None,
             opening_second: false,
-            tour: None,
+            tour: tour::Tour::default(),
             #[cfg(not(target_arch = "wasm32"))]
             config_dir: tour::default_config_dir(),
             pending_shot: Default::default(),
@@ -557,6 +558,7 @@ impl ExplorerApp {
         #[cfg(target_arch = "wasm32")]
         self.web.wake(ctx);
         self.take_dropped(ctx);
+        self.follow_second_address();
         self.take_picture(ctx);
         // egui's clock rather than the wall clock, so tests can step time exactly.
         let now = ctx.input(|i| i.time);
@@ -614,15 +616,16 @@ impl ExplorerApp {
         }
         let ctx = ui.ctx().clone();
         let view_before = self.view.clone();
-        egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
-        egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
-        egui::Panel::left("images")
+        self.tour.targets.questions = None; // the question buttons add theirs as drawn
+        let conditions = egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
+        let time = egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
+        let images = egui::Panel::left("images")
             .resizable(true)
             .default_size(430.0)
             .show(ui, |ui| {
                 egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
             });
-        egui::CentralPanel::default().show(ui, |ui| {
+        let latents = egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| {
                 self.branch_ui(ui);
                 self.second_ui(ui);
@@ -630,6 +633,11 @@ impl ExplorerApp {
                 self.traces_ui(ui);
             });
         });
+        let targets = &mut self.tour.targets;
+        targets.conditions = Some(conditions.response.rect);
+        targets.time = Some(time.response.rect);
+        targets.images = Some(images.response.rect);
+        targets.latents = Some(latents.response.rect);
         self.compare_ui(&ctx);
         self.findings_ui(&ctx);
         self.tour_ui(&ctx);

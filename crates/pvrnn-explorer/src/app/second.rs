@@ -15,6 +15,8 @@ pub(super) struct SecondNetwork {
     pub(super) store: RunStore,
     /// What the user opened, as the panel names it.
     pub(super) name: String,
+    /// The view's address (`second=`) it was opened from, if it was.
+    pub(super) address: Option<String>,
 }
 
 impl SecondNetwork {
@@ -42,6 +44,7 @@ impl SecondNetwork {
             bundle,
             store,
             name,
+            address: None,
         })
     }
 
@@ -77,6 +80,8 @@ impl ExplorerApp {
             Ok(second) => {
                 self.status = Status::Info(format!("second network: {}", second.name));
                 self.second = Some(second);
+                // Files the user picked have no address a link could name.
+                self.view.second = None;
             }
             Err(e) => self.status = Status::Error(e),
         }
@@ -101,6 +106,57 @@ impl ExplorerApp {
         let name = bundle.description.clone();
         self.second = Some(SecondNetwork::new(bundle, first, name)?);
         Ok(())
+    }
+
+    /// Opens the second network the view's address names (`second=`: a bundle relative
+    /// to the site, or to the working folder on the desktop) unless it is the one open:
+    /// downloaded in the browser, read from disk on the desktop.
+    pub(super) fn follow_second_address(&mut self) {
+        let Some(address) = self.view.second.clone() else {
+            return;
+        };
+        if self.bundle.is_none()
+            || self
+                .second
+                .as_ref()
+                .is_some_and(|s| s.address.as_deref() == Some(address.as_str()))
+        {
+            return;
+        }
+        #[cfg(target_arch = "wasm32")]
+        let opened = {
+            if self.web.second_address() != Some(address.as_str()) {
+                let base = if address.ends_with('/') {
+                    address.clone()
+                } else {
+                    format!("{address}/")
+                };
+                self.web.start_second_download(&base);
+                self.status = Status::Info(format!(
+                    "loading the second network {}",
+                    crate::state::quoted(&address)
+                ));
+            }
+            match self.web.poll_second() {
+                None => return,
+                Some(result) => result.map(|b| *b),
+            }
+        };
+        #[cfg(not(target_arch = "wasm32"))]
+        let opened = Bundle::open_dir(std::path::Path::new(&address));
+        let shown = crate::state::quoted(&address);
+        match opened.and_then(|b| self.set_second(b)) {
+            Ok(()) => {
+                if let Some(second) = self.second.as_mut() {
+                    second.address = Some(address);
+                    self.status = Status::Info(format!("second network: {}", second.name));
+                }
+            }
+            Err(e) => {
+                self.status = Status::Error(format!("the second network {shown}: {e}"));
+                self.view.second = None;
+            }
+        }
     }
 
     /// The second network's run of the shown run, if there is a second network.
@@ -167,6 +223,7 @@ impl ExplorerApp {
         ui.separator();
         if remove {
             self.second = None;
+            self.view.second = None;
         }
     }
 }

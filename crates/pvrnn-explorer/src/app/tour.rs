@@ -4,17 +4,69 @@
 
 use super::*;
 
-/// Each stop: its title, what it says, and where its window stands (by the panel it
-/// explains). The first stop's text is the model's own ([`intro`]).
-const STOPS: [(&str, &str, egui::Align2); 6] = [
-    ("What you see", "", egui::Align2::CENTER_CENTER),
+/// What a stop of the tour explains: the widget its window stands beside and outlines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TourTarget {
+    /// The whole window (the first stop).
+    Everything,
+    /// The images panel (left).
+    Images,
+    /// The latent states and traces (centre).
+    Latents,
+    /// The conditions' controls (top).
+    Conditions,
+    /// The time bar (bottom).
+    Time,
+    /// The buttons that ask the network questions (findings, compare, second network).
+    Questions,
+}
+
+/// Where the widgets the tour names were drawn this frame (none before the first frame).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct TourTargets {
+    pub(super) images: Option<egui::Rect>,
+    pub(super) latents: Option<egui::Rect>,
+    pub(super) conditions: Option<egui::Rect>,
+    pub(super) time: Option<egui::Rect>,
+    pub(super) questions: Option<egui::Rect>,
+}
+
+impl TourTargets {
+    fn rect(&self, target: TourTarget) -> Option<egui::Rect> {
+        match target {
+            TourTarget::Everything => None,
+            TourTarget::Images => self.images,
+            TourTarget::Latents => self.latents,
+            TourTarget::Conditions => self.conditions,
+            TourTarget::Time => self.time,
+            TourTarget::Questions => self.questions,
+        }
+    }
+
+    /// Adds a question button's rect to the questions' outline.
+    pub(super) fn add_question(&mut self, rect: egui::Rect) {
+        self.questions = Some(self.questions.map_or(rect, |r| r.union(rect)));
+    }
+}
+
+/// The tour's state: its stop while it is on, and where its targets are.
+#[derive(Debug, Default)]
+pub(super) struct Tour {
+    stop: Option<usize>,
+    pub(super) targets: TourTargets,
+}
+
+/// Each stop: its title, what it says, and the widget it explains. The first stop's text
+/// is the model's own ([`intro`]).
+const STOPS: [(&str, &str, TourTarget); 6] = [
+    ("What you see", "", TourTarget::Everything),
     (
         "Images (left)",
         "Each camera's actual image at every resolution, and the network's posterior \
          reconstruction of it (or, with \"prior prediction images\", its prediction of the \
          next step made before seeing it). With \"contribution maps\", how much each module \
          changes the prediction.",
-        egui::Align2::LEFT_CENTER,
+        TourTarget::Images,
     ),
     (
         "Latent states (centre)",
@@ -22,20 +74,20 @@ const STOPS: [(&str, &str, egui::Align2); 6] = [
          mean mu and spread sigma over time, posterior solid and prior dashed; then \
          proprioception actual and predicted, and the free energy and prediction errors. \
          Click a plot to move the cursor.",
-        egui::Align2::CENTER_TOP,
+        TourTarget::Latents,
     ),
     (
         "Conditions (top)",
         "Drop the observed vision to low resolutions or none, turn proprioception off, \
          ablate a module (its z set to 0), or change the inference settings: the run under \
          that condition is computed live and its progress shows at the end of the third row.",
-        egui::Align2::CENTER_TOP,
+        TourTarget::Conditions,
     ),
     (
         "Time (bottom)",
         "Scrub the time bar, play (space) or step (arrow keys). The bar under it shows the \
          subtasks, faded where inference has not reached yet.",
-        egui::Align2::CENTER_BOTTOM,
+        TourTarget::Time,
     ),
     (
         "Questions to ask it",
@@ -44,7 +96,7 @@ const STOPS: [(&str, &str, egui::Align2); 6] = [
          \"Compare\" sets conditions side by side. \"Findings\" lists the paper's claims with \
          what our experiments found and a view of this network that shows each. Every view \
          is a link: the address bar holds it.",
-        egui::Align2::RIGHT_TOP,
+        TourTarget::Questions,
     ),
 ];
 
@@ -52,31 +104,57 @@ impl ExplorerApp {
     /// Starts the tour unless this user has finished or skipped it before.
     pub fn offer_tour(&mut self) {
         if !self.tour_seen() {
-            self.tour = Some(0);
+            self.tour.stop = Some(0);
         }
     }
 
     /// Starts the tour from its first stop.
     pub fn start_tour(&mut self) {
-        self.tour = Some(0);
+        self.tour.stop = Some(0);
     }
 
     /// The tour's stop shown, if the tour is on.
     pub fn tour_stop(&self) -> Option<usize> {
-        self.tour
+        self.tour.stop
+    }
+
+    /// What the shown stop explains, and where that widget was drawn (`None` for the
+    /// whole window, or before the first frame).
+    pub fn tour_target(&self) -> Option<(TourTarget, Option<egui::Rect>)> {
+        let target = STOPS[self.tour.stop?.min(STOPS.len() - 1)].2;
+        Some((target, self.tour.targets.rect(target)))
     }
 
     pub(super) fn tour_ui(&mut self, ctx: &egui::Context) {
-        let Some(stop) = self.tour else { return };
-        let (title, text, anchor) = STOPS[stop.min(STOPS.len() - 1)];
+        let Some(stop) = self.tour.stop else { return };
+        let (title, text, target) = STOPS[stop.min(STOPS.len() - 1)];
         let text = if text.is_empty() {
             intro(self.bundle.as_ref())
         } else {
             text.to_string()
         };
+        let screen = ctx.content_rect();
+        let (pivot, at) = match self.tour.targets.rect(target) {
+            Some(rect) => {
+                // Outlined, so the words point at it.
+                ctx.layer_painter(egui::LayerId::new(
+                    egui::Order::Foreground,
+                    egui::Id::unique("tour target"),
+                ))
+                .rect_stroke(
+                    rect.shrink(2.0),
+                    4.0,
+                    egui::Stroke::new(3.0, Color32::from_rgb(255, 170, 0)),
+                    egui::StrokeKind::Inside,
+                );
+                beside(target, rect)
+            }
+            None => (egui::Align2::CENTER_CENTER, screen.center()),
+        };
         let mut next = Some(stop);
         egui::Window::new(format!("Tour {} of {}: {title}", stop + 1, STOPS.len()))
-            .anchor(anchor, egui::vec2(0.0, 0.0) + offset(anchor))
+            .pivot(pivot)
+            .fixed_pos(at)
             .collapsible(false)
             .resizable(false)
             .default_width(380.0)
@@ -99,7 +177,36 @@ impl ExplorerApp {
         if next.is_none() {
             self.mark_tour_seen();
         }
-        self.tour = next;
+        self.tour.stop = next;
+    }
+}
+
+/// Where a stop's window stands: just outside its widget, on the side facing the middle of
+/// the window (inside it for the large central panel, by its top edge).
+fn beside(target: TourTarget, rect: egui::Rect) -> (egui::Align2, egui::Pos2) {
+    const GAP: f32 = 12.0;
+    match target {
+        TourTarget::Images => (
+            egui::Align2::LEFT_TOP,
+            egui::pos2(rect.right() + GAP, rect.top() + GAP),
+        ),
+        TourTarget::Latents => (
+            egui::Align2::CENTER_TOP,
+            egui::pos2(rect.center().x, rect.top() + GAP),
+        ),
+        TourTarget::Conditions => (
+            egui::Align2::CENTER_TOP,
+            egui::pos2(rect.center().x, rect.bottom() + GAP),
+        ),
+        TourTarget::Time => (
+            egui::Align2::CENTER_BOTTOM,
+            egui::pos2(rect.center().x, rect.top() - GAP),
+        ),
+        TourTarget::Questions => (
+            egui::Align2::LEFT_TOP,
+            egui::pos2(rect.left(), rect.bottom() + GAP),
+        ),
+        TourTarget::Everything => (egui::Align2::CENTER_CENTER, rect.center()),
     }
 }
 
@@ -153,21 +260,6 @@ pub fn intro(bundle: Option<&Bundle>) -> String {
          latent states from what it has seen and felt so far. Runs not precomputed are \
          computed live, beside the page."
     )
-}
-
-/// Keeps the tour's window off the panel edges.
-fn offset(anchor: egui::Align2) -> egui::Vec2 {
-    let x = match anchor.x() {
-        egui::Align::Min => 40.0,
-        egui::Align::Center => 0.0,
-        egui::Align::Max => -40.0,
-    };
-    let y = match anchor.y() {
-        egui::Align::Min => 130.0,
-        egui::Align::Center => 0.0,
-        egui::Align::Max => -90.0,
-    };
-    egui::vec2(x, y)
 }
 
 const TOUR_KEY: &str = "pvrnn-explorer-tour-seen";

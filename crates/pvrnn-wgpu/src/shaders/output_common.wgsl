@@ -1,4 +1,4 @@
-// Helpers of the output layers' kernels (prepended to each of them by `gpu.rs`).
+// Helpers of the output layers' kernels (prepended to each of them by `gpu/output_kernels.rs`).
 
 // tanh that stays finite for any input (some implementations overflow exp(2a)).
 fn tanh_safe(a: f32) -> f32 {

@@ -1,4 +1,4 @@
-// Shared by the recurrence kernels: the layout table written by `recurrence.rs`
+// Shared by the recurrence kernels: the layout table written by `recurrence/table.rs`
 // (`Table`, `TableModule` and `TableWindow` there are these structs, field for field).
 //
 // Module m's weights in `weights` start at its offsets: W_prior (2z x d: mean rows, then

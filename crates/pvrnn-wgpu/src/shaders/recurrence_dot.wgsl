@@ -1,5 +1,5 @@
-// A recurrence kernel's dot product, instanced per pair of arrays (`gpu.rs`: DOT is the
-// function's name, WEIGHTS the weights' binding, VALUES the workgroup array it reads).
+// A recurrence kernel's dot product, instanced per pair of arrays (`gpu/recurrence_kernels.rs`:
+// DOT is the function's name, WEIGHTS the weights' binding, VALUES the workgroup array it reads).
 // acc plus the sum over i < n of WEIGHTS[w_at + i * w_step] * VALUES[x_at + i], added in
 // i's order (the CPU's). {{LOADS}} pairs of loads are issued before their multiply-adds: a
 // step's phases are chains of dependent loads, and this makes a 30-long sum 4 round trips

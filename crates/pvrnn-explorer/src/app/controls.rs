@@ -30,7 +30,7 @@ impl ExplorerApp {
             {
                 self.start_tour();
             }
-            let findings = ui.toggle_value(&mut self.show_findings, "Findings")
+            let findings = ui.toggle_value(&mut self.findings.open, "Findings")
                 .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
             self.tour.targets.add_question(findings.rect);
             let l = ui.label("Compare");

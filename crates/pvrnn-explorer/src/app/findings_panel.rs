@@ -1,14 +1,16 @@
 //! The findings panel: the paper's claims beside what the experiments found (verdict, statistic,
 //! effect with its interval, scale, the committed figures), each with one click to the
-//! view of the shipped network that shows it and a sentence on what to look at.
+//! view of the shipped network that shows it and a sentence on what to look at (a panel
+//! type: `super::panel`).
 
+use super::panel::Command;
 use super::*;
 use crate::findings::{FINDINGS, Finding, Verdict};
 
 /// The findings' figures as textures, read when the panel first shows them, and the one
 /// opened full size (a click on a figure).
 #[derive(Default)]
-pub(super) struct FigureCache {
+struct FigureCache {
     textures: HashMap<&'static str, Result<TextureHandle, String>>,
     full_size: Option<&'static str>,
     #[cfg(target_arch = "wasm32")]
@@ -74,10 +76,17 @@ impl FigureCache {
     }
 }
 
-impl ExplorerApp {
-    /// The findings window, when open.
-    pub(super) fn findings_ui(&mut self, ctx: &egui::Context) {
-        let mut open = self.show_findings;
+/// The findings window: whether it is open, and its figures.
+#[derive(Default)]
+pub(super) struct FindingsPanel {
+    pub(super) open: bool,
+    figures: FigureCache,
+}
+
+impl FindingsPanel {
+    /// The findings window, when open; a finding's link followed, as a command.
+    pub(super) fn ui(&mut self, ctx: &egui::Context) -> Vec<Command> {
+        let mut open = self.open;
         let mut follow = None;
         egui::Window::new("The paper's findings, and ours")
             .open(&mut open)
@@ -102,13 +111,11 @@ impl ExplorerApp {
                     }
                 }
             });
-        self.show_findings = open;
+        self.open = open;
         if open {
             self.figures.full_size_ui(ctx);
         }
-        if let Some(view) = follow {
-            self.apply_hash(view);
-        }
+        follow.map(Command::OpenAddress).into_iter().collect()
     }
 }
 

@@ -28,6 +28,7 @@ mod export;
 mod findings_panel;
 mod images_panel;
 mod palette;
+mod panel;
 mod second;
 mod status;
 mod summaries;
@@ -79,9 +80,8 @@ pub struct ExplorerApp {
     images: ImageCache,
     compare_images: CompareCache,
     contributions: contributions::ContributionsOverTime,
-    figures: findings_panel::FigureCache,
-    /// Whether the findings window is open.
-    show_findings: bool,
+    /// The findings window (a panel type).
+    findings: findings_panel::FindingsPanel,
     /// A second network shown beside the first.
     second: Option<second::SecondNetwork>,
     /// The next files opened go to the second network.
@@ -99,7 +99,8 @@ pub struct ExplorerApp {
     units_text: String,
     /// egui's clock at the last frame (real time in a window, stepped in tests).
     last_time: Option<f64>,
-    play_accum: f32,
+    /// The time bar and playback (a panel type).
+    time: time_panel::TimePanel,
     /// The hash last written to (or read from) the URL.
     last_hash: String,
     /// How the last live run went: what was computed (shown) and how fast (shown on
@@ -189,8 +190,7 @@ impl ExplorerApp {
             images: ImageCache::default(),
             compare_images: CompareCache::default(),
             contributions: Default::default(),
-            figures: Default::default(),
-            show_findings: false,
+            findings: Default::default(),
             second: None,
             opening_second: false,
             tour: tour::Tour::default(),
@@ -200,7 +200,7 @@ impl ExplorerApp {
             #[cfg(not(target_arch = "wasm32"))]
             export_dir: std::path::PathBuf::from("pvrnn-exports"),
             last_time: None,
-            play_accum: 0.0,
+            time: Default::default(),
             last_hash: String::new(),
             last_run_note: None,
             show_about: false,
@@ -431,10 +431,7 @@ impl ExplorerApp {
     }
 
     fn sequence_len(&self) -> usize {
-        let (Some(b), Some(name)) = (&self.bundle, &self.view.sequence) else {
-            return 0;
-        };
-        b.dataset.by_name(name).map_or(0, |s| s.len())
+        self.panel_context().sequence_len()
     }
 
     /// Asks for the runs the view needs and computes for up to `budget`.
@@ -574,8 +571,15 @@ impl ExplorerApp {
         // frame's controls), then within what the bundle can show.
         self.sync_hash();
         self.sanitize_view(Vec::new());
-        self.keyboard(ctx);
-        self.advance_playback(dt);
+        let keys = self.time.keyboard(ctx, &self.panel_context());
+        self.apply(keys);
+        let context = panel::PanelContext {
+            bundle: self.bundle.as_ref(),
+            view: &self.view,
+            computed: 0, // playback does not wait for inference
+        };
+        let playback = self.time.advance(dt, &context);
+        self.apply(playback);
         // Inline runs advance only while frames are drawn; a worker's results repaint when
         // they arrive, so the page does not redraw at full rate beside it.
         if self.compute(COMPUTE_BUDGET) || (self.store.computes_inline() && !self.idle()) {
@@ -618,7 +622,17 @@ impl ExplorerApp {
         let view_before = self.view.clone();
         self.tour.targets.questions = None; // the question buttons add theirs as drawn
         let conditions = egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
-        let time = egui::Panel::bottom("time").show(ui, |ui| self.time_ui(ui));
+        let mut commands = Vec::new();
+        let context = self.panel_context();
+        let computed = context.computed;
+        let context = panel::PanelContext {
+            bundle: self.bundle.as_ref(),
+            view: &self.view,
+            computed,
+        };
+        let time_panel = &mut self.time;
+        let time =
+            egui::Panel::bottom("time").show(ui, |ui| commands.extend(time_panel.ui(ui, &context)));
         let images = egui::Panel::left("images")
             .resizable(true)
             .default_size(430.0)
@@ -639,8 +653,14 @@ impl ExplorerApp {
         targets.images = Some(images.response.rect);
         targets.latents = Some(latents.response.rect);
         self.compare_ui(&ctx);
-        self.findings_ui(&ctx);
-        self.tour_ui(&ctx);
+        commands.extend(self.findings.ui(&ctx));
+        let context = panel::PanelContext {
+            bundle: self.bundle.as_ref(),
+            view: &self.view,
+            computed,
+        };
+        commands.extend(self.tour.ui(&ctx, &context));
+        self.apply(commands);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")
                 .open(&mut self.show_about)

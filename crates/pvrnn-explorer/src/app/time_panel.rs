@@ -1,50 +1,81 @@
-//! Time: the slider with the subtask bar, play and pause, and the keyboard.
+//! Time: the slider with the subtask bar, play and pause, and the keyboard (a panel type:
+//! `super::panel`).
 
+use super::panel::{Command, PanelContext};
 use super::*;
 
-impl ExplorerApp {
-    pub(super) fn keyboard(&mut self, ctx: &egui::Context) {
-        if ctx.egui_wants_keyboard_input() {
-            return;
+/// The time bar, the keyboard's play and step keys, and playback.
+#[derive(Debug, Default)]
+pub(super) struct TimePanel {
+    /// Playback's fraction of a step not yet taken.
+    play_accum: f32,
+}
+
+impl TimePanel {
+    /// Space plays or pauses, the arrows step (unless a text field has the keyboard).
+    pub(super) fn keyboard(
+        &self,
+        egui_ctx: &egui::Context,
+        ctx: &PanelContext<'_>,
+    ) -> Vec<Command> {
+        if egui_ctx.egui_wants_keyboard_input() {
+            return Vec::new();
         }
-        let len = self.sequence_len();
-        ctx.input(|i| {
+        let (len, t) = (ctx.sequence_len(), ctx.view.t);
+        egui_ctx.input(|i| {
+            let mut commands = Vec::new();
             if i.key_pressed(egui::Key::Space) {
-                self.view.playing = !self.view.playing;
+                commands.push(Command::Play(!ctx.view.playing));
             }
             if i.key_pressed(egui::Key::ArrowRight) {
-                self.view.t = (self.view.t + 1).min(len.saturating_sub(1));
+                commands.push(Command::Seek((t + 1).min(len.saturating_sub(1))));
             }
             if i.key_pressed(egui::Key::ArrowLeft) {
-                self.view.t = self.view.t.saturating_sub(1);
+                commands.push(Command::Seek(t.saturating_sub(1)));
             }
-        });
+            commands
+        })
     }
 
-    pub(super) fn advance_playback(&mut self, dt: f32) {
-        if !self.view.playing {
+    /// Playback over `dt` seconds: the steps to move on, and stopping at the end.
+    pub(super) fn advance(&mut self, dt: f32, ctx: &PanelContext<'_>) -> Vec<Command> {
+        if !ctx.view.playing {
             self.play_accum = 0.0;
-            return;
+            return Vec::new();
         }
-        self.play_accum += dt * self.view.speed;
+        self.play_accum += dt * ctx.view.speed;
         let steps = self.play_accum.floor();
         self.play_accum -= steps;
-        let last = self.sequence_len().saturating_sub(1);
-        self.view.t = (self.view.t + steps as usize).min(last);
-        if self.view.t >= last {
-            self.view.playing = false;
+        let last = ctx.sequence_len().saturating_sub(1);
+        let t = (ctx.view.t + steps as usize).min(last);
+        let mut commands = vec![Command::Seek(t)];
+        if t >= last {
+            commands.push(Command::Play(false));
         }
+        commands
     }
 
-    pub(super) fn time_ui(&mut self, ui: &mut egui::Ui) {
-        let computed = self.current_run().map_or(0, |e| e.trace.steps);
-        let sequence = self.bundle.as_ref().and_then(|b| {
-            self.view
-                .sequence
-                .as_ref()
-                .and_then(|name| b.dataset.by_name(name))
-        });
-        time_panel(ui, &mut self.view, sequence, computed);
+    /// Draws the time bar; what the user changed, as commands.
+    pub(super) fn ui(&mut self, ui: &mut egui::Ui, ctx: &PanelContext<'_>) -> Vec<Command> {
+        let view = ctx.view;
+        let (mut t, mut playing, mut speed) = (view.t, view.playing, view.speed);
+        time_panel(
+            ui,
+            (&mut t, &mut playing, &mut speed),
+            ctx.sequence(),
+            ctx.computed,
+        );
+        let mut commands = Vec::new();
+        if t != view.t {
+            commands.push(Command::Seek(t));
+        }
+        if playing != view.playing {
+            commands.push(Command::Play(playing));
+        }
+        if speed != view.speed {
+            commands.push(Command::Speed(speed));
+        }
+        commands
     }
 }
 
@@ -52,56 +83,54 @@ impl ExplorerApp {
 /// (faded where inference has not reached), and the subtask at the cursor.
 fn time_panel(
     ui: &mut egui::Ui,
-    view: &mut crate::state::ViewState,
+    (t, playing, speed): (&mut usize, &mut bool, &mut f32),
     sequence: Option<&pvrnn_dataset::Sequence>,
     computed: usize,
 ) {
     let len = sequence.map_or(0, |s| s.len());
     ui.horizontal(|ui| {
-        let label = if view.playing { "pause" } else { "play" };
+        let label = if *playing { "pause" } else { "play" };
         if ui
             .button(label)
             .on_hover_text("play the run from the cursor (space)")
             .clicked()
         {
-            if !view.playing && view.t + 1 >= len {
-                view.t = 0;
+            if !*playing && *t + 1 >= len {
+                *t = 0;
             }
-            view.playing = !view.playing;
+            *playing = !*playing;
         }
         if ui
             .button("<")
             .on_hover_text("step back (left arrow)")
             .clicked()
         {
-            view.t = view.t.saturating_sub(1);
+            *t = t.saturating_sub(1);
         }
         if ui
             .button(">")
             .on_hover_text("step forward (right arrow)")
             .clicked()
         {
-            view.t = (view.t + 1).min(len.saturating_sub(1));
+            *t = (*t + 1).min(len.saturating_sub(1));
         }
         ui.add(
-            egui::Slider::new(&mut view.speed, 1.0..=60.0)
+            egui::Slider::new(speed, 1.0..=60.0)
                 .suffix(" steps/s")
                 .logarithmic(true)
                 .text("speed"),
         )
         .on_hover_text("playback speed, in sequence steps per second");
         ui.separator();
-        ui.label(format!("t = {} / {}", view.t, len.saturating_sub(1)));
+        ui.label(format!("t = {} / {}", *t, len.saturating_sub(1)));
     });
-    let mut t = view.t;
     ui.spacing_mut().slider_width = ui.available_width() - 60.0;
     ui.add(
-        egui::Slider::new(&mut t, 0..=len.saturating_sub(1))
+        egui::Slider::new(t, 0..=len.saturating_sub(1))
             .show_value(false)
             .text("time"),
     )
     .on_hover_text("the cursor's step t; the bar under it: the subtasks, faded where inference has not reached");
-    view.t = t;
     // Subtask strip under the scrub bar, and how far inference has got.
     let (rect, _) = ui.allocate_exact_size(
         egui::vec2(ui.spacing().slider_width, 8.0),
@@ -123,12 +152,12 @@ fn time_panel(
                 Color32::from_rgba_unmultiplied(c.r(), c.g(), c.b(), alpha),
             );
         }
-        let x = rect.left() + view.t as f32 * w;
+        let x = rect.left() + *t as f32 * w;
         painter.vline(x, rect.y_range(), (2.0, Color32::WHITE));
         let names = seq
             .info
             .subtasks
-            .get(seq.subtask[view.t.min(seq.len() - 1)] as usize)
+            .get(seq.subtask[(*t).min(seq.len() - 1)] as usize)
             .cloned()
             .unwrap_or_default();
         ui.horizontal(|ui| {

@@ -2,6 +2,7 @@
 //! (the browser's local storage; a file in the user's configuration folder on the
 //! desktop). The "Tour" button starts it again.
 
+use super::panel::{Command, PanelContext};
 use super::*;
 
 /// What a stop of the tour explains: the widget its window stands beside and outlines.
@@ -54,6 +55,69 @@ impl TourTargets {
 pub(super) struct Tour {
     stop: Option<usize>,
     pub(super) targets: TourTargets,
+}
+
+impl Tour {
+    /// Draws the shown stop beside the widget it names; a finished or skipped tour, as a
+    /// command (the app remembers it).
+    pub(super) fn ui(&mut self, ctx: &egui::Context, panels: &PanelContext<'_>) -> Vec<Command> {
+        let Some(stop) = self.stop else {
+            return Vec::new();
+        };
+        let (title, text, target) = STOPS[stop.min(STOPS.len() - 1)];
+        let text = if text.is_empty() {
+            intro(panels.bundle)
+        } else {
+            text.to_string()
+        };
+        let screen = ctx.content_rect();
+        let (pivot, at) = match self.targets.rect(target) {
+            Some(rect) => {
+                // Outlined, so the words point at it.
+                ctx.layer_painter(egui::LayerId::new(
+                    egui::Order::Foreground,
+                    egui::Id::unique("tour target"),
+                ))
+                .rect_stroke(
+                    rect.shrink(2.0),
+                    4.0,
+                    egui::Stroke::new(3.0, Color32::from_rgb(255, 170, 0)),
+                    egui::StrokeKind::Inside,
+                );
+                beside(target, rect)
+            }
+            None => (egui::Align2::CENTER_CENTER, screen.center()),
+        };
+        let mut next = Some(stop);
+        egui::Window::new(format!("Tour {} of {}: {title}", stop + 1, STOPS.len()))
+            .pivot(pivot)
+            .fixed_pos(at)
+            .collapsible(false)
+            .resizable(false)
+            .default_width(380.0)
+            .show(ctx, |ui| {
+                ui.label(text);
+                ui.add_space(6.0);
+                ui.horizontal(|ui| {
+                    if stop > 0 && ui.button("back").clicked() {
+                        next = Some(stop - 1);
+                    }
+                    let last = stop + 1 == STOPS.len();
+                    if ui.button(if last { "done" } else { "next" }).clicked() {
+                        next = (!last).then_some(stop + 1);
+                    }
+                    if !last && ui.button("skip the tour").clicked() {
+                        next = None;
+                    }
+                });
+            });
+        self.stop = next;
+        if next.is_none() {
+            vec![Command::TourSeen]
+        } else {
+            Vec::new()
+        }
+    }
 }
 
 /// Each stop: its title, what it says, and the widget it explains. The first stop's text
@@ -123,61 +187,6 @@ impl ExplorerApp {
     pub fn tour_target(&self) -> Option<(TourTarget, Option<egui::Rect>)> {
         let target = STOPS[self.tour.stop?.min(STOPS.len() - 1)].2;
         Some((target, self.tour.targets.rect(target)))
-    }
-
-    pub(super) fn tour_ui(&mut self, ctx: &egui::Context) {
-        let Some(stop) = self.tour.stop else { return };
-        let (title, text, target) = STOPS[stop.min(STOPS.len() - 1)];
-        let text = if text.is_empty() {
-            intro(self.bundle.as_ref())
-        } else {
-            text.to_string()
-        };
-        let screen = ctx.content_rect();
-        let (pivot, at) = match self.tour.targets.rect(target) {
-            Some(rect) => {
-                // Outlined, so the words point at it.
-                ctx.layer_painter(egui::LayerId::new(
-                    egui::Order::Foreground,
-                    egui::Id::unique("tour target"),
-                ))
-                .rect_stroke(
-                    rect.shrink(2.0),
-                    4.0,
-                    egui::Stroke::new(3.0, Color32::from_rgb(255, 170, 0)),
-                    egui::StrokeKind::Inside,
-                );
-                beside(target, rect)
-            }
-            None => (egui::Align2::CENTER_CENTER, screen.center()),
-        };
-        let mut next = Some(stop);
-        egui::Window::new(format!("Tour {} of {}: {title}", stop + 1, STOPS.len()))
-            .pivot(pivot)
-            .fixed_pos(at)
-            .collapsible(false)
-            .resizable(false)
-            .default_width(380.0)
-            .show(ctx, |ui| {
-                ui.label(text);
-                ui.add_space(6.0);
-                ui.horizontal(|ui| {
-                    if stop > 0 && ui.button("back").clicked() {
-                        next = Some(stop - 1);
-                    }
-                    let last = stop + 1 == STOPS.len();
-                    if ui.button(if last { "done" } else { "next" }).clicked() {
-                        next = (!last).then_some(stop + 1);
-                    }
-                    if !last && ui.button("skip the tour").clicked() {
-                        next = None;
-                    }
-                });
-            });
-        if next.is_none() {
-            self.mark_tour_seen();
-        }
-        self.tour.stop = next;
     }
 }
 
@@ -273,7 +282,7 @@ impl ExplorerApp {
             .is_some()
     }
 
-    fn mark_tour_seen(&self) {
+    pub(super) fn mark_tour_seen(&self) {
         let storage = eframe::web_sys::window().and_then(|w| w.local_storage().ok().flatten());
         if let Some(storage) = storage {
             let _ = storage.set_item(TOUR_KEY, "1");
@@ -304,7 +313,7 @@ impl ExplorerApp {
             .is_some_and(|d| d.join(TOUR_KEY).is_file())
     }
 
-    fn mark_tour_seen(&self) {
+    pub(super) fn mark_tour_seen(&self) {
         // Not remembered where the folder cannot be written: the tour is offered again.
         if let Some(dir) = &self.config_dir
             && std::fs::create_dir_all(dir).is_ok()

@@ -1,0 +1,68 @@
+//! Panels as types (the pattern of rerun's `re_viewer_context`): a panel keeps its own
+//! state, reads what the app shows through a [`PanelContext`], and asks for changes with
+//! [`Command`]s that the app applies once the frame's panels are drawn, so the app is the
+//! wiring between them. Types so far: the findings window
+//! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`) and the tour
+//! (`tour::Tour`); the other panels are still methods of the app.
+
+use super::*;
+
+/// What a panel reads of the app for one frame.
+pub(super) struct PanelContext<'a> {
+    pub(super) bundle: Option<&'a Bundle>,
+    pub(super) view: &'a ViewState,
+    /// Steps of the shown run computed so far.
+    pub(super) computed: usize,
+}
+
+impl PanelContext<'_> {
+    /// The shown sequence, if the open network's data has it.
+    pub(super) fn sequence(&self) -> Option<&pvrnn_dataset::Sequence> {
+        let name = self.view.sequence.as_ref()?;
+        self.bundle?.dataset.by_name(name)
+    }
+
+    /// The shown sequence's length (0 without one).
+    pub(super) fn sequence_len(&self) -> usize {
+        self.sequence().map_or(0, |s| s.len())
+    }
+}
+
+/// What a panel asks of the app.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) enum Command {
+    /// Move the cursor to step `t` (the app keeps it within the sequence).
+    Seek(usize),
+    /// Start or stop playback.
+    Play(bool),
+    /// Playback speed, steps per second.
+    Speed(f32),
+    /// Open a view given as an address (a finding's link).
+    OpenAddress(&'static str),
+    /// The tour was finished or skipped: remember it.
+    TourSeen,
+}
+
+impl ExplorerApp {
+    /// The context the panels read this frame.
+    pub(super) fn panel_context(&self) -> PanelContext<'_> {
+        PanelContext {
+            bundle: self.bundle.as_ref(),
+            view: &self.view,
+            computed: self.current_run().map_or(0, |e| e.trace.steps),
+        }
+    }
+
+    /// Applies the panels' commands, in the order they were given.
+    pub(super) fn apply(&mut self, commands: Vec<Command>) {
+        for command in commands {
+            match command {
+                Command::Seek(t) => self.view.t = t.min(self.sequence_len().saturating_sub(1)),
+                Command::Play(on) => self.view.playing = on,
+                Command::Speed(speed) => self.view.speed = speed,
+                Command::OpenAddress(address) => self.apply_hash(address),
+                Command::TourSeen => self.mark_tour_seen(),
+            }
+        }
+    }
+}

@@ -1,9 +1,11 @@
 //! The branch panel: the shown run and its branch (the same run up to step `at`, another
 //! condition from it on) over time: how far their states drift apart, their prediction
-//! errors, and each module's KL. The branch's predicted images are in the images panel.
+//! errors, and each module's KL. The branch's predicted images are in the images panel. A
+//! panel type (`super::panel`).
 
 use super::controls::condition_ui;
 use super::palette::unit_colour;
+use super::panel::{Command, PanelContext};
 use super::traces::{REFERENCE, StepPlot, paired_error_lines};
 use super::*;
 use crate::state::BranchView;
@@ -27,16 +29,23 @@ impl ExplorerApp {
             },
         });
     }
+}
 
-    /// The branch's controls and plots (nothing without a branch).
-    pub(super) fn branch_ui(&mut self, ui: &mut egui::Ui) {
-        let (Some(bundle), Some(mut branch), Some(key)) =
-            (&self.bundle, self.view.branch, self.current_key())
+/// The branch panel: its controls and plots, over the panels' context.
+pub(super) struct BranchControls;
+
+impl BranchControls {
+    /// The branch's controls and plots (nothing without a branch); what the user changed,
+    /// as commands.
+    pub(super) fn ui(ui: &mut egui::Ui, ctx: &PanelContext<'_>) -> Vec<Command> {
+        let (Some(bundle), Some(mut branch), Some(key)) = (ctx.bundle, ctx.view.branch, &ctx.key)
         else {
-            return;
+            return Vec::new();
         };
+        let mut commands = Vec::new();
         let config = &bundle.model.config;
         let standard = Condition::standard(config);
+        let mut removed = false;
         ui.horizontal_wrapped(|ui| {
             ui.heading(format!("Branch at step {}", branch.at));
             if ui
@@ -44,16 +53,21 @@ impl ExplorerApp {
                 .on_hover_text("branch at the cursor's step instead")
                 .clicked()
             {
-                branch.at = self.view.t;
+                branch.at = ctx.view.t;
             }
-            if ui.button("remove the branch").clicked() {
-                self.view.branch = None;
+            removed = ui.button("remove the branch").clicked();
+            let mut traces = ctx.view.branch_traces;
+            if ui
+                .checkbox(&mut traces, "latent traces of the branch")
+                .on_hover_text("The latent states, proprioception and summaries below show the branch instead of its run")
+                .changed()
+            {
+                commands.push(Command::BranchTraces(traces));
             }
-            ui.checkbox(&mut self.view.branch_traces, "latent traces of the branch")
-                .on_hover_text("The latent states, proprioception and summaries below show the branch instead of its run");
         });
-        if self.view.branch.is_none() {
-            return;
+        if removed {
+            commands.push(Command::Branch(None));
+            return commands;
         }
         ui.label(
             RichText::new(
@@ -64,10 +78,13 @@ impl ExplorerApp {
         );
         condition_ui(ui, config, &mut branch.condition, standard, "branch");
         branch.condition.window = key.condition.window;
-        self.view.branch = Some(branch);
+        if Some(branch) != ctx.view.branch {
+            commands.push(Command::Branch(Some(branch)));
+        }
         let empty = RunTrace::new(config);
-        let original = self.store.get(&key).map_or(&empty, |e| &e.trace);
-        let branch_entry = self.branch_key().and_then(|k| self.store.get(&k));
+        let original = ctx.store.get(key).map_or(&empty, |e| &e.trace);
+        // The branch as shown this frame (a changed condition's run is asked for next).
+        let branch_entry = ctx.branch_key().and_then(|k| ctx.store.get(&k));
         if let Some(err) = branch_entry.and_then(|e| e.error.as_ref()) {
             ui.colored_label(
                 Color32::from_rgb(230, 80, 80),
@@ -79,16 +96,17 @@ impl ExplorerApp {
             branch: branch_entry.map_or(&empty, |e| &e.trace),
             at: branch.at,
             plot: StepPlot {
-                len: self.sequence_len(),
-                t: self.view.t,
+                len: ctx.sequence_len(),
+                t: ctx.view.t,
                 mark: Some(branch.at),
                 legend: false,
             },
         };
         if let Some(t) = panel.ui(ui) {
-            self.view.t = t;
+            commands.push(Command::Seek(t));
         }
         ui.separator();
+        commands
     }
 }
 

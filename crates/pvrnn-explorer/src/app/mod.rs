@@ -573,9 +573,12 @@ impl ExplorerApp {
         self.sanitize_view(Vec::new());
         let keys = self.time.keyboard(ctx, &self.panel_context());
         self.apply(keys);
+        let key = self.current_key();
         let context = panel::PanelContext {
             bundle: self.bundle.as_ref(),
             view: &self.view,
+            store: &self.store,
+            key,
             computed: 0, // playback does not wait for inference
         };
         let playback = self.time.advance(dt, &context);
@@ -623,11 +626,13 @@ impl ExplorerApp {
         self.tour.targets.questions = None; // the question buttons add theirs as drawn
         let conditions = egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
         let mut commands = Vec::new();
-        let context = self.panel_context();
-        let computed = context.computed;
+        let computed = self.current_run().map_or(0, |e| e.trace.steps);
+        let key = self.current_key();
         let context = panel::PanelContext {
             bundle: self.bundle.as_ref(),
             view: &self.view,
+            store: &self.store,
+            key,
             computed,
         };
         let time_panel = &mut self.time;
@@ -641,8 +646,12 @@ impl ExplorerApp {
             });
         let latents = egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| {
-                self.branch_ui(ui);
-                self.second_ui(ui);
+                let context = self.panel_context();
+                let mut central = branch::BranchControls::ui(ui, &context);
+                if let Some(second) = &self.second {
+                    central.extend(second.ui(ui, &context));
+                }
+                self.apply(central);
                 self.contributions_ui(ui);
                 self.traces_ui(ui);
             });
@@ -654,9 +663,12 @@ impl ExplorerApp {
         targets.latents = Some(latents.response.rect);
         self.compare_ui(&ctx);
         commands.extend(self.findings.ui(&ctx));
+        let key = self.current_key();
         let context = panel::PanelContext {
             bundle: self.bundle.as_ref(),
             view: &self.view,
+            store: &self.store,
+            key,
             computed,
         };
         commands.extend(self.tour.ui(&ctx, &context));

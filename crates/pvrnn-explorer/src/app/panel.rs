@@ -2,8 +2,9 @@
 //! state, reads what the app shows through a [`PanelContext`], and asks for changes with
 //! [`Command`]s that the app applies once the frame's panels are drawn, so the app is the
 //! wiring between them. Types so far: the findings window
-//! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`) and the tour
-//! (`tour::Tour`); the other panels are still methods of the app.
+//! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`), the tour
+//! (`tour::Tour`), the branch (`branch::BranchControls`) and the second network
+//! (`second::SecondNetwork`); the other panels are still methods of the app.
 
 use super::*;
 
@@ -11,6 +12,10 @@ use super::*;
 pub(super) struct PanelContext<'a> {
     pub(super) bundle: Option<&'a Bundle>,
     pub(super) view: &'a ViewState,
+    /// The open network's runs.
+    pub(super) store: &'a RunStore,
+    /// The shown run's key (a sequence and a condition are shown).
+    pub(super) key: Option<RunKey>,
     /// Steps of the shown run computed so far.
     pub(super) computed: usize,
 }
@@ -20,6 +25,17 @@ impl PanelContext<'_> {
     pub(super) fn sequence(&self) -> Option<&pvrnn_dataset::Sequence> {
         let name = self.view.sequence.as_ref()?;
         self.bundle?.dataset.by_name(name)
+    }
+
+    /// The shown run, as computed so far.
+    pub(super) fn run(&self) -> Option<&Entry> {
+        self.store.get(self.key.as_ref()?)
+    }
+
+    /// The shown run's branch, when the view has one.
+    pub(super) fn branch_key(&self) -> Option<RunKey> {
+        let b = self.view.branch?;
+        Some(self.key.as_ref()?.branched(b.at, b.condition))
     }
 
     /// The shown sequence's length (0 without one).
@@ -41,6 +57,12 @@ pub(super) enum Command {
     OpenAddress(&'static str),
     /// The tour was finished or skipped: remember it.
     TourSeen,
+    /// Set (or remove) the branch of the shown run.
+    Branch(Option<crate::state::BranchView>),
+    /// Show the branch's latent traces instead of its run's.
+    BranchTraces(bool),
+    /// Close the second network (and take it out of the address).
+    CloseSecond,
 }
 
 impl ExplorerApp {
@@ -49,6 +71,8 @@ impl ExplorerApp {
         PanelContext {
             bundle: self.bundle.as_ref(),
             view: &self.view,
+            store: &self.store,
+            key: self.current_key(),
             computed: self.current_run().map_or(0, |e| e.trace.steps),
         }
     }
@@ -62,6 +86,12 @@ impl ExplorerApp {
                 Command::Speed(speed) => self.view.speed = speed,
                 Command::OpenAddress(address) => self.apply_hash(address),
                 Command::TourSeen => self.mark_tour_seen(),
+                Command::Branch(branch) => self.view.branch = branch,
+                Command::BranchTraces(on) => self.view.branch_traces = on,
+                Command::CloseSecond => {
+                    self.second = None;
+                    self.view.second = None;
+                }
             }
         }
     }

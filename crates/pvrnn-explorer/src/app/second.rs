@@ -1,8 +1,10 @@
 //! A second network beside the first: another bundle, or another checkpoint of the same
 //! dataset (an early and a late one), run on the same sequence under the same condition,
 //! with both networks' prediction errors over time and their difference, and its predicted
-//! images in the images panel. Its runs compute in their own store, a slice per frame.
+//! images in the images panel. Its runs compute in their own store, a slice per frame. A
+//! panel type (`super::panel`).
 
+use super::panel::{Command, PanelContext};
 use super::traces::{ERROR_COLOURS, StepPlot, paired_error_lines};
 use super::*;
 
@@ -181,19 +183,24 @@ impl ExplorerApp {
             .work(&model, SECOND_BUDGET, &mut |name| bundle.observations(name))
             || !second.store.idle()
     }
+}
 
-    /// The second network's panel (nothing without one).
-    pub(super) fn second_ui(&mut self, ui: &mut egui::Ui) {
-        let (Some(second), Some(key)) = (&self.second, self.current_key()) else {
-            return;
+impl SecondNetwork {
+    /// The second network's panel beside the shown run; closing it and seeking, as
+    /// commands.
+    pub(super) fn ui(&self, ui: &mut egui::Ui, ctx: &PanelContext<'_>) -> Vec<Command> {
+        let Some(key) = &ctx.key else {
+            return Vec::new();
         };
-        let mut remove = false;
+        let mut commands = Vec::new();
         ui.horizontal_wrapped(|ui| {
             ui.heading("Second network");
-            ui.label(&second.name);
-            remove = ui.button("close the second network").clicked();
+            ui.label(&self.name);
+            if ui.button("close the second network").clicked() {
+                commands.push(Command::CloseSecond);
+            }
         });
-        if second.bundle.dataset.by_name(&key.sequence).is_none() {
+        if self.bundle.dataset.by_name(&key.sequence).is_none() {
             ui.colored_label(
                 Color32::from_rgb(230, 80, 80),
                 format!(
@@ -201,30 +208,26 @@ impl ExplorerApp {
                     key.sequence
                 ),
             );
-        } else if let Some(err) = second.run(&key).and_then(|e| e.error.as_ref()) {
+        } else if let Some(err) = self.run(key).and_then(|e| e.error.as_ref()) {
             ui.colored_label(
                 Color32::from_rgb(230, 80, 80),
                 format!("its run failed: {err}"),
             );
         }
         let empty = RunTrace::default();
-        let first = self.store.get(&key).map_or(&empty, |e| &e.trace);
-        let other = second.run(&key).map_or(&empty, |e| &e.trace);
+        let first = ctx.run().map_or(&empty, |e| &e.trace);
+        let other = self.run(key).map_or(&empty, |e| &e.trace);
         let plot = StepPlot {
-            len: self.sequence_len(),
-            t: self.view.t,
+            len: ctx.sequence_len(),
+            t: ctx.view.t,
             mark: None,
             legend: true,
         };
-        let seek = errors_ui(ui, &plot, first, other);
-        if let Some(t) = seek {
-            self.view.t = t;
+        if let Some(t) = errors_ui(ui, &plot, first, other) {
+            commands.push(Command::Seek(t));
         }
         ui.separator();
-        if remove {
-            self.second = None;
-            self.view.second = None;
-        }
+        commands
     }
 }
 

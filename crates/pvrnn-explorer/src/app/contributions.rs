@@ -7,6 +7,7 @@
 
 use super::images_panel::{camera_name, read_out_vision};
 use super::palette::unit_colour;
+use super::panel::{Command, PanelContext};
 use super::traces::StepPlot;
 use super::*;
 
@@ -165,13 +166,18 @@ impl ExplorerApp {
         }
         changed
     }
+}
 
-    /// The curves over the run (when the maps are on).
-    pub(super) fn contributions_ui(&mut self, ui: &mut egui::Ui) {
-        if !self.view.maps {
-            return;
+impl ContributionsOverTime {
+    /// The curves over the run (when the maps are on); the trials asked for and the step
+    /// clicked, as commands.
+    pub(super) fn ui(&self, ui: &mut egui::Ui, ctx: &PanelContext<'_>) -> Vec<Command> {
+        let view = ctx.view;
+        if !view.maps {
+            return Vec::new();
         }
-        let curves = self.contributions.curves();
+        let mut commands = Vec::new();
+        let curves = self.curves();
         let lines = ModuleId::ALL
             .iter()
             .map(|&id| {
@@ -184,42 +190,42 @@ impl ExplorerApp {
             })
             .collect();
         let plot = StepPlot {
-            len: self.sequence_len(),
-            t: self.view.t,
+            len: ctx.sequence_len(),
+            t: view.t,
             mark: None,
             legend: true,
         };
         ui.horizontal(|ui| {
             ui.heading("Contributions over time");
             let l = ui.label("trials");
-            ui.add(egui::DragValue::new(&mut self.view.map_trials).range(1..=MAX_MAP_TRIALS))
+            let mut trials = view.map_trials;
+            ui.add(egui::DragValue::new(&mut trials).range(1..=MAX_MAP_TRIALS))
                 .labelled_by(l.id)
                 .on_hover_text("Average the contributions (curves and subtask maps) over this many trials: noise seeds from the condition's on, five runs each");
+            if trials != view.map_trials {
+                commands.push(Command::MapTrials(trials));
+            }
         });
-        let seed = self.condition().map_or(0, |c| c.seed);
-        let trials = match self.view.map_trials {
+        let seed = ctx.key.as_ref().map_or(0, |k| k.condition.seed);
+        let trials = match view.map_trials {
             1 => format!("trial of seed {seed}"),
             n => format!("mean of {n} trials, seeds {seed}-{}", seed + n as u32 - 1),
         };
-        let title = format!(
-            "mean |standard - ablated| predicted image per module (model units; read-out \
-             ablation; {} at full resolution; {trials}); {} of {} steps read out",
-            self.camera_label(),
-            self.contributions.done(),
-            self.sequence_len()
-        );
-        if let Some(t) = plot.show(ui, "contributions".into(), &title, 140.0, lines, None) {
-            self.view.t = t;
-        }
-        ui.add_space(8.0);
-    }
-
-    /// The name of the camera the maps show (the last one).
-    fn camera_label(&self) -> String {
-        self.bundle.as_ref().map_or_else(String::new, |b| {
+        let camera = ctx.bundle.map_or_else(String::new, |b| {
             let cameras = &b.dataset.manifest.cameras;
             camera_name(cameras, b.model.config.vision.cameras - 1)
-        })
+        });
+        let title = format!(
+            "mean |standard - ablated| predicted image per module (model units; read-out \
+             ablation; {camera} at full resolution; {trials}); {} of {} steps read out",
+            self.done(),
+            ctx.sequence_len()
+        );
+        if let Some(t) = plot.show(ui, "contributions".into(), &title, 140.0, lines, None) {
+            commands.push(Command::Seek(t));
+        }
+        ui.add_space(8.0);
+        commands
     }
 }
 

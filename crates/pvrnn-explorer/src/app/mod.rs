@@ -651,9 +651,9 @@ impl ExplorerApp {
                 if let Some(second) = &self.second {
                     central.extend(second.ui(ui, &context));
                 }
+                central.extend(self.contributions.ui(ui, &context));
+                central.extend(traces::Traces::ui(ui, &context));
                 self.apply(central);
-                self.contributions_ui(ui);
-                self.traces_ui(ui);
             });
         });
         let targets = &mut self.tour.targets;

@@ -3,8 +3,10 @@
 //! [`Command`]s that the app applies once the frame's panels are drawn, so the app is the
 //! wiring between them. Types so far: the findings window
 //! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`), the tour
-//! (`tour::Tour`), the branch (`branch::BranchControls`) and the second network
-//! (`second::SecondNetwork`); the other panels are still methods of the app.
+//! (`tour::Tour`), the branch (`branch::BranchControls`), the second network
+//! (`second::SecondNetwork`), the contributions over time
+//! (`contributions::ContributionsOverTime`) and the latent traces (`traces::Traces`); the
+//! controls, images, comparison, export and status line are still methods of the app.
 
 use super::*;
 
@@ -63,6 +65,8 @@ pub(super) enum Command {
     BranchTraces(bool),
     /// Close the second network (and take it out of the address).
     CloseSecond,
+    /// Trials the contributions over time average.
+    MapTrials(u8),
 }
 
 impl ExplorerApp {
@@ -88,6 +92,7 @@ impl ExplorerApp {
                 Command::TourSeen => self.mark_tour_seen(),
                 Command::Branch(branch) => self.view.branch = branch,
                 Command::BranchTraces(on) => self.view.branch_traces = on,
+                Command::MapTrials(n) => self.view.map_trials = n,
                 Command::CloseSecond => {
                     self.second = None;
                     self.view.second = None;

@@ -1,21 +1,25 @@
 //! Latent traces: mu and sigma (prior and posterior) and d per module, proprioception
-//! actual and predicted.
+//! actual and predicted. A panel type (`super::panel`).
 
 use super::palette::unit_colour;
+use super::panel::{Command, PanelContext};
 use super::*;
 
-impl ExplorerApp {
-    /// The traces of the current run: the panel draws, the app moves the cursor where the
-    /// user clicked.
-    pub(super) fn traces_ui(&mut self, ui: &mut egui::Ui) {
-        let Some(bundle) = &self.bundle else { return };
-        let shown = self.current_key();
-        let branch = self.branch_key().filter(|_| self.view.branch_traces);
-        let Some(key) = branch.or(shown) else {
-            return;
+/// The traces of the shown run (or of its branch, when the view asks for it).
+pub(super) struct Traces;
+
+impl Traces {
+    /// Draws the traces; the step the user clicked, as a command.
+    pub(super) fn ui(ui: &mut egui::Ui, ctx: &PanelContext<'_>) -> Vec<Command> {
+        let Some(bundle) = ctx.bundle else {
+            return Vec::new();
+        };
+        let branch = ctx.branch_key().filter(|_| ctx.view.branch_traces);
+        let Some(key) = branch.or_else(|| ctx.key.clone()) else {
+            return Vec::new();
         };
         let Some(seq) = bundle.dataset.by_name(&key.sequence) else {
-            return;
+            return Vec::new();
         };
         if let Some(then) = &key.then {
             ui.label(
@@ -26,7 +30,7 @@ impl ExplorerApp {
                 .strong(),
             );
         }
-        let entry = self.store.get(&key);
+        let entry = ctx.store.get(&key);
         if let Some(err) = entry.and_then(|e| e.error.as_ref()) {
             ui.colored_label(
                 Color32::from_rgb(230, 80, 80),
@@ -40,15 +44,13 @@ impl ExplorerApp {
             sequence: seq,
             config: &bundle.model.config,
             channels: bundle.dataset.manifest.channels(),
-            t: self.view.t,
-            units: &self.view.units,
-            show_d: self.view.show_d,
+            t: ctx.view.t,
+            units: &ctx.view.units,
+            show_d: ctx.view.show_d,
         };
         let seek = panel.ui(ui);
         super::summaries::uncertainty_ui(ui, trace);
-        if let Some(s) = seek {
-            self.view.t = s;
-        }
+        seek.map(Command::Seek).into_iter().collect()
     }
 }
 

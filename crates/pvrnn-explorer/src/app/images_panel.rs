@@ -1,6 +1,7 @@
 //! Images: actual and predicted at the cursor, per camera and resolution, and the
 //! contribution maps; read out from the run's states when the view changes.
 
+use super::panel::PanelContext;
 use super::*;
 
 /// Images shown at the cursor, recomputed when what they depend on changes.
@@ -243,22 +244,28 @@ impl ExplorerApp {
             }
         }
     }
+}
 
-    pub(super) fn images_ui(&mut self, ui: &mut egui::Ui) {
-        let Some(bundle) = &self.bundle else { return };
+impl ImageCache {
+    /// Draws the pictures read out at the cursor (the logic reads them out:
+    /// `ExplorerApp::refresh_images`); a panel that only reads.
+    pub(super) fn ui(&self, ui: &mut egui::Ui, ctx: &PanelContext<'_>) {
+        let Some(bundle) = ctx.bundle else { return };
         let panel = ImagesPanel {
             layout: &bundle.model.config.vision,
             cameras: &bundle.dataset.manifest.cameras,
-            textures: &self.images.textures,
-            prior_images: self.view.prior_images,
-            maps: self.view.maps,
-            ablation_mode: self
-                .condition()
+            textures: &self.textures,
+            prior_images: ctx.view.prior_images,
+            maps: ctx.view.maps,
+            // The view's own mode (the key's is reset when nothing is ablated).
+            ablation_mode: ctx
+                .view
+                .condition
                 .map_or(AblationMode::default(), |c| c.ablation_mode),
-            branch_at: self.view.branch.map(|b| b.at),
-            second: self.second.is_some(),
-            phase: self.images.phase.as_deref(),
-            phase_steps: self.images.phase_steps,
+            branch_at: ctx.view.branch.map(|b| b.at),
+            second: ctx.second_open,
+            phase: self.phase.as_deref(),
+            phase_steps: self.phase_steps,
         };
         panel.ui(ui);
     }

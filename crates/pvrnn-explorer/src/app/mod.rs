@@ -580,6 +580,7 @@ impl ExplorerApp {
             store: &self.store,
             key,
             computed: 0, // playback does not wait for inference
+            second_open: self.second.is_some(),
         };
         let playback = self.time.advance(dt, &context);
         self.apply(playback);
@@ -634,6 +635,7 @@ impl ExplorerApp {
             store: &self.store,
             key,
             computed,
+            second_open: self.second.is_some(),
         };
         let time_panel = &mut self.time;
         let time =
@@ -642,7 +644,9 @@ impl ExplorerApp {
             .resizable(true)
             .default_size(430.0)
             .show(ui, |ui| {
-                egui::ScrollArea::vertical().show(ui, |ui| self.images_ui(ui));
+                egui::ScrollArea::vertical().show(ui, |ui| {
+                    self.images.ui(ui, &self.panel_context());
+                });
             });
         let latents = egui::CentralPanel::default().show(ui, |ui| {
             egui::ScrollArea::vertical().show(ui, |ui| {
@@ -670,6 +674,7 @@ impl ExplorerApp {
             store: &self.store,
             key,
             computed,
+            second_open: self.second.is_some(),
         };
         commands.extend(self.tour.ui(&ctx, &context));
         self.apply(commands);

@@ -5,8 +5,9 @@
 //! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`), the tour
 //! (`tour::Tour`), the branch (`branch::BranchControls`), the second network
 //! (`second::SecondNetwork`), the contributions over time
-//! (`contributions::ContributionsOverTime`) and the latent traces (`traces::Traces`); the
-//! controls, images, comparison, export and status line are still methods of the app.
+//! (`contributions::ContributionsOverTime`), the latent traces (`traces::Traces`) and the
+//! images (`images_panel::ImageCache`: the logic reads the pictures out, the panel draws
+//! them); the controls, the comparison and the export are still methods of the app.
 
 use super::*;
 
@@ -20,6 +21,8 @@ pub(super) struct PanelContext<'a> {
     pub(super) key: Option<RunKey>,
     /// Steps of the shown run computed so far.
     pub(super) computed: usize,
+    /// Whether a second network is open beside the first.
+    pub(super) second_open: bool,
 }
 
 impl PanelContext<'_> {
@@ -78,6 +81,7 @@ impl ExplorerApp {
             store: &self.store,
             key: self.current_key(),
             computed: self.current_run().map_or(0, |e| e.trace.steps),
+            second_open: self.second.is_some(),
         }
     }
 

@@ -5,6 +5,7 @@
 //! first's: the same conditions, the other network.
 
 use super::images_panel::read_out_vision;
+use super::panel::{Command, PanelContext};
 use super::*;
 use crate::state::CompareSet;
 
@@ -224,30 +225,6 @@ impl ExplorerApp {
         }
     }
 
-    pub(super) fn compare_ui(&mut self, ctx: &egui::Context) {
-        let Some(set) = self.view.compare else {
-            return;
-        };
-        let cells = self.comparison();
-        let Some(bundle) = &self.bundle else { return };
-        let len = cells
-            .first()
-            .and_then(|c| bundle.dataset.by_name(&c.key.sequence))
-            .map_or(0, |s| s.len());
-        let panel = ComparePanel {
-            set,
-            cells: &cells,
-            textures: &self.compare_images.textures,
-            resolutions: &bundle.model.config.vision.resolutions,
-            len,
-            t: self.view.t,
-            camera: super::images_panel::camera_name(&bundle.dataset.manifest.cameras, 0),
-        };
-        if !panel.show(ctx) {
-            self.view.compare = None;
-        }
-    }
-
     /// Reads out the cells' images at the cursor when a run reached it since last time.
     pub(super) fn refresh_comparison(&mut self, ctx: &egui::Context, cells: &[CompareCell]) {
         let Some(bundle) = &self.bundle else { return };
@@ -303,5 +280,38 @@ impl ExplorerApp {
             key: Some(key),
             textures,
         };
+    }
+}
+
+impl CompareCache {
+    /// The comparison window over `cells` (when the view has one open); closing it, as a
+    /// command.
+    pub(super) fn ui(
+        &self,
+        egui_ctx: &egui::Context,
+        ctx: &PanelContext<'_>,
+        cells: &[CompareCell],
+    ) -> Vec<Command> {
+        let (Some(set), Some(bundle)) = (ctx.view.compare, ctx.bundle) else {
+            return Vec::new();
+        };
+        let len = cells
+            .first()
+            .and_then(|c| bundle.dataset.by_name(&c.key.sequence))
+            .map_or(0, |s| s.len());
+        let panel = ComparePanel {
+            set,
+            cells,
+            textures: &self.textures,
+            resolutions: &bundle.model.config.vision.resolutions,
+            len,
+            t: ctx.view.t,
+            camera: super::images_panel::camera_name(&bundle.dataset.manifest.cameras, 0),
+        };
+        if panel.show(egui_ctx) {
+            Vec::new()
+        } else {
+            vec![Command::CloseCompare]
+        }
     }
 }

@@ -1,115 +1,63 @@
 //! The top bar: which sequence, under which condition (vision, proprioception, ablation,
-//! inference settings), what is shown.
+//! inference settings), what is shown. A panel type (`super::panel`).
 
+use super::panel::{Command, PanelContext};
+use super::tour::TourTargets;
 use super::*;
 use crate::state::CompareSet;
 
-impl ExplorerApp {
-    pub(super) fn controls_ui(&mut self, ui: &mut egui::Ui) {
-        let Some(bundle) = &self.bundle else { return };
-        let config = bundle.model.config.clone();
-        self.top_row_ui(ui);
-        let standard = Condition::standard(&config);
-        let mut c = self.view.condition.unwrap_or(standard);
-        condition_ui(ui, &config, &mut c, standard, "");
-        if Some(c) != self.view.condition && !(self.view.condition.is_none() && c == standard) {
-            self.view.condition = Some(c);
-        }
-        self.display_row_ui(ui);
-    }
+/// The top bar (a panel type): it edits a copy of the view and sends it back as one
+/// command; its buttons send theirs. The units' text being typed is its own state.
+#[derive(Debug, Default)]
+pub(super) struct Controls {
+    pub(super) units_text: String,
+}
 
-    /// The first row: the name, about, comparison, export, open, the sequence, the status.
-    fn top_row_ui(&mut self, ui: &mut egui::Ui) {
-        ui.horizontal_wrapped(|ui| {
-            ui.strong("PV-RNN explorer");
-            ui.toggle_value(&mut self.show_about, "About this model");
-            if ui
-                .button("Tour")
-                .on_hover_text("A short tour of the panels")
-                .clicked()
-            {
-                self.start_tour();
-            }
-            let findings = ui.toggle_value(&mut self.findings.open, "Findings")
-                .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
-            self.tour.targets.add_question(findings.rect);
-            let l = ui.label("Compare");
-            let text = |c: Option<CompareSet>| match c {
-                None => "off",
-                Some(CompareSet::Vision) => "vision x proprio",
-                Some(CompareSet::Ablation) => "ablations",
-            };
-            self.tour.targets.add_question(l.rect);
-            let compare = egui::ComboBox::from_id_salt("compare")
-                .selected_text(text(self.view.compare))
-                .show_ui(ui, |ui| {
-                    for c in [None, Some(CompareSet::Vision), Some(CompareSet::Ablation)] {
-                        ui.selectable_value(&mut self.view.compare, c, text(c));
-                    }
-                })
-                .response;
-            self.tour.targets.add_question(compare.rect);
-            compare
-                .labelled_by(l.id)
-                .on_hover_text("Set conditions side by side at the cursor: every observed resolution with proprioception on and off (Fig. 5), or each module ablated (Fig. 2B)");
-            self.export_ui(ui);
-            for (label, folder) in [("Open files", false), ("Open folder", true)] {
-                if ui
-                    .button(label)
-                    .on_hover_text("a bundle folder, or a model file with a dataset's files")
-                    .clicked()
-                {
-                    #[cfg(target_arch = "wasm32")]
-                    if let Err(e) = self.web.pick_files(folder) {
-                        self.status = Status::Error(format!("cannot open the file picker: {e}"));
-                    }
-                    #[cfg(not(target_arch = "wasm32"))]
-                    self.open_with_dialog(folder);
-                }
-            }
-            let second = ui.menu_button("Second network", |ui| {
-                for (label, folder) in [
-                    ("Open a bundle folder", true),
-                    ("Open files (a checkpoint of this dataset, or a bundle's files)", false),
-                ] {
-                    if ui.button(label).clicked() {
-                        #[cfg(target_arch = "wasm32")]
-                        if let Err(e) = self.pick_second_network(folder) {
-                            self.status = Status::Error(format!("cannot open the file picker: {e}"));
-                        }
-                        #[cfg(not(target_arch = "wasm32"))]
-                        {
-                            self.opening_second = true;
-                            self.open_with_dialog(folder);
-                        }
-                        ui.close();
-                    }
-                }
-            })
-            .response
-            .on_hover_text("Show another network (another bundle, or an earlier or later checkpoint) beside this one, on the same sequence under the same condition");
-            self.tour.targets.add_question(second.rect);
-            ui.separator();
-            self.sequence_picker(ui);
-            ui.separator();
-            match &self.status {
-                Status::Error(e) => {
-                    ui.colored_label(Color32::from_rgb(230, 80, 80), e.as_str());
-                }
-                Status::Info(s) => {
-                    ui.weak(s.as_str());
-                }
-                Status::Loading { what, fraction } => {
-                    ui.label(what.as_str());
-                    ui.add(egui::ProgressBar::new(fraction.unwrap_or(0.0)).desired_width(120.0));
-                }
-                Status::None => {}
-            }
-        });
+/// What the top bar shows besides the panels' context: the windows it toggles, the
+/// status, and the status line of the runs.
+pub(super) struct Bar<'a> {
+    pub(super) about: bool,
+    pub(super) findings: bool,
+    pub(super) status: &'a Status,
+    pub(super) line: super::status::StatusLine<'a>,
+}
+
+impl Controls {
+    pub(super) fn ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        ctx: &PanelContext<'_>,
+        bar: Bar<'_>,
+        targets: &mut TourTargets,
+    ) -> Vec<Command> {
+        let Some(bundle) = ctx.bundle else {
+            return Vec::new();
+        };
+        let mut commands = Vec::new();
+        let mut view = ctx.view.clone();
+        let config = &bundle.model.config;
+        top_row_ui(ui, bundle, &mut view, &bar, targets, &mut commands);
+        let standard = Condition::standard(config);
+        let mut c = view.condition.unwrap_or(standard);
+        condition_ui(ui, config, &mut c, standard, "");
+        if Some(c) != view.condition && !(view.condition.is_none() && c == standard) {
+            view.condition = Some(c);
+        }
+        self.display_row_ui(ui, &mut view, bar.line, &mut commands);
+        if view != *ctx.view {
+            commands.insert(0, Command::SetView(Box::new(view)));
+        }
+        commands
     }
 
     /// The last row: which units and what is drawn, and the run's progress.
-    fn display_row_ui(&mut self, ui: &mut egui::Ui) {
+    fn display_row_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        view: &mut ViewState,
+        line: super::status::StatusLine<'_>,
+        commands: &mut Vec<Command>,
+    ) {
         ui.horizontal_wrapped(|ui| {
             let l = ui.label("Units:");
             let edit = ui
@@ -119,134 +67,241 @@ impl ExplorerApp {
             if edit.changed()
                 && let Some(u) = parse_units(&self.units_text)
             {
-                self.view.units = u;
+                view.units = u;
             }
-            ui.checkbox(&mut self.view.show_d, "d traces")
+            ui.checkbox(&mut view.show_d, "d traces")
                 .on_hover_text("Also plot each module's deterministic state d (tanh of its internal state h, unitless, -1 to 1)");
-            ui.checkbox(&mut self.view.prior_images, "prior prediction images")
+            ui.checkbox(&mut view.prior_images, "prior prediction images")
                 .on_hover_text("Predicted images: the prior's prediction of step t+1 made at t (before seeing it) instead of the posterior reconstruction of step t");
-            ui.checkbox(&mut self.view.contours, "contours")
+            ui.checkbox(&mut view.contours, "contours")
                 .on_hover_text("Draw the edges of the actual image over the pictures (Sobel magnitude of its brightness)");
-            ui.checkbox(&mut self.view.maps, "contribution maps").on_hover_text("Runs inference once more with each module ablated (four runs; minutes at full vision in a browser)");
-            if self.view.branch.is_none()
+            ui.checkbox(&mut view.maps, "contribution maps").on_hover_text("Runs inference once more with each module ablated (four runs; minutes at full vision in a browser)");
+            if view.branch.is_none()
                 && ui
                     .button("Branch here")
                     .on_hover_text("Continue this run from the cursor's step under another condition, shown beside it")
                     .clicked()
             {
-                self.branch_here();
+                commands.push(Command::BranchHere);
             }
             ui.separator();
-            self.progress_ui(ui);
+            line.ui(ui);
         });
     }
+}
 
-    pub(super) fn sequence_picker(&mut self, ui: &mut egui::Ui) {
-        let Some(bundle) = &self.bundle else { return };
-        let seqs = &bundle.dataset.sequences;
-        let Some(current) = self
-            .view
-            .sequence
-            .as_ref()
-            .and_then(|n| bundle.dataset.by_name(n))
-        else {
-            return;
-        };
-        let info = current.info.clone();
-        let mut tasks: Vec<String> = seqs.iter().map(|s| s.info.task.clone()).collect();
-        tasks.dedup();
-        tasks.sort();
-        tasks.dedup();
-        let height = |s: &pvrnn_dataset::SequenceInfo| {
-            s.bed_height_mm
-                .map_or("-".to_string(), |h| format!("{h:.0} mm"))
-        };
-        let mut task = info.task.clone();
-        let mut bed = height(&info);
-        let mut split = info.split.name().to_string();
-        let l = ui.label("Task");
-        egui::ComboBox::from_id_salt("task")
-            .selected_text(&task)
-            .show_ui(ui, |ui| {
-                for t in &tasks {
-                    ui.selectable_value(&mut task, t.clone(), t);
-                }
-            })
-            .response
-            .labelled_by(l.id);
-        let mut heights: Vec<String> = seqs
-            .iter()
-            .filter(|s| s.info.task == task)
-            .map(|s| height(&s.info))
-            .collect();
-        heights.sort();
-        heights.dedup();
-        // caresim's bed heights; a robot whose recordings name none has no use for it.
-        if seqs.iter().any(|s| s.info.bed_height_mm.is_some()) {
-            let l = ui.label("Bed");
-            egui::ComboBox::from_id_salt("bed")
-                .selected_text(&bed)
-                .show_ui(ui, |ui| {
-                    for h in &heights {
-                        ui.selectable_value(&mut bed, h.clone(), h);
-                    }
-                })
-                .response
-                .labelled_by(l.id);
+/// The first row: the name, about, comparison, export, open, the sequence, the status.
+fn top_row_ui(
+    ui: &mut egui::Ui,
+    bundle: &Bundle,
+    view: &mut ViewState,
+    bar: &Bar<'_>,
+    targets: &mut TourTargets,
+    commands: &mut Vec<Command>,
+) {
+    ui.horizontal_wrapped(|ui| {
+        ui.strong("PV-RNN explorer");
+        let mut about = bar.about;
+        if ui.toggle_value(&mut about, "About this model").changed() {
+            commands.push(Command::ShowAbout(about));
         }
-        let l = ui.label("Split");
-        egui::ComboBox::from_id_salt("split")
-            .selected_text(&split)
-            .show_ui(ui, |ui| {
-                for s in ["learn", "test"] {
-                    ui.selectable_value(&mut split, s.to_string(), s);
-                }
-            })
-            .response
-            .labelled_by(l.id);
-        let matching: Vec<&str> = seqs
-            .iter()
-            .filter(|s| {
-                s.info.task == task && height(&s.info) == bed && s.info.split.name() == split
-            })
-            .map(|s| s.info.name.as_str())
-            .collect();
-        let mut chosen = self.view.sequence.clone().unwrap_or_default();
-        let l = ui.label("Trial");
-        egui::ComboBox::from_id_salt("trial")
-            .selected_text(&chosen)
-            .show_ui(ui, |ui| {
-                for name in &matching {
-                    ui.selectable_value(&mut chosen, name.to_string(), *name);
-                }
-            })
-            .response
-            .labelled_by(l.id);
-        let choice = if matching.contains(&chosen.as_str()) {
-            Some(chosen)
-        } else {
-            // A changed task, bed or split: the first sequence that matches as much as possible.
-            matching
-                .first()
-                .map(|s| s.to_string())
-                .or_else(|| {
-                    seqs.iter()
-                        .find(|s| s.info.task == task && height(&s.info) == bed)
-                        .map(|s| s.info.name.clone())
-                })
-                .or_else(|| {
-                    seqs.iter()
-                        .find(|s| s.info.task == task)
-                        .map(|s| s.info.name.clone())
-                })
-        };
-        if let Some(name) = choice
-            && Some(&name) != self.view.sequence.as_ref()
+        if ui
+            .button("Tour")
+            .on_hover_text("A short tour of the panels")
+            .clicked()
         {
-            let len = bundle.dataset.by_name(&name).map_or(1, |s| s.len());
-            self.view.sequence = Some(name);
-            self.view.t = self.view.t.min(len.saturating_sub(1));
+            commands.push(Command::StartTour);
         }
+        let mut findings_open = bar.findings;
+        let findings = ui.toggle_value(&mut findings_open, "Findings")
+            .on_hover_text("The paper's claims, what the experiments found, and a view of this network that shows each");
+        if findings.changed() {
+            commands.push(Command::ShowFindings(findings_open));
+        }
+        targets.add_question(findings.rect);
+        let l = ui.label("Compare");
+        targets.add_question(l.rect);
+        let text = |c: Option<CompareSet>| match c {
+            None => "off",
+            Some(CompareSet::Vision) => "vision x proprio",
+            Some(CompareSet::Ablation) => "ablations",
+        };
+        let compare = egui::ComboBox::from_id_salt("compare")
+            .selected_text(text(view.compare))
+            .show_ui(ui, |ui| {
+                for c in [None, Some(CompareSet::Vision), Some(CompareSet::Ablation)] {
+                    ui.selectable_value(&mut view.compare, c, text(c));
+                }
+            })
+            .response;
+        targets.add_question(compare.rect);
+        compare
+            .labelled_by(l.id)
+            .on_hover_text("Set conditions side by side at the cursor: every observed resolution with proprioception on and off (Fig. 5), or each module ablated (Fig. 2B)");
+        if ui
+            .button("Export CSV")
+            .on_hover_text("the shown run's traces, one row per step")
+            .clicked()
+        {
+            commands.push(Command::ExportCsv);
+        }
+        if ui
+            .button("Save picture")
+            .on_hover_text("the window as a PNG")
+            .clicked()
+        {
+            commands.push(Command::SavePicture);
+        }
+        for (label, folder) in [("Open files", false), ("Open folder", true)] {
+            if ui
+                .button(label)
+                .on_hover_text("a bundle folder, or a model file with a dataset's files")
+                .clicked()
+            {
+                commands.push(Command::Open {
+                    folder,
+                    second: false,
+                });
+            }
+        }
+        let second = ui.menu_button("Second network", |ui| {
+            for (label, folder) in [
+                ("Open a bundle folder", true),
+                ("Open files (a checkpoint of this dataset, or a bundle's files)", false),
+            ] {
+                if ui.button(label).clicked() {
+                    commands.push(Command::Open {
+                        folder,
+                        second: true,
+                    });
+                    ui.close();
+                }
+            }
+        })
+        .response
+        .on_hover_text("Show another network (another bundle, or an earlier or later checkpoint) beside this one, on the same sequence under the same condition");
+        targets.add_question(second.rect);
+        ui.separator();
+        sequence_picker(ui, bundle, view);
+        ui.separator();
+        match bar.status {
+            Status::Error(e) => {
+                ui.colored_label(Color32::from_rgb(230, 80, 80), e.as_str());
+            }
+            Status::Info(s) => {
+                ui.weak(s.as_str());
+            }
+            Status::Loading { what, fraction } => {
+                ui.label(what.as_str());
+                ui.add(egui::ProgressBar::new(fraction.unwrap_or(0.0)).desired_width(120.0));
+            }
+            Status::None => {}
+        }
+    });
+}
+
+/// Task, bed height (where the data has them), split and trial of the shown sequence.
+fn sequence_picker(ui: &mut egui::Ui, bundle: &Bundle, view: &mut ViewState) {
+    let seqs = &bundle.dataset.sequences;
+    let Some(current) = view
+        .sequence
+        .as_ref()
+        .and_then(|n| bundle.dataset.by_name(n))
+    else {
+        return;
+    };
+    let info = current.info.clone();
+    let mut tasks: Vec<String> = seqs.iter().map(|s| s.info.task.clone()).collect();
+    tasks.dedup();
+    tasks.sort();
+    tasks.dedup();
+    let height = |s: &pvrnn_dataset::SequenceInfo| {
+        s.bed_height_mm
+            .map_or("-".to_string(), |h| format!("{h:.0} mm"))
+    };
+    let mut task = info.task.clone();
+    let mut bed = height(&info);
+    let mut split = info.split.name().to_string();
+    let l = ui.label("Task");
+    egui::ComboBox::from_id_salt("task")
+        .selected_text(&task)
+        .show_ui(ui, |ui| {
+            for t in &tasks {
+                ui.selectable_value(&mut task, t.clone(), t);
+            }
+        })
+        .response
+        .labelled_by(l.id);
+    let mut heights: Vec<String> = seqs
+        .iter()
+        .filter(|s| s.info.task == task)
+        .map(|s| height(&s.info))
+        .collect();
+    heights.sort();
+    heights.dedup();
+    // caresim's bed heights; a robot whose recordings name none has no use for it.
+    if seqs.iter().any(|s| s.info.bed_height_mm.is_some()) {
+        let l = ui.label("Bed");
+        egui::ComboBox::from_id_salt("bed")
+            .selected_text(&bed)
+            .show_ui(ui, |ui| {
+                for h in &heights {
+                    ui.selectable_value(&mut bed, h.clone(), h);
+                }
+            })
+            .response
+            .labelled_by(l.id);
+    }
+    let l = ui.label("Split");
+    egui::ComboBox::from_id_salt("split")
+        .selected_text(&split)
+        .show_ui(ui, |ui| {
+            for s in ["learn", "test"] {
+                ui.selectable_value(&mut split, s.to_string(), s);
+            }
+        })
+        .response
+        .labelled_by(l.id);
+    let matching: Vec<&str> = seqs
+        .iter()
+        .filter(|s| s.info.task == task && height(&s.info) == bed && s.info.split.name() == split)
+        .map(|s| s.info.name.as_str())
+        .collect();
+    let mut chosen = view.sequence.clone().unwrap_or_default();
+    let l = ui.label("Trial");
+    egui::ComboBox::from_id_salt("trial")
+        .selected_text(&chosen)
+        .show_ui(ui, |ui| {
+            for name in &matching {
+                ui.selectable_value(&mut chosen, name.to_string(), *name);
+            }
+        })
+        .response
+        .labelled_by(l.id);
+    let choice = if matching.contains(&chosen.as_str()) {
+        Some(chosen)
+    } else {
+        // A changed task, bed or split: the first sequence that matches as much as possible.
+        matching
+            .first()
+            .map(|s| s.to_string())
+            .or_else(|| {
+                seqs.iter()
+                    .find(|s| s.info.task == task && height(&s.info) == bed)
+                    .map(|s| s.info.name.clone())
+            })
+            .or_else(|| {
+                seqs.iter()
+                    .find(|s| s.info.task == task)
+                    .map(|s| s.info.name.clone())
+            })
+    };
+    if let Some(name) = choice
+        && Some(&name) != view.sequence.as_ref()
+    {
+        let len = bundle.dataset.by_name(&name).map_or(1, |s| s.len());
+        view.sequence = Some(name);
+        view.t = view.t.min(len.saturating_sub(1));
     }
 }
 

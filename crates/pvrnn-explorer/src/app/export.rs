@@ -208,23 +208,6 @@ impl ExplorerApp {
             }
         }
     }
-
-    pub(super) fn export_ui(&mut self, ui: &mut egui::Ui) {
-        if ui
-            .button("Export CSV")
-            .on_hover_text("the shown run's traces, one row per step")
-            .clicked()
-        {
-            self.export_csv();
-        }
-        if ui
-            .button("Save picture")
-            .on_hover_text("the window as a PNG")
-            .clicked()
-        {
-            self.request_picture(&ui.ctx().clone());
-        }
-    }
 }
 
 #[cfg(test)]

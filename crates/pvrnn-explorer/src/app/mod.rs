@@ -96,7 +96,8 @@ pub struct ExplorerApp {
     /// Where exports go on the desktop.
     #[cfg(not(target_arch = "wasm32"))]
     export_dir: std::path::PathBuf,
-    units_text: String,
+    /// The top bar (a panel type).
+    controls: controls::Controls,
     /// egui's clock at the last frame (real time in a window, stepped in tests).
     last_time: Option<f64>,
     /// The time bar and playback (a panel type).
@@ -184,7 +185,9 @@ impl ExplorerApp {
         let mut app = Self {
             bundle: None,
             store: RunStore::default(),
-            units_text: format_units(&view.units),
+            controls: controls::Controls {
+                units_text: format_units(&view.units),
+            },
             view,
             status: Status::None,
             images: ImageCache::default(),
@@ -283,7 +286,7 @@ impl ExplorerApp {
             (self.view, notes) = ViewState::from_hash(&self.last_hash, &self.view, standard);
         }
         notes.extend(self.view.sanitize(&bundle));
-        self.units_text = format_units(&self.view.units);
+        self.controls.units_text = format_units(&self.view.units);
         self.images = ImageCache::default();
         self.contributions = Default::default();
         // Another first network may not be comparable with the second.
@@ -346,7 +349,7 @@ impl ExplorerApp {
         let (view, notes) =
             ViewState::from_hash(hash, &self.view, Condition::standard(&b.model.config));
         self.view = view;
-        self.units_text = format_units(&self.view.units);
+        self.controls.units_text = format_units(&self.view.units);
         self.sanitize_view(notes);
     }
 
@@ -572,7 +575,7 @@ impl ExplorerApp {
         self.sync_hash();
         self.sanitize_view(Vec::new());
         let keys = self.time.keyboard(ctx, &self.panel_context());
-        self.apply(keys);
+        self.apply(keys, ctx);
         let key = self.current_key();
         let context = panel::PanelContext {
             bundle: self.bundle.as_ref(),
@@ -583,7 +586,7 @@ impl ExplorerApp {
             second_open: self.second.is_some(),
         };
         let playback = self.time.advance(dt, &context);
-        self.apply(playback);
+        self.apply(playback, ctx);
         // Inline runs advance only while frames are drawn; a worker's results repaint when
         // they arrive, so the page does not redraw at full rate beside it.
         if self.compute(COMPUTE_BUDGET) || (self.store.computes_inline() && !self.idle()) {
@@ -625,8 +628,32 @@ impl ExplorerApp {
         let ctx = ui.ctx().clone();
         let view_before = self.view.clone();
         self.tour.targets.questions = None; // the question buttons add theirs as drawn
-        let conditions = egui::Panel::top("controls").show(ui, |ui| self.controls_ui(ui));
         let mut commands = Vec::new();
+        let key = self.current_key();
+        let bar = controls::Bar {
+            about: self.show_about,
+            findings: self.findings.open,
+            status: &self.status,
+            line: status::StatusLine {
+                store: &self.store,
+                shown: key.clone(),
+                last_run: self.last_run_note.as_ref(),
+                compute: &self.compute_label,
+                renderer: &self.renderer_label,
+            },
+        };
+        let context = panel::PanelContext {
+            bundle: self.bundle.as_ref(),
+            view: &self.view,
+            store: &self.store,
+            key,
+            computed: self.current_run().map_or(0, |e| e.trace.steps),
+            second_open: self.second.is_some(),
+        };
+        let (top, targets) = (&mut self.controls, &mut self.tour.targets);
+        let conditions = egui::Panel::top("controls")
+            .show(ui, |ui| commands.extend(top.ui(ui, &context, bar, targets)));
+        self.apply(std::mem::take(&mut commands), &ctx);
         let computed = self.current_run().map_or(0, |e| e.trace.steps);
         let key = self.current_key();
         let context = panel::PanelContext {
@@ -657,7 +684,7 @@ impl ExplorerApp {
                 }
                 central.extend(self.contributions.ui(ui, &context));
                 central.extend(traces::Traces::ui(ui, &context));
-                self.apply(central);
+                self.apply(central, ui.ctx());
             });
         });
         let targets = &mut self.tour.targets;
@@ -665,7 +692,8 @@ impl ExplorerApp {
         targets.time = Some(time.response.rect);
         targets.images = Some(images.response.rect);
         targets.latents = Some(latents.response.rect);
-        self.compare_ui(&ctx);
+        let cells = self.comparison();
+        commands.extend(self.compare_images.ui(&ctx, &self.panel_context(), &cells));
         commands.extend(self.findings.ui(&ctx));
         let key = self.current_key();
         let context = panel::PanelContext {
@@ -677,7 +705,7 @@ impl ExplorerApp {
             second_open: self.second.is_some(),
         };
         commands.extend(self.tour.ui(&ctx, &context));
-        self.apply(commands);
+        self.apply(commands, &ctx);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")
                 .open(&mut self.show_about)

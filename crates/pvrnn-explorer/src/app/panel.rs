@@ -5,9 +5,11 @@
 //! (`findings_panel::FindingsPanel`), the time bar (`time_panel::TimePanel`), the tour
 //! (`tour::Tour`), the branch (`branch::BranchControls`), the second network
 //! (`second::SecondNetwork`), the contributions over time
-//! (`contributions::ContributionsOverTime`), the latent traces (`traces::Traces`) and the
+//! (`contributions::ContributionsOverTime`), the latent traces (`traces::Traces`), the
 //! images (`images_panel::ImageCache`: the logic reads the pictures out, the panel draws
-//! them); the controls, the comparison and the export are still methods of the app.
+//! them), the top bar (`controls::Controls`) and the comparison
+//! (`compare::CompareCache`). What is left on the app is wiring: reading files and the
+//! address, asking for runs, reading pictures out, applying commands.
 
 use super::*;
 
@@ -70,6 +72,25 @@ pub(super) enum Command {
     CloseSecond,
     /// Trials the contributions over time average.
     MapTrials(u8),
+    /// The view as the top bar edited it.
+    SetView(Box<ViewState>),
+    /// Branch the shown run at the cursor.
+    BranchHere,
+    /// Open or close the "About this model" window.
+    ShowAbout(bool),
+    /// Open or close the findings window.
+    ShowFindings(bool),
+    /// Start the tour from its first stop.
+    StartTour,
+    /// Export the shown run's traces as CSV.
+    ExportCsv,
+    /// Save a picture of the window.
+    SavePicture,
+    /// Open files or a folder (a file dialog, or the browser's picker), as the network or
+    /// the second one.
+    Open { folder: bool, second: bool },
+    /// Close the comparison window.
+    CloseCompare,
 }
 
 impl ExplorerApp {
@@ -86,7 +107,7 @@ impl ExplorerApp {
     }
 
     /// Applies the panels' commands, in the order they were given.
-    pub(super) fn apply(&mut self, commands: Vec<Command>) {
+    pub(super) fn apply(&mut self, commands: Vec<Command>, egui_ctx: &egui::Context) {
         for command in commands {
             match command {
                 Command::Seek(t) => self.view.t = t.min(self.sequence_len().saturating_sub(1)),
@@ -97,11 +118,40 @@ impl ExplorerApp {
                 Command::Branch(branch) => self.view.branch = branch,
                 Command::BranchTraces(on) => self.view.branch_traces = on,
                 Command::MapTrials(n) => self.view.map_trials = n,
+                Command::SetView(view) => self.view = *view,
+                Command::BranchHere => self.branch_here(),
+                Command::ShowAbout(open) => self.show_about = open,
+                Command::ShowFindings(open) => self.findings.open = open,
+                Command::StartTour => self.start_tour(),
+                Command::ExportCsv => self.export_csv(),
+                Command::SavePicture => self.request_picture(egui_ctx),
+                Command::Open { folder, second } => self.open(folder, second),
+                Command::CloseCompare => self.view.compare = None,
                 Command::CloseSecond => {
                     self.second = None;
                     self.view.second = None;
                 }
             }
+        }
+    }
+
+    /// Opens files or a folder as the network (or as the second one, `second`).
+    fn open(&mut self, folder: bool, second: bool) {
+        #[cfg(target_arch = "wasm32")]
+        {
+            let picked = if second {
+                self.pick_second_network(folder).map(|_| ())
+            } else {
+                self.web.pick_files(folder).map(|_| ())
+            };
+            if let Err(e) = picked {
+                self.status = Status::Error(format!("cannot open the file picker: {e}"));
+            }
+        }
+        #[cfg(not(target_arch = "wasm32"))]
+        {
+            self.opening_second = second;
+            self.open_with_dialog(folder);
         }
     }
 }

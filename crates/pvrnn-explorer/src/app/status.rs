@@ -34,33 +34,20 @@ pub(super) fn finished_note(f: &Finished) -> (String, String) {
     (what, timing)
 }
 
-impl ExplorerApp {
-    pub(super) fn progress_ui(&self, ui: &mut egui::Ui) {
-        let line = StatusLine {
-            store: &self.store,
-            shown: self.current_key(),
-            last_run: self.last_run_note.as_ref(),
-            compute: &self.compute_label,
-            renderer: &self.renderer_label,
-        };
-        line.ui(ui);
-    }
-}
-
 /// The status line: which run computes and how far, the last run's note, where runs
 /// compute and what draws.
-struct StatusLine<'a> {
-    store: &'a RunStore,
+pub(super) struct StatusLine<'a> {
+    pub(super) store: &'a RunStore,
     /// The run the view shows.
-    shown: Option<RunKey>,
+    pub(super) shown: Option<RunKey>,
     /// What the last finished run computed, and how fast (on hover).
-    last_run: Option<&'a (String, String)>,
-    compute: &'a str,
-    renderer: &'a str,
+    pub(super) last_run: Option<&'a (String, String)>,
+    pub(super) compute: &'a str,
+    pub(super) renderer: &'a str,
 }
 
 impl StatusLine<'_> {
-    fn ui(&self, ui: &mut egui::Ui) {
+    pub(super) fn ui(&self, ui: &mut egui::Ui) {
         match (self.store.computing(), self.store.progress()) {
             (Some(key), Some((done, total))) => {
                 let what = if Some(key) == self.shown.as_ref() {

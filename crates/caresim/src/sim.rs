@@ -15,8 +15,8 @@ use crate::task::{Plan, Script, SimRng, Task, Variation};
 /// Camera image size and supersampling.
 pub const IMAGE_SIZE: usize = 64;
 pub const SUPERSAMPLE: usize = 4;
-/// Seconds per step (the towel's clock).
-const STEP_SECONDS: f64 = 0.1;
+/// Seconds per step (caresim's clock, the towel's too).
+pub const STEP_SECONDS: f64 = 0.1;
 const TOWEL_SIZE: f64 = 0.30;
 const TOWEL_PARTICLES: usize = 11;
 /// Sensor noise (std) of joint angles (rad) and torques (N m).
@@ -24,6 +24,11 @@ const JOINT_NOISE: f64 = 2e-4;
 const TORQUE_NOISE: f64 = 0.05;
 /// Revision 2: where loads act, from the palm's centre along the hand's x axis (m).
 const PALM_CONTACT: f64 = 0.04;
+/// A commanded hand acts on the scene (load, lift, grasp) only this close to where the
+/// script puts it (m): three times the scripted inverse kinematics' largest error.
+pub const CONTACT_TOLERANCE: f64 = 0.03;
+/// An unsupported upper body sinks back by this factor of its lift each step.
+pub const LIFT_RELAX: f64 = 0.8;
 
 /// Which trial to simulate.
 #[derive(Clone, Debug, PartialEq)]
@@ -142,19 +147,69 @@ impl Simulation {
         self.len() == 0
     }
 
-    /// Advances one step; returns its state.
+    /// Advances one step as scripted (the arms follow the script's hand targets by
+    /// inverse kinematics); returns its state.
     pub fn step(&mut self) -> StepRecord {
+        self.advance(None)
+    }
+
+    /// Advances one step with the arms moved toward `commanded` joint angles instead
+    /// ([`crate::env`]): each joint by at most `max_step` (rad), exactly onto its command
+    /// when that is within reach. The scene responds as the script has it only where the
+    /// hand is: a load, the upper body's lift (left hand) and the towel's grasp (right
+    /// hand) act when that hand is within [`CONTACT_TOLERANCE`] of the script's target;
+    /// an unsupported upper body sinks back ([`LIFT_RELAX`] a step).
+    pub(crate) fn step_commanded(
+        &mut self,
+        commanded: &[[f64; DOF]; 2],
+        max_step: &[f64; DOF],
+    ) -> StepRecord {
+        self.advance(Some((commanded, max_step)))
+    }
+
+    fn advance(&mut self, commanded: Option<(&[[f64; DOF]; 2], &[f64; DOF])>) -> StepRecord {
         let plan = self.script.at(self.step, &self.body);
         let mut ik_err = [0.0; 2];
-        for arm in 0..2 {
-            ik_err[arm] = self.robot.arms[arm]
-                .solve_ik(&mut self.q[arm], &plan.hands[arm], &self.robot.rest[arm])
-                .position_error;
+        match commanded {
+            None => {
+                for arm in 0..2 {
+                    ik_err[arm] = self.robot.arms[arm]
+                        .solve_ik(&mut self.q[arm], &plan.hands[arm], &self.robot.rest[arm])
+                        .position_error;
+                }
+            }
+            Some((target, max_step)) => {
+                for arm in 0..2 {
+                    for j in 0..DOF {
+                        let (q, to) = (self.q[arm][j], target[arm][j]);
+                        // Onto the command itself when it is within reach (q + (to - q)
+                        // need not round to `to`).
+                        self.q[arm][j] = if (to - q).abs() <= max_step[j] {
+                            to
+                        } else {
+                            q + max_step[j].copysign(to - q)
+                        };
+                    }
+                }
+            }
         }
         let tcp = [0, 1].map(|a| self.robot.arms[a].fk(&self.q[a]).tcp);
-        self.lift = plan.lift;
+        // Where the script's contacts act: always when it moves the arms itself.
+        let in_place = match commanded {
+            None => [true; 2],
+            Some(_) => [0, 1].map(|a| {
+                let off = (tcp[a].translation - plan.hands[a].position).length();
+                ik_err[a] = off;
+                off < CONTACT_TOLERANCE
+            }),
+        };
+        self.lift = if in_place[0] {
+            plan.lift
+        } else {
+            self.lift * LIFT_RELAX
+        };
         if let Some(towel) = self.towel.as_mut() {
-            if plan.grasping && !towel.is_grasped() {
+            if plan.grasping && in_place[1] && !towel.is_grasped() {
                 towel.grasp(&tcp[1], 0.04);
             } else if !plan.grasping && towel.is_grasped() {
                 towel.release();
@@ -175,8 +230,15 @@ impl Simulation {
             Revision::R1 => 0.0,
             Revision::R2 => PALM_CONTACT,
         };
-        let torques = [0, 1]
-            .map(|a| self.robot.arms[a].static_torques_at(&self.q[a], plan.forces[a], contact));
+        let forces = [0, 1].map(|a| {
+            if in_place[a] {
+                plan.forces[a]
+            } else {
+                DVec3::ZERO
+            }
+        });
+        let torques =
+            [0, 1].map(|a| self.robot.arms[a].static_torques_at(&self.q[a], forces[a], contact));
         self.step += 1;
         StepRecord {
             plan,
@@ -191,6 +253,16 @@ impl Simulation {
                 .filter(|t| t.is_grasped())
                 .map(|t| t.grip_error(&tcp[1])),
         }
+    }
+
+    /// Steps taken so far.
+    pub fn steps_taken(&self) -> usize {
+        self.step
+    }
+
+    /// The upper body's lift now (rad).
+    pub fn lift(&self) -> f64 {
+        self.lift
     }
 
     /// Renders camera `camera` (0 left, 1 right) in the current state.
@@ -246,7 +318,7 @@ impl Simulation {
     }
 
     /// Noisy sensor readings of a step: 14 joint angles, 14 torques (left arm, then right).
-    fn sensors(&mut self, record: &StepRecord) -> ([f32; 14], [f32; 14]) {
+    pub(crate) fn sensors(&mut self, record: &StepRecord) -> ([f32; 14], [f32; 14]) {
         let mut joints = [0f32; 14];
         let mut torques = [0f32; 14];
         for arm in 0..2 {
@@ -289,7 +361,7 @@ pub fn simulate_proprioception(spec: &TrialSpec) -> Sequence {
     }
 }
 
-fn sequence_info(spec: &TrialSpec, length: usize) -> SequenceInfo {
+pub(crate) fn sequence_info(spec: &TrialSpec, length: usize) -> SequenceInfo {
     let name = spec.name();
     SequenceInfo {
         file: format!("{name}.safetensors"),

@@ -4,6 +4,7 @@
 use std::sync::OnceLock;
 
 use caresim::arm::{Q_MAX, Q_MIN, TAU_MAX};
+use caresim::env::{Environment, SpeedLimit, episode_sequence};
 use caresim::scene::{ID_BED, ID_BODY};
 use caresim::variability::trajectory_spread;
 use caresim::{
@@ -526,4 +527,141 @@ fn revision_2_turns_the_wrists_within_limits_and_keeps_the_hands_on_target() {
             "{task:?}: the wrist hardly turns"
         );
     }
+}
+
+/// A scripted trial's joint angles, step by step after the first, as the environment's
+/// commands.
+fn scripted_commands(records: &[StepRecord]) -> Vec<[f64; 14]> {
+    records[1..]
+        .iter()
+        .map(|r| {
+            let mut c = [0.0; 14];
+            for arm in 0..2 {
+                c[arm * 7..arm * 7 + 7].copy_from_slice(&r.q[arm]);
+            }
+            c
+        })
+        .collect()
+}
+
+#[test]
+fn replaying_a_scripted_trial_in_the_environment_gives_its_sequence_back_byte_for_byte() {
+    for task in Task::ALL {
+        let (scripted, records) = simulated(task);
+        let spec = trial(task, 650, 0);
+        let (mut env, first) = Environment::reset(spec.clone());
+        assert_eq!(env.len(), scripted.len());
+        let mut observations = vec![first];
+        for command in scripted_commands(records) {
+            observations.push(env.step(&command).unwrap());
+        }
+        for (k, (o, r)) in observations.iter().zip(records).enumerate() {
+            assert_eq!(
+                (o.record.q, o.record.torques),
+                (r.q, r.torques),
+                "{task:?} step {k}"
+            );
+        }
+        let replayed = episode_sequence(&spec, &observations);
+        assert_eq!(replayed.info, scripted.info, "{task:?}");
+        assert!(
+            replayed.images == scripted.images,
+            "{task:?}: images differ"
+        );
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&replayed.joints), bits(&scripted.joints), "{task:?}");
+        assert_eq!(bits(&replayed.torques), bits(&scripted.torques), "{task:?}");
+        assert_eq!(replayed.subtask, scripted.subtask, "{task:?}");
+        // Over: one more step is refused, with the episode's length.
+        let e = env.step(&scripted_commands(records)[0]).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "the episode is over: it has taken all its {} steps",
+                scripted.len()
+            )
+        );
+    }
+}
+
+#[test]
+fn the_environment_moves_as_a_position_controlled_arm_and_the_scene_responds_where_the_hand_is() {
+    // Repositioning with the arms held at their start posture: no hand under the back,
+    // so the upper body is never lifted and the scripted loads never act.
+    let spec = trial(Task::Repositioning, 650, 0);
+    let (scripted, records) = simulated(Task::Repositioning);
+    let (mut env, first) = Environment::reset(spec.clone());
+    let mut hold = [0.0; 14];
+    for arm in 0..2 {
+        hold[arm * 7..arm * 7 + 7].copy_from_slice(&first.record.q[arm]);
+    }
+    let mut torques_held = Vec::new();
+    for _ in 1..env.len() {
+        let o = env.step(&hold).unwrap();
+        assert_eq!(env.simulation().lift(), 0.0, "step {}", o.step);
+        torques_held.push(o.record.torques);
+    }
+    assert!(
+        records.iter().any(|r| r.plan.lift > 0.1),
+        "the script lifts"
+    );
+    // The same episode again: bytes equal (seeded, deterministic).
+    let (mut again, _) = Environment::reset(spec.clone());
+    for (k, torques) in torques_held.iter().enumerate() {
+        let o = again.step(&hold).unwrap();
+        assert_eq!(&o.record.torques, torques, "step {}", k + 1);
+    }
+    // Under the Panda's speed limits a command far away moves each joint by at most its
+    // limit for one step, and one beyond the joint limits stops at them.
+    let (mut env, first) = Environment::reset_with(spec.clone(), SpeedLimit::Panda);
+    let far = [10.0; 14];
+    let o = env.step(&far).unwrap();
+    for arm in 0..2 {
+        for j in 0..7 {
+            let moved = o.record.q[arm][j] - first.record.q[arm][j];
+            let limit = caresim::env::MAX_JOINT_SPEED[j] * 0.1;
+            assert!(
+                moved <= limit + 1e-12 && moved >= 0.0,
+                "arm {arm} joint {j}: {moved}"
+            );
+        }
+    }
+    for _ in 0..60 {
+        env.step(&far).unwrap();
+    }
+    let q = env.simulation().q;
+    for arm in 0..2 {
+        assert_eq!(q[arm], Q_MAX, "arm {arm} stops at its limits");
+    }
+    // Bad commands: refused, naming the joint.
+    let mut bad = hold;
+    bad[9] = f64::NAN;
+    let e = env.step(&bad).unwrap_err().to_string();
+    assert!(
+        e.contains("joint command 9 (right arm, joint 3) is NaN"),
+        "{e}"
+    );
+    assert!(scripted.len() > 100);
+}
+
+#[test]
+fn the_towel_is_grasped_only_by_a_hand_at_it() {
+    // Wiping with the right arm held back: the script's grasp never happens.
+    let spec = trial(Task::Wiping, 650, 0);
+    let (_, records) = simulated(Task::Wiping);
+    let (mut env, first) = Environment::reset(spec);
+    let mut commands = scripted_commands(records);
+    for c in commands.iter_mut() {
+        c[7..].copy_from_slice(&first.record.q[1]);
+    }
+    let mut grasped = false;
+    for c in &commands {
+        let o = env.step(c).unwrap();
+        grasped |= o.record.towel_grip_error.is_some();
+    }
+    assert!(
+        records.iter().any(|r| r.towel_grip_error.is_some()),
+        "the script grasps"
+    );
+    assert!(!grasped, "a towel grasped by a hand that never reached it");
 }

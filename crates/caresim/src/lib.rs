@@ -18,7 +18,7 @@
 //! Modules: [`arm`] kinematics and torques, [`body`] the mannequin, [`cloth`] the towel,
 //! [`shapes`] primitives and meshes, [`render`] the rasteriser, [`scene`] robot, bed, room
 //! and cameras, [`task`] the scripted tasks and their variability, [`sim`] running a trial,
-//! [`env`] a trial driven by joint commands instead of its script (closed loop),
+//! [`env`](mod@env) a trial driven by joint commands instead of its script (closed loop),
 //! [`revision`] which edition of the benchmark (revision 2 moves every joint).
 
 pub mod arm;

@@ -49,7 +49,7 @@ pub(super) fn interference(r: &Value) -> Vec<Finding> {
 /// Fig 6 read as one claim: adding repositioning data changes wiping's error by more than
 /// adding wiping data changes repositioning's (the difference of the two directions' log
 /// ratios of none → 9 added, pooled error).
-pub(super) fn asymmetry_finding(a: &Value) -> Finding {
+fn asymmetry_finding(a: &Value) -> Finding {
     let t = &a["measures"]["pooled"];
     // Wiping's log ratio − repositioning's: the paper's asymmetry is positive.
     let sign = if a["second"] == "wiping" { 1.0 } else { -1.0 };
@@ -109,7 +109,7 @@ pub(super) fn asymmetry_finding(a: &Value) -> Finding {
 
 /// Fig 6A: "did not affect" is a claim of no change, tested as equivalence of the most
 /// added and none, beside the omnibus test.
-pub(super) fn no_change_finding(v: &Value) -> Finding {
+fn no_change_finding(v: &Value) -> Finding {
     let effect = &v["art"]["pooled"]["effect"];
     let tost = &v["equivalence"]["pooled"];
     let ours = match tost_text(tost) {
@@ -138,7 +138,7 @@ pub(super) fn no_change_finding(v: &Value) -> Finding {
 }
 
 /// Fig 6B: wiping's errors rise with added repositioning data.
-pub(super) fn rise_finding(v: &Value) -> Finding {
+fn rise_finding(v: &Value) -> Finding {
     let effect = &v["art"]["pooled"]["effect"];
     let means: Vec<Option<f64>> = v["per_network"][0]
         .as_array()
@@ -189,7 +189,7 @@ pub(super) fn rise_finding(v: &Value) -> Finding {
 }
 
 /// The pooled ART-C contrast of the conditions adding `few` and `many` sequences.
-pub(super) fn pooled_contrast<'a>(v: &'a Value, few: &str, many: &str) -> Option<&'a Value> {
+fn pooled_contrast<'a>(v: &'a Value, few: &str, many: &str) -> Option<&'a Value> {
     v["art"]["pooled"]["contrasts"]
         .as_array()?
         .iter()
@@ -204,7 +204,7 @@ pub(super) fn pooled_contrast<'a>(v: &'a Value, few: &str, many: &str) -> Option
 
 /// Whether the aligned ranks of `contrast` put the condition adding `few` below the other;
 /// `None` when they tie or no contrast is recorded.
-pub(super) fn lower_in_ranks(contrast: Option<&Value>, few: &str) -> Option<bool> {
+fn lower_in_ranks(contrast: Option<&Value>, few: &str) -> Option<bool> {
     let x = contrast?;
     let d = num(&x["rank_difference"])?;
     if d == 0.0 {
@@ -219,7 +219,7 @@ pub(super) fn lower_in_ranks(contrast: Option<&Value>, few: &str) -> Option<bool
 
 /// The verdict on a directed claim judged on the mean errors (`lower`: the paper's
 /// direction), undecided when the aligned ranks the test uses point the other way.
-pub(super) fn directed_verdict(
+fn directed_verdict(
     p: Option<f64>,
     lower: bool,
     ranks: Option<bool>,
@@ -236,7 +236,7 @@ pub(super) fn directed_verdict(
 }
 
 /// The networks per condition of an interference direction (the smallest group).
-pub(super) fn networks_per_condition(v: &Value) -> usize {
+fn networks_per_condition(v: &Value) -> usize {
     v["per_network"][0]
         .as_array()
         .and_then(|c| c.iter().filter_map(|g| g.as_array().map(Vec::len)).min())
@@ -250,7 +250,7 @@ pub(super) fn added(label: &str) -> String {
 
 /// Fig 6B's Holm contrasts the paper reports, each with the raw difference of the
 /// conditions' per-network pooled errors (independent groups) beside its p.
-pub(super) fn holm_findings(v: &Value) -> Vec<Finding> {
+fn holm_findings(v: &Value) -> Vec<Finding> {
     // A condition's per-network pooled errors, by how many sequences it adds.
     let group = |count: &str| -> Vec<f64> {
         let index = v["conditions"].as_array().and_then(|c| {

@@ -127,7 +127,7 @@ pub(super) fn robustness(r: &Value) -> Vec<Finding> {
 
 /// The simple effect of proprioception at 16x16 (the ART-C contrast of the cells 16 / on
 /// and 16 / off): its Holm p and its t in the paper's direction (lower with it on).
-pub(super) fn simple_effect(r: &Value) -> (Option<f64>, Option<OurStatistic>) {
+fn simple_effect(r: &Value) -> (Option<f64>, Option<OurStatistic>) {
     let simple = r["art"]["cell_contrasts"].as_array().and_then(|c| {
         c.iter().find(|x| {
             let (a, b) = (x["a"].as_str().unwrap_or(""), x["b"].as_str().unwrap_or(""));
@@ -141,11 +141,11 @@ pub(super) fn simple_effect(r: &Value) -> (Option<f64>, Option<OurStatistic>) {
 }
 
 /// Resolution levels 64 / 32+16 / 16 in the order of [`robustness`]'s means.
-pub(super) const RESOLUTIONS: [&str; 3] = ["64 (all)", "32+16", "16"];
+const RESOLUTIONS: [&str; 3] = ["64 (all)", "32+16", "16"];
 
 /// How errors by resolution (64, 32+16, 16) run as the resolution drops.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) enum Order {
+enum Order {
     Rising,
     Falling,
     /// Neither; the level with the lowest error.
@@ -187,7 +187,7 @@ impl Order {
 /// Fig 5B's "the error rises as the resolution drops": the paper's order in both the mean
 /// errors and the ranks the test uses (or in the means where no ranks are recorded); the
 /// two disagreeing leave it undecided.
-pub(super) fn resolution_verdict(
+fn resolution_verdict(
     p: Option<f64>,
     means: Option<Order>,
     ranks: Option<Order>,

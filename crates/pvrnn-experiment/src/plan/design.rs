@@ -52,7 +52,7 @@ pub struct Design {
 
 /// Seconds per learning iteration over the 18 whole caresim sequences on 2 cores (AMD
 /// EPYC, `pvrnn bench`); training time scales with the number of steps.
-pub(super) const SECONDS_PER_ITERATION_18: f64 = 0.57;
+const SECONDS_PER_ITERATION_18: f64 = 0.57;
 
 impl Design {
     pub fn of(experiment: Experiment, scale: Scale) -> Self {

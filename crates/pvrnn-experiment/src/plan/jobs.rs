@@ -200,7 +200,7 @@ pub(super) fn shared_trainings(
 
 /// The observation conditions an experiment's inference runs: (label, vision levels
 /// observed, proprioception).
-pub(super) fn observed_conditions(experiment: Experiment) -> Vec<(String, usize, bool)> {
+fn observed_conditions(experiment: Experiment) -> Vec<(String, usize, bool)> {
     match experiment {
         Experiment::Robustness => VISION_CONDITIONS
             .iter()
@@ -274,11 +274,7 @@ pub(super) fn inference_jobs(
 /// The other task's learning sequences added for each count: `k / 3` per bed height (3 = one
 /// per height, 6 = two per height), the same for every network. Heights in order, the
 /// sequences of a height in name order.
-pub(super) fn added_sequences(
-    dataset: &Dataset,
-    task: &str,
-    counts: &[usize],
-) -> Result<Vec<Vec<String>>> {
+fn added_sequences(dataset: &Dataset, task: &str, counts: &[usize]) -> Result<Vec<Vec<String>>> {
     let mut by_height: std::collections::BTreeMap<i64, Vec<String>> = Default::default();
     for s in &dataset.manifest.sequences {
         if s.task == task && s.split == Split::Learn {

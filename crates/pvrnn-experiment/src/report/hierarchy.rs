@@ -23,7 +23,7 @@ use crate::stats::{self, mean_se};
 
 /// The subtask names of `task` in the plan's dataset (when it is there to read), else
 /// "subtask k".
-pub(super) fn subtask_names(plan: &Plan, task: &str, count: usize) -> Vec<String> {
+fn subtask_names(plan: &Plan, task: &str, count: usize) -> Vec<String> {
     let names: Option<Vec<String>> =
         pvrnn_dataset::Dataset::open(&plan.dataset)
             .ok()
@@ -144,7 +144,7 @@ pub(super) fn hierarchy(
 
 /// The executive module's time constants, the paper's: the half-width of the matched
 /// boundary test is the slower one.
-pub(super) fn executive_half_width() -> usize {
+fn executive_half_width() -> usize {
     let tau = ModelConfig::default().executive.tau;
     tau[0].max(tau[1]).round() as usize
 }
@@ -153,7 +153,7 @@ pub(super) fn executive_half_width() -> usize {
 /// beside the one above): "near" spans the executive's slower time constant on either side
 /// of a boundary, and the onset at step 0 is kept (every step from 1 counts, the warm-up
 /// included, as in the paper's figures).
-pub(super) fn matched_boundary_test(
+fn matched_boundary_test(
     observed: &[(InferResult, Option<Vec<Vec<f32>>>)],
     md: &mut String,
 ) -> Value {
@@ -183,7 +183,7 @@ pub(super) fn matched_boundary_test(
 
 /// Contribution per module and subtask phase (per task): a table of means ± SE over
 /// networks and a labelled picture of the maps, averaged over trials and test sequences.
-pub(super) fn time_resolved(
+fn time_resolved(
     plan: &Plan,
     r: &Results,
     out: &Path,
@@ -263,7 +263,7 @@ pub(super) fn time_resolved(
 
 /// The per-phase picture of one task: per module (rows) and phase (columns), the maps of
 /// the first camera averaged over the runs that have the phase.
-pub(super) fn phase_picture(
+fn phase_picture(
     r: &Results,
     with_phases: &[&(InferResult, Option<Vec<Vec<f32>>>)],
     task: &str,
@@ -345,7 +345,7 @@ pub(super) fn phase_picture(
 /// Body parts the arms hide, scored against the robot-free renders relative to the
 /// observed frame, for the reconstruction with everything observed, the reconstruction
 /// from the 16x16 input, and the one-step prior prediction.
-pub(super) fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
+fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Value {
     let _ = writeln!(
         md,
         "## Occlusion: what the model makes of hidden body parts ({stamp})\n"
@@ -459,7 +459,7 @@ pub(super) fn occlusion_section(r: &Results, stamp: &str, md: &mut String) -> Va
 /// observation-only baseline (pre-specified 2026-12-06): d(model, body) − d(baseline, body)
 /// per network, two-sided one-sample t. Inferring the hidden body means beating what needs
 /// no model: the mean learning image and each pixel's last unhidden observation.
-pub(super) fn against_observation_baselines(r: &Results, md: &mut String) -> Value {
+fn against_observation_baselines(r: &Results, md: &mut String) -> Value {
     type Pick = fn(&OcclusionScores) -> f64;
     let baselines: [(&str, Pick); 2] = [
         ("mean image", |o| o.model - o.mean_image),
@@ -496,7 +496,7 @@ pub(super) fn against_observation_baselines(r: &Results, md: &mut String) -> Val
 }
 
 /// Writes the four modules' maps (rows) for each camera (columns) as one PNG.
-pub(super) fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
+fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
     // Top-resolution layout: cameras x (r x r x 3).
     let per_pixel: Vec<Vec<f64>> = maps
         .iter()
@@ -545,7 +545,7 @@ pub(super) fn write_maps(path: &Path, maps: &[Vec<f64>]) -> Result<()> {
 /// `t >= window` count (at least step 1, the first change): before the inference window is
 /// full, online inference is still warming up and the posterior moves more everywhere (the
 /// onset's neighbourhood then lies in the warm-up and drops out; `window` 0 keeps it).
-pub(super) fn boundary_test(
+fn boundary_test(
     infers: &[(InferResult, Option<Vec<Vec<f32>>>)],
     window: usize,
     half_width: usize,

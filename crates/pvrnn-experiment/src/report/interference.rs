@@ -21,7 +21,7 @@ use crate::stats::{self, mean_se};
 
 /// Dimensions per vision resolution (keyed as the run's errors are) and in all, with
 /// proprioception: the paper's pooled error is the mean over all sensory dimensions.
-pub(super) fn sensory_dimensions() -> (Vec<(String, f64)>, f64) {
+fn sensory_dimensions() -> (Vec<(String, f64)>, f64) {
     let config = ModelConfig::default();
     let layout = &config.vision;
     let vision: Vec<(String, f64)> = (0..layout.resolutions.len())
@@ -38,7 +38,7 @@ pub(super) fn sensory_dimensions() -> (Vec<(String, f64)>, f64) {
 
 /// The paper's pooled error of a run: its squared errors averaged over every sensory
 /// dimension (every vision resolution and proprioception).
-pub(super) fn pooled_error(x: &InferResult) -> Option<f64> {
+fn pooled_error(x: &InferResult) -> Option<f64> {
     let (vision, all) = sensory_dimensions();
     let proprio_dims = ModelConfig::default().proprio_dims as f64;
     let mut sum = x.errors.get("proprio")? * proprio_dims;
@@ -51,7 +51,7 @@ pub(super) fn pooled_error(x: &InferResult) -> Option<f64> {
 /// The table of the difference most added − none per measure (independent networks),
 /// with its 95% CI and the detectable difference, and the equivalence test of "no change"
 /// (Fig 6A) against ±`EQUIVALENCE_MARGIN` of the none condition's mean; both as JSON.
-pub(super) fn most_minus_none(
+fn most_minus_none(
     names: &[&str],
     per_measure: &[Vec<Vec<f64>>],
     md: &mut String,
@@ -111,7 +111,7 @@ pub(super) fn most_minus_none(
 
 /// The primary task of an interference training condition or of a job that reads one
 /// (`repositioning 9 + wiping 3` → `repositioning`).
-pub(super) fn primary_of<'a>(plan: &'a Plan, job: &crate::plan::Job) -> Option<&'a str> {
+fn primary_of<'a>(plan: &'a Plan, job: &crate::plan::Job) -> Option<&'a str> {
     let condition = match &job.kind {
         JobKind::Train { condition, .. } => condition,
         JobKind::Infer { training, .. } => training,
@@ -125,7 +125,7 @@ pub(super) fn primary_of<'a>(plan: &'a Plan, job: &crate::plan::Job) -> Option<&
 
 /// The jobs of one direction of the interference experiment: its trainings and their
 /// inference runs.
-pub(super) fn direction_jobs(plan: &Plan, primary: &str) -> Vec<usize> {
+fn direction_jobs(plan: &Plan, primary: &str) -> Vec<usize> {
     plan.jobs
         .iter()
         .filter(|j| primary_of(plan, j) == Some(primary))
@@ -173,10 +173,7 @@ pub fn completed_by(plan: &Plan, dir: &Path, id: usize) -> Option<String> {
 
 /// A direction's conditions in plan order, and how many networks each plans (the
 /// design, not what is done so far).
-pub(super) fn planned_conditions(
-    plan: &Plan,
-    primary: &str,
-) -> (Vec<String>, BTreeMap<String, usize>) {
+fn planned_conditions(plan: &Plan, primary: &str) -> (Vec<String>, BTreeMap<String, usize>) {
     let mut conditions: Vec<String> = Vec::new();
     let mut planned: BTreeMap<String, usize> = BTreeMap::new();
     for job in &plan.jobs {
@@ -194,7 +191,7 @@ pub(super) fn planned_conditions(
 
 /// A complete direction's tests, per measure: most added − none with the equivalence
 /// test, and the one-way ART ANOVA with its contrasts; into the report and `direction`.
-pub(super) fn direction_tests(
+fn direction_tests(
     names: &[&str],
     conditions: &[String],
     per_measure: &[Vec<Vec<f64>>],
@@ -347,7 +344,7 @@ pub(super) fn interference(
 /// task's error by a different factor than the first's, per measure
 /// ([`stats::relative_change_difference`] of none → most added); once both directions are
 /// complete.
-pub(super) fn asymmetry(
+fn asymmetry(
     primaries: &[String],
     directions: &serde_json::Map<String, Value>,
     md: &mut String,

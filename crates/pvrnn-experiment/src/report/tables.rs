@@ -10,7 +10,7 @@ use super::module_names;
 use crate::run::{InferResult, TrainResult};
 
 /// A CSV field: quoted when it holds a comma, a quote or a line break.
-pub(super) fn csv_field(text: &str) -> String {
+fn csv_field(text: &str) -> String {
     if text.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", text.replace('"', "\"\""))
     } else {
@@ -19,7 +19,7 @@ pub(super) fn csv_field(text: &str) -> String {
 }
 
 /// A number for the CSVs: full precision, empty when missing or not finite.
-pub(super) fn csv_number(v: Option<f64>) -> String {
+fn csv_number(v: Option<f64>) -> String {
     v.filter(|v| v.is_finite())
         .map_or_else(String::new, |v| v.to_string())
 }
@@ -109,7 +109,7 @@ pub(super) fn network_gates(trains: &[TrainResult]) -> Vec<Option<Gate>> {
 }
 
 /// What a gate's log lacks, as `measure: name name; ...` (empty when complete).
-pub(super) fn not_recorded(gate: &Gate) -> String {
+fn not_recorded(gate: &Gate) -> String {
     gate.checks
         .iter()
         .filter(|c| !c.missing.is_empty())

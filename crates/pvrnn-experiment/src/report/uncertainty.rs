@@ -16,7 +16,7 @@ use crate::run::InferResult;
 use crate::stats::{self, mean_se};
 
 #[derive(Serialize)]
-pub(super) struct TaskComparison {
+struct TaskComparison {
     module: String,
     measure: String,
     repositioning: Vec<f64>,

@@ -43,7 +43,7 @@ pub fn job_settings(
     s
 }
 
-pub(super) fn mse(a: &[f32], b: &[f32]) -> f64 {
+fn mse(a: &[f32], b: &[f32]) -> f64 {
     let n = a.len().max(1) as f64;
     a.iter()
         .zip(b)
@@ -167,7 +167,7 @@ pub(super) fn infer(
 }
 
 /// Occlusion: the run's robot-free inputs and the scorer, where the data has them.
-pub(super) fn occlusion_scorer(
+fn occlusion_scorer(
     seq: &Sequence,
     dataset: &Dataset,
     model: &Model<f32>,
@@ -187,7 +187,7 @@ pub(super) fn occlusion_scorer(
 /// What an inference run accumulates step by step, apart from occlusion: the
 /// reconstruction errors, prior sigma and its change, the executive module's latent
 /// change, and (runs with maps) each module's contribution, over the run and per phase.
-pub(super) struct RunScores {
+struct RunScores {
     /// The top resolution's range of the vision dimensions.
     top: (usize, usize),
     maps: bool,
@@ -203,7 +203,7 @@ pub(super) struct RunScores {
 }
 
 /// A run's scores, averaged over its steps.
-pub(super) struct FinishedScores {
+struct FinishedScores {
     errors: BTreeMap<String, f64>,
     sigma_p: [f64; 4],
     sigma_p_change: [f64; 4],
@@ -216,7 +216,7 @@ pub(super) struct FinishedScores {
     phase_maps: Vec<Vec<Vec<f32>>>,
 }
 
-pub(super) fn mean_abs_difference(a: &[f32], b: &[f32]) -> f64 {
+fn mean_abs_difference(a: &[f32], b: &[f32]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(a, b)| (a - b).abs() as f64)
@@ -352,10 +352,10 @@ impl RunScores {
 
 /// An inference run's contribution maps: time-averaged [module][value], and per phase
 /// [phase][module][pixel].
-pub(super) type MapsToWrite<'a> = (&'a [Vec<f32>], &'a [Vec<Vec<f32>>]);
+type MapsToWrite<'a> = (&'a [Vec<f32>], &'a [Vec<Vec<f32>>]);
 
 /// Writes an inference job's result file (and, when the run is shared, the shared copy).
-pub(super) fn write_infer_result(
+fn write_infer_result(
     plan: &Plan,
     dir: &Path,
     id: usize,
@@ -406,7 +406,7 @@ pub(super) fn write_infer_result(
 
 /// Part of a kept run's identity: runs kept before occlusion was scored relative to the
 /// observed frame (and on the prior) in every run are not reused.
-pub(super) const SCORES_VERSION: &str = "; scores 2";
+const SCORES_VERSION: &str = "; scores 2";
 
 /// An inference run as experiments sharing a networks folder see it. The same network,
 /// test sequence, trial (noise seed), observed modalities and inference settings give the
@@ -414,7 +414,7 @@ pub(super) const SCORES_VERSION: &str = "; scores 2";
 /// uncertainty's, and robustness's "64 (all), proprioception on" ones: the contribution
 /// maps are read out after each step and change nothing), so it is computed once and kept
 /// in `<networks>/runs/`; a job without maps takes it from there.
-pub(super) struct SharedRun {
+struct SharedRun {
     path: std::path::PathBuf,
     /// The trained network's identity (its iterations and final free energy): a network
     /// trained again after a run was kept does not reuse that run.

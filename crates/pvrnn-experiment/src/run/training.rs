@@ -24,7 +24,7 @@ use crate::plan::{Design, JobKind, Plan};
 use pvrnn_eval::early_stopping::{EarlyStopping, StoppingRule};
 
 /// One training job in progress: its trainer, log, convergence rule and where it stops.
-pub(super) struct TrainingRun<'p> {
+struct TrainingRun<'p> {
     plan: &'p Plan,
     dir: &'p Path,
     id: usize,
@@ -328,7 +328,7 @@ pub(super) fn train(
 /// inference, latency-bound (round trips on a GPU), and the members reach theirs at the
 /// same iteration. Each member's results are its own, as one after another. Threads only
 /// then: most iterations validate nothing.
-pub(super) fn checkpoint_and_validate_side_by_side(
+fn checkpoint_and_validate_side_by_side(
     recorded: Vec<(&mut TrainingRun<'_>, pvrnn_core::FreeEnergy)>,
     backend: &Arc<dyn Backend<f32>>,
     stopping: bool,
@@ -368,7 +368,7 @@ pub(super) fn checkpoint_and_validate_side_by_side(
 /// both, repositioning + 3 wiping sequences stopped at 8,000 iterations and used 4,000,
 /// against 14,000 / 10,000 for repositioning alone: the comparison would be of training
 /// lengths, not of interference).
-pub(super) fn scored_tasks<'a>(
+fn scored_tasks<'a>(
     plan: &'a Plan,
     id: usize,
     chosen: &'a [Sequence],
@@ -391,10 +391,7 @@ pub(super) fn scored_tasks<'a>(
 
 /// The plan's held-out dataset, its sequences of `tasks` only (`None` when the plan names
 /// none).
-pub(super) fn held_out(
-    plan: &Plan,
-    tasks: &std::collections::BTreeSet<&str>,
-) -> Result<Option<Dataset>> {
+fn held_out(plan: &Plan, tasks: &std::collections::BTreeSet<&str>) -> Result<Option<Dataset>> {
     let Some(data) = plan.validation_dataset.as_ref() else {
         return Ok(None);
     };
@@ -418,7 +415,7 @@ pub(super) fn held_out(
 
 /// The convergence rule's state during one training: early stopping on the held-out data
 /// (the same type as `pvrnn train --validate`'s), and whether it stops the run.
-pub(super) struct ConvergenceRule {
+struct ConvergenceRule {
     stopping: EarlyStopping,
     /// Whether the rule stops the training (a convergence rule); without one, a design
     /// with held-out data validates its network once, at its last iteration, for the
@@ -501,7 +498,7 @@ impl ConvergenceRule {
 
 /// The training's checkpoint to resume, or a new network for `chosen` (the paper's
 /// configuration, normalised by all learning sequences of the dataset).
-pub(super) fn open_trainer(
+fn open_trainer(
     checkpoint: &Path,
     dataset: &Dataset,
     chosen: &[Sequence],
@@ -524,7 +521,7 @@ pub(super) fn open_trainer(
 /// result read from the log it came with.
 /// A reused network is validated once on the plan's held-out data, if it names any, so that
 /// the validity gate can judge it.
-pub(super) fn train_reused(
+fn train_reused(
     plan: &Plan,
     dir: &Path,
     id: usize,

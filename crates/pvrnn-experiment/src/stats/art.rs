@@ -74,7 +74,7 @@ pub enum Layout {
     Between,
 }
 
-pub(super) struct Anova2 {
+struct Anova2 {
     ss: [f64; 3],
     df: [f64; 3],
     /// Each effect's error: sum of squares and degrees of freedom.
@@ -97,7 +97,7 @@ impl Anova2 {
     }
 }
 
-pub(super) fn anova2(y: &[Vec<Vec<f64>>], layout: Layout) -> Anova2 {
+fn anova2(y: &[Vec<Vec<f64>>], layout: Layout) -> Anova2 {
     let (n, a, b) = (y.len(), y[0].len(), y[0][0].len());
     let all: Vec<f64> = y.iter().flatten().flatten().copied().collect();
     let grand = all.iter().sum::<f64>() / all.len() as f64;
@@ -250,7 +250,7 @@ pub(super) fn pairwise(
     out
 }
 
-pub(super) fn reshape(values: &[f64], n: usize, a: usize, b: usize) -> Vec<Vec<Vec<f64>>> {
+fn reshape(values: &[f64], n: usize, a: usize, b: usize) -> Vec<Vec<Vec<f64>>> {
     (0..n)
         .map(|k| {
             (0..a)
@@ -265,10 +265,7 @@ pub(super) fn reshape(values: &[f64], n: usize, a: usize, b: usize) -> Vec<Vec<V
 /// (average ties) and analysed by the layout's ANOVA, of which only that effect's F test is
 /// read. Also returns each effect's ANOVA of its aligned ranks (for contrasts). None for a
 /// design too small to test (fewer than 2 units per cell or 2 levels of A) or ragged.
-pub(super) fn art_aligned(
-    y: &[Vec<Vec<f64>>],
-    layout: Layout,
-) -> Option<(Vec<Effect>, Vec<Anova2>)> {
+fn art_aligned(y: &[Vec<Vec<f64>>], layout: Layout) -> Option<(Vec<Effect>, Vec<Anova2>)> {
     let n = y.len();
     let a = y.first()?.len();
     let b = y.first()?.first()?.len();

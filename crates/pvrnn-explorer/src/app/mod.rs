@@ -576,16 +576,10 @@ impl ExplorerApp {
         self.sanitize_view(Vec::new());
         let keys = self.time.keyboard(ctx, &self.panel_context());
         self.apply(keys, ctx);
-        let key = self.current_key();
-        let context = panel::PanelContext {
-            bundle: self.bundle.as_ref(),
-            view: &self.view,
-            store: &self.store,
-            key,
-            computed: 0, // playback does not wait for inference
-            second_open: self.second.is_some(),
-        };
-        let playback = self.time.advance(dt, &context);
+        // Panels lent out of the app while they read its context (as in `draw`).
+        let mut time = std::mem::take(&mut self.time);
+        let playback = time.advance(dt, &self.panel_context());
+        self.time = time;
         self.apply(playback, ctx);
         // Inline runs advance only while frames are drawn; a worker's results repaint when
         // they arrive, so the page does not redraw at full rate beside it.
@@ -642,31 +636,22 @@ impl ExplorerApp {
                 renderer: &self.renderer_label,
             },
         };
-        let context = panel::PanelContext {
-            bundle: self.bundle.as_ref(),
-            view: &self.view,
-            store: &self.store,
-            key,
-            computed: self.current_run().map_or(0, |e| e.trace.steps),
-            second_open: self.second.is_some(),
-        };
-        let (top, targets) = (&mut self.controls, &mut self.tour.targets);
-        let conditions = egui::Panel::top("controls")
-            .show(ui, |ui| commands.extend(top.ui(ui, &context, bar, targets)));
+        // A panel with state of its own is lent out of the app while it reads the app's
+        // context, then put back.
+        let (mut top, mut tour) = (
+            std::mem::take(&mut self.controls),
+            std::mem::take(&mut self.tour),
+        );
+        let conditions = egui::Panel::top("controls").show(ui, |ui| {
+            commands.extend(top.ui(ui, &self.panel_context(), bar, &mut tour.targets))
+        });
+        (self.controls, self.tour) = (top, tour);
         self.apply(std::mem::take(&mut commands), &ctx);
-        let computed = self.current_run().map_or(0, |e| e.trace.steps);
-        let key = self.current_key();
-        let context = panel::PanelContext {
-            bundle: self.bundle.as_ref(),
-            view: &self.view,
-            store: &self.store,
-            key,
-            computed,
-            second_open: self.second.is_some(),
-        };
-        let time_panel = &mut self.time;
-        let time =
-            egui::Panel::bottom("time").show(ui, |ui| commands.extend(time_panel.ui(ui, &context)));
+        let mut time_panel = std::mem::take(&mut self.time);
+        let time = egui::Panel::bottom("time").show(ui, |ui| {
+            commands.extend(time_panel.ui(ui, &self.panel_context()))
+        });
+        self.time = time_panel;
         let images = egui::Panel::left("images")
             .resizable(true)
             .default_size(430.0)
@@ -695,16 +680,9 @@ impl ExplorerApp {
         let cells = self.comparison();
         commands.extend(self.compare_images.ui(&ctx, &self.panel_context(), &cells));
         commands.extend(self.findings.ui(&ctx));
-        let key = self.current_key();
-        let context = panel::PanelContext {
-            bundle: self.bundle.as_ref(),
-            view: &self.view,
-            store: &self.store,
-            key,
-            computed,
-            second_open: self.second.is_some(),
-        };
-        commands.extend(self.tour.ui(&ctx, &context));
+        let mut tour = std::mem::take(&mut self.tour);
+        commands.extend(tour.ui(&ctx, &self.panel_context()));
+        self.tour = tour;
         self.apply(commands, &ctx);
         if let Some(bundle) = &self.bundle {
             egui::Window::new("About this model")

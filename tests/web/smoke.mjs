@@ -8,6 +8,7 @@
 // then branches that run at step 20 without vision and waits as long for the branch's speed.
 // It also checks that the first view came before the whole bundle (progressive load) and
 // that the findings' figures are served.
+// It also drives the robot from the address (`drive=`) and waits for the episode's outcome.
 // With --webgpu it also opens the site in a browser with WebGPU and checks that the worker
 // takes it when asked (`?compute=webgpu`), and that eframe's wgpu renderer draws the page
 // when asked (`?render=wgpu`).
@@ -193,6 +194,26 @@ try {
   }
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();
+  // A drive from the address, on a page of its own (nothing else computing): the shipped
+  // network drives caresim's robot in the page (16x16 + proprioception observed) and the
+  // episode opens as a sequence.
+  {
+    const { page: drivePage, logs: driveLogs } = await openPage(browser);
+    await waitForLog(drivePage, driveLogs, 'bundle ready');
+    const started = Date.now();
+    await drivePage.evaluate(() => {
+      location.hash = 'drive=repositioning%3A650%3A0%3A1%3Anetwork&vision=1&proprio=1&maps=0';
+    });
+    const done = await waitForLog(drivePage, driveLogs, 'status: repositioning: ', 400_000);
+    const driveShot = out.replace(/\.png$/, '') + '-drive.png';
+    writeFileSync(driveShot, await drivePage.screenshot());
+    const error = driveLogs.find((l) => l.startsWith('status (error)'));
+    if (error) fail(`drive from the address: ${error}`);
+    else if (done) console.log(`drive from the address in ${((Date.now() - started) / 1000).toFixed(0)} s: ${done} (screenshot ${driveShot})`);
+    else fail(`drive from the address: no episode finished within 400 s (screenshot ${driveShot})`);
+    for (const l of driveLogs) if (/panicked|pageerror/.test(l)) fail(`console (drive): ${l}`);
+    await drivePage.close();
+  }
 
   // `?render=wgpu` in a browser without WebGPU (this one) falls back to WebGL.
   const { page: fallback, logs: fallbackLogs } = await openPage(browser, 'render=wgpu');

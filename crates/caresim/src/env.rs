@@ -71,6 +71,8 @@ pub enum StepError {
     NotFinite { joint: usize, value: f64 },
     /// The episode has taken all its steps.
     Over { steps: usize },
+    /// A perturbation that cannot be applied (what, and why).
+    BadPerturbation(String),
 }
 
 impl std::fmt::Display for StepError {
@@ -85,6 +87,7 @@ impl std::fmt::Display for StepError {
             StepError::Over { steps } => {
                 write!(f, "the episode is over: it has taken all its {steps} steps")
             }
+            StepError::BadPerturbation(why) => write!(f, "{why}"),
         }
     }
 }
@@ -153,6 +156,38 @@ impl Environment {
         }
         let record = self.sim.step_commanded(&target, &self.max_step);
         Ok(self.observe(record))
+    }
+
+    /// Scales the sensor noise of the observations from the next step on (1 = a
+    /// recording's; 3 = the robustness test's "proprioceptive noise x3").
+    pub fn set_sensor_noise(&mut self, factor: f64) -> Result<(), StepError> {
+        if !(factor.is_finite() && factor >= 0.0) {
+            return Err(StepError::BadPerturbation(format!(
+                "sensor noise factor {factor}: it must be a finite number of at least 0"
+            )));
+        }
+        self.sim.sensor_noise = factor;
+        Ok(())
+    }
+
+    /// Pushes arm `arm` (0 left, 1 right): its joints displaced by `delta` (rad) at once,
+    /// as a hand shoving the arm would (clamped to the joints' limits); the next step
+    /// moves on from there toward its commands.
+    pub fn push(&mut self, arm: usize, delta: &[f64; DOF]) -> Result<(), StepError> {
+        if arm > 1 {
+            return Err(StepError::BadPerturbation(format!(
+                "push: arm {arm} does not exist (0 left, 1 right)"
+            )));
+        }
+        if let Some(v) = delta.iter().find(|v| !v.is_finite()) {
+            return Err(StepError::BadPerturbation(format!(
+                "push: a displacement of {v} rad; it must be finite"
+            )));
+        }
+        for (j, d) in delta.iter().enumerate() {
+            self.sim.q[arm][j] = (self.sim.q[arm][j] + d).clamp(Q_MIN[j], Q_MAX[j]);
+        }
+        Ok(())
     }
 
     fn observe(&mut self, record: StepRecord) -> Observation {

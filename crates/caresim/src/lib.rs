@@ -19,6 +19,7 @@
 //! [`shapes`] primitives and meshes, [`render`] the rasteriser, [`scene`] robot, bed, room
 //! and cameras, [`task`] the scripted tasks and their variability, [`sim`] running a trial,
 //! [`env`](mod@env) a trial driven by joint commands instead of its script (closed loop),
+//! [`outcome`] whether such an episode did the task (the pre-specified success criteria),
 //! [`revision`] which edition of the benchmark (revision 2 moves every joint).
 
 pub mod arm;
@@ -26,6 +27,7 @@ pub mod body;
 pub mod cloth;
 pub mod env;
 mod math;
+pub mod outcome;
 pub mod render;
 pub mod revision;
 pub mod scene;

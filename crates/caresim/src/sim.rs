@@ -69,6 +69,9 @@ pub struct StepRecord {
     pub tcp: [DAffine3; 2],
     pub towel_centroid: Option<DVec3>,
     pub towel_grip_error: Option<f64>,
+    /// The upper body's lift after the step (rad): the script's where the left hand is
+    /// in place, sinking back where it is not ([`LIFT_RELAX`]).
+    pub lift: f64,
 }
 
 /// One trial in progress.
@@ -81,6 +84,9 @@ pub struct Simulation {
     pub towel: Option<Cloth>,
     pub bed_top: f64,
     pub q: [[f64; DOF]; 2],
+    /// The sensor noise's scale (1 = a recording's: joints 2e-4 rad, torques 0.05 N m);
+    /// the same draws, scaled, so 3 gives the recording's noise times 3.
+    pub sensor_noise: f64,
     step: usize,
     noise: SimRng,
     lift: f64,
@@ -134,6 +140,7 @@ impl Simulation {
             towel,
             bed_top,
             q,
+            sensor_noise: 1.0,
             step: 0,
             lift: 0.0,
             body_cache: None,
@@ -252,6 +259,7 @@ impl Simulation {
                 .as_ref()
                 .filter(|t| t.is_grasped())
                 .map(|t| t.grip_error(&tcp[1])),
+            lift: self.lift,
         }
     }
 
@@ -323,10 +331,13 @@ impl Simulation {
         let mut torques = [0f32; 14];
         for arm in 0..2 {
             for j in 0..DOF {
-                joints[arm * DOF + j] =
-                    (record.q[arm][j] + JOINT_NOISE * self.noise.normal()) as f32;
-                torques[arm * DOF + j] =
-                    (record.torques[arm][j] + TORQUE_NOISE * self.noise.normal()) as f32;
+                // x 1.0 is exact: a recording's bytes do not change.
+                joints[arm * DOF + j] = (record.q[arm][j]
+                    + JOINT_NOISE * self.sensor_noise * self.noise.normal())
+                    as f32;
+                torques[arm * DOF + j] = (record.torques[arm][j]
+                    + TORQUE_NOISE * self.sensor_noise * self.noise.normal())
+                    as f32;
             }
         }
         (joints, torques)

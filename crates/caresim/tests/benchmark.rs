@@ -665,3 +665,76 @@ fn the_towel_is_grasped_only_by_a_hand_at_it() {
     );
     assert!(!grasped, "a towel grasped by a hand that never reached it");
 }
+
+#[test]
+fn every_demonstration_succeeds_and_arms_held_still_fail() {
+    use caresim::outcome::{Outcome, demonstration};
+    for spec in DatasetSpec::default().trials() {
+        if spec.split != Split::Test {
+            continue;
+        }
+        let (sim, demo) = demonstration(&spec);
+        let outcome = Outcome::assess(&sim, &demo, &demo);
+        assert!(outcome.success, "{}: {}", spec.name(), outcome.summary());
+        assert_eq!(outcome.joint_distance, 0.0);
+        assert_eq!(outcome.joint_path_share, 1.0);
+        // Arms held at their start posture: no criterion that needs a hand in place.
+        let (mut env, first) = Environment::reset(spec.clone());
+        let mut hold = [0.0; 14];
+        for arm in 0..2 {
+            hold[arm * 7..arm * 7 + 7].copy_from_slice(&first.record.q[arm]);
+        }
+        let mut records = vec![first.record];
+        while env.steps_taken() < env.len() {
+            records.push(env.step(&hold).unwrap().record);
+        }
+        let held = Outcome::assess(env.simulation(), &records, &demo);
+        assert!(!held.success, "{}: {}", spec.name(), held.summary());
+        assert!(!held.criteria[0].1, "{}: {}", spec.name(), held.summary());
+        assert!(held.joint_distance > 0.05, "{}", held.summary());
+        assert!(held.joint_path_share < 0.01, "{}", held.summary());
+        // The neck is the end of reaching, not the start posture's target.
+        if spec.task == Task::Repositioning {
+            assert!(outcome.measures[0].value < caresim::sim::CONTACT_TOLERANCE);
+            assert!(held.measures[0].value > 0.1, "{}", held.measures[0].value);
+        }
+    }
+}
+
+#[test]
+fn a_push_displaces_the_arm_and_sensor_noise_scales_the_same_draws() {
+    let spec = trial(Task::Repositioning, 650, 0);
+    let (_, records) = simulated(Task::Repositioning);
+    let commands = scripted_commands(records);
+    let run = |noise: f64| {
+        let (mut env, _) = Environment::reset(spec.clone());
+        env.set_sensor_noise(noise).unwrap();
+        (0..5)
+            .map(|k| env.step(&commands[k]).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let (plain, tripled) = (run(1.0), run(3.0));
+    for (a, b) in plain.iter().zip(&tripled) {
+        assert_eq!(a.record.q, b.record.q);
+        for i in 0..14 {
+            let truth = a.record.q[i / 7][i % 7];
+            let (na, nb) = (a.joints[i] as f64 - truth, b.joints[i] as f64 - truth);
+            assert!((nb - 3.0 * na).abs() < 1e-6, "joint {i}: {na} then {nb}");
+        }
+    }
+    let (mut env, first) = Environment::reset(spec.clone());
+    env.push(0, &[0.3, 0.0, 0.0, 0.0, 0.0, 0.0, -100.0])
+        .unwrap();
+    let q = env.simulation().q;
+    assert_eq!(q[0][0], first.record.q[0][0] + 0.3);
+    assert_eq!(q[0][6], Q_MIN[6], "a push stops at the joint's limit");
+    assert_eq!(q[1], first.record.q[1], "the other arm is not moved");
+    for (bad, says) in [
+        (env.push(2, &[0.0; 7]), "arm 2 does not exist"),
+        (env.push(1, &[f64::NAN; 7]), "must be finite"),
+        (env.set_sensor_noise(-1.0), "at least 0"),
+    ] {
+        let e = bad.unwrap_err().to_string();
+        assert!(e.contains(says), "{e}");
+    }
+}

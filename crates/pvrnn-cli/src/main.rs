@@ -66,6 +66,9 @@ enum Command {
     Import(commands::import::Args),
     /// Package a model, a dataset split and precomputed runs for the explorer.
     Bundle(commands::bundle::Args),
+    /// Let the network drive caresim's robot in closed loop (or a baseline open loop); the
+    /// episode as a dataset folder, scored by the pre-specified success criteria.
+    Drive(commands::drive::Args),
 }
 
 fn main() {
@@ -87,6 +90,7 @@ fn main() {
         Command::Simulate(a) => commands::simulate::run(a),
         Command::Import(a) => commands::import::run(a),
         Command::Bundle(a) => commands::bundle::run(a),
+        Command::Drive(a) => commands::drive::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -196,11 +196,23 @@ pub fn ensure_normalisation(config: &mut ModelConfig, dataset: &Dataset) -> Resu
 
 /// Writes one step's vision vector (all levels, all cameras) into `out`.
 pub fn vision_vector(seq: &Sequence, t: usize, layout: &VisionLayout, out: &mut [f32]) {
-    let levels = layout.resolutions.len();
-    let mut level_images: Vec<Vec<f32>> = Vec::with_capacity(seq.cameras);
-    for cam in 0..seq.cameras {
-        level_images.push(seq.image(t, cam).iter().map(|&v| v as f32).collect());
+    let frame = seq.image(t, 0).len();
+    let step = &seq.images[t * seq.cameras * frame..(t + 1) * seq.cameras * frame];
+    step_vision_vector(step, seq.cameras, layout, out);
+}
+
+/// [`vision_vector`] of one step's images as a sequence stores them (`[cameras, S, S, 3]`,
+/// S the layout's highest resolution), e.g. a robot's cameras as they come.
+pub fn step_vision_vector(images: &[u8], cameras: usize, layout: &VisionLayout, out: &mut [f32]) {
+    if cameras == 0 || images.is_empty() {
+        return;
     }
+    let levels = layout.resolutions.len();
+    let frame = images.len() / cameras;
+    let mut level_images: Vec<Vec<f32>> = images
+        .chunks_exact(frame)
+        .map(|img| img.iter().map(|&v| v as f32).collect())
+        .collect();
     // Highest level first, each lower one the 2x2 box average of the one above.
     for level in (0..levels).rev() {
         let r = layout.resolutions[level];

@@ -268,6 +268,16 @@ impl Bundle {
         Ok(bundle)
     }
 
+    /// Adds a sequence (a driven episode) to the data, replacing one of the same name.
+    pub fn replace_sequence(&mut self, sequence: pvrnn_dataset::Sequence) {
+        let name = sequence.info.name.clone();
+        self.observations.remove(&name);
+        self.dataset.sequences.retain(|s| s.info.name != name);
+        self.dataset.manifest.sequences.retain(|s| s.name != name);
+        self.dataset.manifest.sequences.push(sequence.info.clone());
+        self.dataset.sequences.push(sequence);
+    }
+
     /// A sequence's model inputs (computed once, shared by its runs).
     pub fn observations(&mut self, name: &str) -> Result<Arc<Observations<f32>>, String> {
         if let Some(o) = self.observations.get(name) {

@@ -23,7 +23,8 @@
 //! - `about`: the "About this model" window (the model card).
 //! - `app`: the window (`ExplorerApp`): its state and logic in `app/mod.rs`, one file per
 //!   panel (`controls`, `status`, `time_panel`, `images_panel`, `traces`, `summaries`,
-//!   `compare`, `branch`, `second`, `contributions`, `findings_panel`, `tour`), `export`
+//!   `compare`, `branch`, `second`, `contributions`, `findings_panel`, `tour`, `drive`: the
+//!   network driving caresim's robot, `pvrnn_drive`), `export`
 //!   (CSV of a run, PNG of the window) and `bench` (frames drawn headless and timed).
 //! - `web`, `browser` (wasm32): the web entry and the browser glue the app, the store and
 //!   the worker share.

@@ -59,6 +59,45 @@ pub struct ViewState {
     /// A second network to open beside the first: a bundle's address relative to the site
     /// (in the browser) or to the working folder (on the desktop), e.g. `models/early/`.
     pub second: Option<String>,
+    /// The drive whose episode is shown (`pvrnn_drive::DriveSpec::to_text`): the app runs
+    /// it when its episode is not open yet, so a link replays it.
+    pub drive: Option<String>,
+}
+
+/// Reads an address entry that names something to open: a drive (`drive=`) or a second
+/// network (`second=`, a relative address only); `off` removes it. Whether it was read.
+fn read_link(v: &mut ViewState, key: &str, value: &str) -> bool {
+    let slot = if key == "drive" {
+        &mut v.drive
+    } else {
+        &mut v.second
+    };
+    if value == "off" {
+        *slot = None;
+        return true;
+    }
+    let read = decode(value).filter(|a| key == "drive" || relative_address(a));
+    read.map(|a| *slot = Some(a)).is_some()
+}
+
+/// The sequence name of a drive's episode under a condition: everything the episode
+/// depends on, so one name is one episode.
+pub fn drive_episode_name(spec_text: &str, c: &Condition) -> String {
+    let ablated: String = c
+        .ablation
+        .iter()
+        .map(|&a| if a { '1' } else { '0' })
+        .collect();
+    format!(
+        "drive {spec_text} | vision {} proprio {} ablate {ablated} {:?} H {} it {} lr {} seed {}",
+        c.vision_levels,
+        c.proprio as u8,
+        c.ablation_mode,
+        c.window,
+        c.iterations,
+        c.lr(),
+        c.seed
+    )
 }
 
 /// A branch of the shown run: the same run up to step `at`, then under `condition`.
@@ -87,6 +126,7 @@ impl Default for ViewState {
             branch_traces: false,
             map_trials: 1,
             second: None,
+            drive: None,
         }
     }
 }
@@ -177,7 +217,16 @@ impl ViewState {
                 .sequences
                 .first()
                 .map(|s| s.info.name.clone());
-            if let Some(unknown) = &self.sequence {
+            let standard = Condition::standard(&bundle.model.config);
+            let pending = self
+                .drive
+                .as_ref()
+                .map(|d| drive_episode_name(d, &self.condition.unwrap_or(standard)));
+            if let Some(unknown) = self
+                .sequence
+                .as_ref()
+                .filter(|s| Some(*s) != pending.as_ref())
+            {
                 notes.push(format!(
                     "no sequence `{}` in this model's data: showing `{}`",
                     quoted(unknown),
@@ -245,6 +294,12 @@ impl ViewState {
         }
         if let Some(second) = &self.second {
             parts.push(format!("second={}", encode(second)));
+        }
+        // Only while its episode is shown: a link to another sequence does not drive.
+        if let (Some(drive), Some(c)) = (&self.drive, &self.condition)
+            && self.sequence.as_deref() == Some(drive_episode_name(drive, c).as_str())
+        {
+            parts.push(format!("drive={}", encode(drive)));
         }
         for (key, on) in [
             ("d", self.show_d),
@@ -318,17 +373,7 @@ impl ViewState {
                     };
                     (set.map(|set| v.compare = set).is_some(), false)
                 }
-                "second" if value == "off" => {
-                    v.second = None;
-                    (true, false)
-                }
-                "second" => (
-                    decode(value)
-                        .filter(|a| relative_address(a))
-                        .map(|a| v.second = Some(a))
-                        .is_some(),
-                    false,
-                ),
+                "drive" | "second" => (read_link(&mut v, key, value), false),
                 "branch" if value == "off" => {
                     branch_given = false;
                     (true, false)

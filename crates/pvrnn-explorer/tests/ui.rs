@@ -1312,3 +1312,65 @@ mod snapshots {
         drawn(ExplorerApp::new(None, ViewState::default())).snapshot("no_model");
     }
 }
+
+/// Frames until the Drive window's episode is over (it joins the data and is shown).
+fn drive_to_the_end(h: &mut Harness<'static, ExplorerApp>) {
+    for _ in 0..5000 {
+        h.step();
+        if !h.state().driving() {
+            settle(h);
+            return;
+        }
+    }
+    panic!("the episode did not finish");
+}
+
+#[test]
+fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
+    let mut h = harness(ExplorerApp::new(
+        Some(common::caresim_bundle()),
+        ViewState::default(),
+    ));
+    h.get_by_label("Drive").click();
+    h.run_steps(2);
+    h.get_by_label("Start driving").click();
+    h.run_steps(3);
+    assert!(h.state().driving(), "the episode runs frame by frame");
+    // Perturbed while it acts: the push is recorded in the drive, so a link replays it.
+    h.get_by_label("push the left arm").click();
+    drive_to_the_end(&mut h);
+    let app = h.state();
+    let shown = app.view().sequence.clone().unwrap();
+    assert!(
+        shown.starts_with("drive repositioning:650:0:1:network;push="),
+        "{shown}"
+    );
+    let episode = app
+        .bundle()
+        .unwrap()
+        .dataset
+        .by_name(&shown)
+        .unwrap()
+        .clone();
+    let run = app.current_run().expect("the episode's run is shown");
+    assert!(run.complete);
+    assert_eq!(run.trace.steps, episode.len());
+    assert!(
+        format!("{:?}", app.status()).contains("repositioning: failure"),
+        "{:?}",
+        app.status()
+    );
+    let hash = app.view().to_hash();
+    assert!(hash.contains("drive=repositioning"), "{hash}");
+    // The link on a fresh window: the same episode, byte for byte.
+    let standard = Condition::standard(&common::caresim_bundle().model.config);
+    let (view, notes) = ViewState::from_hash(&hash, &ViewState::default(), standard);
+    assert!(notes.is_empty(), "{notes:?}");
+    let mut again = harness(ExplorerApp::new(Some(common::caresim_bundle()), view));
+    drive_to_the_end(&mut again);
+    let app = again.state();
+    assert_eq!(app.view().sequence.as_deref(), Some(shown.as_str()));
+    let replayed = app.bundle().unwrap().dataset.by_name(&shown).unwrap();
+    assert_eq!(replayed.joints, episode.joints);
+    assert!(replayed.images == episode.images);
+}

@@ -1,5 +1,6 @@
 pub mod bench;
 pub mod bundle;
+pub mod drive;
 pub mod evaluate;
 pub mod experiment;
 pub mod free_energy;

@@ -87,6 +87,18 @@ pub enum Command {
         #[arg(long, requires = "out")]
         check: bool,
     },
+    /// The closed loop's success table: every `pvrnn drive` episode folder under a
+    /// directory, by task, condition and controller, with intervals.
+    #[command(after_help = "Example:
+  scripts/drive-table.sh models/default 1 runs/drive
+  pvrnn report drive runs/drive --out runs/drive/table.md")]
+    Drive {
+        /// A folder holding episode folders (each with a drive.json), at any depth.
+        root: PathBuf,
+        /// Write the table here instead of printing it.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 pub fn run(command: Command) -> Result<()> {
@@ -152,6 +164,10 @@ pub fn run(command: Command) -> Result<()> {
                 }
                 out => write_or_print(out, &index)?,
             }
+        }
+        Command::Drive { root, out } => {
+            let rows = pvrnn_drive::table::episodes(&root)?;
+            write_or_print(out, &pvrnn_drive::table::markdown(&rows))?;
         }
     }
     Ok(())

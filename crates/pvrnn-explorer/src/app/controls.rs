@@ -18,6 +18,7 @@ pub(super) struct Controls {
 pub(super) struct Bar<'a> {
     pub(super) about: bool,
     pub(super) findings: bool,
+    pub(super) drive: bool,
     pub(super) status: &'a Status,
     pub(super) line: super::status::StatusLine<'a>,
 }
@@ -119,6 +120,16 @@ fn top_row_ui(
             commands.push(Command::ShowFindings(findings_open));
         }
         targets.add_question(findings.rect);
+        if pvrnn_drive::check_model(&bundle.model.config).is_ok() {
+            let mut drive_open = bar.drive;
+            if ui
+                .toggle_value(&mut drive_open, "Drive")
+                .on_hover_text("Let the network drive caresim's robot in closed loop, and perturb it")
+                .changed()
+            {
+                commands.push(Command::ShowDrive(drive_open));
+            }
+        }
         let l = ui.label("Compare");
         targets.add_question(l.rect);
         let text = |c: Option<CompareSet>| match c {

@@ -24,6 +24,7 @@ mod branch;
 mod compare;
 mod contributions;
 mod controls;
+mod drive;
 mod export;
 mod findings_panel;
 mod images_panel;
@@ -82,6 +83,8 @@ pub struct ExplorerApp {
     contributions: contributions::ContributionsOverTime,
     /// The findings window (a panel type).
     findings: findings_panel::FindingsPanel,
+    /// The Drive window and the episode in progress (a panel type).
+    drive: drive::DrivePanel,
     /// A second network shown beside the first.
     second: Option<second::SecondNetwork>,
     /// The next files opened go to the second network.
@@ -194,6 +197,7 @@ impl ExplorerApp {
             compare_images: CompareCache::default(),
             contributions: Default::default(),
             findings: Default::default(),
+            drive: Default::default(),
             second: None,
             opening_second: false,
             tour: tour::Tour::default(),
@@ -574,6 +578,10 @@ impl ExplorerApp {
         // frame's controls), then within what the bundle can show.
         self.sync_hash();
         self.sanitize_view(Vec::new());
+        self.follow_drive_address();
+        if self.advance_drive() {
+            ctx.request_repaint();
+        }
         let keys = self.time.keyboard(ctx, &self.panel_context());
         self.apply(keys, ctx);
         // Panels lent out of the app while they read its context (as in `draw`).
@@ -627,6 +635,7 @@ impl ExplorerApp {
         let bar = controls::Bar {
             about: self.show_about,
             findings: self.findings.open,
+            drive: self.drive.open,
             status: &self.status,
             line: status::StatusLine {
                 store: &self.store,
@@ -680,6 +689,9 @@ impl ExplorerApp {
         let cells = self.comparison();
         commands.extend(self.compare_images.ui(&ctx, &self.panel_context(), &cells));
         commands.extend(self.findings.ui(&ctx));
+        let mut drive = std::mem::take(&mut self.drive);
+        commands.extend(drive.ui(&ctx, &self.panel_context()));
+        self.drive = drive;
         let mut tour = std::mem::take(&mut self.tour);
         commands.extend(tour.ui(&ctx, &self.panel_context()));
         self.tour = tour;

@@ -7,8 +7,8 @@
 //! (`second::SecondNetwork`), the contributions over time
 //! (`contributions::ContributionsOverTime`), the latent traces (`traces::Traces`), the
 //! images (`images_panel::ImageCache`: the logic reads the pictures out, the panel draws
-//! them), the top bar (`controls::Controls`) and the comparison
-//! (`compare::CompareCache`). What is left on the app is wiring: reading files and the
+//! them), the top bar (`controls::Controls`), the comparison
+//! (`compare::CompareCache`) and the Drive window (`drive::DrivePanel`). What is left on the app is wiring: reading files and the
 //! address, asking for runs, reading pictures out, applying commands.
 
 use super::*;
@@ -91,6 +91,21 @@ pub(super) enum Command {
     Open { folder: bool, second: bool },
     /// Close the comparison window.
     CloseCompare,
+    /// Open or close the Drive window.
+    ShowDrive(bool),
+    /// What the Drive window asks (start, stop, push, cover a camera).
+    Drive(DriveCommand),
+}
+
+/// What the Drive window asks of the app.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) enum DriveCommand {
+    Start(Box<pvrnn_drive::DriveSpec>),
+    Stop,
+    /// Push this arm now.
+    Push(usize),
+    /// Cover this camera from now on.
+    Occlude(usize),
 }
 
 impl ExplorerApp {
@@ -127,6 +142,8 @@ impl ExplorerApp {
                 Command::SavePicture => self.request_picture(egui_ctx),
                 Command::Open { folder, second } => self.open(folder, second),
                 Command::CloseCompare => self.view.compare = None,
+                Command::ShowDrive(open) => self.drive.open = open,
+                Command::Drive(command) => self.drive_command(command),
                 Command::CloseSecond => {
                     self.second = None;
                     self.view.second = None;

@@ -135,3 +135,26 @@ pub const THREE_CAMERA_LABELS: [&str; 10] = [
     "elbow_tau",
 ];
 pub const PAPER_ONLY_LABELS: [&str; 4] = ["left camera", "right camera", "left arm", "warm"];
+
+/// A tiny network with caresim's senses (two 64x64 cameras, 14 joints and 14 torques) and
+/// one simulated caresim test trial (revision 1): enough for the Drive window.
+pub fn caresim_bundle() -> Bundle {
+    let mut c = config();
+    c.vision.resolutions = vec![16, 32, 64];
+    let spec = caresim::DatasetSpec::default()
+        .trials()
+        .into_iter()
+        .find(|t| t.split == Split::Test)
+        .unwrap();
+    let (sequence, _) = caresim::simulate(&spec);
+    let dataset = Dataset::new(
+        "caresim",
+        vec!["left".into(), "right".into()],
+        caresim::IMAGE_SIZE,
+        vec![sequence],
+    )
+    .unwrap();
+    c.normalisation = Some(pvrnn_dataset::proprio_ranges(&[&dataset.sequences[0]]));
+    let model = Model::<f32>::init(c, 1, 12, 5).unwrap();
+    Bundle::new("tiny caresim".into(), model, dataset).unwrap()
+}

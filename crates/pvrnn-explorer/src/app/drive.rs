@@ -1,0 +1,384 @@
+//! The Drive window: the open network drives caresim's robot live (`pvrnn_drive`), under
+//! the shown condition (what it observes, H, iterations, rate, noise seed). Each frame
+//! steps the episode for a share of the frame; the window shows what the cameras see,
+//! and the user pushes an arm or covers a camera while it acts. A finished episode joins
+//! the open data as a sequence named `drive <spec>` with the network's run, so every panel
+//! shows it like a recording (its name holds the drive and the condition, all the episode
+//! depends on, so one name is one episode), and the address holds the drive (`drive=`),
+//! so a link replays the same episode (seeded). A panel type (`super::panel`).
+
+use pvrnn_drive::spec::{parse_speed_limit, speed_limit_text};
+use pvrnn_drive::{Controller, Drive, DriveSpec, Episode};
+
+use super::panel::{Command, DriveCommand, PanelContext};
+use super::*;
+use crate::state::drive_episode_name;
+
+/// How far a push turns every joint of the arm (rad).
+pub const PUSH_RADIANS: f64 = 0.2;
+/// How long a camera stays covered (steps).
+pub const OCCLUSION_STEPS: usize = 30;
+/// The share of a frame the episode may take (at least one step a frame).
+const DRIVE_BUDGET: Duration = Duration::from_millis(35);
+
+/// An episode in progress, with the condition its run is kept under.
+pub(super) struct Driving {
+    drive: Drive,
+    condition: Condition,
+}
+
+/// The Drive window (a panel type): its settings, and the episode in progress.
+#[derive(Default)]
+pub(super) struct DrivePanel {
+    pub(super) open: bool,
+    settings: Option<DriveSpec>,
+    pub(super) driving: Option<Driving>,
+    /// The cameras at the latest step (the step, the picture).
+    picture: Option<(usize, TextureHandle)>,
+    /// A drive from the address that could not start (not retried every frame).
+    pub(super) refused: Option<String>,
+}
+
+impl std::fmt::Debug for DrivePanel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DrivePanel")
+            .field("open", &self.open)
+            .field("settings", &self.settings)
+            .field(
+                "driving",
+                &self.driving.as_ref().map(|d| d.drive.steps_done()),
+            )
+            .finish()
+    }
+}
+
+impl DrivePanel {
+    /// The window: settings, the drive button, and while driving the cameras, progress and
+    /// the perturbations.
+    pub(super) fn ui(&mut self, ctx: &egui::Context, panels: &PanelContext<'_>) -> Vec<Command> {
+        let mut commands = Vec::new();
+        let Some(bundle) = panels.bundle else {
+            return commands;
+        };
+        let mut open = self.open;
+        egui::Window::new("Drive the robot")
+            .open(&mut open)
+            .default_width(460.0)
+            .show(ctx, |ui| {
+                if let Err(why) = pvrnn_drive::check_model(&bundle.model.config) {
+                    ui.label(format!("This network cannot drive caresim's robot: {why}"));
+                    return;
+                }
+                ui.label(
+                    RichText::new(
+                        "The network drives caresim's robot: each step what the cameras and \
+                         sensors return updates it by online inference (under the condition \
+                         shown in the top bar), and its predicted joint angles move the arms. \
+                         The finished episode opens like any recording.",
+                    )
+                    .small(),
+                );
+                match &self.driving {
+                    Some(driving) => {
+                        running_ui(&mut self.picture, ui, &driving.drive, &mut commands)
+                    }
+                    None => self.settings_ui(ui, &mut commands),
+                }
+            });
+        if open != self.open {
+            commands.push(Command::ShowDrive(open));
+        }
+        commands
+    }
+
+    fn settings_ui(&mut self, ui: &mut egui::Ui, commands: &mut Vec<Command>) {
+        let spec = self.settings.get_or_insert_with(|| {
+            DriveSpec::new(caresim::Task::Repositioning, 650, 0, caresim::Revision::R1)
+        });
+        egui::Grid::new("drive settings").num_columns(2).show(ui, |ui| {
+            ui.label("task");
+            egui::ComboBox::from_id_salt("drive task")
+                .selected_text(spec.task.name())
+                .show_ui(ui, |ui| {
+                    for task in caresim::Task::ALL {
+                        ui.selectable_value(&mut spec.task, task, task.name());
+                    }
+                });
+            ui.end_row();
+            ui.label("bed height (mm)")
+                .on_hover_text("learned: 590, 650, 710; any other is a height the network never saw");
+            ui.add(egui::DragValue::new(&mut spec.bed_height_mm).range(300..=1200));
+            ui.end_row();
+            ui.label("trial seed")
+                .on_hover_text("the test trial of caresim's dataset with this seed");
+            ui.add(egui::DragValue::new(&mut spec.seed).range(0..=u32::MAX as u64));
+            ui.end_row();
+            ui.label("caresim revision")
+                .on_hover_text("the edition the network learned: 1 for the shipped model");
+            egui::ComboBox::from_id_salt("drive revision")
+                .selected_text(spec.revision.number().to_string())
+                .show_ui(ui, |ui| {
+                    for r in caresim::Revision::ALL {
+                        ui.selectable_value(&mut spec.revision, r, r.number().to_string());
+                    }
+                });
+            ui.end_row();
+            ui.label("who drives");
+            egui::ComboBox::from_id_salt("drive controller")
+                .selected_text(spec.controller.name())
+                .show_ui(ui, |ui| {
+                    for c in Controller::ALL {
+                        ui.selectable_value(&mut spec.controller, c, c.name());
+                    }
+                })
+                .response
+                .on_hover_text(
+                    "network: closed loop; prior: the network's own prediction with nothing fed back; \
+                     mean-trajectory: the learning trials' mean joint angles, no network",
+                );
+            ui.end_row();
+            ui.label("joint speed");
+            let mut limit = speed_limit_text(spec.speed_limit);
+            egui::ComboBox::from_id_salt("drive speed")
+                .selected_text(limit)
+                .show_ui(ui, |ui| {
+                    ui.selectable_value(&mut limit, "scripted", "scripted (2 rad a step)");
+                    ui.selectable_value(&mut limit, "panda", "panda (a Franka Panda's)");
+                });
+            spec.speed_limit = parse_speed_limit(limit).unwrap_or_default();
+            ui.end_row();
+            ui.label("sensor noise (x a recording's)");
+            ui.add(
+                egui::DragValue::new(&mut spec.perturbations.sensor_noise)
+                    .range(0.0..=10.0)
+                    .speed(0.1),
+            );
+            ui.end_row();
+        });
+        if ui
+            .button("Start driving")
+            .on_hover_text("reset the trial and let the chosen controller act")
+            .clicked()
+        {
+            commands.push(Command::Drive(DriveCommand::Start(Box::new(spec.clone()))));
+        }
+    }
+}
+
+/// The episode in progress: progress, the cameras, the perturbations.
+fn running_ui(
+    picture: &mut Option<(usize, TextureHandle)>,
+    ui: &mut egui::Ui,
+    drive: &Drive,
+    commands: &mut Vec<Command>,
+) {
+    {
+        let (done, len) = (drive.steps_done(), drive.len());
+        ui.label(format!(
+            "{} driven by the {} controller: step {done} of {len}",
+            drive.trial().name(),
+            drive.spec().controller.name()
+        ));
+        ui.add(egui::ProgressBar::new(done as f32 / len.max(1) as f32).desired_width(420.0));
+        if let Some(o) = drive.latest() {
+            let stale = picture.as_ref().is_none_or(|(t, _)| *t != o.step);
+            if stale {
+                let image = cameras_side_by_side(&o.images);
+                let texture =
+                    ui.ctx()
+                        .load_texture("drive cameras", image, TextureOptions::NEAREST);
+                *picture = Some((o.step, texture));
+            }
+        }
+        if let Some((_, texture)) = picture.as_ref() {
+            ui.add(egui::Image::new(texture).fit_to_exact_size(egui::vec2(384.0, 192.0)));
+            ui.label(RichText::new("left and right camera, as the network is given them").small());
+        }
+        ui.horizontal_wrapped(|ui| {
+            for (arm, name) in [(0, "push the left arm"), (1, "push the right arm")] {
+                if ui
+                    .button(name)
+                    .on_hover_text(format!(
+                        "every joint of the arm turned {PUSH_RADIANS} rad in the next step"
+                    ))
+                    .clicked()
+                {
+                    commands.push(Command::Drive(DriveCommand::Push(arm)));
+                }
+            }
+            for (camera, name) in [(0, "cover the left camera"), (1, "cover the right camera")] {
+                if ui
+                    .button(name)
+                    .on_hover_text(format!("mid-grey for {OCCLUSION_STEPS} steps"))
+                    .clicked()
+                {
+                    commands.push(Command::Drive(DriveCommand::Occlude(camera)));
+                }
+            }
+            if ui
+                .button("stop")
+                .on_hover_text("abandon the episode")
+                .clicked()
+            {
+                commands.push(Command::Drive(DriveCommand::Stop));
+            }
+        });
+    }
+}
+
+/// Both 64x64 cameras of a step, side by side.
+fn cameras_side_by_side(images: &[u8]) -> egui::ColorImage {
+    let s = caresim::IMAGE_SIZE;
+    let mut rgb = vec![0u8; 2 * s * s * 3];
+    for cam in 0..2 {
+        for y in 0..s {
+            let from = &images[(cam * s * s + y * s) * 3..(cam * s * s + (y + 1) * s) * 3];
+            let to = (y * 2 * s + cam * s) * 3;
+            rgb[to..to + s * 3].copy_from_slice(from);
+        }
+    }
+    egui::ColorImage::from_rgb([2 * s, s], &rgb)
+}
+
+impl ExplorerApp {
+    /// Whether an episode is being driven.
+    pub fn driving(&self) -> bool {
+        self.drive.driving.is_some()
+    }
+
+    /// Applies the Drive window's command.
+    pub(super) fn drive_command(&mut self, command: DriveCommand) {
+        let result = match command {
+            DriveCommand::Start(spec) => self.start_drive(*spec),
+            DriveCommand::Stop => {
+                self.drive.driving = None;
+                self.status = Status::Info("the episode was abandoned".into());
+                Ok(())
+            }
+            DriveCommand::Push(arm) => self.drive.driving.as_mut().map_or(Ok(()), |d| {
+                d.drive
+                    .push_now(arm, PUSH_RADIANS)
+                    .map_err(|e| e.to_string())
+            }),
+            DriveCommand::Occlude(camera) => self.drive.driving.as_mut().map_or(Ok(()), |d| {
+                d.drive
+                    .occlude_now(camera, OCCLUSION_STEPS)
+                    .map_err(|e| e.to_string())
+            }),
+        };
+        if let Err(e) = result {
+            self.status = Status::Error(format!("drive: {e}"));
+        }
+    }
+
+    /// Resets the trial with the open network under the shown condition.
+    pub(super) fn start_drive(&mut self, spec: DriveSpec) -> Result<(), String> {
+        let (Some(bundle), Some(condition)) = (&self.bundle, self.condition()) else {
+            return Err("no network is open".into());
+        };
+        let settings = condition.settings(&bundle.model.config);
+        let backend = pvrnn_core::cpu::CpuBackend;
+        let network = spec.controller.uses_network().then(|| {
+            (
+                bundle.model.clone(),
+                settings,
+                &backend as &dyn pvrnn_core::backend::Backend<f32>,
+            )
+        });
+        let drive = Drive::start(spec, network).map_err(|e| e.to_string())?;
+        self.status = Status::Info(format!(
+            "driving {} ({} controller)",
+            drive.trial().name(),
+            drive.spec().controller.name()
+        ));
+        self.drive.driving = Some(Driving { drive, condition });
+        self.drive.open = true;
+        Ok(())
+    }
+
+    /// Steps the episode in progress for a share of the frame; keeps it when it is over.
+    /// Whether a step was taken.
+    pub(super) fn advance_drive(&mut self) -> bool {
+        let Some(driving) = self.drive.driving.as_mut() else {
+            return false;
+        };
+        let started = web_time::Instant::now();
+        loop {
+            match driving.drive.step() {
+                Ok(Some(_)) if !driving.drive.is_over() && started.elapsed() < DRIVE_BUDGET => {}
+                Ok(Some(_)) if !driving.drive.is_over() => return true,
+                Ok(_) => break,
+                Err(e) => {
+                    self.status = Status::Error(format!("the drive stopped: {e}"));
+                    self.drive.driving = None;
+                    return true;
+                }
+            }
+        }
+        if let Some(Driving { drive, condition }) = self.drive.driving.take() {
+            self.keep_episode(drive.episode(), condition);
+        }
+        true
+    }
+
+    /// Adds a finished episode to the open data (replacing one of the same drive) with the
+    /// network's run, and shows it.
+    fn keep_episode(&mut self, episode: Episode, condition: Condition) {
+        let Some(bundle) = self.bundle.as_mut() else {
+            return;
+        };
+        let text = episode.spec.to_text();
+        let name = drive_episode_name(&text, &condition);
+        let mut sequence = episode.sequence;
+        sequence.info.name = name.clone();
+        sequence.info.file = format!("{}.safetensors", pvrnn_dataset::file_stem(&name));
+        bundle.replace_sequence(sequence);
+        let key = RunKey::new(name.clone(), condition.canonical());
+        if let Some(run) = &episode.run {
+            let trace = RunTrace::from_run(run, &bundle.model.config, bundle.loaded.as_ref());
+            self.store.insert_complete(key, trace);
+        }
+        self.view.sequence = Some(name);
+        self.view.t = 0;
+        self.view.condition = Some(condition);
+        self.view.drive = Some(text);
+        self.status = Status::Info(format!(
+            "{} (the demonstration: {})",
+            episode.outcome.summary(),
+            if episode.demonstration.success {
+                "success"
+            } else {
+                "failure"
+            }
+        ));
+    }
+
+    /// Starts the drive the address names, when its episode is not open yet.
+    pub(super) fn follow_drive_address(&mut self) {
+        let Some(text) = self.view.drive.clone() else {
+            return;
+        };
+        let (Some(bundle), Some(condition)) = (&self.bundle, self.condition()) else {
+            return;
+        };
+        let open = bundle
+            .dataset
+            .by_name(&drive_episode_name(&text, &condition))
+            .is_some();
+        let running = self
+            .drive
+            .driving
+            .as_ref()
+            .is_some_and(|d| d.drive.spec().to_text() == text);
+        if open || running || self.drive.refused.as_deref() == Some(text.as_str()) {
+            return;
+        }
+        let started = DriveSpec::parse_text(&text)
+            .map_err(|e| e.to_string())
+            .and_then(|spec| self.start_drive(spec));
+        if let Err(e) = started {
+            self.status = Status::Error(format!("drive in the address: {e}"));
+            self.drive.refused = Some(text);
+        }
+    }
+}

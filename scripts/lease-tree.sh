@@ -9,8 +9,8 @@
 # ignore), at most 64 MiB, and the checkout's tracked networks, models and results are far
 # more. `pack`:
 #   - builds `pvrnn` (release) and strips it into lease/ (with --tests also the wgpu
-#     backend suite, agrees_with_cpu and device_times as lease/suite-wgpu,
-#     lease/agrees-with-cpu and lease/device-times, and the overlap probe, `cargo bench -p
+#     backend suite, the wgpu crate's tests and device_times as lease/suite-wgpu,
+#     lease/wgpu-it (`lease/wgpu-it agrees_with_cpu::` runs those) and lease/device-times, and the overlap probe, `cargo bench -p
 #     pvrnn-wgpu --bench overlap`, compressed as lease/overlap-bench.gz: the call runs
 #     `gunzip -c lease/overlap-bench.gz > /tmp/overlap && chmod +x /tmp/overlap` and gives
 #     it to gpu-measure.sh as OVERLAP_BENCH=/tmp/overlap); --no-build skips the building;
@@ -107,7 +107,7 @@ if [ "$build" = 1 ]; then
     built=(lease/pvrnn)
     if [ "$tests" = 1 ]; then
         for spec in "pvrnn-backend-tests wgpu suite-wgpu" \
-            "pvrnn-wgpu agrees_with_cpu agrees-with-cpu" \
+            "pvrnn-wgpu it wgpu-it" \
             "pvrnn-wgpu device_times device-times"; do
             read -r package test name <<<"$spec"
             executable=$(cargo test --release -p "$package" --test "$test" --no-run \

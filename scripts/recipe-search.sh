@@ -15,7 +15,9 @@
 # 1: two recipes train side by side on two cores), VALIDATE_EVERY (2000), PATIENCE (none),
 # BACKEND (cpu; `wgpu` on a GPU machine), PVRNN (the binary; default target/release/pvrnn),
 # REVISION (caresim's, 1 or 2; default 1: docs/caresim.md, "Revisions"; revision 2's data
-# goes to WORKDIR/data/r2-*).
+# goes to WORKDIR/data/r2-*), TASKS (one task, `repositioning` or `wiping`: learned and
+# validated on that task's sequences only; runs and data get the task in their names, e.g.
+# WORKDIR/r2-wiping-paper/ and WORKDIR/data/r2-wiping-seed1/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -33,6 +35,12 @@ case "$revision" in
 2) prefix=r2 ;;
 *) echo "REVISION must be 1 or 2, not $revision" >&2; exit 2 ;;
 esac
+tasks=()
+case "${TASKS:-}" in
+"") ;;
+repositioning | wiping) prefix=$prefix-$TASKS tasks=(--tasks "$TASKS") ;;
+*) echo "TASKS must be repositioning or wiping, not $TASKS" >&2; exit 2 ;;
+esac
 data=$work/data/$prefix
 config=()
 case "$recipe" in
@@ -47,7 +55,7 @@ esac
 
 simulate() { # folder, extra flags
     [ -f "$1/dataset.json" ] ||
-        "$pvrnn" simulate --out "$1" --no-previews --revision "$revision" "${@:2}"
+        "$pvrnn" simulate --out "$1" --no-previews --revision "$revision" "${tasks[@]}" "${@:2}"
 }
 simulate "$work/data/$prefix" --seed 0
 simulate "$work/data/$prefix-seed1" --seed 1
@@ -55,6 +63,7 @@ simulate "$work/data/$prefix-seed1" --seed 1
 
 run=$work/$recipe
 [ "$revision" = 1 ] || run=$work/r2-$recipe
+[ -z "${TASKS:-}" ] || run=$work/$prefix-$recipe
 mkdir -p "$run"
 flags=(--inputs "$data" --out "$run/run.safetensors" --iterations "$iterations"
     --checkpoint-every 500 --keep-every "$every"

@@ -57,7 +57,7 @@ python3 scripts/recheck-interference.py docs/results/interference/report/trials.
 
 step "the walkthrough as written, its explorer step in a virtual display (Xvfb)"
 PVRNN_REQUIRE_PYTHON=1 PVRNN_EXPLORER_BIN="$PWD/target/debug/pvrnn-explorer" \
-    timeout 900 xvfb-run -a -s "-screen 0 1440x920x24" cargo test --workspace --test walkthrough
+    timeout 900 xvfb-run -a -s "-screen 0 1440x920x24" cargo test -p pvrnn-cli --test it walkthrough::
 
 step "an experiment's Slurm job arrays on a real one-node Slurm (munge, slurmctld, slurmd)"
 timeout 900 tests/slurm/run.sh target/debug/pvrnn

@@ -1,8 +1,6 @@
 //! The explorer's interface logic, driven headless with egui_kittest.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))]
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 

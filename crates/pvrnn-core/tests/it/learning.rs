@@ -1,12 +1,8 @@
 //! Online inference's window, seeds, ablations and guards on a briefly trained model (CPU).
 //! That learning lowers the free energy and inference tracks the sequence on every backend
 //! is the backend suite's (crates/pvrnn-backend-tests).
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
-// The backend suite's fixtures, shared by path (a dev-dependency on it would point up).
-#[allow(dead_code)]
-#[path = "../../pvrnn-backend-tests/src/fixtures.rs"]
-mod fixtures;
+use crate::fixtures;
 
 #[cfg(target_arch = "wasm32")]
 use wasm_bindgen_test::wasm_bindgen_test as test;

@@ -1,6 +1,5 @@
 //! The experiments end to end at smoke scale on a small synthetic dataset: planning,
 //! running, interruption and resume, reports, cluster scripts.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};

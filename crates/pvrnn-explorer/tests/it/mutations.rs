@@ -4,10 +4,8 @@
 //! suite holds them because the explorer reads every format: models, checkpoints, inputs,
 //! runs, bundles, datasets, recordings and the URL hash.) Run with `--nocapture` to see how
 //! many inputs each target ran and how many it accepted.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))]
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};

@@ -5,8 +5,6 @@
 //! 1,600 words) that names only what exists: every file or folder in its code spans and
 //! links, and every type, function, macro and `module::item`, is in the repository and the
 //! crates' sources; crates/pvrnn-wgpu/README.md likewise.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -30,7 +28,7 @@ fn flags_after_mentions(line: &str) -> Vec<String> {
     for (i, _) in line.match_indices("pvrnn-explorer") {
         let rest = &line[i + "pvrnn-explorer".len()..];
         let mut span = rest.split('`').next().unwrap_or("");
-        // As cargo's package (`cargo test -p pvrnn-explorer --test ui`), the flags before
+        // As cargo's package (`cargo test -p pvrnn-explorer --test it ui::`), the flags before
         // ` -- ` are cargo's; only what follows it goes to the app.
         if line[..i].ends_with("-p ") {
             span = span.split_once(" -- ").map_or("", |(_, app)| app);
@@ -89,7 +87,7 @@ fn mentions_are_read_up_to_the_end_of_their_code_span() {
         flags_after_mentions("`cargo run --release -p pvrnn-explorer -- --bench-frames 300`"),
         ["--bench-frames"]
     );
-    assert!(flags_after_mentions("`cargo test -p pvrnn-explorer --test ui`").is_empty());
+    assert!(flags_after_mentions("`cargo test -p pvrnn-explorer --test it ui::`").is_empty());
 }
 
 fn repo() -> PathBuf {

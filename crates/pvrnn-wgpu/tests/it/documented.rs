@@ -3,8 +3,6 @@
 //! it computes is chosen by typed options (`WgpuOptions`: `pvrnn --gpu-recurrence`,
 //! `--weights-on-host`, `--wgpu-checks`, `bench --profile-kernels`), not by the
 //! environment.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))] // reads files
 
 use std::collections::BTreeSet;
 use std::path::Path;

@@ -3,7 +3,6 @@
 //! ties, block effects, main effects and an interaction. Needs `Rscript` (Debian's
 //! `r-base-core`, which `scripts/setup.sh` installs); without it the test says so and
 //! passes, unless `PVRNN_REQUIRE_R=1` (set by `scripts/test.sh`).
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,7 +1,6 @@
 //! The documents' claims about the command line match it: every `pvrnn` command shown in
 //! the README and the docs' `sh` blocks names a real subcommand, and every flag it uses is
 //! one that subcommand has; the training log's name is the one the README gives.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::collections::BTreeMap;
 use std::path::Path;

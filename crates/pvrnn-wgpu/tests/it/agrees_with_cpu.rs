@@ -1,14 +1,12 @@
 //! The wgpu backend computes what the CPU backend computes: the free energy, every gradient,
 //! online inference and the read-outs, on the same inputs, to f32 summation order. The CPU
-//! backend's gradients are checked against finite differences (pvrnn-core's
-//! `tests/gradients.rs`), so agreement here makes the GPU's gradients exact too.
+//! backend's gradients are checked against finite differences (the backend suite's
+//! `crates/pvrnn-backend-tests/src/gradients.rs`), so agreement here makes the GPU's gradients exact too.
 //!
 //! Runs on whatever adapter wgpu finds: on a machine without a GPU, Mesa's lavapipe (a CPU
 //! Vulkan device). Set `PVRNN_SKIP_WGPU=1` to skip on a machine with no Vulkan driver.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))] // the browser's test is tests/webgpu.rs
 
-mod common;
+use crate::common;
 
 use common::{assert_close, assert_same_free_energy_and_gradients, config, observations};
 

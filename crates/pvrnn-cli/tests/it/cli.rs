@@ -1,6 +1,5 @@
 //! The `pvrnn` binary end to end: init, free-energy (JSON and gradients), train with
 //! checkpoints and resume, infer, config, and clear errors for bad input.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -2,10 +2,8 @@
 //! `docs/results/experiments.md`'s row for its claim, every figure is a committed one that
 //! the web site copies, and every link lands on a view of the shipped network that shows
 //! what the finding says to look at.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
-#![cfg(not(target_arch = "wasm32"))]
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -5,8 +5,6 @@
 //! network beats the best baseline its validations recorded, per primary task); and
 //! `docs/experiments.md`'s count and time range of the same trainings.
 
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed test
-
 use std::path::{Path, PathBuf};
 
 use pvrnn_experiment::run::{TrainResult, read_train_result};

@@ -1,7 +1,6 @@
 //! `docs/config.md` is generated from the doc comments of `src/config.rs` and the paper's
 //! values (`ModelConfig::default()`); this test fails when the two drift apart.
-//! Regenerate with `UPDATE_DOCS=1 cargo test -p pvrnn-core --test config_docs`.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
+//! Regenerate with `UPDATE_DOCS=1 cargo test -p pvrnn-core --test it config_docs::`.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -179,7 +178,7 @@ fn render() -> String {
     let mut out = String::from(
         "# The model configuration\n\n\
          <!-- Generated from the doc comments of crates/pvrnn-core/src/config.rs by\n\
-         `UPDATE_DOCS=1 cargo test -p pvrnn-core --test config_docs`; do not edit by hand. -->\n\n\
+         `UPDATE_DOCS=1 cargo test -p pvrnn-core --test it config_docs::`; do not edit by hand. -->\n\n\
          Every model file carries its configuration (JSON metadata `config`). `pvrnn config`\n\
          prints the paper's as TOML and `pvrnn config --model M` a model's; edit a copy and pass\n\
          it to `pvrnn init --config my.toml`. Fields left out keep the paper's values. Points\n\
@@ -204,6 +203,6 @@ fn config_md_is_generated_from_the_doc_comments() {
     let stored = std::fs::read_to_string(&path).unwrap_or_default();
     assert!(
         stored == fresh,
-        "docs/config.md is out of date: run `UPDATE_DOCS=1 cargo test -p pvrnn-core --test config_docs`"
+        "docs/config.md is out of date: run `UPDATE_DOCS=1 cargo test -p pvrnn-core --test it config_docs::`"
     );
 }

@@ -5,7 +5,6 @@
 //! `scripts/setup.sh` installs; `PVRNN_REQUIRE_PYTHON=1`, set by `scripts/test.sh`, makes
 //! their absence a failure). With `PVRNN_EXPLORER_BIN` (and a display) its explorer line
 //! opens the window too.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,10 +1,6 @@
 //! safetensors round trips, and a clear error for every kind of bad file or input.
-#![allow(clippy::unwrap_used)] // test code: a failed unwrap is a failed run
 
-// The backend suite's fixtures, shared by path (a dev-dependency on it would point up).
-#[allow(dead_code)]
-#[path = "../../pvrnn-backend-tests/src/fixtures.rs"]
-mod fixtures;
+use crate::fixtures;
 
 #[cfg(target_arch = "wasm32")]
 use wasm_bindgen_test::wasm_bindgen_test as test;

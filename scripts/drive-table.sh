@@ -5,7 +5,8 @@
 # baselines (the network's prior, the mean learning trajectory); then 16x16 vision, sensor
 # noise x3, a push (0.2 rad on every joint of the working arm at step 100) and the left camera
 # occluded for 30 steps from step 100, at 650 mm. Every episode is a folder under OUT;
-# the table is OUT/table.md (`pvrnn report drive`). Episodes already written are kept.
+# the table is OUT/table.md and its figure OUT/success.png (`pvrnn report drive`). Episodes
+# already written are kept.
 #
 #   scripts/drive-table.sh MODEL REVISION OUT [SEEDS]
 #
@@ -42,5 +43,5 @@ for seed in $seeds; do
         episode "perturbed/occluded-$task-seed$seed" "${at[@]}" --occlude left:100:30
     done
 done
-"$pvrnn" report drive "$out" --out "$out/table.md"
+"$pvrnn" report drive "$out" --out "$out/table.md" --figure "$out/success.png"
 cat "$out/table.md"

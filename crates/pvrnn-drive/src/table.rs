@@ -82,6 +82,9 @@ impl Row {
         if !p.get("occlusion").is_none_or(|x| x.is_null()) {
             condition.push("camera occluded".into());
         }
+        if v.get("speed_limit").and_then(|l| l.as_str()) == Some("panda") {
+            condition.push("Panda's joint speeds".into());
+        }
         let outcome = field(&v, &["outcome"], &file)?;
         let criteria = field(outcome, &["criteria"], &file)?
             .as_array()
@@ -152,8 +155,33 @@ pub fn wilson(k: usize, n: usize) -> (f64, f64) {
     ((centre - half).max(0.0), (centre + half).min(1.0))
 }
 
-/// The table, as Markdown: one row per task, condition and controller.
-pub fn markdown(rows: &[Row]) -> String {
+/// One row of the table: the episodes of one task, condition and controller.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Summary {
+    pub task: String,
+    pub condition: String,
+    pub controller: String,
+    pub episodes: usize,
+    pub successes: usize,
+    /// The success rate's 95% Wilson interval over episodes.
+    pub interval: (f64, f64),
+    /// Each criterion with the number of episodes that met it.
+    pub criteria_met: Vec<(String, usize)>,
+    /// The joint distance from the demonstration: mean and standard error over episodes
+    /// (`None` for one episode).
+    pub joint_distance: (f64, Option<f64>),
+    /// The joint path as a share of the demonstration's, mean over episodes.
+    pub joint_path_share: f64,
+}
+
+impl Summary {
+    pub fn success_rate(&self) -> f64 {
+        self.successes as f64 / self.episodes.max(1) as f64
+    }
+}
+
+/// The episodes grouped by task, condition and controller, in that order.
+pub fn summarise(rows: &[Row]) -> Vec<Summary> {
     let mut groups: BTreeMap<(String, String, String), Vec<&Row>> = BTreeMap::new();
     for r in rows {
         groups
@@ -161,38 +189,66 @@ pub fn markdown(rows: &[Row]) -> String {
             .or_default()
             .push(r);
     }
+    groups
+        .into_iter()
+        .map(|((task, condition, controller), group)| {
+            let n = group.len();
+            let k = group.iter().filter(|r| r.success).count();
+            let criteria_met = group[0]
+                .criteria
+                .iter()
+                .enumerate()
+                .map(|(i, (name, _))| {
+                    let met = group
+                        .iter()
+                        .filter(|r| r.criteria.get(i).is_some_and(|c| c.1))
+                        .count();
+                    (name.clone(), met)
+                })
+                .collect();
+            let d: Vec<f64> = group.iter().map(|r| r.joint_distance).collect();
+            let mean = d.iter().sum::<f64>() / n as f64;
+            // One episode: no spread to estimate.
+            let se = (n > 1).then(|| {
+                let ss: f64 = d.iter().map(|x| (x - mean) * (x - mean)).sum();
+                (ss / (n - 1) as f64 / n as f64).sqrt()
+            });
+            Summary {
+                task,
+                condition,
+                controller,
+                episodes: n,
+                successes: k,
+                interval: wilson(k, n),
+                criteria_met,
+                joint_distance: (mean, se),
+                joint_path_share: group.iter().map(|r| r.joint_path_share).sum::<f64>() / n as f64,
+            }
+        })
+        .collect()
+}
+
+/// The table, as Markdown: one row per task, condition and controller.
+pub fn markdown(rows: &[Row]) -> String {
     let mut out = String::from(
         "| task | condition | controller | episodes | success | 95% interval | each criterion met | joint distance (rad, mean ± se) | joint path (share of the demonstration's, mean) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
-    for ((task, condition, controller), group) in &groups {
-        let n = group.len();
-        let k = group.iter().filter(|r| r.success).count();
-        let (lo, hi) = wilson(k, n);
-        let names: Vec<&str> = group[0].criteria.iter().map(|(c, _)| c.as_str()).collect();
-        let each: Vec<String> = names
+    for g in summarise(rows) {
+        let (n, k, (lo, hi)) = (g.episodes, g.successes, g.interval);
+        let each: Vec<String> = g
+            .criteria_met
             .iter()
-            .enumerate()
-            .map(|(i, name)| {
-                let met = group
-                    .iter()
-                    .filter(|r| r.criteria.get(i).is_some_and(|c| c.1))
-                    .count();
-                format!("{name} {met}/{n}")
-            })
+            .map(|(name, met)| format!("{name} {met}/{n}"))
             .collect();
-        let d: Vec<f64> = group.iter().map(|r| r.joint_distance).collect();
-        let mean = d.iter().sum::<f64>() / n as f64;
-        let se = if n > 1 {
-            let ss: f64 = d.iter().map(|x| (x - mean) * (x - mean)).sum();
-            format!("{:.3}", (ss / (n - 1) as f64 / n as f64).sqrt())
-        } else {
-            "–".into() // one episode: no spread to estimate
-        };
-        let path = group.iter().map(|r| r.joint_path_share).sum::<f64>() / n as f64;
+        let (mean, se) = g.joint_distance;
+        let se = se.map_or("–".into(), |se| format!("{se:.3}"));
         out += &format!(
-            "| {task} | {condition} | {controller} | {n} | {k}/{n} | {lo:.2}-{hi:.2} | {} | {mean:.3} ± {se} | {:.0}% |\n",
+            "| {} | {} | {} | {n} | {k}/{n} | {lo:.2}-{hi:.2} | {} | {mean:.3} ± {se} | {:.0}% |\n",
+            g.task,
+            g.condition,
+            g.controller,
             each.join("; "),
-            100.0 * path
+            100.0 * g.joint_path_share
         );
     }
     out

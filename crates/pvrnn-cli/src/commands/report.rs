@@ -1,6 +1,6 @@
 //! `pvrnn report`: learning curves from a training log, validation curves of one or more
-//! runs, the error-against-iterations table from several evaluations of one run, and the
-//! index of a results folder.
+//! runs, the error-against-iterations table from several evaluations of one run, the
+//! index of a results folder, and the closed loop's success table and figure.
 
 use std::path::PathBuf;
 
@@ -91,13 +91,17 @@ pub enum Command {
     /// directory, by task, condition and controller, with intervals.
     #[command(after_help = "Example:
   scripts/drive-table.sh models/default 1 runs/drive
-  pvrnn report drive runs/drive --out runs/drive/table.md")]
+  pvrnn report drive runs/drive --out runs/drive/table.md --figure runs/drive/success.png")]
     Drive {
         /// A folder holding episode folders (each with a drive.json), at any depth.
         root: PathBuf,
         /// Write the table here instead of printing it.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Also draw the success rates as a PNG (and an SVG beside it): one group of bars
+        /// per task and condition, one bar per controller, whiskers the 95% Wilson interval.
+        #[arg(long)]
+        figure: Option<PathBuf>,
     },
 }
 
@@ -165,9 +169,13 @@ pub fn run(command: Command) -> Result<()> {
                 out => write_or_print(out, &index)?,
             }
         }
-        Command::Drive { root, out } => {
+        Command::Drive { root, out, figure } => {
             let rows = pvrnn_drive::table::episodes(&root)?;
             write_or_print(out, &pvrnn_drive::table::markdown(&rows))?;
+            if let Some(path) = figure {
+                drive_figure(&pvrnn_drive::table::summarise(&rows), &path)?;
+                eprintln!("wrote {} (and .svg)", path.display());
+            }
         }
     }
     Ok(())
@@ -193,4 +201,65 @@ fn write_or_print(out: Option<PathBuf>, md: &str) -> Result<()> {
         None => print!("{md}"),
     }
     Ok(())
+}
+
+/// The success table as bars: a group per task and condition, a bar per controller.
+fn drive_figure(summaries: &[pvrnn_drive::table::Summary], path: &std::path::Path) -> Result<()> {
+    let mut controllers: Vec<String> = summaries.iter().map(|s| s.controller.clone()).collect();
+    // The closed loop first, then its baselines.
+    let order = |c: &String| {
+        ["network", "prior", "mean-trajectory"]
+            .iter()
+            .position(|k| k == c)
+    };
+    controllers.sort_by_key(|c| (order(c).unwrap_or(usize::MAX), c.clone()));
+    controllers.dedup();
+    let mut groups: Vec<(String, Vec<plots::Bar>)> = Vec::new();
+    for s in summaries {
+        let initial: String = s
+            .task
+            .chars()
+            .take(1)
+            .flat_map(char::to_uppercase)
+            .collect();
+        let label = format!("{initial}: {}", short_condition(&s.condition));
+        if groups.last().is_none_or(|g| g.0 != label) {
+            let empty = controllers.iter().map(|c| plots::Bar {
+                label: c.clone(),
+                mean: f64::NAN, // a controller not run under this condition: no bar
+                se: None,
+                interval: None,
+            });
+            groups.push((label, empty.collect()));
+        }
+        let k = controllers
+            .iter()
+            .position(|c| *c == s.controller)
+            .unwrap_or(0);
+        let bars = &mut groups.last_mut().expect("pushed above").1;
+        bars[k].mean = s.success_rate();
+        bars[k].interval = Some(s.interval);
+    }
+    let episodes: usize = summaries.iter().map(|s| s.episodes).sum();
+    plots::bar_chart(
+        path,
+        &format!(
+            "closed loop in caresim: success rate ({episodes} episodes; R repositioning, W wiping)"
+        ),
+        "success rate (95% Wilson interval)",
+        &controllers,
+        &groups,
+    )?;
+    Ok(())
+}
+
+/// A condition's words short enough for an axis label.
+fn short_condition(condition: &str) -> String {
+    condition
+        .replace("as learned", "learned")
+        .replace("unlearned bed height", "new height")
+        .replace("16x16 vision", "16x16")
+        .replace("sensor noise x", "noise x")
+        .replace("camera occluded", "occluded")
+        .replace("Panda's joint speeds", "Panda")
 }

@@ -2131,3 +2131,71 @@ fn experiment_plans_runs_and_reports_at_smoke_scale() {
     ]);
     assert!(e.contains("999"), "{e}");
 }
+
+/// `pvrnn report drive`: the episodes under a folder as the success table (one row per
+/// task, condition and controller; the Panda's joint speeds are a condition of their own)
+/// and, with `--figure`, as bars with their Wilson intervals (PNG and SVG).
+#[test]
+fn the_drive_report_tables_and_draws_the_episodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("episodes");
+    for (name, limit) in [("scripted", "scripted"), ("panda", "panda")] {
+        let out = root.join(name);
+        ok(&[
+            "--threads",
+            "1",
+            "drive",
+            "--controller",
+            "mean-trajectory",
+            "--task",
+            "wiping",
+            "--bed-height",
+            "650",
+            "--revision",
+            "2",
+            "--speed-limit",
+            limit,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+    }
+    let table = dir.path().join("table.md");
+    let figure = dir.path().join("success.png");
+    ok(&[
+        "report",
+        "drive",
+        root.to_str().unwrap(),
+        "--out",
+        table.to_str().unwrap(),
+        "--figure",
+        figure.to_str().unwrap(),
+    ]);
+    let table = std::fs::read_to_string(table).unwrap();
+    let rows: Vec<&str> = table
+        .lines()
+        .filter(|l| l.starts_with("| wiping"))
+        .collect();
+    assert_eq!(rows.len(), 2, "{table}");
+    assert!(
+        rows[0].starts_with("| wiping | Panda's joint speeds | mean-trajectory | 1 |"),
+        "{table}"
+    );
+    assert!(
+        rows[1].starts_with("| wiping | as learned | mean-trajectory | 1 |"),
+        "{table}"
+    );
+    let png = std::fs::read(&figure).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 10_000,
+        "{} bytes",
+        png.len()
+    );
+    let svg = std::fs::read_to_string(figure.with_extension("svg")).unwrap();
+    assert!(
+        svg.contains("W: Panda") && svg.contains("W: learned"),
+        "{svg}"
+    );
+    // A folder without episodes is an error that says so.
+    let err = pvrnn(&["report", "drive", dir.path().join("none").to_str().unwrap()]);
+    assert!(!err.status.success());
+}

@@ -17,6 +17,9 @@ pub struct Bar {
     pub label: String,
     pub mean: f64,
     pub se: Option<f64>,
+    /// Whiskers from `low` to `high` instead of ±SE (an asymmetric interval, e.g. a
+    /// proportion's Wilson interval).
+    pub interval: Option<(f64, f64)>,
 }
 
 /// Bars in groups (e.g. one group per module, one bar per task) with ±SE whiskers; a linear
@@ -40,6 +43,13 @@ pub fn bar_chart(
     })
 }
 
+/// A bar's whisker: its interval, or ±SE; `None` if neither is known and finite.
+fn whisker(bar: &Bar) -> Option<(f64, f64)> {
+    bar.interval
+        .or_else(|| bar.se.map(|se| (bar.mean - se, bar.mean + se)))
+        .filter(|(low, high)| low.is_finite() && high.is_finite())
+}
+
 fn draw_bars<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     title: &str,
@@ -58,7 +68,7 @@ fn draw_bars<DB: DrawingBackend>(
     let per_group = groups.iter().map(|g| g.1.len()).max().unwrap_or(0).max(1);
     let top = groups
         .iter()
-        .flat_map(|g| g.1.iter().map(|b| b.mean + b.se.unwrap_or(0.0)))
+        .flat_map(|g| g.1.iter().map(|b| whisker(b).map_or(b.mean, |w| w.1)))
         .filter(|v| v.is_finite())
         .fold(0.0f64, f64::max);
     let top = if top > 0.0 { top * 1.15 } else { 1.0 };
@@ -104,10 +114,10 @@ fn draw_bars<DB: DrawingBackend>(
                     [(x0, 0.0), (x0 + slot * 0.9, bar.mean)],
                     colour.filled(),
                 ));
-                if let Some(se) = bar.se.filter(|s| s.is_finite()) {
+                if let Some((low, high)) = whisker(bar) {
                     let xm = x0 + slot * 0.45;
                     whiskers.push(PathElement::new(
-                        [(xm, (bar.mean - se).max(0.0)), (xm, bar.mean + se)],
+                        [(xm, low.max(0.0)), (xm, high)],
                         BLACK.stroke_width(2),
                     ));
                 }

@@ -124,6 +124,7 @@ fn bar(label: &str, values: &[f64]) -> Bar {
         label: label.into(),
         mean: if values.is_empty() { f64::NAN } else { mean },
         se,
+        interval: None,
     }
 }
 

@@ -13,7 +13,10 @@
 //! - [`reporting`]: running jobs with the report rebuilt when a part of the design (an
 //!   interference direction) is complete.
 //! - [`slurm`]: the same plan as Slurm job arrays.
+//! - [`closed_loop`]: the closed loop's statistics over networks (`pvrnn report drive
+//!   --networks`).
 
+pub mod closed_loop;
 pub mod compatibility;
 pub mod index;
 pub mod occlusion;

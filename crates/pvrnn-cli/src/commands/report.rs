@@ -91,7 +91,8 @@ pub enum Command {
     /// directory, by task, condition and controller, with intervals.
     #[command(after_help = "Example:
   scripts/drive-table.sh models/default 1 runs/drive
-  pvrnn report drive runs/drive --out runs/drive/table.md --figure runs/drive/success.png")]
+  pvrnn report drive runs/drive --out runs/drive/table.md --figure runs/drive/success.png
+  pvrnn report drive runs/drive-networks --networks --out table.md   # runs/drive-networks/net0/ ...")]
     Drive {
         /// A folder holding episode folders (each with a drive.json), at any depth.
         root: PathBuf,
@@ -102,6 +103,12 @@ pub enum Command {
         /// per task and condition, one bar per controller, whiskers the 95% Wilson interval.
         #[arg(long)]
         figure: Option<PathBuf>,
+        /// Each folder directly under ROOT holds one network's episodes (e.g. one
+        /// `scripts/drive-table.sh` run each): also the statistics over networks, the unit
+        /// (success rate mean ± SE over networks; the closed loop against each baseline,
+        /// paired by network).
+        #[arg(long)]
+        networks: bool,
     },
 }
 
@@ -169,9 +176,25 @@ pub fn run(command: Command) -> Result<()> {
                 out => write_or_print(out, &index)?,
             }
         }
-        Command::Drive { root, out, figure } => {
+        Command::Drive {
+            root,
+            out,
+            figure,
+            networks,
+        } => {
             let rows = pvrnn_drive::table::episodes(&root)?;
-            write_or_print(out, &pvrnn_drive::table::markdown(&rows))?;
+            let mut table = pvrnn_drive::table::markdown(&rows);
+            if networks {
+                let labelled: Vec<(String, pvrnn_drive::table::Row)> = rows
+                    .iter()
+                    .map(|r| (network_of(&root, &r.folder), r.clone()))
+                    .collect();
+                table = format!(
+                    "{}\nEvery episode (each network's pooled):\n\n{table}",
+                    pvrnn_experiment::closed_loop::markdown(&labelled)
+                );
+            }
+            write_or_print(out, &table)?;
             if let Some(path) = figure {
                 drive_figure(&pvrnn_drive::table::summarise(&rows), &path)?;
                 eprintln!("wrote {} (and .svg)", path.display());
@@ -251,6 +274,17 @@ fn drive_figure(summaries: &[pvrnn_drive::table::Summary], path: &std::path::Pat
         &groups,
     )?;
     Ok(())
+}
+
+/// The folder directly under `root` that holds an episode: its network.
+fn network_of(root: &std::path::Path, episode: &std::path::Path) -> String {
+    episode
+        .strip_prefix(root)
+        .ok()
+        .and_then(|p| p.components().next())
+        .map_or_else(String::new, |c| {
+            c.as_os_str().to_string_lossy().into_owned()
+        })
 }
 
 /// A condition's words short enough for an axis label.

@@ -2195,6 +2195,14 @@ fn the_drive_report_tables_and_draws_the_episodes() {
         svg.contains("W: Panda") && svg.contains("W: learned"),
         "{svg}"
     );
+    // Each folder under the root as a network: the statistics over networks come first.
+    let over = ok(&["report", "drive", root.to_str().unwrap(), "--networks"]);
+    assert!(over.starts_with("Over networks"), "{over}");
+    assert!(
+        over.contains("| wiping | as learned | mean-trajectory | 1 | 1 |"),
+        "{over}"
+    );
+    assert!(over.contains("Every episode"), "{over}");
     // A folder without episodes is an error that says so.
     let err = pvrnn(&["report", "drive", dir.path().join("none").to_str().unwrap()]);
     assert!(!err.status.success());

@@ -149,6 +149,14 @@ fn spread(a: &[f64], b: &[f64], paired: bool) -> Option<(f64, f64, f64, f64)> {
     }
 }
 
+/// The mean's 95% t interval (`None` for fewer than two values).
+pub fn mean_ci95(values: &[f64]) -> Option<[f64; 2]> {
+    let (mean, se) = mean_se(values);
+    let t975 = t_quantile(1.0 - ALPHA / 2.0, values.len() as f64 - 1.0)?;
+    let se = se?;
+    Some([mean - t975 * se, mean + t975 * se])
+}
+
 /// `a` − `b`: paired (same networks, same order) or independent groups.
 pub fn difference(a: &[f64], b: &[f64], paired: bool) -> Option<Difference> {
     let (diff, sd, se, df) = spread(a, b, paired)?;

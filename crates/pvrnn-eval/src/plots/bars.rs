@@ -33,7 +33,15 @@ pub fn bar_chart(
     groups: &[(String, Vec<Bar>)],
 ) -> Result<()> {
     let per_group = groups.iter().map(|g| g.1.len()).max().unwrap_or(0).max(1);
-    let width = (160 + groups.len() * (per_group * 44 + 40)).clamp(480, 1600) as u32;
+    // Wide enough for the bars and for the longest group label (about 8 px a character).
+    let label = groups
+        .iter()
+        .map(|g| g.0.chars().count())
+        .max()
+        .unwrap_or(0)
+        * 8
+        + 12;
+    let width = (160 + groups.len() * (per_group * 44 + 40).max(label)).clamp(480, 1600) as u32;
     let size = (width, 420);
     draw_png(path, size, |root| {
         draw_bars(root, title, y_label, series, groups)

@@ -9,11 +9,12 @@
 //! Episodes come from `pvrnn drive` folders (`pvrnn_drive::table::Row`), each labelled
 //! with the network that drove it (for the baselines: the network whose run of the table
 //! produced it; the mean trajectory is the same for every network, so its "difference"
-//! is the network's rate against that one value).
+//! is the network's rate against that one value). And the success table's figure.
 
 use std::collections::BTreeMap;
 
-use pvrnn_drive::table::Row;
+use pvrnn_drive::table::{Row, Summary};
+use pvrnn_eval::plots::{Bar, bar_chart};
 
 use crate::stats::{Difference, difference, mean_ci95};
 
@@ -169,6 +170,68 @@ pub fn markdown(rows: &[(String, Row)]) -> String {
         );
     }
     out
+}
+
+/// The success table as bars (`pvrnn report drive --figure`): a group per task and
+/// condition, a bar per controller, whiskers the 95% Wilson interval; PNG and SVG.
+pub fn success_figure(summaries: &[Summary], path: &std::path::Path) -> anyhow::Result<()> {
+    let mut controllers: Vec<String> = summaries.iter().map(|s| s.controller.clone()).collect();
+    // The closed loop first, then its baselines.
+    let order = |c: &String| {
+        ["network", "prior", "mean-trajectory"]
+            .iter()
+            .position(|k| k == c)
+    };
+    controllers.sort_by_key(|c| (order(c).unwrap_or(usize::MAX), c.clone()));
+    controllers.dedup();
+    let mut groups: Vec<(String, Vec<Bar>)> = Vec::new();
+    for s in summaries {
+        let initial: String = s
+            .task
+            .chars()
+            .take(1)
+            .flat_map(char::to_uppercase)
+            .collect();
+        let label = format!("{initial}: {}", short_condition(&s.condition));
+        if groups.last().is_none_or(|g| g.0 != label) {
+            let empty = controllers.iter().map(|c| Bar {
+                label: c.clone(),
+                mean: f64::NAN, // a controller not run under this condition: no bar
+                se: None,
+                interval: None,
+            });
+            groups.push((label, empty.collect()));
+        }
+        let k = controllers
+            .iter()
+            .position(|c| *c == s.controller)
+            .unwrap_or(0);
+        let bars = &mut groups.last_mut().expect("pushed above").1;
+        bars[k].mean = s.success_rate();
+        bars[k].interval = Some(s.interval);
+    }
+    let episodes: usize = summaries.iter().map(|s| s.episodes).sum();
+    bar_chart(
+        path,
+        &format!(
+            "closed loop in caresim: success rate ({episodes} episodes; R repositioning, W wiping)"
+        ),
+        "success rate (95% Wilson interval)",
+        &controllers,
+        &groups,
+    )?;
+    Ok(())
+}
+
+/// A condition's words short enough for an axis label.
+fn short_condition(condition: &str) -> String {
+    condition
+        .replace("as learned", "learned")
+        .replace("unlearned bed height", "new height")
+        .replace("16x16 vision", "16x16")
+        .replace("sensor noise x", "noise x")
+        .replace("camera occluded", "occluded")
+        .replace("Panda's joint speeds", "Panda")
 }
 
 #[cfg(test)]

@@ -13,8 +13,8 @@
 //! - [`reporting`]: running jobs with the report rebuilt when a part of the design (an
 //!   interference direction) is complete.
 //! - [`slurm`]: the same plan as Slurm job arrays.
-//! - [`closed_loop`]: the closed loop's statistics over networks (`pvrnn report drive
-//!   --networks`).
+//! - [`closed_loop`]: the closed loop's statistics over networks and its success figure
+//!   (`pvrnn report drive --networks --figure`).
 
 pub mod closed_loop;
 pub mod compatibility;

@@ -196,7 +196,10 @@ pub fn run(command: Command) -> Result<()> {
             }
             write_or_print(out, &table)?;
             if let Some(path) = figure {
-                drive_figure(&pvrnn_drive::table::summarise(&rows), &path)?;
+                pvrnn_experiment::closed_loop::success_figure(
+                    &pvrnn_drive::table::summarise(&rows),
+                    &path,
+                )?;
                 eprintln!("wrote {} (and .svg)", path.display());
             }
         }
@@ -226,56 +229,6 @@ fn write_or_print(out: Option<PathBuf>, md: &str) -> Result<()> {
     Ok(())
 }
 
-/// The success table as bars: a group per task and condition, a bar per controller.
-fn drive_figure(summaries: &[pvrnn_drive::table::Summary], path: &std::path::Path) -> Result<()> {
-    let mut controllers: Vec<String> = summaries.iter().map(|s| s.controller.clone()).collect();
-    // The closed loop first, then its baselines.
-    let order = |c: &String| {
-        ["network", "prior", "mean-trajectory"]
-            .iter()
-            .position(|k| k == c)
-    };
-    controllers.sort_by_key(|c| (order(c).unwrap_or(usize::MAX), c.clone()));
-    controllers.dedup();
-    let mut groups: Vec<(String, Vec<plots::Bar>)> = Vec::new();
-    for s in summaries {
-        let initial: String = s
-            .task
-            .chars()
-            .take(1)
-            .flat_map(char::to_uppercase)
-            .collect();
-        let label = format!("{initial}: {}", short_condition(&s.condition));
-        if groups.last().is_none_or(|g| g.0 != label) {
-            let empty = controllers.iter().map(|c| plots::Bar {
-                label: c.clone(),
-                mean: f64::NAN, // a controller not run under this condition: no bar
-                se: None,
-                interval: None,
-            });
-            groups.push((label, empty.collect()));
-        }
-        let k = controllers
-            .iter()
-            .position(|c| *c == s.controller)
-            .unwrap_or(0);
-        let bars = &mut groups.last_mut().expect("pushed above").1;
-        bars[k].mean = s.success_rate();
-        bars[k].interval = Some(s.interval);
-    }
-    let episodes: usize = summaries.iter().map(|s| s.episodes).sum();
-    plots::bar_chart(
-        path,
-        &format!(
-            "closed loop in caresim: success rate ({episodes} episodes; R repositioning, W wiping)"
-        ),
-        "success rate (95% Wilson interval)",
-        &controllers,
-        &groups,
-    )?;
-    Ok(())
-}
-
 /// The folder directly under `root` that holds an episode: its network.
 fn network_of(root: &std::path::Path, episode: &std::path::Path) -> String {
     episode
@@ -285,15 +238,4 @@ fn network_of(root: &std::path::Path, episode: &std::path::Path) -> String {
         .map_or_else(String::new, |c| {
             c.as_os_str().to_string_lossy().into_owned()
         })
-}
-
-/// A condition's words short enough for an axis label.
-fn short_condition(condition: &str) -> String {
-    condition
-        .replace("as learned", "learned")
-        .replace("unlearned bed height", "new height")
-        .replace("16x16 vision", "16x16")
-        .replace("sensor noise x", "noise x")
-        .replace("camera occluded", "occluded")
-        .replace("Panda's joint speeds", "Panda")
 }

@@ -8,7 +8,8 @@
 // then branches that run at step 20 without vision and waits as long for the branch's speed.
 // It also checks that the first view came before the whole bundle (progressive load) and
 // that the findings' figures are served.
-// It also drives the robot from the address (`drive=`) and waits for the episode's outcome.
+// It also drives the robot from the address (`drive=`) in the worker and waits for the
+// episode's outcome and the worker's speed.
 // With --webgpu it also opens the site in a browser with WebGPU and checks that the worker
 // takes it when asked (`?compute=webgpu`), and that eframe's wgpu renderer draws the page
 // when asked (`?render=wgpu`).
@@ -195,7 +196,7 @@ try {
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();
   // A drive from the address, on a page of its own (nothing else computing): the shipped
-  // network drives caresim's robot in the page (16x16 + proprioception observed) and the
+  // network drives caresim's robot in the worker (16x16 + proprioception observed) and the
   // episode opens as a sequence.
   {
     const { page: drivePage, logs: driveLogs } = await openPage(browser);
@@ -211,6 +212,14 @@ try {
     if (error) fail(`drive from the address: ${error}`);
     else if (done) console.log(`drive from the address in ${((Date.now() - started) / 1000).toFixed(0)} s: ${done} (screenshot ${driveShot})`);
     else fail(`drive from the address: no episode finished within 400 s (screenshot ${driveShot})`);
+    // Stepped in the worker, not the page: the page says how fast the worker drove.
+    const inWorker = driveLogs.find((l) => l.includes('drive: the worker drove'));
+    if (inWorker) console.log(inWorker);
+    else if (done) fail('the episode was not driven in the worker');
+    // Once: the finished episode is open, so the address does not start it again.
+    await drivePage.waitForTimeout(3000);
+    const sent = driveLogs.filter((l) => l.includes('sent to the worker')).length;
+    if (done && sent !== 1) fail(`the address's episode was sent to the worker ${sent} times, not once`);
     for (const l of driveLogs) if (/panicked|pageerror/.test(l)) fail(`console (drive): ${l}`);
     await drivePage.close();
   }

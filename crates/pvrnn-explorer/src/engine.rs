@@ -227,6 +227,11 @@ impl Engine {
         };
     }
 
+    /// The model runs are computed with, once set.
+    pub fn model(&self) -> Option<&Arc<Model<f32>>> {
+        self.model.as_ref()
+    }
+
     pub fn add_observations(&mut self, name: String, observations: Arc<Observations<f32>>) {
         self.observations.insert(name, observations);
     }

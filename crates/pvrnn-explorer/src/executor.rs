@@ -2,7 +2,9 @@
 //! does not depend on how (or on which thread) a result was computed: in slices between
 //! frames on the calling thread ([`Inline`]), on a background thread beside the desktop
 //! window (`thread::ThreadClient`), or in a Web Worker beside the page
-//! (`worker::WorkerClient`).
+//! (`worker::WorkerClient`). The Drive window's episode goes where runs go: the page or
+//! the desktop window steps it between frames ([`LocalDrive`]), the web worker between its
+//! ticks.
 
 use std::sync::Arc;
 
@@ -10,6 +12,7 @@ use pvrnn_core::{Model, Observations};
 use web_time::Duration;
 
 use crate::condition::RunKey;
+use crate::driving::{DriveEvent, DriveProgress, DriveRequest, LocalDrive};
 use crate::engine::{Engine, Event};
 
 pub trait Executor: std::fmt::Debug {
@@ -37,31 +40,57 @@ pub trait Executor: std::fmt::Debug {
     fn is_inline(&self) -> bool {
         false
     }
+
+    /// Applies the Drive window's request; `model` is the open network, which the executor
+    /// already has ([`Self::set_model`]).
+    fn drive(&mut self, model: &Arc<Model<f32>>, request: DriveRequest) -> Result<(), String>;
+
+    /// The episode in progress, as last heard of.
+    fn drive_progress(&self) -> Option<DriveProgress>;
+
+    /// Steps the episode for up to `budget` (stepped on the calling thread) or collects
+    /// what arrived (worker).
+    fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent>;
 }
 
 /// Computes in slices between frames, on the calling thread.
 #[derive(Debug, Default)]
-pub struct Inline(Box<Engine>);
+pub struct Inline {
+    engine: Box<Engine>,
+    drive: LocalDrive,
+}
 
 impl Executor for Inline {
     fn set_model(&mut self, model: &Arc<Model<f32>>) {
-        self.0.set_model(model.clone());
+        self.engine.set_model(model.clone());
     }
 
     fn add_observations(&mut self, name: &str, observations: Arc<Observations<f32>>) {
-        self.0.add_observations(name.to_string(), observations);
+        self.engine.add_observations(name.to_string(), observations);
     }
 
     fn run(&mut self, key: &RunKey) {
-        self.0.run(key.clone());
+        self.engine.run(key.clone());
     }
 
     fn poll(&mut self, budget: Duration) -> Vec<Event> {
-        self.0.work(budget)
+        self.engine.work(budget)
     }
 
     fn is_inline(&self) -> bool {
         true
+    }
+
+    fn drive(&mut self, model: &Arc<Model<f32>>, request: DriveRequest) -> Result<(), String> {
+        self.drive.request(Some(model), request)
+    }
+
+    fn drive_progress(&self) -> Option<DriveProgress> {
+        self.drive.progress()
+    }
+
+    fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent> {
+        self.drive.step_for(budget).into_iter().collect()
     }
 }
 

@@ -14,7 +14,8 @@
 //!   step as a `CompactStep`; it keeps each step's inference state, so a branch continues
 //!   from its run's state. No egui, no browser.
 //! - `executor`: where runs are computed (`Executor`): `Inline` in slices of the frame
-//!   budget, `thread` (desktop) and `worker` (web) beside the window.
+//!   budget, `thread` (desktop) and `worker` (web) beside the window; `driving`: the Drive
+//!   window's episode (`LocalDrive` steps it: the window between frames, or the worker).
 //! - `runs`: the runs a view needs, cached and queued (`RunStore`, `RunTrace`).
 //! - `state`: everything a view is (`ViewState`), as the URL hash or `--view`, kept within
 //!   what the bundle can show.
@@ -41,6 +42,7 @@ pub mod app;
 pub mod browser;
 pub mod bundle;
 pub mod condition;
+pub mod driving;
 pub mod drop;
 pub mod engine;
 pub mod executor;

@@ -11,6 +11,7 @@ use pvrnn_core::{Modality, Model, Observations};
 use web_time::{Duration, Instant};
 
 use crate::condition::RunKey;
+use crate::driving::{DriveEvent, DriveProgress, DriveRequest};
 pub use crate::engine::Finished;
 use crate::engine::{CompactStep, Event, ModuleStates};
 use crate::executor::Executor;
@@ -238,24 +239,7 @@ impl RunStore {
         observations: &mut ObservationSource<'_>,
     ) -> bool {
         let start = Instant::now();
-        if let Some(reason) = self.executor.broken() {
-            // Computing in the page is slower, but it works everywhere.
-            self.executor = Box::default();
-            self.restart_executor();
-            note_fallback(&reason);
-            self.notes.push(format!(
-                "live runs compute in the page: the worker failed ({reason})"
-            ));
-        }
-        if !self
-            .executor_model
-            .as_ref()
-            .is_some_and(|m| Arc::ptr_eq(m, model))
-        {
-            self.restart_executor();
-            self.executor.set_model(model);
-            self.executor_model = Some(model.clone());
-        }
+        self.ready_executor(model);
         let mut worked = false;
         loop {
             self.dispatch(model, observations);
@@ -272,6 +256,52 @@ impl RunStore {
         // Hand the executor its next run at once rather than a frame later.
         self.dispatch(model, observations);
         worked || (self.executor.is_inline() && self.running.is_some())
+    }
+
+    /// Applies the Drive window's request where runs are computed (so in the web worker
+    /// when there is one), after the executor has `model`.
+    pub fn drive(&mut self, model: &Arc<Model<f32>>, request: DriveRequest) -> Result<(), String> {
+        self.ready_executor(model);
+        self.executor.drive(model, request)
+    }
+
+    /// The episode in progress, as last heard of.
+    pub fn drive_progress(&self) -> Option<DriveProgress> {
+        self.executor.drive_progress()
+    }
+
+    /// Steps the episode for up to `budget` when it is stepped here, or collects what the
+    /// worker sent.
+    pub fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent> {
+        self.executor.poll_drive(budget)
+    }
+
+    /// An executor that works (the page's own when the worker failed) and has `model`.
+    fn ready_executor(&mut self, model: &Arc<Model<f32>>) {
+        if let Some(reason) = self.executor.broken() {
+            let driving = self.executor.drive_progress().is_some();
+            // Computing in the page is slower, but it works everywhere.
+            self.executor = Box::default();
+            self.restart_executor();
+            note_fallback(&reason);
+            self.notes.push(format!(
+                "live runs compute in the page: the worker failed ({reason}){}",
+                if driving {
+                    "; the episode it was driving is lost"
+                } else {
+                    ""
+                }
+            ));
+        }
+        if !self
+            .executor_model
+            .as_ref()
+            .is_some_and(|m| Arc::ptr_eq(m, model))
+        {
+            self.restart_executor();
+            self.executor.set_model(model);
+            self.executor_model = Some(model.clone());
+        }
     }
 
     /// A fresh executor state: runs it was part way through start again.

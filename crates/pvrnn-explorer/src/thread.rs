@@ -13,6 +13,7 @@ use pvrnn_core::{Model, Observations};
 use web_time::Duration;
 
 use crate::condition::RunKey;
+use crate::driving::{DriveEvent, DriveProgress, DriveRequest, LocalDrive};
 use crate::engine::{Engine, Event};
 use crate::executor::Executor;
 
@@ -31,6 +32,9 @@ pub struct ThreadClient {
     events: Receiver<(u64, Event)>,
     generation: u64,
     thread: Option<JoinHandle<()>>,
+    /// The Drive window's episode, stepped by the window between frames: its steps are
+    /// short (about 10 ms), and the window shows each.
+    drive: LocalDrive,
 }
 
 impl std::fmt::Debug for ThreadClient {
@@ -62,6 +66,7 @@ impl ThreadClient {
             events,
             generation: 0,
             thread: Some(thread),
+            drive: LocalDrive::default(),
         })
     }
 
@@ -114,6 +119,18 @@ impl Executor for ThreadClient {
             _ => "it stopped".into(),
         };
         Some(format!("the inference thread stopped: {why}"))
+    }
+
+    fn drive(&mut self, model: &Arc<Model<f32>>, request: DriveRequest) -> Result<(), String> {
+        self.drive.request(Some(model), request)
+    }
+
+    fn drive_progress(&self) -> Option<DriveProgress> {
+        self.drive.progress()
+    }
+
+    fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent> {
+        self.drive.step_for(budget).into_iter().collect()
     }
 }
 

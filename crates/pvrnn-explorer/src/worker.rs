@@ -3,16 +3,23 @@
 //! it and calls [`run_worker`]); it hosts an [`Engine`] and talks in plain messages:
 //!
 //! page → worker: `model {generation, bytes}`, `observations {generation, name, steps,
-//! extero, proprio}`, `run {generation, key}`;
+//! extero, proprio}`, `run {generation, key}`, `drive {generation, id, action, ...}` (the
+//! Drive window's episode `id`: `start` with the drive's text and the condition as JSON,
+//! `push` an arm, `occlude` a camera, `stop`);
 //! worker → page: `ready {compute}` (where runs compute: WebGPU or the CPU), `step {generation, key, data}`, `done {generation, key, steps,
-//! busy_ms, wall_ms}`, `failed {generation, key, message}`, and `fatal {generation, message}`
-//! when the worker cannot go on (a command it cannot read, a message it cannot send): the
-//! page then computes in itself, and says why.
+//! busy_ms, wall_ms}`, `failed {generation, key, message}`, `drive-progress {generation,
+//! id, spec, condition, trial, done, len, step, cameras}` after each tick of an episode,
+//! `drive-done {generation, id, spec, condition, summary, demonstration, info, sequence,
+//! runs}` when it ends (the episode's sequence file as the dataset writes it, the network's
+//! run as `pvrnn infer` writes it, in f32), `drive-failed {generation, id, message}`, and
+//! `fatal {generation, message}` when the worker cannot go on (a command it cannot read, a
+//! message it cannot send): the page then computes in itself, and says why.
 //!
 //! One typed protocol, one encoder and decoder per direction: [`Command`] and [`Reply`].
 //! Keys are [`RunKey`]s as JSON, steps are [`CompactStep::to_f32s`]. Messages carry the
 //! generation of the model they belong to, so results that were in flight when a new model
-//! arrived are dropped.
+//! arrived are dropped; drive messages also carry their episode's id, so the progress of an
+//! episode already stopped is dropped.
 
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -21,10 +28,15 @@ use std::sync::Arc;
 use eframe::wasm_bindgen::{self, JsCast, JsValue, closure::Closure, prelude::wasm_bindgen};
 use eframe::web_sys;
 use js_sys::{Array, Float32Array, Object, Reflect, Uint8Array};
+use pvrnn_core::config::ModelConfig;
 use pvrnn_core::{Modality, Model, Observations, Tensor, io};
+use pvrnn_drive::DriveSpec;
 use web_time::Duration;
 
-use crate::condition::RunKey;
+use crate::condition::{Condition, RunKey};
+use crate::driving::{
+    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, FinishedParts, LocalDrive,
+};
 use crate::engine::{CompactStep, Engine, Event, Finished, StepLayout};
 use crate::executor::Executor;
 
@@ -75,6 +87,26 @@ pub fn key_from_text(text: &str) -> Result<RunKey, String> {
     serde_json::from_str(text).map_err(|e| format!("a worker message has a bad run key: {e}"))
 }
 
+fn bytes_field(m: &JsValue, name: &str) -> Result<Vec<u8>, String> {
+    Ok(field(m, name)
+        .dyn_into::<Uint8Array>()
+        .map_err(|_| format!("a worker message has no `{name}` bytes"))?
+        .to_vec())
+}
+
+fn spec_field(m: &JsValue) -> Result<DriveSpec, String> {
+    DriveSpec::parse_text(&string_field(m, "spec")?).map_err(|e| e.to_string())
+}
+
+fn condition_field(m: &JsValue) -> Result<Condition, String> {
+    serde_json::from_str(&string_field(m, "condition")?)
+        .map_err(|e| format!("a worker message has a bad condition: {e}"))
+}
+
+fn condition_text(c: &Condition) -> String {
+    serde_json::to_string(c).expect("a condition is plain data")
+}
+
 /// Page → worker.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Command {
@@ -90,6 +122,12 @@ pub enum Command {
     },
     /// Compute this run (pausing the one in progress).
     Run { generation: u32, key: RunKey },
+    /// The Drive window's request for episode `id` (a start begins episode `id`).
+    Drive {
+        generation: u32,
+        id: u32,
+        request: DriveRequest,
+    },
 }
 
 /// Worker → page.
@@ -101,6 +139,18 @@ pub enum Reply {
     Event { generation: u32, event: Event },
     /// The worker cannot go on (a command it cannot read, a result it cannot send).
     Fatal { generation: u32, message: String },
+    /// Episode `id` so far.
+    DriveProgress {
+        generation: u32,
+        id: u32,
+        progress: Box<DriveProgress>,
+    },
+    /// Episode `id` is over.
+    DriveEnded {
+        generation: u32,
+        id: u32,
+        event: DriveEvent,
+    },
 }
 
 impl Command {
@@ -108,7 +158,8 @@ impl Command {
         match self {
             Self::Model { generation, .. }
             | Self::Observations { generation, .. }
-            | Self::Run { generation, .. } => *generation,
+            | Self::Run { generation, .. }
+            | Self::Drive { generation, .. } => *generation,
         }
     }
 
@@ -145,6 +196,30 @@ impl Command {
             Self::Run { generation, key } => {
                 message("run", *generation, &[("key", key_to_text(key).into())])
             }
+            Self::Drive {
+                generation,
+                id,
+                request,
+            } => {
+                let mut fields = vec![("id", JsValue::from(*id))];
+                match request {
+                    DriveRequest::Start { spec, condition } => {
+                        fields.push(("action", "start".into()));
+                        fields.push(("spec", spec.to_text().into()));
+                        fields.push(("condition", condition_text(condition).into()));
+                    }
+                    DriveRequest::Push(arm) => {
+                        fields.push(("action", "push".into()));
+                        fields.push(("which", (*arm as f64).into()));
+                    }
+                    DriveRequest::Occlude(camera) => {
+                        fields.push(("action", "occlude".into()));
+                        fields.push(("which", (*camera as f64).into()));
+                    }
+                    DriveRequest::Stop => fields.push(("action", "stop".into())),
+                }
+                message("drive", *generation, &fields)
+            }
         };
         (m, transfer)
     }
@@ -176,16 +251,89 @@ impl Command {
                 generation,
                 key: key_from_text(&string_field(m, "key")?)?,
             }),
+            "drive" => {
+                let which = || number_field(m, "which").map(|v| v as usize);
+                let request = match string_field(m, "action")?.as_str() {
+                    "start" => DriveRequest::Start {
+                        spec: Box::new(spec_field(m)?),
+                        condition: condition_field(m)?,
+                    },
+                    "push" => DriveRequest::Push(which()?),
+                    "occlude" => DriveRequest::Occlude(which()?),
+                    "stop" => DriveRequest::Stop,
+                    other => return Err(format!("unknown drive action `{other}`")),
+                };
+                Ok(Self::Drive {
+                    generation,
+                    id: number_field(m, "id")? as u32,
+                    request,
+                })
+            }
             other => Err(format!("unknown command `{other}`")),
         }
     }
 }
 
 impl Reply {
-    /// The message, and the buffers to transfer with it.
-    pub fn encode(&self) -> (Object, Array) {
+    /// The message, and the buffers to transfer with it; `config` is the model's (to write
+    /// a finished episode's run). A finished episode that cannot be written is sent as a
+    /// failed one, with the reason.
+    pub fn encode_with(&self, config: Option<&ModelConfig>) -> (Object, Array) {
         let transfer = Array::new();
         let m = match self {
+            Self::DriveProgress {
+                generation,
+                id,
+                progress: p,
+            } => {
+                let mut fields = vec![
+                    ("id", JsValue::from(*id)),
+                    ("spec", p.spec.to_text().into()),
+                    ("condition", condition_text(&p.condition).into()),
+                    ("trial", p.trial.as_str().into()),
+                    ("done", (p.steps_done as f64).into()),
+                    ("len", (p.len as f64).into()),
+                ];
+                if let Some((step, images)) = &p.cameras {
+                    let images = Uint8Array::from(&images[..]);
+                    transfer.push(&images.buffer());
+                    fields.push(("step", (*step as f64).into()));
+                    fields.push(("cameras", images.into()));
+                }
+                message("drive-progress", *generation, &fields)
+            }
+            Self::DriveEnded {
+                generation,
+                id,
+                event,
+            } => {
+                let finished = match (event, config) {
+                    (DriveEvent::Finished(f), Some(config)) => f.to_parts(config),
+                    (DriveEvent::Finished(_), None) => Err("the worker has no model".into()),
+                    (DriveEvent::Failed(why), _) => Err(why.clone()),
+                };
+                match finished {
+                    Ok(parts) => {
+                        let mut fields =
+                            vec![("id", JsValue::from(*id)), ("header", parts.header.into())];
+                        for (name, bytes) in
+                            [("sequence", Some(parts.sequence)), ("runs", parts.run)]
+                        {
+                            if let Some(bytes) = bytes {
+                                let bytes = Uint8Array::from(&bytes[..]);
+                                transfer.push(&bytes.buffer());
+                                fields.push((name, bytes.into()));
+                            }
+                        }
+                        message("drive-done", *generation, &fields)
+                    }
+                    Err(why) => message(
+                        "drive-failed",
+                        *generation,
+                        &[("id", JsValue::from(*id)), ("message", why.into())],
+                    ),
+                }
+            }
             Self::Ready { compute } => message("ready", 0, &[("compute", compute.into())]),
             Self::Fatal {
                 generation,
@@ -222,11 +370,68 @@ impl Reply {
         (m, transfer)
     }
 
-    /// Reads a reply; steps need the layout of the model they belong to.
-    pub fn decode(m: &JsValue, layout: Option<&StepLayout>) -> Result<Self, String> {
+    /// [`Self::encode_with`] for replies that need no model.
+    pub fn encode(&self) -> (Object, Array) {
+        self.encode_with(None)
+    }
+
+    /// Reads a reply; steps need the layout of the model they belong to, a finished
+    /// episode's run the model's configuration.
+    pub fn decode(
+        m: &JsValue,
+        layout: Option<&StepLayout>,
+        config: Option<&ModelConfig>,
+    ) -> Result<Self, String> {
         let generation = number_field(m, "generation")? as u32;
         let kind = string_field(m, "kind")?;
+        let id = || number_field(m, "id").map(|v| v as u32);
         match kind.as_str() {
+            "drive-progress" => {
+                let cameras = match field(m, "cameras").is_undefined() {
+                    true => None,
+                    false => Some((
+                        number_field(m, "step")? as usize,
+                        bytes_field(m, "cameras")?,
+                    )),
+                };
+                let progress = DriveProgress {
+                    spec: spec_field(m)?,
+                    condition: condition_field(m)?,
+                    trial: string_field(m, "trial")?,
+                    steps_done: number_field(m, "done")? as usize,
+                    len: number_field(m, "len")? as usize,
+                    cameras,
+                };
+                return Ok(Self::DriveProgress {
+                    generation,
+                    id: id()?,
+                    progress: Box::new(progress),
+                });
+            }
+            "drive-done" => {
+                return Ok(Self::DriveEnded {
+                    generation,
+                    id: id()?,
+                    event: DriveEvent::Finished(Box::new(FinishedDrive::from_parts(
+                        FinishedParts {
+                            header: string_field(m, "header")?,
+                            sequence: bytes_field(m, "sequence")?,
+                            run: match field(m, "runs").is_undefined() {
+                                true => None,
+                                false => Some(bytes_field(m, "runs")?),
+                            },
+                        },
+                        config,
+                    )?)),
+                });
+            }
+            "drive-failed" => {
+                return Ok(Self::DriveEnded {
+                    generation,
+                    id: id()?,
+                    event: DriveEvent::Failed(string_field(m, "message")?),
+                });
+            }
             "ready" => {
                 return Ok(Self::Ready {
                     compute: string_field(m, "compute")?,
@@ -273,6 +478,36 @@ struct WorkerSide {
     queued: Vec<JsValue>,
     generation: u32,
     scheduled: bool,
+    /// The Drive window's episode (on the CPU: a step's inference is small), and its id.
+    drive: LocalDrive,
+    drive_id: u32,
+}
+
+impl WorkerSide {
+    /// Whether the next tick has work: a run, or an episode.
+    fn busy(&self) -> bool {
+        self.drive.is_driving() || self.engine.as_ref().is_some_and(|e| e.running().is_some())
+    }
+
+    /// Steps the episode for a tick; what to tell the page (its progress, or its end).
+    fn drive_tick(&mut self) -> Option<Reply> {
+        if !self.drive.is_driving() {
+            return None;
+        }
+        let (generation, id) = (self.generation, self.drive_id);
+        Some(match self.drive.step_for(TICK) {
+            Some(event) => Reply::DriveEnded {
+                generation,
+                id,
+                event,
+            },
+            None => Reply::DriveProgress {
+                generation,
+                id,
+                progress: Box::new(self.drive.progress()?),
+            },
+        })
+    }
 }
 
 /// Worker → itself: a message through this channel runs one tick. Unlike `setTimeout(0)`
@@ -332,6 +567,8 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
         queued: Vec::new(),
         generation: 0,
         scheduled: false,
+        drive: LocalDrive::default(),
+        drive_id: 0,
     }));
     let channel = web_sys::MessageChannel::new()?;
     let ticker = Rc::new(Ticker {
@@ -365,9 +602,19 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
                     );
                 }
             }
+            if let Some(reply) = s.drive_tick() {
+                let config = s.engine.as_ref().and_then(|e| e.model()).map(|m| &m.config);
+                let (m, transfer) = reply.encode_with(config);
+                if let Err(err) = scope.post_message_with_transfer(&m, &transfer) {
+                    report_fatal(
+                        &scope,
+                        generation,
+                        &format!("cannot send the drive: {err:?}"),
+                    );
+                }
+            }
             apply_queued(&mut s, &scope);
-            let running = s.engine.as_ref().is_some_and(|e| e.running().is_some());
-            if running && !s.scheduled {
+            if s.busy() && !s.scheduled {
                 s.scheduled = ticker.schedule(&scope, s.generation);
             }
         });
@@ -387,8 +634,7 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
                 return; // applied when the engine is back
             }
             apply_queued(&mut s, &scope_for_messages);
-            let running = s.engine.as_ref().is_some_and(|e| e.running().is_some());
-            if running && !s.scheduled {
+            if s.busy() && !s.scheduled {
                 s.scheduled = ticker.schedule(&scope_for_messages, s.generation);
             }
         });
@@ -409,8 +655,15 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
 /// Applies the page's commands that arrived while the engine was busy, in order.
 fn apply_queued(s: &mut WorkerSide, scope: &web_sys::DedicatedWorkerGlobalScope) {
     for m in std::mem::take(&mut s.queued) {
-        if let Err(err) = handle_command(s, &m) {
-            report_fatal(scope, s.generation, &err);
+        match handle_command(s, &m) {
+            Ok(None) => {}
+            // A drive that cannot start or be perturbed: the page says why; the worker goes on.
+            Ok(Some(reply)) => {
+                if let Err(err) = scope.post_message(&reply.encode().0) {
+                    report_fatal(scope, s.generation, &format!("cannot answer: {err:?}"));
+                }
+            }
+            Err(err) => report_fatal(scope, s.generation, &err),
         }
     }
 }
@@ -425,13 +678,14 @@ fn report_fatal(scope: &web_sys::DedicatedWorkerGlobalScope, generation: u32, wh
     let _ = scope.post_message(&reply.encode().0);
 }
 
-fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
+/// Applies a page's command; a reply when a drive request was refused.
+fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<Option<Reply>, String> {
     let command = Command::decode(m)?;
     let Some(engine) = s.engine.as_mut() else {
         return Err("a command reached the worker while its engine was busy".into());
     };
     if !matches!(command, Command::Model { .. }) && command.generation() != s.generation {
-        return Ok(()); // meant for a model already replaced
+        return Ok(None); // meant for a model already replaced
     }
     match command {
         Command::Model { generation, bytes } => {
@@ -439,6 +693,8 @@ fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
                 .map_err(|e| e.to_string())?;
             engine.set_model(Arc::new(model));
             s.generation = generation;
+            // An episode of the previous model ends with it.
+            s.drive = LocalDrive::default();
         }
         Command::Observations {
             name,
@@ -456,8 +712,28 @@ fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<(), String> {
             engine.add_observations(name, Arc::new(obs));
         }
         Command::Run { key, .. } => engine.run(key),
+        Command::Drive {
+            generation,
+            id,
+            request,
+        } => {
+            let start = matches!(request, DriveRequest::Start { .. });
+            if start {
+                s.drive_id = id;
+            } else if id != s.drive_id {
+                return Ok(None); // an episode already over
+            }
+            let model = engine.model().cloned();
+            if let Err(why) = s.drive.request(model.as_ref(), request) {
+                return Ok(Some(Reply::DriveEnded {
+                    generation,
+                    id,
+                    event: DriveEvent::Failed(why),
+                }));
+            }
+        }
     }
-    Ok(())
+    Ok(None)
 }
 
 #[derive(Default)]
@@ -469,8 +745,16 @@ struct PageSide {
     failure: Option<String>,
     generation: u32,
     layout: Option<StepLayout>,
+    /// The model's configuration (to read a finished episode's run).
+    config: Option<ModelConfig>,
     /// Where the worker's runs compute, once it is ready.
     compute: Option<String>,
+    /// The episode the worker drives, as last heard of, and its id.
+    drive: Option<DriveProgress>,
+    drive_id: u32,
+    drive_events: Vec<DriveEvent>,
+    /// When the episode was sent to the worker (its speed goes to the console).
+    drive_started: Option<web_time::Instant>,
 }
 
 /// The page's handle on the worker.
@@ -500,11 +784,11 @@ impl WorkerClient {
         let err_ctx = ctx.clone();
 
         let (msg_side, msg_worker) = (side.clone(), worker.clone());
-        let on_message =
-            Closure::<dyn FnMut(web_sys::MessageEvent)>::new(move |e: web_sys::MessageEvent| {
+        let on_message = Closure::<dyn FnMut(web_sys::MessageEvent)>::new(
+            move |e: web_sys::MessageEvent| {
                 let m = e.data();
                 let mut s = msg_side.borrow_mut();
-                let reply = Reply::decode(&m, s.layout.as_ref());
+                let reply = Reply::decode(&m, s.layout.as_ref(), s.config.as_ref());
                 match reply {
                     Ok(Reply::Ready { compute }) => {
                         crate::browser::log(&format!("live runs compute on {compute}"));
@@ -522,16 +806,45 @@ impl WorkerClient {
                         ctx.request_repaint();
                         return;
                     }
-                    // Results of a model already replaced.
-                    Ok(Reply::Event { generation, .. }) if generation != s.generation => return,
+                    // Results of a model (or an episode) already replaced.
+                    Ok(
+                        Reply::Event { generation, .. }
+                        | Reply::DriveProgress { generation, .. }
+                        | Reply::DriveEnded { generation, .. },
+                    ) if generation != s.generation => return,
+                    Ok(Reply::DriveProgress { id, .. } | Reply::DriveEnded { id, .. })
+                        if id != s.drive_id || s.drive.is_none() || !s.drive_events.is_empty() =>
+                    {
+                        return;
+                    }
                     Ok(Reply::Event { event, .. }) => s.events.push(event),
+                    Ok(Reply::DriveProgress { progress, .. }) => s.drive = Some(*progress),
+                    Ok(Reply::DriveEnded { event, .. }) => {
+                        if let (DriveEvent::Finished(f), Some(started)) = (&event, s.drive_started)
+                        {
+                            let seconds = started.elapsed().as_secs_f64();
+                            let steps = f.sequence.len();
+                            crate::browser::log(&format!(
+                                "drive: the worker drove {} ({} controller): {steps} steps in {seconds:.1} s ({:.1} steps/s)",
+                                f.spec.trial().map(|t| t.name()).unwrap_or_default(),
+                                f.spec.controller.name(),
+                                steps as f64 / seconds.max(1e-9)
+                            ));
+                        }
+                        // In progress until the app takes the end (`poll_drive`), so that
+                        // no frame sees it neither in progress nor over.
+                        s.drive_events.push(event);
+                        ctx.request_repaint();
+                        return;
+                    }
                     Err(_) if field(&m, "generation").as_f64() != Some(s.generation as f64) => {
                         return;
                     }
                     Err(err) => s.failure = Some(err),
                 }
                 ctx.request_repaint_after(REPAINT_EVERY);
-            });
+            },
+        );
         worker.set_onmessage(Some(on_message.as_ref().unchecked_ref()));
         on_message.forget();
 
@@ -574,7 +887,10 @@ impl Executor for WorkerClient {
             let mut s = self.side.borrow_mut();
             s.generation += 1;
             s.layout = Some(StepLayout::of(&model.config));
+            s.config = Some(model.config.clone());
             s.events.clear();
+            // The worker ends an episode of the previous model.
+            s.drive = None;
             s.generation
         };
         match io::model_to_bytes(model.as_ref()) {
@@ -607,6 +923,56 @@ impl Executor for WorkerClient {
 
     fn poll(&mut self, _budget: Duration) -> Vec<Event> {
         std::mem::take(&mut self.side.borrow_mut().events)
+    }
+
+    /// Sends the request to the worker; a start shows at once as an episode at step 0.
+    fn drive(&mut self, _model: &Arc<Model<f32>>, request: DriveRequest) -> Result<(), String> {
+        let (generation, id) = {
+            let mut s = self.side.borrow_mut();
+            match &request {
+                DriveRequest::Start { spec, condition } => {
+                    s.drive_id += 1;
+                    s.drive_started = Some(web_time::Instant::now());
+                    crate::browser::log(&format!(
+                        "drive: episode {} ({}) sent to the worker",
+                        s.drive_id,
+                        spec.to_text()
+                    ));
+                    s.drive = Some(DriveProgress {
+                        spec: (**spec).clone(),
+                        condition: *condition,
+                        trial: spec.trial().map(|t| t.name()).unwrap_or_default(),
+                        steps_done: 0,
+                        len: 0,
+                        cameras: None,
+                    });
+                }
+                DriveRequest::Stop => s.drive = None,
+                DriveRequest::Push(_) | DriveRequest::Occlude(_) if s.drive.is_none() => {
+                    return Ok(());
+                }
+                DriveRequest::Push(_) | DriveRequest::Occlude(_) => {}
+            }
+            (s.generation, s.drive_id)
+        };
+        self.post(&Command::Drive {
+            generation,
+            id,
+            request,
+        });
+        Ok(())
+    }
+
+    fn drive_progress(&self) -> Option<DriveProgress> {
+        self.side.borrow().drive.clone()
+    }
+
+    fn poll_drive(&mut self, _budget: Duration) -> Vec<DriveEvent> {
+        let mut s = self.side.borrow_mut();
+        if !s.drive_events.is_empty() {
+            s.drive = None;
+        }
+        std::mem::take(&mut s.drive_events)
     }
 
     /// Where the worker's runs compute ("WebGPU, ... (worker)", "CPU (worker)"), once it

@@ -297,7 +297,7 @@ fn worker_messages_round_trip() {
             event,
         };
         let (message, _transfer) = reply.encode();
-        let back = Reply::decode(&message, Some(&layout)).expect("decodes");
+        let back = Reply::decode(&message, Some(&layout), None).expect("decodes");
         assert_eq!(back, reply);
     }
     for reply in [
@@ -309,7 +309,7 @@ fn worker_messages_round_trip() {
             message: "cannot send a result".into(),
         },
     ] {
-        assert_eq!(Reply::decode(&reply.encode().0, None).unwrap(), reply);
+        assert_eq!(Reply::decode(&reply.encode().0, None, None).unwrap(), reply);
     }
     // A step of another model's layout is refused with a message, not misread.
     let (message, _) = Reply::Event {
@@ -317,7 +317,7 @@ fn worker_messages_round_trip() {
         event: Event::Step(key(), Box::default()),
     }
     .encode();
-    let err = Reply::decode(&message, Some(&layout)).unwrap_err();
+    let err = Reply::decode(&message, Some(&layout), None).unwrap_err();
     assert!(err.contains("numbers"), "{err}");
     // Commands, page to worker.
     for command in [
@@ -355,6 +355,85 @@ fn worker_messages_round_trip() {
     };
     let err = Command::decode(&ready.encode().0).unwrap_err();
     assert!(err.contains("unknown command `ready`"), "{err}");
+}
+
+/// The Drive window's messages: its requests to the worker, the episode's progress and its
+/// end (the finished episode's bytes are checked natively: `tests/it/driving.rs`).
+#[wasm_bindgen_test]
+fn drive_messages_round_trip() {
+    use pvrnn_explorer::driving::{DriveEvent, DriveProgress, DriveRequest, FinishedDrive};
+    let bundle = common::caresim_bundle();
+    let config = &bundle.model.config;
+    let condition = Condition::standard(config);
+    let mut spec =
+        pvrnn_drive::DriveSpec::new(caresim::Task::Wiping, 680, 2, caresim::Revision::R2);
+    spec.perturbations.sensor_noise = 3.0;
+    for request in [
+        DriveRequest::Start {
+            spec: Box::new(spec.clone()),
+            condition,
+        },
+        DriveRequest::Push(1),
+        DriveRequest::Occlude(0),
+        DriveRequest::Stop,
+    ] {
+        let command = Command::Drive {
+            generation: 4,
+            id: 9,
+            request,
+        };
+        assert_eq!(Command::decode(&command.encode().0).unwrap(), command);
+    }
+    let progress = |cameras| Reply::DriveProgress {
+        generation: 4,
+        id: 9,
+        progress: Box::new(DriveProgress {
+            spec: spec.clone(),
+            condition,
+            trial: "wiping_680mm_test2".into(),
+            steps_done: 12,
+            len: 240,
+            cameras,
+        }),
+    };
+    for reply in [
+        progress(None),
+        progress(Some((12, vec![7u8; 2 * 64 * 64 * 3]))),
+        Reply::DriveEnded {
+            generation: 4,
+            id: 9,
+            event: DriveEvent::Failed("the network's prediction of joint 3 is NaN".into()),
+        },
+    ] {
+        assert_eq!(Reply::decode(&reply.encode().0, None, None).unwrap(), reply);
+    }
+    // A finished episode (here the bundle's recording as the episode, with no run).
+    let finished = Reply::DriveEnded {
+        generation: 4,
+        id: 9,
+        event: DriveEvent::Finished(Box::new(FinishedDrive {
+            spec: spec.clone(),
+            condition,
+            sequence: bundle.dataset.sequences[0].clone(),
+            run: None,
+            summary: "wiping: failure (towel grasped no)".into(),
+            demonstration_success: true,
+        })),
+    };
+    let (message, _) = finished.encode_with(Some(config));
+    assert_eq!(
+        Reply::decode(&message, None, Some(config)).unwrap(),
+        finished
+    );
+    // Without the model it cannot be written: it goes to the page as a failed episode.
+    let (message, _) = finished.encode_with(None);
+    match Reply::decode(&message, None, None).unwrap() {
+        Reply::DriveEnded {
+            event: DriveEvent::Failed(why),
+            ..
+        } => assert!(why.contains("no model"), "{why}"),
+        other => panic!("{other:?}"),
+    }
 }
 
 /// Files chosen in the browser's picker (here put into its input as a user's choice would)

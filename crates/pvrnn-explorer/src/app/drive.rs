@@ -1,38 +1,34 @@
 //! The Drive window: the open network drives caresim's robot live (`pvrnn_drive`), under
-//! the shown condition (what it observes, H, iterations, rate, noise seed). Each frame
-//! steps the episode for a share of the frame; the window shows what the cameras see,
-//! and the user pushes an arm or covers a camera while it acts. A finished episode joins
+//! the shown condition (what it observes, H, iterations, rate, noise seed). The episode is
+//! stepped where runs are computed (`crate::driving`): on the site in the web worker, so
+//! the page keeps drawing; in the desktop app between frames, a share of each. The window
+//! shows what the cameras see, and the user pushes an arm or covers a camera while it
+//! acts. A finished episode joins
 //! the open data as a sequence named `drive <spec>` with the network's run, so every panel
 //! shows it like a recording (its name holds the drive and the condition, all the episode
 //! depends on, so one name is one episode), and the address holds the drive (`drive=`),
 //! so a link replays the same episode (seeded). A panel type (`super::panel`).
 
 use pvrnn_drive::spec::{parse_speed_limit, speed_limit_text};
-use pvrnn_drive::{Controller, Drive, DriveSpec, Episode};
+use pvrnn_drive::{Controller, DriveSpec};
 
 use super::panel::{Command, DriveCommand, PanelContext};
 use super::*;
+use crate::driving::{
+    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, OCCLUSION_STEPS, PUSH_RADIANS,
+};
 use crate::state::drive_episode_name;
 
-/// How far a push turns every joint of the arm (rad).
-pub const PUSH_RADIANS: f64 = 0.2;
-/// How long a camera stays covered (steps).
-pub const OCCLUSION_STEPS: usize = 30;
-/// The share of a frame the episode may take (at least one step a frame).
+/// The share of a frame the episode may take when stepped between frames (at least one
+/// step a frame).
 const DRIVE_BUDGET: Duration = Duration::from_millis(35);
 
-/// An episode in progress, with the condition its run is kept under.
-pub(super) struct Driving {
-    drive: Drive,
-    condition: Condition,
-}
-
-/// The Drive window (a panel type): its settings, and the episode in progress.
+/// The Drive window (a panel type): its settings and the cameras last shown; the episode
+/// itself is where runs are computed (`RunStore::drive`).
 #[derive(Default)]
 pub(super) struct DrivePanel {
     pub(super) open: bool,
     settings: Option<DriveSpec>,
-    pub(super) driving: Option<Driving>,
     /// The cameras at the latest step (the step, the picture).
     picture: Option<(usize, TextureHandle)>,
     /// A drive from the address that could not start (not retried every frame).
@@ -44,10 +40,6 @@ impl std::fmt::Debug for DrivePanel {
         f.debug_struct("DrivePanel")
             .field("open", &self.open)
             .field("settings", &self.settings)
-            .field(
-                "driving",
-                &self.driving.as_ref().map(|d| d.drive.steps_done()),
-            )
             .finish()
     }
 }
@@ -78,10 +70,8 @@ impl DrivePanel {
                     )
                     .small(),
                 );
-                match &self.driving {
-                    Some(driving) => {
-                        running_ui(&mut self.picture, ui, &driving.drive, &mut commands)
-                    }
+                match panels.store.drive_progress() {
+                    Some(progress) => running_ui(&mut self.picture, ui, &progress, &mut commands),
                     None => self.settings_ui(ui, &mut commands),
                 }
             });
@@ -169,25 +159,25 @@ impl DrivePanel {
 fn running_ui(
     picture: &mut Option<(usize, TextureHandle)>,
     ui: &mut egui::Ui,
-    drive: &Drive,
+    drive: &DriveProgress,
     commands: &mut Vec<Command>,
 ) {
     {
-        let (done, len) = (drive.steps_done(), drive.len());
+        let (done, len) = (drive.steps_done, drive.len);
         ui.label(format!(
             "{} driven by the {} controller: step {done} of {len}",
-            drive.trial().name(),
-            drive.spec().controller.name()
+            drive.trial,
+            drive.spec.controller.name()
         ));
         ui.add(egui::ProgressBar::new(done as f32 / len.max(1) as f32).desired_width(420.0));
-        if let Some(o) = drive.latest() {
-            let stale = picture.as_ref().is_none_or(|(t, _)| *t != o.step);
+        if let Some((step, images)) = &drive.cameras {
+            let stale = picture.as_ref().is_none_or(|(t, _)| t != step);
             if stale {
-                let image = cameras_side_by_side(&o.images);
+                let image = cameras_side_by_side(images);
                 let texture =
                     ui.ctx()
                         .load_texture("drive cameras", image, TextureOptions::NEAREST);
-                *picture = Some((o.step, texture));
+                *picture = Some((*step, texture));
             }
         }
         if let Some((_, texture)) = picture.as_ref() {
@@ -243,30 +233,29 @@ fn cameras_side_by_side(images: &[u8]) -> egui::ColorImage {
 impl ExplorerApp {
     /// Whether an episode is being driven.
     pub fn driving(&self) -> bool {
-        self.drive.driving.is_some()
+        self.store.drive_progress().is_some()
     }
 
     /// Applies the Drive window's command.
     pub(super) fn drive_command(&mut self, command: DriveCommand) {
-        let result = match command {
-            DriveCommand::Start(spec) => self.start_drive(*spec),
-            DriveCommand::Stop => {
-                self.drive.driving = None;
-                self.status = Status::Info("the episode was abandoned".into());
-                Ok(())
+        let request = match command {
+            DriveCommand::Start(spec) => {
+                if let Err(e) = self.start_drive(*spec) {
+                    self.status = Status::Error(format!("drive: {e}"));
+                }
+                return;
             }
-            DriveCommand::Push(arm) => self.drive.driving.as_mut().map_or(Ok(()), |d| {
-                d.drive
-                    .push_now(arm, PUSH_RADIANS)
-                    .map_err(|e| e.to_string())
-            }),
-            DriveCommand::Occlude(camera) => self.drive.driving.as_mut().map_or(Ok(()), |d| {
-                d.drive
-                    .occlude_now(camera, OCCLUSION_STEPS)
-                    .map_err(|e| e.to_string())
-            }),
+            DriveCommand::Stop => {
+                self.status = Status::Info("the episode was abandoned".into());
+                DriveRequest::Stop
+            }
+            DriveCommand::Push(arm) => DriveRequest::Push(arm),
+            DriveCommand::Occlude(camera) => DriveRequest::Occlude(camera),
         };
-        if let Err(e) = result {
+        let Some(model) = self.bundle.as_ref().map(|b| b.model.clone()) else {
+            return;
+        };
+        if let Err(e) = self.store.drive(&model, request) {
             self.status = Status::Error(format!("drive: {e}"));
         }
     }
@@ -276,57 +265,54 @@ impl ExplorerApp {
         let (Some(bundle), Some(condition)) = (&self.bundle, self.condition()) else {
             return Err("no network is open".into());
         };
-        let settings = condition.settings(&bundle.model.config);
-        let backend = pvrnn_core::cpu::CpuBackend;
-        let network = spec.controller.uses_network().then(|| {
-            (
-                bundle.model.clone(),
-                settings,
-                &backend as &dyn pvrnn_core::backend::Backend<f32>,
-            )
-        });
-        let drive = Drive::start(spec, network).map_err(|e| e.to_string())?;
+        // Said at once, before the episode goes where it is stepped.
+        let trial = spec.trial().map_err(|e| e.to_string())?;
+        if spec.controller.uses_network() {
+            pvrnn_drive::check_model(&bundle.model.config).map_err(|e| e.to_string())?;
+        }
+        let model = bundle.model.clone();
+        let controller = spec.controller;
+        self.store.drive(
+            &model,
+            DriveRequest::Start {
+                spec: Box::new(spec),
+                condition,
+            },
+        )?;
         self.status = Status::Info(format!(
             "driving {} ({} controller)",
-            drive.trial().name(),
-            drive.spec().controller.name()
+            trial.name(),
+            controller.name()
         ));
-        self.drive.driving = Some(Driving { drive, condition });
         self.drive.open = true;
         Ok(())
     }
 
-    /// Steps the episode in progress for a share of the frame; keeps it when it is over.
-    /// Whether a step was taken.
+    /// Steps the episode in progress for a share of the frame (or takes in what the worker
+    /// sent); keeps it when it is over. Whether to draw again at once.
     pub(super) fn advance_drive(&mut self) -> bool {
-        let Some(driving) = self.drive.driving.as_mut() else {
-            return false;
-        };
-        let started = web_time::Instant::now();
-        loop {
-            match driving.drive.step() {
-                Ok(Some(_)) if !driving.drive.is_over() && started.elapsed() < DRIVE_BUDGET => {}
-                Ok(Some(_)) if !driving.drive.is_over() => return true,
-                Ok(_) => break,
-                Err(e) => {
+        let events = self.store.poll_drive(DRIVE_BUDGET);
+        let again = !events.is_empty() || (self.store.computes_inline() && self.driving());
+        for event in events {
+            match event {
+                DriveEvent::Finished(finished) => self.keep_episode(*finished),
+                DriveEvent::Failed(e) => {
                     self.status = Status::Error(format!("the drive stopped: {e}"));
-                    self.drive.driving = None;
-                    return true;
+                    // A drive from the address is not started again every frame.
+                    self.drive.refused = self.view.drive.clone();
                 }
             }
         }
-        if let Some(Driving { drive, condition }) = self.drive.driving.take() {
-            self.keep_episode(drive.episode(), condition);
-        }
-        true
+        again
     }
 
     /// Adds a finished episode to the open data (replacing one of the same drive) with the
     /// network's run, and shows it.
-    fn keep_episode(&mut self, episode: Episode, condition: Condition) {
+    fn keep_episode(&mut self, episode: FinishedDrive) {
         let Some(bundle) = self.bundle.as_mut() else {
             return;
         };
+        let condition = episode.condition;
         let text = episode.spec.to_text();
         let name = drive_episode_name(&text, &condition);
         let mut sequence = episode.sequence;
@@ -344,8 +330,8 @@ impl ExplorerApp {
         self.view.drive = Some(text);
         self.status = Status::Info(format!(
             "{} (the demonstration: {})",
-            episode.outcome.summary(),
-            if episode.demonstration.success {
+            episode.summary,
+            if episode.demonstration_success {
                 "success"
             } else {
                 "failure"
@@ -366,10 +352,9 @@ impl ExplorerApp {
             .by_name(&drive_episode_name(&text, &condition))
             .is_some();
         let running = self
-            .drive
-            .driving
-            .as_ref()
-            .is_some_and(|d| d.drive.spec().to_text() == text);
+            .store
+            .drive_progress()
+            .is_some_and(|d| d.spec.to_text() == text);
         if open || running || self.drive.refused.as_deref() == Some(text.as_str()) {
             return;
         }

@@ -279,6 +279,10 @@ impl ExplorerApp {
     /// Shows a new model and dataset; every cached run is dropped.
     pub fn set_bundle(&mut self, mut bundle: Bundle) {
         self.store.clear();
+        // An episode of the previous network stops with it.
+        let _ = self
+            .store
+            .drive(&bundle.model.clone(), crate::driving::DriveRequest::Stop);
         for (key, trace) in std::mem::take(&mut bundle.precomputed) {
             self.store.insert_complete(key, trace);
         }

@@ -5,6 +5,7 @@
 #![cfg(not(target_arch = "wasm32"))]
 
 mod docs;
+mod driving;
 mod findings;
 mod mutations;
 mod ui;

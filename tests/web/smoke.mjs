@@ -196,14 +196,15 @@ try {
   for (const l of logs) if (/panicked|pageerror/.test(l)) fail(`console: ${l}`);
   await page.close();
   // A drive from the address, on a page of its own (nothing else computing): the shipped
-  // network drives caresim's robot in the worker (16x16 + proprioception observed) and the
-  // episode opens as a sequence.
+  // network drives caresim's robot in the worker (16x16 + proprioception observed, an arm
+  // pushed, the vision dropped) and the episode opens as a sequence.
   {
     const { page: drivePage, logs: driveLogs } = await openPage(browser);
     await waitForLog(drivePage, driveLogs, 'bundle ready');
     const started = Date.now();
     await drivePage.evaluate(() => {
-      location.hash = 'drive=repositioning%3A650%3A0%3A1%3Anetwork&vision=1&proprio=1&maps=0';
+      // Pushed at step 40 and blind from step 100: the worker replays both from the address.
+      location.hash = 'drive=repositioning%3A650%3A0%3A1%3Anetwork%3Bpush%3D40%3Aleft%3A0.2%3Bvision%3D100%3A0&vision=1&proprio=1&maps=0';
     });
     const done = await waitForLog(drivePage, driveLogs, 'status: repositioning: ', 400_000);
     const driveShot = out.replace(/\.png$/, '') + '-drive.png';

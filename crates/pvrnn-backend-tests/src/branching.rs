@@ -1,6 +1,7 @@
 //! A run continued from its own state is the same run, and a branch (the state continued
 //! under another observation) shares every step before it: what the explorer's "branch at
-//! t" relies on, on every backend.
+//! t" relies on, and the closed loop's vision drop taken in place (`reobserve`), on every
+//! backend.
 
 use std::sync::Arc;
 
@@ -96,7 +97,36 @@ pub fn a_run_continued_from_its_state_is_the_same_run_and_a_branch_shares_its_pa
             "branch at {at}: its observation made no difference"
         );
         assert!(after.iter().all(|s| s.window_free_energy.total.is_finite()));
+
+        // The same branch taken in place (`reobserve`: the closed loop's vision drop).
+        let mut in_place = open(&settings);
+        steps(&mut in_place, &data, 0..at);
+        let observed = blind.observed;
+        in_place
+            .reobserve(observed, &window_inputs(&data, &state))
+            .unwrap();
+        assert_eq!(in_place.settings().observed, observed);
+        assert_eq!(
+            steps(&mut in_place, &data, at..12),
+            after,
+            "reobserved at {at}: not the branch"
+        );
     }
+    // A reobservation the model cannot have is refused, and changes nothing.
+    let mut unchanged = open(&settings);
+    steps(&mut unchanged, &data, 0..3);
+    let state = unchanged.state().unwrap();
+    let too_many = Observed {
+        vision_levels: config.vision.resolutions.len() + 1,
+        ..settings.observed
+    };
+    assert!(
+        unchanged
+            .reobserve(too_many, &window_inputs(&data, &state))
+            .is_err()
+    );
+    assert_eq!(unchanged.settings().observed, settings.observed);
+    assert_eq!(steps(&mut unchanged, &data, 3..12), whole[3..]);
 
     // Misuse is an error, not a wrong run.
     let mut first = open(&settings);

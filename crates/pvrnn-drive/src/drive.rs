@@ -5,6 +5,8 @@
 //! perturbed as the spec says) goes into the network's online inference, whose one-step
 //! prediction of the joint angles at t+1 is the command the environment moves the arms
 //! toward. Without a network (the mean-trajectory baseline) the command is the baseline's.
+//! A vision drop (`VisionDrop`) switches the inference to fewer vision levels at its step,
+//! as a branch of a run does (`OnlineInference::reobserve`).
 
 use std::sync::Arc;
 
@@ -76,6 +78,8 @@ pub struct Drive {
     trial: TrialSpec,
     env: Environment,
     inference: Option<OnlineInference<f32>>,
+    /// The settings the inference started with (the run's: a vision drop is in the spec).
+    start_settings: Option<InferenceSettings>,
     /// The mean-trajectory baseline's commands.
     planned: Option<Vec<[f64; 14]>>,
     /// The observation the next `step` takes in.
@@ -100,6 +104,12 @@ impl Drive {
     pub fn start(spec: DriveSpec, network: Option<Network<'_>>) -> Result<Self> {
         let trial = spec.trial()?;
         let p = spec.perturbations;
+        if p.vision_drop.is_some() && spec.controller != Controller::Network {
+            return Err(Error::Invalid(format!(
+                "a vision drop needs the network in closed loop; the {} controller observes no vision",
+                spec.controller.name()
+            )));
+        }
         let (mut env, first) = Environment::reset_with(trial.clone(), spec.speed_limit);
         env.set_sensor_noise(p.sensor_noise)?;
         let inference = match (spec.controller.uses_network(), network) {
@@ -123,6 +133,7 @@ impl Drive {
                 Some(OnlineInference::with_backend(model, settings, backend)?)
             }
         };
+        let start_settings = inference.as_ref().map(|i| i.settings().clone());
         let planned = (spec.controller == Controller::MeanTrajectory)
             .then(|| mean_trajectory(&spec, env.len()))
             .transpose()?;
@@ -131,6 +142,7 @@ impl Drive {
             trial,
             env,
             inference,
+            start_settings,
             planned,
             next: None,
             observations: Vec::new(),
@@ -204,6 +216,73 @@ impl Drive {
         Ok(())
     }
 
+    /// From the next step on, the network observes only the lowest `levels` vision
+    /// resolutions (0: none); the spec records it. Replaces an earlier drop that has not
+    /// happened yet. Only a network that observes vision can lose it.
+    pub fn drop_vision_now(&mut self, levels: usize) -> Result<()> {
+        let Some(inference) = &self.inference else {
+            return Err(Error::Invalid(format!(
+                "the {} controller has no vision to drop",
+                self.spec.controller.name()
+            )));
+        };
+        let observed = inference.settings().observed.vision_levels;
+        if levels >= observed {
+            return Err(Error::Invalid(format!(
+                "vision drop to {levels} levels: the network observes {observed} now"
+            )));
+        }
+        self.spec.perturbations.vision_drop = Some(crate::spec::VisionDrop {
+            from: self.observations.len(),
+            levels,
+        });
+        Ok(())
+    }
+
+    /// The network's inputs for an observation: the vision pyramid, and the joints and
+    /// torques in model units.
+    fn network_inputs(config: &ModelConfig, o: &Observation) -> (Vec<f32>, Vec<f32>) {
+        let mut extero = vec![0f32; config.vision.dims()];
+        step_vision_vector(&o.images, 2, &config.vision, &mut extero);
+        let norm = config.normalisation.as_ref().expect("checked at the start");
+        let proprio = o
+            .joints
+            .iter()
+            .chain(&o.torques)
+            .enumerate()
+            .map(|(d, &v)| norm.proprio_to_model(d, v as f64) as f32)
+            .collect();
+        (extero, proprio)
+    }
+
+    /// Switches the inference to the spec's vision drop when step `t` is its first.
+    fn apply_vision_drop(&mut self, t: usize) -> Result<()> {
+        let (Some(drop), Some(inference)) =
+            (self.spec.perturbations.vision_drop, self.inference.as_mut())
+        else {
+            return Ok(());
+        };
+        if drop.from != t || inference.settings().observed.vision_levels == drop.levels {
+            return Ok(());
+        }
+        let config = &inference.model().config;
+        let window = inference.window_len();
+        let inputs: Vec<(Vec<f32>, Vec<f32>)> = self.observations[t - window..t]
+            .iter()
+            .map(|o| Self::network_inputs(config, o))
+            .collect();
+        let slices: Vec<(&[f32], &[f32])> = inputs
+            .iter()
+            .map(|(e, p)| (e.as_slice(), p.as_slice()))
+            .collect();
+        let observed = Observed {
+            vision_levels: drop.levels,
+            ..inference.settings().observed
+        };
+        inference.reobserve(observed, &slices)?;
+        Ok(())
+    }
+
     /// The observation as the robot's sensors give it to the network: a camera occluded
     /// in this step shows mid-grey.
     fn perceived(&self, mut o: Observation) -> Observation {
@@ -223,19 +302,11 @@ impl Drive {
             return Ok(None);
         };
         let t = self.observations.len();
+        self.apply_vision_drop(t)?;
         let network = match self.inference.as_mut() {
             Some(inference) => {
-                let config = &inference.model().config;
-                let mut extero = vec![0f32; config.vision.dims()];
-                step_vision_vector(&observation.images, 2, &config.vision, &mut extero);
-                let norm = config.normalisation.as_ref().expect("checked at the start");
-                let proprio: Vec<f32> = observation
-                    .joints
-                    .iter()
-                    .chain(&observation.torques)
-                    .enumerate()
-                    .map(|(d, &v)| norm.proprio_to_model(d, v as f64) as f32)
-                    .collect();
+                let (extero, proprio) =
+                    Self::network_inputs(&inference.model().config, &observation);
                 Some(inference.step(&extero, &proprio)?)
             }
             None => None,
@@ -319,9 +390,9 @@ impl Drive {
             trial: self.trial.clone(),
             sequence: caresim::env::episode_sequence(&self.trial, &self.observations),
             run: self
-                .inference
+                .start_settings
                 .as_ref()
-                .map(|i| Run::from_steps(i.settings().clone(), &self.outputs, false)),
+                .map(|s| Run::from_steps(s.clone(), &self.outputs, false)),
             outcome: Outcome::assess(self.env.simulation(), &records, &demo),
             demonstration: Outcome::assess(&demo_sim, &demo, &demo),
             commands: self.commands.clone(),

@@ -23,7 +23,7 @@ pub mod spec;
 pub mod table;
 
 pub use drive::{Drive, DriveStep, Episode, Network, check_model};
-pub use spec::{Controller, DriveSpec, Occlusion, Perturbations, Push};
+pub use spec::{Controller, DriveSpec, Occlusion, Perturbations, Push, VisionDrop};
 
 /// What can go wrong driving.
 #[derive(Debug, thiserror::Error)]

@@ -123,6 +123,32 @@ impl Occlusion {
     }
 }
 
+/// The network's vision cut mid-task: from step `from` on it observes only the lowest
+/// `levels` vision resolutions (0: no vision; 1: 16x16 for the paper's layout). The
+/// robot's cameras still record everything; the inference reads its window again without
+/// the dropped levels from there on, as a branch of a run does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct VisionDrop {
+    pub from: usize,
+    pub levels: usize,
+}
+
+impl VisionDrop {
+    /// `FROM:LEVELS`, e.g. `120:1` (16x16 only from step 120) or `120:0` (no vision).
+    pub fn parse(text: &str) -> Result<Self> {
+        let bad = || {
+            Error::Invalid(format!(
+                "vision drop `{text}`: expected FROM:LEVELS, e.g. 120:1 (the lowest LEVELS vision resolutions observed from step FROM on; 0 none)"
+            ))
+        };
+        let (from, levels) = text.split_once(':').ok_or_else(bad)?;
+        Ok(Self {
+            from: from.parse().map_err(|_| bad())?,
+            levels: levels.parse().map_err(|_| bad())?,
+        })
+    }
+}
+
 fn split3(text: &str) -> Option<[&str; 3]> {
     let parts: Vec<&str> = text.split(':').collect();
     parts.try_into().ok()
@@ -143,6 +169,7 @@ pub struct Perturbations {
     pub sensor_noise: f64,
     pub push: Option<Push>,
     pub occlusion: Option<Occlusion>,
+    pub vision_drop: Option<VisionDrop>,
 }
 
 impl Default for Perturbations {
@@ -151,6 +178,7 @@ impl Default for Perturbations {
             sensor_noise: 1.0,
             push: None,
             occlusion: None,
+            vision_drop: None,
         }
     }
 }
@@ -252,7 +280,8 @@ impl DriveSpec {
 impl DriveSpec {
     /// The spec in one line, as an address or a file name can hold it:
     /// `TASK:HEIGHT:SEED:REVISION:CONTROLLER`, then `;noise=F`, `;push=STEP:ARM:RAD`,
-    /// `;occlude=CAMERA:FROM:STEPS`, `;limit=panda` where they differ from the defaults.
+    /// `;occlude=CAMERA:FROM:STEPS`, `;vision=FROM:LEVELS`, `;limit=panda` where they differ
+    /// from the defaults.
     /// [`DriveSpec::parse_text`] reads it back.
     pub fn to_text(&self) -> String {
         let arm = |i: usize| if i == 0 { "left" } else { "right" };
@@ -274,6 +303,9 @@ impl DriveSpec {
         if let Some(o) = p.occlusion {
             text += &format!(";occlude={}:{}:{}", arm(o.camera), o.from, o.steps);
         }
+        if let Some(v) = p.vision_drop {
+            text += &format!(";vision={}:{}", v.from, v.levels);
+        }
         if self.speed_limit != SpeedLimit::default() {
             text += &format!(";limit={}", speed_limit_text(self.speed_limit));
         }
@@ -284,7 +316,7 @@ impl DriveSpec {
     pub fn parse_text(text: &str) -> Result<Self> {
         let bad = |why: &str| {
             Error::Invalid(format!(
-                "drive `{text}`: {why} (expected TASK:HEIGHT:SEED:REVISION:CONTROLLER[;noise=F][;push=STEP:ARM:RAD][;occlude=CAMERA:FROM:STEPS][;limit=panda])"
+                "drive `{text}`: {why} (expected TASK:HEIGHT:SEED:REVISION:CONTROLLER[;noise=F][;push=STEP:ARM:RAD][;occlude=CAMERA:FROM:STEPS][;vision=FROM:LEVELS][;limit=panda])"
             ))
         };
         let mut parts = text.split(';');
@@ -315,6 +347,7 @@ impl DriveSpec {
                 }
                 "push" => p.push = Some(Push::parse(value)?),
                 "occlude" => p.occlusion = Some(Occlusion::parse(value)?),
+                "vision" => p.vision_drop = Some(VisionDrop::parse(value)?),
                 "limit" => spec.speed_limit = parse_speed_limit(value)?,
                 _ => return Err(bad(&format!("unknown key `{key}`"))),
             }
@@ -346,11 +379,15 @@ mod tests {
                 from: 40,
                 steps: 30,
             }),
+            vision_drop: Some(VisionDrop {
+                from: 150,
+                levels: 1,
+            }),
         };
         let text = spec.to_text();
         assert_eq!(
             text,
-            "wiping:620:3:2:prior;noise=3;push=100:right:-0.25;occlude=left:40:30;limit=panda"
+            "wiping:620:3:2:prior;noise=3;push=100:right:-0.25;occlude=left:40:30;vision=150:1;limit=panda"
         );
         assert_eq!(DriveSpec::parse_text(&text).unwrap(), spec);
         for (bad, says) in [
@@ -359,6 +396,7 @@ mod tests {
             ("wiping:20:3:2:network", "between 300 and 1200"),
             ("wiping:620:3:2:network;noise=-1", "at least 0"),
             ("wiping:620:3:2:network;wind=3", "unknown key `wind`"),
+            ("wiping:620:3:2:network;vision=150", "expected FROM:LEVELS"),
         ] {
             let e = DriveSpec::parse_text(bad).unwrap_err().to_string();
             assert!(e.contains(says), "{bad}: {e}");

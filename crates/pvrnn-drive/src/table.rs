@@ -82,6 +82,13 @@ impl Row {
         if !p.get("occlusion").is_none_or(|x| x.is_null()) {
             condition.push("camera occluded".into());
         }
+        if let Some(levels) = p
+            .get("vision_drop")
+            .and_then(|x| x.get("levels"))
+            .and_then(|x| x.as_u64())
+        {
+            condition.push(format!("vision dropped to {levels} levels mid-task"));
+        }
         if v.get("speed_limit").and_then(|l| l.as_str()) == Some("panda") {
             condition.push("Panda's joint speeds".into());
         }

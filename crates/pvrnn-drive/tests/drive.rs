@@ -10,7 +10,7 @@ use pvrnn_core::cpu::CpuBackend;
 use pvrnn_core::infer::InferenceSettings;
 use pvrnn_core::{Model, ModelConfig, Observed};
 use pvrnn_dataset::{Dataset, proprio_ranges};
-use pvrnn_drive::{Controller, Drive, DriveSpec, Episode, Occlusion, Push};
+use pvrnn_drive::{Controller, Drive, DriveSpec, Episode, Occlusion, Push, VisionDrop};
 
 /// A small network with caresim's senses: two 64x64 cameras (16, 32, 64), 14 joints and
 /// 14 torques scaled by the learning trials' ranges.
@@ -230,4 +230,54 @@ fn what_cannot_drive_is_refused_with_the_reason() {
         let e = bad.unwrap_err().to_string();
         assert!(e.contains(says), "{e}");
     }
+}
+
+#[test]
+fn vision_dropped_mid_task_reaches_the_network_from_its_step_and_replays_from_the_spec() {
+    let model = network();
+    let network = || {
+        Some((
+            model.clone(),
+            settings(&model),
+            &CpuBackend as &dyn pvrnn_core::backend::Backend<f32>,
+        ))
+    };
+    let plain = drive(spec(Task::Repositioning, Controller::Network), &model);
+    // Dropped live, as the explorer's Drive window does it, after 30 steps.
+    let mut live = Drive::start(spec(Task::Repositioning, Controller::Network), network()).unwrap();
+    for _ in 0..30 {
+        live.step().unwrap();
+    }
+    let err = live.drop_vision_now(1).unwrap_err().to_string();
+    assert!(err.contains("observes 1 now"), "{err}");
+    live.drop_vision_now(0).unwrap();
+    let live = live.finish(&mut |_, _| {}).unwrap();
+    assert_eq!(
+        live.spec.perturbations.vision_drop,
+        Some(VisionDrop {
+            from: 30,
+            levels: 0
+        })
+    );
+    assert!(
+        live.spec.to_text().ends_with(";vision=30:0"),
+        "{}",
+        live.spec.to_text()
+    );
+    // The same until the network infers step 30 without vision; apart from there.
+    assert_eq!(plain.commands[..30], live.commands[..30]);
+    assert_ne!(plain.commands[30], live.commands[30]);
+    // The cameras still record, and the run keeps the condition it started under.
+    assert!(live.sequence.images.iter().any(|&v| v != 128));
+    assert_eq!(
+        live.run.as_ref().unwrap().settings.observed.vision_levels,
+        1
+    );
+    // The spec's text replays the episode.
+    let replay = drive(DriveSpec::parse_text(&live.spec.to_text()).unwrap(), &model);
+    assert_eq!(replay.commands, live.commands);
+    // Without a network there is no vision to drop.
+    let mut mean =
+        Drive::start(spec(Task::Repositioning, Controller::MeanTrajectory), None).unwrap();
+    assert!(mean.drop_vision_now(0).is_err());
 }

@@ -35,6 +35,9 @@ pub enum DriveRequest {
     Push(usize),
     /// Cover a camera (0 left, 1 right) for [`OCCLUSION_STEPS`] steps from the next one.
     Occlude(usize),
+    /// From the next step on, the network observes only the lowest this many vision
+    /// resolutions (0: none).
+    DropVision(usize),
     /// Abandon the episode.
     Stop,
 }
@@ -233,6 +236,9 @@ impl LocalDrive {
             DriveRequest::Occlude(camera) => drive.map_or(Ok(()), |d| {
                 d.occlude_now(camera, OCCLUSION_STEPS)
                     .map_err(|e| e.to_string())
+            }),
+            DriveRequest::DropVision(levels) => drive.map_or(Ok(()), |d| {
+                d.drop_vision_now(levels).map_err(|e| e.to_string())
             }),
             DriveRequest::Stop => {
                 self.driving = None;

@@ -5,7 +5,7 @@
 //! page → worker: `model {generation, bytes}`, `observations {generation, name, steps,
 //! extero, proprio}`, `run {generation, key}`, `drive {generation, id, action, ...}` (the
 //! Drive window's episode `id`: `start` with the drive's text and the condition as JSON,
-//! `push` an arm, `occlude` a camera, `stop`);
+//! `push` an arm, `occlude` a camera, `drop-vision` to fewer levels, `stop`);
 //! worker → page: `ready {compute}` (where runs compute: WebGPU or the CPU), `step {generation, key, data}`, `done {generation, key, steps,
 //! busy_ms, wall_ms}`, `failed {generation, key, message}`, `drive-progress {generation,
 //! id, spec, condition, trial, done, len, step, cameras}` after each tick of an episode,
@@ -216,6 +216,10 @@ impl Command {
                         fields.push(("action", "occlude".into()));
                         fields.push(("which", (*camera as f64).into()));
                     }
+                    DriveRequest::DropVision(levels) => {
+                        fields.push(("action", "drop-vision".into()));
+                        fields.push(("which", (*levels as f64).into()));
+                    }
                     DriveRequest::Stop => fields.push(("action", "stop".into())),
                 }
                 message("drive", *generation, &fields)
@@ -260,6 +264,7 @@ impl Command {
                     },
                     "push" => DriveRequest::Push(which()?),
                     "occlude" => DriveRequest::Occlude(which()?),
+                    "drop-vision" => DriveRequest::DropVision(which()?),
                     "stop" => DriveRequest::Stop,
                     other => return Err(format!("unknown drive action `{other}`")),
                 };
@@ -948,10 +953,12 @@ impl Executor for WorkerClient {
                     });
                 }
                 DriveRequest::Stop => s.drive = None,
-                DriveRequest::Push(_) | DriveRequest::Occlude(_) if s.drive.is_none() => {
+                DriveRequest::Push(_) | DriveRequest::Occlude(_) | DriveRequest::DropVision(_)
+                    if s.drive.is_none() =>
+                {
                     return Ok(());
                 }
-                DriveRequest::Push(_) | DriveRequest::Occlude(_) => {}
+                DriveRequest::Push(_) | DriveRequest::Occlude(_) | DriveRequest::DropVision(_) => {}
             }
             (s.generation, s.drive_id)
         };

@@ -375,6 +375,7 @@ fn drive_messages_round_trip() {
         },
         DriveRequest::Push(1),
         DriveRequest::Occlude(0),
+        DriveRequest::DropVision(1),
         DriveRequest::Stop,
     ] {
         let command = Command::Drive {

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use caresim::Task;
 use pvrnn_core::io;
 use pvrnn_drive::spec::{parse_speed_limit, speed_limit_text};
-use pvrnn_drive::{Controller, Drive, DriveSpec, Occlusion, Perturbations, Push};
+use pvrnn_drive::{Controller, Drive, DriveSpec, Occlusion, Perturbations, Push, VisionDrop};
 
 use crate::condition::ConditionArgs;
 use crate::util;
@@ -52,6 +52,10 @@ pub struct Args {
     /// Occlude a camera: CAMERA:FROM:STEPS (the camera shows mid-grey), e.g. left:100:30.
     #[arg(long)]
     occlude: Option<String>,
+    /// Drop the network's vision mid-task: FROM:LEVELS, from step FROM on it observes only
+    /// the lowest LEVELS resolutions (0: none), e.g. 120:1 (16x16 only).
+    #[arg(long)]
+    drop_vision: Option<String>,
     /// Folder to write the episode to (dataset.json, its sequence, runs.safetensors,
     /// drive.json).
     #[arg(long)]
@@ -83,6 +87,11 @@ pub fn run(a: Args) -> Result<()> {
         sensor_noise: a.sensor_noise,
         push: a.push.as_deref().map(Push::parse).transpose()?,
         occlusion: a.occlude.as_deref().map(Occlusion::parse).transpose()?,
+        vision_drop: a
+            .drop_vision
+            .as_deref()
+            .map(VisionDrop::parse)
+            .transpose()?,
     };
     let (backend, _) = a.backend.open_for_inference("drive")?;
     let model = match (&a.model, spec.controller.uses_network()) {

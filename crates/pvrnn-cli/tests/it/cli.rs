@@ -2206,4 +2206,24 @@ fn the_drive_report_tables_and_draws_the_episodes() {
     // A folder without episodes is an error that says so.
     let err = pvrnn(&["report", "drive", dir.path().join("none").to_str().unwrap()]);
     assert!(!err.status.success());
+    // A vision drop that cannot be: said before anything is driven.
+    let out = dir.path().join("refused");
+    let out = out.to_str().unwrap();
+    for (drop, says) in [
+        ("10", "expected FROM:LEVELS"),
+        ("10:0", "observes no vision"),
+    ] {
+        let err = fails(&[
+            "drive",
+            "--controller",
+            "mean-trajectory",
+            "--task",
+            "wiping",
+            "--drop-vision",
+            drop,
+            "--out",
+            out,
+        ]);
+        assert!(err.contains(says), "--drop-vision {drop}: {err}");
+    }
 }

@@ -57,6 +57,27 @@ impl<T: Real> OnlineInference<T> {
         })
     }
 
+    /// Goes on under another observation from the next step on, as a branch of itself
+    /// ([`Self::continue_from`] its own state): the window's steps are read again under
+    /// `observed`, whose settings are checked against the model first. `window_inputs` as
+    /// for [`Self::continue_from`]. On an error nothing changed.
+    pub fn reobserve(
+        &mut self,
+        observed: crate::data::Observed,
+        window_inputs: &[(&[T], &[T])],
+    ) -> Result<()> {
+        let state = self.state()?;
+        let mut settings = self.settings.clone();
+        settings.observed = observed;
+        settings.validate(&self.model.config)?;
+        let before = std::mem::replace(&mut self.settings, settings);
+        let result = self.continue_from(state, window_inputs);
+        if result.is_err() {
+            self.settings = before;
+        }
+        result
+    }
+
     /// Continues from `state` under this inference's settings: the next step is
     /// `state.steps_done()`. `window_inputs` are the whole observations (exteroceptive,
     /// proprioceptive) of the window's steps, oldest first; they are read under these

@@ -205,6 +205,25 @@ fn running_ui(
                     commands.push(Command::Drive(DriveCommand::Occlude(camera)));
                 }
             }
+            if drive.spec.controller == Controller::Network {
+                let observed = drive.condition.vision_levels as usize;
+                let dropped = drive.spec.perturbations.vision_drop.map(|v| v.levels);
+                for (levels, name, what) in [
+                    (1, "see 16x16 only", "only the lowest vision resolution"),
+                    (0, "see nothing", "no vision"),
+                ] {
+                    if levels < dropped.unwrap_or(observed)
+                        && ui
+                            .button(name)
+                            .on_hover_text(format!(
+                                "from the next step on the network observes {what} (the cameras still record)"
+                            ))
+                            .clicked()
+                    {
+                        commands.push(Command::Drive(DriveCommand::DropVision(levels)));
+                    }
+                }
+            }
             if ui
                 .button("stop")
                 .on_hover_text("abandon the episode")
@@ -251,6 +270,7 @@ impl ExplorerApp {
             }
             DriveCommand::Push(arm) => DriveRequest::Push(arm),
             DriveCommand::Occlude(camera) => DriveRequest::Occlude(camera),
+            DriveCommand::DropVision(levels) => DriveRequest::DropVision(levels),
         };
         let Some(model) = self.bundle.as_ref().map(|b| b.model.clone()) else {
             return;

@@ -106,6 +106,8 @@ pub(super) enum DriveCommand {
     Push(usize),
     /// Cover this camera from now on.
     Occlude(usize),
+    /// Observe only this many of the lowest vision resolutions from now on.
+    DropVision(usize),
 }
 
 impl ExplorerApp {

@@ -1334,8 +1334,17 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     h.get_by_label("Start driving").click();
     h.run_steps(3);
     assert!(h.state().driving(), "the episode runs frame by frame");
-    // Perturbed while it acts: the push is recorded in the drive, so a link replays it.
+    // Perturbed while it acts: the push and the vision lost are recorded in the drive, so a
+    // link replays them.
     h.get_by_label("push the left arm").click();
+    h.run_steps(2);
+    h.get_by_label("see nothing").click();
+    h.run_steps(2);
+    assert!(
+        h.query_by_label("see 16x16 only").is_none(),
+        "no vision left to drop: {:?}",
+        h.state().status()
+    );
     drive_to_the_end(&mut h);
     let app = h.state();
     let shown = app.view().sequence.clone().unwrap();
@@ -1343,6 +1352,8 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
         shown.starts_with("drive repositioning:650:0:1:network;push="),
         "{shown}"
     );
+    assert!(shown.contains(":0 | vision 3 proprio 1"), "{shown}");
+    assert!(shown.contains(";vision="), "{shown}");
     let episode = app
         .bundle()
         .unwrap()

@@ -178,6 +178,11 @@ impl Drive {
         &self.env
     }
 
+    /// The network's inference of each step taken so far (none for the mean trajectory).
+    pub fn outputs(&self) -> &[StepOutput<f32>] {
+        &self.outputs
+    }
+
     /// The latest observation taken in (none before the first step).
     pub fn latest(&self) -> Option<&Observation> {
         self.observations.last()

@@ -21,6 +21,8 @@ use crate::condition::Condition;
 pub const PUSH_RADIANS: f64 = 0.2;
 /// How long a camera stays covered (steps).
 pub const OCCLUSION_STEPS: usize = 30;
+/// Numbers per step in [`DriveProgress::live`].
+pub const LIVE_PER_STEP: usize = 6;
 
 /// What the Drive window asks of wherever the episode is stepped.
 #[derive(Clone, Debug, PartialEq)]
@@ -55,6 +57,11 @@ pub struct DriveProgress {
     pub len: usize,
     /// The latest step and both cameras as the network was given them (64x64 RGB each).
     pub cameras: Option<(usize, Vec<u8>)>,
+    /// How the network copes, per step taken ([`LIVE_PER_STEP`] numbers each; empty
+    /// without a network): its reconstruction's mean squared error against everything the
+    /// robot sensed (vision, proprioception; model units), then each module's KL in the
+    /// inference window (executive, associative, exteroceptive, proprioceptive).
+    pub live: Vec<f32>,
 }
 
 /// A finished episode, as the page keeps it.
@@ -261,6 +268,22 @@ impl LocalDrive {
             steps_done: drive.steps_done(),
             len: drive.len(),
             cameras: drive.latest().map(|o| (o.step, o.images.clone())),
+            live: drive
+                .outputs()
+                .iter()
+                .flat_map(|o| {
+                    let kl = o.window_free_energy.complexity;
+                    [
+                        o.recon_error[0],
+                        o.recon_error[1],
+                        kl.executive,
+                        kl.associative,
+                        kl.exteroceptive,
+                        kl.proprioceptive,
+                    ]
+                    .map(|v| v as f32)
+                })
+                .collect(),
         })
     }
 

@@ -299,6 +299,9 @@ impl Reply {
                     ("done", (p.steps_done as f64).into()),
                     ("len", (p.len as f64).into()),
                 ];
+                let live = floats(&p.live);
+                transfer.push(&live.buffer());
+                fields.push(("live", live.into()));
                 if let Some((step, images)) = &p.cameras {
                     let images = Uint8Array::from(&images[..]);
                     transfer.push(&images.buffer());
@@ -406,6 +409,10 @@ impl Reply {
                     steps_done: number_field(m, "done")? as usize,
                     len: number_field(m, "len")? as usize,
                     cameras,
+                    live: field(m, "live")
+                        .dyn_into::<Float32Array>()
+                        .map_err(|_| "a drive's progress has no `live` numbers")?
+                        .to_vec(),
                 };
                 return Ok(Self::DriveProgress {
                     generation,
@@ -950,6 +957,7 @@ impl Executor for WorkerClient {
                         steps_done: 0,
                         len: 0,
                         cameras: None,
+                        live: Vec::new(),
                     });
                 }
                 DriveRequest::Stop => s.drive = None,

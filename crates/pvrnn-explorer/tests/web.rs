@@ -395,6 +395,7 @@ fn drive_messages_round_trip() {
             steps_done: 12,
             len: 240,
             cameras,
+            live: (0..12 * 6).map(|i| i as f32 * 0.5).collect(),
         }),
     };
     for reply in [

@@ -15,7 +15,8 @@ use pvrnn_drive::{Controller, DriveSpec};
 use super::panel::{Command, DriveCommand, PanelContext};
 use super::*;
 use crate::driving::{
-    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, OCCLUSION_STEPS, PUSH_RADIANS,
+    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, LIVE_PER_STEP, OCCLUSION_STEPS,
+    PUSH_RADIANS,
 };
 use crate::state::drive_episode_name;
 
@@ -56,6 +57,8 @@ impl DrivePanel {
         egui::Window::new("Drive the robot")
             .open(&mut open)
             .default_width(460.0)
+            .vscroll(true)
+            .default_height(720.0)
             .show(ctx, |ui| {
                 if let Err(why) = pvrnn_drive::check_model(&bundle.model.config) {
                     ui.label(format!("This network cannot drive caresim's robot: {why}"));
@@ -232,6 +235,93 @@ fn running_ui(
                 commands.push(Command::Drive(DriveCommand::Stop));
             }
         });
+        live_plots(ui, drive);
+    }
+}
+
+/// How the network copes, step by step: its errors against what the robot sensed and each
+/// module's KL, with the perturbations marked.
+fn live_plots(ui: &mut egui::Ui, drive: &DriveProgress) {
+    let steps = drive.live.len() / LIVE_PER_STEP;
+    if steps == 0 {
+        return;
+    }
+    // Errors span decades (a push lifts proprioception's a thousandfold): log10.
+    let series = |k: usize, log: bool| -> PlotPoints<'static> {
+        (0..steps)
+            .map(|t| {
+                let v = drive.live[t * LIVE_PER_STEP + k] as f64;
+                [t as f64, if log { v.max(1e-12).log10() } else { v }]
+            })
+            .collect()
+    };
+    let p = &drive.spec.perturbations;
+    let marks: Vec<(String, usize)> = [
+        p.push.map(|x| ("push".to_string(), x.step)),
+        p.occlusion.map(|x| ("camera covered".to_string(), x.from)),
+        p.vision_drop
+            .map(|x| (format!("vision {} levels", x.levels), x.from)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let plot = |ui: &mut egui::Ui, id: &str, title: &str, lines: Vec<Line<'static>>| {
+        ui.label(RichText::new(title).small());
+        Plot::new(id.to_string())
+            .height(110.0)
+            .width(420.0)
+            .legend(Legend::default().position(egui_plot::Corner::RightTop))
+            .include_x(0.0)
+            .include_x(drive.len.max(steps) as f64)
+            .allow_drag(false)
+            .allow_zoom(false)
+            .allow_scroll(false)
+            .show(ui, |pu| {
+                for l in lines {
+                    pu.line(l);
+                }
+                // Unnamed: kept out of the legend (said under the plots).
+                for (_, at) in &marks {
+                    pu.vline(
+                        VLine::new("", *at as f64)
+                            .color(Color32::DARK_GRAY)
+                            .width(1.5),
+                    );
+                }
+            });
+    };
+    let [(vision, vision_colour), (proprio, proprio_colour)] = super::traces::ERROR_COLOURS;
+    plot(
+        ui,
+        "drive errors",
+        "log10 of the network's error against what the robot sensed (mean squared, model units)",
+        vec![
+            Line::new(vision, series(0, true)).color(vision_colour),
+            Line::new(proprio, series(1, true)).color(proprio_colour),
+        ],
+    );
+    let modules = [
+        "executive",
+        "associative",
+        "exteroceptive",
+        "proprioceptive",
+    ];
+    plot(
+        ui,
+        "drive kl",
+        "each module's KL in the inference window",
+        modules
+            .iter()
+            .enumerate()
+            .map(|(m, name)| Line::new(*name, series(2 + m, false)).color(palette::unit_colour(m)))
+            .collect(),
+    );
+    if !marks.is_empty() {
+        let said: Vec<String> = marks
+            .iter()
+            .map(|(name, at)| format!("{name} at step {at}"))
+            .collect();
+        ui.label(RichText::new(format!("grey lines: {}", said.join(", "))).small());
     }
 }
 

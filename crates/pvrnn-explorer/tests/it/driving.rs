@@ -40,6 +40,13 @@ fn an_episode_is_stepped_perturbed_and_survives_the_trip_to_the_page() {
     assert_eq!(local.progress().unwrap().steps_done, 1);
     let (step, cameras) = local.progress().unwrap().cameras.unwrap();
     assert_eq!(step, 1);
+    // How the network copes, per step: its errors and each module's KL, all finite.
+    let live = local.progress().unwrap().live;
+    assert_eq!(live.len(), pvrnn_explorer::driving::LIVE_PER_STEP);
+    assert!(
+        live.iter().all(|v| v.is_finite()) && live[0] > 0.0,
+        "{live:?}"
+    );
     assert_eq!(
         cameras.len(),
         2 * caresim::IMAGE_SIZE * caresim::IMAGE_SIZE * 3
@@ -121,6 +128,10 @@ fn a_stopped_episode_leaves_nothing_and_the_mean_trajectory_needs_no_network() {
         )
         .unwrap();
     assert!(local.step_for(Duration::ZERO).is_none());
+    assert!(
+        local.progress().unwrap().live.is_empty(),
+        "no network, nothing to plot"
+    );
     local.request(None, DriveRequest::Stop).unwrap();
     assert!(local.progress().is_none());
     assert!(local.step_for(Duration::ZERO).is_none());

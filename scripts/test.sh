@@ -92,7 +92,7 @@ cargo test -p pvrnn-explorer --target wasm32-unknown-unknown --no-run
 WASM_BINDGEN_TEST_WEBDRIVER_JSON="$PWD/tests/web/webdriver.json" CHROMEDRIVER="$(command -v chromedriver)" \
     in_browser 300 cargo test -p pvrnn-explorer --target wasm32-unknown-unknown
 
-step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture; with each renderer"
+step "the desktop app in a virtual display (Xvfb): opens, computes a run live, saves a picture; with each renderer; drives the robot from the address"
 mkdir -p target
 # glow (Mesa's OpenGL) and wgpu (lavapipe where there is no GPU) by name; auto takes glow
 # where the only Vulkan device is a CPU, wgpu on a GPU.
@@ -115,6 +115,13 @@ assert len(png) > 100_000, f"{len(png)} bytes: a blank window?"
 print(f"desktop window: {width}x{height}, {len(png)} bytes")
 PY
 done
+# The Drive window in the desktop's frame loop: the address's drive (a push at step 40) is
+# driven to its end before the picture (stepped between frames, which must keep coming).
+timeout 400 xvfb-run -a -s "-screen 0 1440x920x24" target/debug/pvrnn-explorer \
+    --view 'drive=repositioning%3A650%3A0%3A1%3Anetwork%3Bpush%3D40%3Aleft%3A0.2&vision=1&proprio=1&maps=0' \
+    --renderer glow --screenshot target/desktop-drive.png 2>&1 | tee target/desktop-drive.log
+grep -q 'drive: Info("repositioning: ' target/desktop-drive.log ||
+    { echo "the desktop app did not drive the address's episode to its end" >&2; exit 1; }
 
 step "the web site: trunk build --release"
 PATH="$PWD/web/node_modules/.bin:$PATH" trunk build --release

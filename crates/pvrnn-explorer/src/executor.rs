@@ -51,6 +51,12 @@ pub trait Executor: std::fmt::Debug {
     /// Steps the episode for up to `budget` (stepped on the calling thread) or collects
     /// what arrived (worker).
     fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent>;
+
+    /// Whether an episode advances only while polled (then the window must keep drawing
+    /// frames while it drives); a worker's progress repaints the page when it arrives.
+    fn drives_here(&self) -> bool {
+        true
+    }
 }
 
 /// Computes in slices between frames, on the calling thread.

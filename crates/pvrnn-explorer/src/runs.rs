@@ -270,6 +270,11 @@ impl RunStore {
         self.executor.drive_progress()
     }
 
+    /// Whether an episode advances only while frames are drawn (not in a worker).
+    pub fn drives_here(&self) -> bool {
+        self.executor.drives_here()
+    }
+
     /// Steps the episode for up to `budget` when it is stepped here, or collects what the
     /// worker sent.
     pub fn poll_drive(&mut self, budget: Duration) -> Vec<DriveEvent> {

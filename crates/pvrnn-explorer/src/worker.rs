@@ -982,6 +982,10 @@ impl Executor for WorkerClient {
         self.side.borrow().drive.clone()
     }
 
+    fn drives_here(&self) -> bool {
+        false
+    }
+
     fn poll_drive(&mut self, _budget: Duration) -> Vec<DriveEvent> {
         let mut s = self.side.borrow_mut();
         if !s.drive_events.is_empty() {

@@ -57,8 +57,8 @@ impl DrivePanel {
         egui::Window::new("Drive the robot")
             .open(&mut open)
             .default_width(460.0)
-            .vscroll(true)
-            .default_height(720.0)
+            // Sized to what it shows: the settings, or the episode with its plots.
+            .resizable(false)
             .show(ctx, |ui| {
                 if let Err(why) = pvrnn_drive::check_model(&bundle.model.config) {
                     ui.label(format!("This network cannot drive caresim's robot: {why}"));
@@ -402,7 +402,8 @@ impl ExplorerApp {
     /// sent); keeps it when it is over. Whether to draw again at once.
     pub(super) fn advance_drive(&mut self) -> bool {
         let events = self.store.poll_drive(DRIVE_BUDGET);
-        let again = !events.is_empty() || (self.store.computes_inline() && self.driving());
+        // Stepped between frames (the page without a worker, the desktop app): draw on.
+        let again = !events.is_empty() || (self.store.drives_here() && self.driving());
         for event in events {
             match event {
                 DriveEvent::Finished(finished) => self.keep_episode(*finished),
@@ -449,25 +450,34 @@ impl ExplorerApp {
         ));
     }
 
-    /// Starts the drive the address names, when its episode is not open yet.
-    pub(super) fn follow_drive_address(&mut self) {
-        let Some(text) = self.view.drive.clone() else {
-            return;
+    /// Whether the address names a drive that is neither open, nor being driven, nor
+    /// refused: one to start.
+    pub(super) fn drive_pending(&self) -> bool {
+        let Some(text) = self.view.drive.as_deref() else {
+            return false;
         };
         let (Some(bundle), Some(condition)) = (&self.bundle, self.condition()) else {
-            return;
+            return false;
         };
         let open = bundle
             .dataset
-            .by_name(&drive_episode_name(&text, &condition))
+            .by_name(&drive_episode_name(text, &condition))
             .is_some();
         let running = self
             .store
             .drive_progress()
             .is_some_and(|d| d.spec.to_text() == text);
-        if open || running || self.drive.refused.as_deref() == Some(text.as_str()) {
+        !open && !running && self.drive.refused.as_deref() != Some(text)
+    }
+
+    /// Starts the drive the address names, when its episode is not open yet.
+    pub(super) fn follow_drive_address(&mut self) {
+        if !self.drive_pending() {
             return;
         }
+        let Some(text) = self.view.drive.clone() else {
+            return;
+        };
         let started = DriveSpec::parse_text(&text)
             .map_err(|e| e.to_string())
             .and_then(|spec| self.start_drive(spec));

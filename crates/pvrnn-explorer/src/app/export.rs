@@ -169,11 +169,13 @@ impl ExplorerApp {
     pub(super) fn take_picture(&mut self, ctx: &egui::Context) {
         #[cfg(not(target_arch = "wasm32"))]
         if let Some((path, asked)) = self.screenshot.clone() {
-            // Ready: the shown run is complete (or failed) and nothing else is computing.
+            // Ready: the shown run is complete (or failed), nothing else is computing, and
+            // a drive the address names has been driven.
             let shown_done = self
                 .current_run()
                 .is_some_and(|e| e.complete || e.error.is_some());
-            if !asked && (self.bundle.is_none() || (shown_done && self.idle())) {
+            let driven = !self.driving() && !self.drive_pending();
+            if !asked && (self.bundle.is_none() || (shown_done && self.idle() && driven)) {
                 self.screenshot = Some((path.clone(), true));
                 self.request_picture(ctx);
             }
@@ -184,12 +186,18 @@ impl ExplorerApp {
                 match saved {
                     // The renderer (the smoke tests check which drew the picture) and what
                     // computed its live run.
-                    Ok(()) => eprintln!(
-                        "saved {} ({}; {})",
-                        path.display(),
-                        self.renderer_label,
-                        self.compute_label
-                    ),
+                    Ok(()) => {
+                        eprintln!(
+                            "saved {} ({}; {})",
+                            path.display(),
+                            self.renderer_label,
+                            self.compute_label
+                        );
+                        // What a drive from `--view` came to.
+                        if self.view.drive.is_some() {
+                            eprintln!("drive: {:?}", self.status);
+                        }
+                    }
                     Err(e) => eprintln!("cannot save {}: {e}", path.display()),
                 }
                 ctx.send_viewport_cmd(egui::ViewportCommand::Close);

@@ -217,6 +217,9 @@ try {
     const inWorker = driveLogs.find((l) => l.includes('drive: the worker drove'));
     if (inWorker) console.log(inWorker);
     else if (done) fail('the episode was not driven in the worker');
+    // The main panels followed the episode while it ran (the worker sent it so far).
+    const followed = Number(/the episode so far arrived (\d+) times/.exec(inWorker ?? '')?.[1] ?? 0);
+    if (inWorker && followed < 2) fail(`the driven episode so far arrived ${followed} times for the main panels: not live`);
     // Once: the finished episode is open, so the address does not start it again.
     await drivePage.waitForTimeout(3000);
     const sent = driveLogs.filter((l) => l.includes('sent to the worker')).length;

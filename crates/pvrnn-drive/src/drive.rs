@@ -386,18 +386,28 @@ impl Drive {
         Ok(self.episode())
     }
 
-    /// What the episode leaves so far: the recording, the network's run, the outcome.
+    /// What the robot has sensed so far, as a dataset sequence (one step per step done).
+    pub fn sequence_so_far(&self) -> Sequence {
+        caresim::env::episode_sequence(&self.trial, &self.observations)
+    }
+
+    /// The network's inference so far (none for the mean-trajectory baseline).
+    pub fn run_so_far(&self) -> Option<Run<f32>> {
+        self.start_settings
+            .as_ref()
+            .map(|s| Run::from_steps(s.clone(), &self.outputs, false))
+    }
+
+    /// What the episode leaves so far: the recording, the network's run, the outcome
+    /// (judged against the scripted demonstration, which is simulated for it).
     pub fn episode(&self) -> Episode {
         let records: Vec<StepRecord> = self.observations.iter().map(|o| o.record.clone()).collect();
         let (demo_sim, demo) = demonstration(&self.trial);
         Episode {
             spec: self.spec.clone(),
             trial: self.trial.clone(),
-            sequence: caresim::env::episode_sequence(&self.trial, &self.observations),
-            run: self
-                .start_settings
-                .as_ref()
-                .map(|s| Run::from_steps(s.clone(), &self.outputs, false)),
+            sequence: self.sequence_so_far(),
+            run: self.run_so_far(),
             outcome: Outcome::assess(self.env.simulation(), &records, &demo),
             demonstration: Outcome::assess(&demo_sim, &demo, &demo),
             commands: self.commands.clone(),

@@ -270,12 +270,16 @@ impl Bundle {
 
     /// Adds a sequence (a driven episode) to the data, replacing one of the same name.
     pub fn replace_sequence(&mut self, sequence: pvrnn_dataset::Sequence) {
-        let name = sequence.info.name.clone();
-        self.observations.remove(&name);
-        self.dataset.sequences.retain(|s| s.info.name != name);
-        self.dataset.manifest.sequences.retain(|s| s.name != name);
+        self.remove_sequence(&sequence.info.name.clone());
         self.dataset.manifest.sequences.push(sequence.info.clone());
         self.dataset.sequences.push(sequence);
+    }
+
+    /// Takes a sequence (the episode being driven, when it ends) out of the data.
+    pub fn remove_sequence(&mut self, name: &str) {
+        self.observations.remove(name);
+        self.dataset.sequences.retain(|s| s.info.name != name);
+        self.dataset.manifest.sequences.retain(|s| s.name != name);
     }
 
     /// A sequence's model inputs (computed once, shared by its runs).

@@ -23,6 +23,12 @@ pub const PUSH_RADIANS: f64 = 0.2;
 pub const OCCLUSION_STEPS: usize = 30;
 /// Numbers per step in [`DriveProgress::live`].
 pub const LIVE_PER_STEP: usize = 6;
+/// The name the episode being driven has in the open data while it runs (the finished
+/// episode gets its own, `state::drive_episode_name`).
+pub const EPISODE_SO_FAR: &str = "drive in progress";
+/// How often the episode so far ([`EpisodeSoFar`]) is taken while the robot acts: the
+/// main panels follow it at this rate without copying the whole recording every step.
+pub const SO_FAR_EVERY: Duration = Duration::from_millis(500);
 
 /// What the Drive window asks of wherever the episode is stepped.
 #[derive(Clone, Debug, PartialEq)]
@@ -62,6 +68,9 @@ pub struct DriveProgress {
     /// robot sensed (vision, proprioception; model units), then each module's KL in the
     /// inference window (executive, associative, exteroceptive, proprioceptive).
     pub live: Vec<f32>,
+    /// The episode so far, for the main panels (refreshed at most every
+    /// [`SO_FAR_EVERY`]; none before the first step).
+    pub so_far: Option<Arc<EpisodeSoFar>>,
 }
 
 /// A finished episode, as the page keeps it.
@@ -93,14 +102,25 @@ impl FinishedDrive {
     }
 }
 
-/// A finished episode as the web worker sends it to the page: the sequence as the
-/// dataset's file, the network's run as `pvrnn infer` writes it (in f32: the page shows what
-/// was computed), the rest as JSON ([`FinishedDrive::to_parts`]).
+/// An episode (finished or so far) as the web worker sends it to the page: the sequence as
+/// the dataset's file, the network's run as `pvrnn infer` writes it (in f32: the page shows
+/// what was computed), the rest as JSON ([`FinishedDrive::to_parts`],
+/// [`EpisodeSoFar::to_parts`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct FinishedParts {
+pub struct EpisodeParts {
     pub header: String,
     pub sequence: Vec<u8>,
     pub run: Option<Vec<u8>>,
+}
+
+/// What a sequence's file does not say of it.
+#[derive(Serialize, Deserialize)]
+struct RecordingHeader {
+    info: SequenceInfo,
+    cameras: usize,
+    image_size: usize,
+    /// Joint angles, torques, other channels.
+    layout: [usize; 3],
 }
 
 /// What a finished episode's files do not say.
@@ -110,76 +130,103 @@ struct FinishedHeader {
     condition: Condition,
     summary: String,
     demonstration_success: bool,
-    info: SequenceInfo,
-    cameras: usize,
-    image_size: usize,
-    /// Joint angles, torques, other channels.
-    layout: [usize; 3],
+    #[serde(flatten)]
+    recording: RecordingHeader,
+}
+
+/// A recording and its run as bytes; `config` is the driving network's (for the run's
+/// file), `header` makes the JSON part from what the sequence's file does not say.
+fn encode<H: Serialize>(
+    sequence: &Sequence,
+    run: Option<&Run<f32>>,
+    config: &ModelConfig,
+    header: impl FnOnce(RecordingHeader) -> H,
+) -> Result<EpisodeParts, String> {
+    let layout = sequence.proprio_layout();
+    let recording = RecordingHeader {
+        info: sequence.info.clone(),
+        cameras: sequence.cameras,
+        image_size: sequence.image_size,
+        layout: [layout.joints, layout.torques, layout.extra],
+    };
+    let name = std::slice::from_ref(&sequence.info.name);
+    let run = run
+        .map(|run| {
+            let runs = std::slice::from_ref(run);
+            io::runs_to_bytes(config, runs, &[0], Some(name), StateStorage::F32)
+        })
+        .transpose()
+        .map_err(|e| e.to_string())?;
+    Ok(EpisodeParts {
+        header: serde_json::to_string(&header(recording)).map_err(|e| e.to_string())?,
+        sequence: sequence.to_bytes().map_err(|e| e.to_string())?,
+        run,
+    })
+}
+
+/// Reads [`encode`] back; `config` is the open network's (to read the run).
+fn decode(
+    header: RecordingHeader,
+    sequence: Vec<u8>,
+    run: Option<Vec<u8>>,
+    config: Option<&ModelConfig>,
+    what: &str,
+) -> Result<(Sequence, Option<Run<f32>>), String> {
+    let [joints, torques, extra] = header.layout;
+    let sequence = Sequence::from_bytes(
+        sequence,
+        &format!("{what}'s sequence"),
+        &header.info,
+        header.cameras,
+        header.image_size,
+        ProprioLayout {
+            joints,
+            torques,
+            extra,
+        },
+    )
+    .map_err(|e| e.to_string())?;
+    let run = match run {
+        None => None,
+        Some(bytes) => {
+            let config = config.ok_or_else(|| format!("{what}'s run arrived without its model"))?;
+            let file = TensorFile::from_bytes(bytes, format!("{what}'s run"))
+                .map_err(|e| e.to_string())?;
+            let mut runs = io::load_runs(&file, config).map_err(|e| e.to_string())?;
+            if runs.len() != 1 {
+                return Err(format!("{what}'s run file holds {} runs", runs.len()));
+            }
+            Some(runs.remove(0).run)
+        }
+    };
+    Ok((sequence, run))
 }
 
 impl FinishedDrive {
     /// The episode as bytes; `config` is the driving network's (for its run's file).
-    pub fn to_parts(&self, config: &ModelConfig) -> Result<FinishedParts, String> {
-        let layout = self.sequence.proprio_layout();
-        let header = FinishedHeader {
-            spec: self.spec.to_text(),
-            condition: self.condition,
-            summary: self.summary.clone(),
-            demonstration_success: self.demonstration_success,
-            info: self.sequence.info.clone(),
-            cameras: self.sequence.cameras,
-            image_size: self.sequence.image_size,
-            layout: [layout.joints, layout.torques, layout.extra],
-        };
-        let name = std::slice::from_ref(&self.sequence.info.name);
-        let run = self
-            .run
-            .as_ref()
-            .map(|run| {
-                let runs = std::slice::from_ref(run);
-                io::runs_to_bytes(config, runs, &[0], Some(name), StateStorage::F32)
-            })
-            .transpose()
-            .map_err(|e| e.to_string())?;
-        Ok(FinishedParts {
-            header: serde_json::to_string(&header).map_err(|e| e.to_string())?,
-            sequence: self.sequence.to_bytes().map_err(|e| e.to_string())?,
-            run,
+    pub fn to_parts(&self, config: &ModelConfig) -> Result<EpisodeParts, String> {
+        encode(&self.sequence, self.run.as_ref(), config, |recording| {
+            FinishedHeader {
+                spec: self.spec.to_text(),
+                condition: self.condition,
+                summary: self.summary.clone(),
+                demonstration_success: self.demonstration_success,
+                recording,
+            }
         })
     }
 
     /// Reads [`Self::to_parts`] back; `config` is the open network's (to read the run).
-    pub fn from_parts(parts: FinishedParts, config: Option<&ModelConfig>) -> Result<Self, String> {
+    pub fn from_parts(parts: EpisodeParts, config: Option<&ModelConfig>) -> Result<Self, String> {
         let header: FinishedHeader = serde_json::from_str(&parts.header)
             .map_err(|e| format!("a finished episode's description: {e}"))?;
-        let [joints, torques, extra] = header.layout;
-        let what = "the finished episode's sequence";
-        let sequence = Sequence::from_bytes(
+        let (sequence, run) = decode(
+            header.recording,
             parts.sequence,
-            what,
-            &header.info,
-            header.cameras,
-            header.image_size,
-            ProprioLayout {
-                joints,
-                torques,
-                extra,
-            },
-        )
-        .map_err(|e| e.to_string())?;
-        let run = match parts.run {
-            None => None,
-            Some(bytes) => {
-                let config = config.ok_or("an episode's run arrived without its model")?;
-                let file = TensorFile::from_bytes(bytes, "the finished episode's run")
-                    .map_err(|e| e.to_string())?;
-                let mut runs = io::load_runs(&file, config).map_err(|e| e.to_string())?;
-                if runs.len() != 1 {
-                    return Err(format!("an episode's run file holds {} runs", runs.len()));
-                }
-                Some(runs.remove(0).run)
-            }
-        };
+            parts.run,
+            config,
+            "the finished episode",
+        )?;
         Ok(Self {
             spec: DriveSpec::parse_text(&header.spec).map_err(|e| e.to_string())?,
             condition: header.condition,
@@ -188,6 +235,43 @@ impl FinishedDrive {
             summary: header.summary,
             demonstration_success: header.demonstration_success,
         })
+    }
+}
+
+/// The episode so far, which the main panels show while the robot acts: their traces,
+/// images and errors grow with it (taken at most every [`SO_FAR_EVERY`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EpisodeSoFar {
+    /// What the robot has sensed, one step per step done.
+    pub sequence: Sequence,
+    /// The network's inference over those steps (none for the mean trajectory).
+    pub run: Option<Run<f32>>,
+}
+
+impl EpisodeSoFar {
+    pub fn steps(&self) -> usize {
+        self.sequence.len()
+    }
+
+    /// As bytes; `config` is the driving network's.
+    pub fn to_parts(&self, config: &ModelConfig) -> Result<EpisodeParts, String> {
+        encode(&self.sequence, self.run.as_ref(), config, |recording| {
+            recording
+        })
+    }
+
+    /// Reads [`Self::to_parts`] back; `config` is the open network's.
+    pub fn from_parts(parts: EpisodeParts, config: Option<&ModelConfig>) -> Result<Self, String> {
+        let header: RecordingHeader = serde_json::from_str(&parts.header)
+            .map_err(|e| format!("the episode so far's description: {e}"))?;
+        let (sequence, run) = decode(
+            header,
+            parts.sequence,
+            parts.run,
+            config,
+            "the episode so far",
+        )?;
+        Ok(Self { sequence, run })
     }
 }
 
@@ -203,6 +287,8 @@ pub enum DriveEvent {
 #[derive(Default)]
 pub struct LocalDrive {
     driving: Option<(Drive, Condition)>,
+    /// The episode so far as last taken, and when.
+    so_far: Option<(Arc<EpisodeSoFar>, Instant)>,
 }
 
 impl std::fmt::Debug for LocalDrive {
@@ -235,6 +321,7 @@ impl LocalDrive {
                 });
                 let drive = Drive::start(*spec, network).map_err(|e| e.to_string())?;
                 self.driving = Some((drive, condition));
+                self.so_far = None;
                 Ok(())
             }
             DriveRequest::Push(arm) => drive.map_or(Ok(()), |d| {
@@ -249,6 +336,7 @@ impl LocalDrive {
             }),
             DriveRequest::Stop => {
                 self.driving = None;
+                self.so_far = None;
                 Ok(())
             }
         }
@@ -284,7 +372,27 @@ impl LocalDrive {
                     .map(|v| v as f32)
                 })
                 .collect(),
+            so_far: self.so_far.as_ref().map(|(s, _)| s.clone()),
         })
+    }
+
+    /// Takes the episode so far when it has grown and [`SO_FAR_EVERY`] has passed (at
+    /// once after the first step).
+    fn take_so_far(&mut self) {
+        let Some((drive, _)) = &self.driving else {
+            return;
+        };
+        let due = match &self.so_far {
+            None => drive.steps_done() > 0,
+            Some((s, at)) => s.steps() < drive.steps_done() && at.elapsed() >= SO_FAR_EVERY,
+        };
+        if due {
+            let so_far = EpisodeSoFar {
+                sequence: drive.sequence_so_far(),
+                run: drive.run_so_far(),
+            };
+            self.so_far = Some((Arc::new(so_far), Instant::now()));
+        }
     }
 
     /// Steps the episode for up to `budget` (at least one step); the event when it ended.
@@ -295,15 +403,20 @@ impl LocalDrive {
             match drive.step() {
                 Ok(Some(_)) if drive.is_over() => break,
                 Ok(Some(_)) if started.elapsed() < budget => {}
-                Ok(Some(_)) => return None,
+                Ok(Some(_)) => {
+                    self.take_so_far();
+                    return None;
+                }
                 Ok(None) => break,
                 Err(e) => {
                     self.driving = None;
+                    self.so_far = None;
                     return Some(DriveEvent::Failed(e.to_string()));
                 }
             }
         }
         let (drive, condition) = self.driving.take()?;
+        self.so_far = None;
         Some(DriveEvent::Finished(Box::new(FinishedDrive::new(
             drive.episode(),
             condition,

@@ -11,7 +11,7 @@ use pvrnn_core::{Modality, Model, Observations};
 use web_time::{Duration, Instant};
 
 use crate::condition::RunKey;
-use crate::driving::{DriveEvent, DriveProgress, DriveRequest};
+use crate::driving::{DriveEvent, DriveProgress, DriveRequest, EPISODE_SO_FAR};
 pub use crate::engine::Finished;
 use crate::engine::{CompactStep, Event, ModuleStates};
 use crate::executor::Executor;
@@ -177,8 +177,19 @@ impl RunStore {
         self.entries.get(key)
     }
 
+    /// Forgets every run of a sequence (the episode being driven, which grows).
+    pub fn forget_sequence(&mut self, name: &str) {
+        self.entries.retain(|k, _| k.sequence != name);
+        self.queue.retain(|k| k.sequence != name);
+    }
+
     /// Asks for a run; an `urgent` one (the run being looked at) interrupts any other.
     pub fn request(&mut self, key: RunKey, urgent: bool) {
+        // The episode being driven has the one run the drive infers; none is computed from
+        // its recording, which grows (ablated or other conditions wait for its end).
+        if key.sequence == EPISODE_SO_FAR {
+            return;
+        }
         let done = self.entries.get(&key).is_some_and(|e| e.complete);
         if urgent {
             self.urgent = (!done).then(|| key.clone());

@@ -4,6 +4,7 @@
 
 use crate::bundle::Bundle;
 use crate::condition::Condition;
+use crate::driving::EPISODE_SO_FAR;
 
 /// Which conditions the comparison view sets side by side.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -274,7 +275,11 @@ impl ViewState {
     /// The hash text (without `#`).
     pub fn to_hash(&self) -> String {
         let mut parts = Vec::new();
-        if let Some(s) = &self.sequence {
+        // The episode being driven is not a sequence a link can open (the drive is).
+        let driving = self.sequence.as_deref() == Some(EPISODE_SO_FAR);
+        if let Some(s) = &self.sequence
+            && !driving
+        {
             parts.push(format!("seq={}", encode(s)));
         }
         parts.push(format!("t={}", self.t));
@@ -295,9 +300,10 @@ impl ViewState {
         if let Some(second) = &self.second {
             parts.push(format!("second={}", encode(second)));
         }
-        // Only while its episode is shown: a link to another sequence does not drive.
+        // Only while its episode is shown (or driven): a link to another sequence does not
+        // drive.
         if let (Some(drive), Some(c)) = (&self.drive, &self.condition)
-            && self.sequence.as_deref() == Some(drive_episode_name(drive, c).as_str())
+            && (driving || self.sequence.as_deref() == Some(drive_episode_name(drive, c).as_str()))
         {
             parts.push(format!("drive={}", encode(drive)));
         }

@@ -8,7 +8,9 @@
 //! `push` an arm, `occlude` a camera, `drop-vision` to fewer levels, `stop`);
 //! worker → page: `ready {compute}` (where runs compute: WebGPU or the CPU), `step {generation, key, data}`, `done {generation, key, steps,
 //! busy_ms, wall_ms}`, `failed {generation, key, message}`, `drive-progress {generation,
-//! id, spec, condition, trial, done, len, step, cameras}` after each tick of an episode,
+//! id, spec, condition, trial, done, len, step, cameras, live}` after each tick of an
+//! episode, with the episode so far (`so-far-header`, `so-far-sequence`, `so-far-runs`:
+//! the bytes of a `drive-done`) when it grew since the last one sent,
 //! `drive-done {generation, id, spec, condition, summary, demonstration, info, sequence,
 //! runs}` when it ends (the episode's sequence file as the dataset writes it, the network's
 //! run as `pvrnn infer` writes it, in f32), `drive-failed {generation, id, message}`, and
@@ -35,7 +37,7 @@ use web_time::Duration;
 
 use crate::condition::{Condition, RunKey};
 use crate::driving::{
-    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, FinishedParts, LocalDrive,
+    DriveEvent, DriveProgress, DriveRequest, EpisodeParts, EpisodeSoFar, FinishedDrive, LocalDrive,
 };
 use crate::engine::{CompactStep, Engine, Event, Finished, StepLayout};
 use crate::executor::Executor;
@@ -308,7 +310,40 @@ impl Reply {
                     fields.push(("step", (*step as f64).into()));
                     fields.push(("cameras", images.into()));
                 }
-                message("drive-progress", *generation, &fields)
+                let so_far = match (&p.so_far, config) {
+                    (None, _) => Ok(None),
+                    (Some(s), Some(config)) => s.to_parts(config).map(Some),
+                    (Some(_), None) => Err("the worker has no model".to_string()),
+                };
+                match so_far {
+                    Ok(parts) => {
+                        if let Some(parts) = parts {
+                            fields.push(("so-far-header", parts.header.into()));
+                            for (name, bytes) in [
+                                ("so-far-sequence", Some(parts.sequence)),
+                                ("so-far-runs", parts.run),
+                            ] {
+                                if let Some(bytes) = bytes {
+                                    let bytes = Uint8Array::from(&bytes[..]);
+                                    transfer.push(&bytes.buffer());
+                                    fields.push((name, bytes.into()));
+                                }
+                            }
+                        }
+                        message("drive-progress", *generation, &fields)
+                    }
+                    Err(why) => message(
+                        "drive-failed",
+                        *generation,
+                        &[
+                            ("id", JsValue::from(*id)),
+                            (
+                                "message",
+                                format!("the episode so far could not be sent: {why}").into(),
+                            ),
+                        ],
+                    ),
+                }
             }
             Self::DriveEnded {
                 generation,
@@ -413,6 +448,20 @@ impl Reply {
                         .dyn_into::<Float32Array>()
                         .map_err(|_| "a drive's progress has no `live` numbers")?
                         .to_vec(),
+                    so_far: match field(m, "so-far-header").is_undefined() {
+                        true => None,
+                        false => Some(Arc::new(EpisodeSoFar::from_parts(
+                            EpisodeParts {
+                                header: string_field(m, "so-far-header")?,
+                                sequence: bytes_field(m, "so-far-sequence")?,
+                                run: match field(m, "so-far-runs").is_undefined() {
+                                    true => None,
+                                    false => Some(bytes_field(m, "so-far-runs")?),
+                                },
+                            },
+                            config,
+                        )?)),
+                    },
                 };
                 return Ok(Self::DriveProgress {
                     generation,
@@ -425,7 +474,7 @@ impl Reply {
                     generation,
                     id: id()?,
                     event: DriveEvent::Finished(Box::new(FinishedDrive::from_parts(
-                        FinishedParts {
+                        EpisodeParts {
                             header: string_field(m, "header")?,
                             sequence: bytes_field(m, "sequence")?,
                             run: match field(m, "runs").is_undefined() {
@@ -493,6 +542,8 @@ struct WorkerSide {
     /// The Drive window's episode (on the CPU: a step's inference is small), and its id.
     drive: LocalDrive,
     drive_id: u32,
+    /// The steps of the episode so far last sent to the page (sent again only grown).
+    so_far_sent: Option<usize>,
 }
 
 impl WorkerSide {
@@ -513,11 +564,19 @@ impl WorkerSide {
                 id,
                 event,
             },
-            None => Reply::DriveProgress {
-                generation,
-                id,
-                progress: Box::new(self.drive.progress()?),
-            },
+            None => {
+                let mut progress = self.drive.progress()?;
+                let steps = progress.so_far.as_ref().map(|s| s.steps());
+                if steps == self.so_far_sent {
+                    progress.so_far = None; // the page has it
+                }
+                self.so_far_sent = steps;
+                Reply::DriveProgress {
+                    generation,
+                    id,
+                    progress: Box::new(progress),
+                }
+            }
         })
     }
 }
@@ -581,6 +640,7 @@ pub fn run_worker(compute: String) -> Result<(), JsValue> {
         scheduled: false,
         drive: LocalDrive::default(),
         drive_id: 0,
+        so_far_sent: None,
     }));
     let channel = web_sys::MessageChannel::new()?;
     let ticker = Rc::new(Ticker {
@@ -732,6 +792,7 @@ fn handle_command(s: &mut WorkerSide, m: &JsValue) -> Result<Option<Reply>, Stri
             let start = matches!(request, DriveRequest::Start { .. });
             if start {
                 s.drive_id = id;
+                s.so_far_sent = None;
             } else if id != s.drive_id {
                 return Ok(None); // an episode already over
             }
@@ -767,6 +828,8 @@ struct PageSide {
     drive_events: Vec<DriveEvent>,
     /// When the episode was sent to the worker (its speed goes to the console).
     drive_started: Option<web_time::Instant>,
+    /// How many times the episode so far arrived (said with its speed).
+    so_far_received: usize,
 }
 
 /// The page's handle on the worker.
@@ -830,17 +893,26 @@ impl WorkerClient {
                         return;
                     }
                     Ok(Reply::Event { event, .. }) => s.events.push(event),
-                    Ok(Reply::DriveProgress { progress, .. }) => s.drive = Some(*progress),
+                    Ok(Reply::DriveProgress { mut progress, .. }) => {
+                        // Sent only when it grew: the one the page has stands.
+                        if progress.so_far.is_none() {
+                            progress.so_far = s.drive.as_mut().and_then(|d| d.so_far.take());
+                        } else {
+                            s.so_far_received += 1;
+                        }
+                        s.drive = Some(*progress);
+                    }
                     Ok(Reply::DriveEnded { event, .. }) => {
                         if let (DriveEvent::Finished(f), Some(started)) = (&event, s.drive_started)
                         {
                             let seconds = started.elapsed().as_secs_f64();
                             let steps = f.sequence.len();
                             crate::browser::log(&format!(
-                                "drive: the worker drove {} ({} controller): {steps} steps in {seconds:.1} s ({:.1} steps/s)",
+                                "drive: the worker drove {} ({} controller): {steps} steps in {seconds:.1} s ({:.1} steps/s); the episode so far arrived {} times for the main panels",
                                 f.spec.trial().map(|t| t.name()).unwrap_or_default(),
                                 f.spec.controller.name(),
-                                steps as f64 / seconds.max(1e-9)
+                                steps as f64 / seconds.max(1e-9),
+                                s.so_far_received
                             ));
                         }
                         // In progress until the app takes the end (`poll_drive`), so that
@@ -945,6 +1017,7 @@ impl Executor for WorkerClient {
                 DriveRequest::Start { spec, condition } => {
                     s.drive_id += 1;
                     s.drive_started = Some(web_time::Instant::now());
+                    s.so_far_received = 0;
                     crate::browser::log(&format!(
                         "drive: episode {} ({}) sent to the worker",
                         s.drive_id,
@@ -958,6 +1031,7 @@ impl Executor for WorkerClient {
                         len: 0,
                         cameras: None,
                         live: Vec::new(),
+                        so_far: None,
                     });
                 }
                 DriveRequest::Stop => s.drive = None,

@@ -361,7 +361,9 @@ fn worker_messages_round_trip() {
 /// end (the finished episode's bytes are checked natively: `tests/it/driving.rs`).
 #[wasm_bindgen_test]
 fn drive_messages_round_trip() {
-    use pvrnn_explorer::driving::{DriveEvent, DriveProgress, DriveRequest, FinishedDrive};
+    use pvrnn_explorer::driving::{
+        DriveEvent, DriveProgress, DriveRequest, EpisodeSoFar, FinishedDrive,
+    };
     let bundle = common::caresim_bundle();
     let config = &bundle.model.config;
     let condition = Condition::standard(config);
@@ -385,7 +387,7 @@ fn drive_messages_round_trip() {
         };
         assert_eq!(Command::decode(&command.encode().0).unwrap(), command);
     }
-    let progress = |cameras| Reply::DriveProgress {
+    let progress = |cameras, so_far| Reply::DriveProgress {
         generation: 4,
         id: 9,
         progress: Box::new(DriveProgress {
@@ -396,11 +398,34 @@ fn drive_messages_round_trip() {
             len: 240,
             cameras,
             live: (0..12 * 6).map(|i| i as f32 * 0.5).collect(),
+            so_far,
         }),
     };
+    // The episode so far (here the bundle's recording, with no run) for the main panels.
+    let so_far = Some(std::sync::Arc::new(EpisodeSoFar {
+        sequence: bundle.dataset.sequences[0].clone(),
+        run: None,
+    }));
+    let with_so_far = progress(None, so_far.clone());
+    let (message, _) = with_so_far.encode_with(Some(config));
+    assert_eq!(
+        Reply::decode(&message, None, Some(config)).unwrap(),
+        with_so_far
+    );
+    // Without the model it cannot be written: the page hears why instead.
+    match Reply::decode(&with_so_far.encode_with(None).0, None, None).unwrap() {
+        Reply::DriveEnded {
+            event: DriveEvent::Failed(why),
+            ..
+        } => assert!(
+            why.contains("episode so far") && why.contains("no model"),
+            "{why}"
+        ),
+        other => panic!("{other:?}"),
+    }
     for reply in [
-        progress(None),
-        progress(Some((12, vec![7u8; 2 * 64 * 64 * 3]))),
+        progress(None, None),
+        progress(Some((12, vec![7u8; 2 * 64 * 64 * 3])), None),
         Reply::DriveEnded {
             generation: 4,
             id: 9,

@@ -3,7 +3,10 @@
 //! stepped where runs are computed (`crate::driving`): on the site in the web worker, so
 //! the page keeps drawing; in the desktop app between frames, a share of each. The window
 //! shows what the cameras see, and the user pushes an arm or covers a camera while it
-//! acts. A finished episode joins
+//! acts. While it acts, the episode so far is the open data's `drive in progress`
+//! (`EPISODE_SO_FAR`), which the main panels show as it grows: latent traces, images and
+//! errors follow the newest step unless the user moves the time cursor (runs under other
+//! conditions, the contribution maps among them, wait for its end). A finished episode joins
 //! the open data as a sequence named `drive <spec>` with the network's run, so every panel
 //! shows it like a recording (its name holds the drive and the condition, all the episode
 //! depends on, so one name is one episode), and the address holds the drive (`drive=`),
@@ -15,8 +18,8 @@ use pvrnn_drive::{Controller, DriveSpec};
 use super::panel::{Command, DriveCommand, PanelContext};
 use super::*;
 use crate::driving::{
-    DriveEvent, DriveProgress, DriveRequest, FinishedDrive, LIVE_PER_STEP, OCCLUSION_STEPS,
-    PUSH_RADIANS,
+    DriveEvent, DriveProgress, DriveRequest, EPISODE_SO_FAR, EpisodeSoFar, FinishedDrive,
+    LIVE_PER_STEP, OCCLUSION_STEPS, PUSH_RADIANS,
 };
 use crate::state::drive_episode_name;
 
@@ -34,6 +37,10 @@ pub(super) struct DrivePanel {
     picture: Option<(usize, TextureHandle)>,
     /// A drive from the address that could not start (not retried every frame).
     pub(super) refused: Option<String>,
+    /// The steps of the episode so far the main panels show (0: none shown).
+    shown_so_far: usize,
+    /// What the view showed before the episode so far took it (sequence, time).
+    before: Option<(Option<String>, usize)>,
 }
 
 impl std::fmt::Debug for DrivePanel {
@@ -356,6 +363,7 @@ impl ExplorerApp {
             }
             DriveCommand::Stop => {
                 self.status = Status::Info("the episode was abandoned".into());
+                self.forget_so_far(true);
                 DriveRequest::Stop
             }
             DriveCommand::Push(arm) => DriveRequest::Push(arm),
@@ -382,6 +390,10 @@ impl ExplorerApp {
         }
         let model = bundle.model.clone();
         let controller = spec.controller;
+        // The address holds the drive being driven, not an earlier episode's.
+        if self.view.drive.as_deref() != Some(spec.to_text().as_str()) {
+            self.view.drive = None;
+        }
         self.store.drive(
             &model,
             DriveRequest::Start {
@@ -403,18 +415,82 @@ impl ExplorerApp {
     pub(super) fn advance_drive(&mut self) -> bool {
         let events = self.store.poll_drive(DRIVE_BUDGET);
         // Stepped between frames (the page without a worker, the desktop app): draw on.
-        let again = !events.is_empty() || (self.store.drives_here() && self.driving());
+        let mut again = !events.is_empty() || (self.store.drives_here() && self.driving());
         for event in events {
             match event {
-                DriveEvent::Finished(finished) => self.keep_episode(*finished),
+                DriveEvent::Finished(finished) => {
+                    self.forget_so_far(false);
+                    self.keep_episode(*finished);
+                }
                 DriveEvent::Failed(e) => {
+                    self.forget_so_far(true);
                     self.status = Status::Error(format!("the drive stopped: {e}"));
                     // A drive from the address is not started again every frame.
                     self.drive.refused = self.view.drive.clone();
                 }
             }
         }
+        let so_far = self
+            .store
+            .drive_progress()
+            .and_then(|p| Some((p.so_far?, p.condition)));
+        if let Some((so_far, condition)) = so_far
+            && so_far.steps() != self.drive.shown_so_far
+        {
+            self.show_so_far(&so_far, condition);
+            again = true;
+        }
         again
+    }
+
+    /// Shows the episode so far in the main panels, as [`EPISODE_SO_FAR`]: its recording
+    /// joins the open data, the network's run the store. The first steps take the view;
+    /// the time cursor follows the newest step unless the user moved it back.
+    fn show_so_far(&mut self, so_far: &EpisodeSoFar, condition: Condition) {
+        let Some(bundle) = self.bundle.as_mut() else {
+            return;
+        };
+        let mut sequence = so_far.sequence.clone();
+        sequence.info.name = EPISODE_SO_FAR.into();
+        sequence.info.file = format!("{}.safetensors", pvrnn_dataset::file_stem(EPISODE_SO_FAR));
+        bundle.replace_sequence(sequence);
+        self.store.forget_sequence(EPISODE_SO_FAR);
+        if let Some(run) = &so_far.run {
+            let trace = RunTrace::from_run(run, &bundle.model.config, bundle.loaded.as_ref());
+            let key = RunKey::new(EPISODE_SO_FAR, condition.canonical());
+            self.store.insert_complete(key, trace);
+        }
+        let newest = so_far.steps().saturating_sub(1);
+        if self.drive.shown_so_far == 0 {
+            // The first steps take the view; a user who then looks elsewhere stays there.
+            self.drive.before = Some((self.view.sequence.take(), self.view.t));
+            self.view.sequence = Some(EPISODE_SO_FAR.into());
+            self.view.condition = Some(condition);
+            self.view.branch = None;
+            self.view.t = newest;
+        } else if self.view.sequence.as_deref() == Some(EPISODE_SO_FAR)
+            && self.view.t + 1 >= self.drive.shown_so_far
+        {
+            self.view.t = newest;
+        }
+        self.drive.shown_so_far = so_far.steps();
+    }
+
+    /// Takes the episode so far out of the open data (its end, or the drive stopped); with
+    /// `restore` the view goes back to what it showed before it.
+    fn forget_so_far(&mut self, restore: bool) {
+        self.drive.shown_so_far = 0;
+        let before = self.drive.before.take();
+        let Some(bundle) = self.bundle.as_mut() else {
+            return;
+        };
+        bundle.remove_sequence(EPISODE_SO_FAR);
+        self.store.forget_sequence(EPISODE_SO_FAR);
+        if restore && self.view.sequence.as_deref() == Some(EPISODE_SO_FAR) {
+            let (sequence, t) = before.unwrap_or_default();
+            self.view.sequence = sequence;
+            self.view.t = t;
+        }
     }
 
     /// Adds a finished episode to the open data (replacing one of the same drive) with the

@@ -5,7 +5,9 @@ use std::sync::Arc;
 
 use pvrnn_drive::{Controller, DriveSpec};
 use pvrnn_explorer::Condition;
-use pvrnn_explorer::driving::{DriveEvent, DriveRequest, FinishedDrive, LocalDrive};
+use pvrnn_explorer::driving::{
+    DriveEvent, DriveRequest, EpisodeSoFar, FinishedDrive, LocalDrive, SO_FAR_EVERY,
+};
 use web_time::Duration;
 
 use super::common;
@@ -38,6 +40,14 @@ fn an_episode_is_stepped_perturbed_and_survives_the_trip_to_the_page() {
     // One step at least, even without time for it.
     assert!(local.step_for(Duration::ZERO).is_none());
     assert_eq!(local.progress().unwrap().steps_done, 1);
+    // The episode so far, for the main panels: taken at once after the first step.
+    let first = local
+        .progress()
+        .unwrap()
+        .so_far
+        .expect("the episode so far");
+    assert_eq!(first.steps(), 1);
+    assert_eq!(first.run.as_ref().unwrap().steps(), 1);
     let (step, cameras) = local.progress().unwrap().cameras.unwrap();
     assert_eq!(step, 1);
     // How the network copes, per step: its errors and each module's KL, all finite.
@@ -63,6 +73,31 @@ fn an_episode_is_stepped_perturbed_and_survives_the_trip_to_the_page() {
     );
     let err = local.request(None, DriveRequest::Occlude(2)).unwrap_err();
     assert!(err.contains("camera 2"), "{err}");
+    // Taken again once grown and its interval passed, not every step.
+    assert!(local.step_for(Duration::ZERO).is_none());
+    assert_eq!(local.progress().unwrap().so_far.unwrap().steps(), 1);
+    assert!(
+        local
+            .step_for(SO_FAR_EVERY + Duration::from_millis(50))
+            .is_none()
+    );
+    let progress_then = local.progress().unwrap();
+    let so_far = progress_then.so_far.clone().unwrap();
+    assert_eq!(so_far.steps(), progress_then.steps_done);
+    assert!(so_far.steps() > 2, "{}", so_far.steps());
+    // Through the worker's bytes, and back.
+    let parts = so_far.to_parts(&model.config).unwrap();
+    let back = EpisodeSoFar::from_parts(parts.clone(), Some(&model.config)).unwrap();
+    assert_eq!(back.sequence, so_far.sequence);
+    assert_eq!(
+        back.run.as_ref().unwrap().modules,
+        so_far.run.as_ref().unwrap().modules
+    );
+    let err = EpisodeSoFar::from_parts(parts, None).unwrap_err();
+    assert!(
+        err.contains("episode so far") && err.contains("without its model"),
+        "{err}"
+    );
     let finished = match local.step_for(Duration::from_secs(600)) {
         Some(DriveEvent::Finished(f)) => *f,
         other => panic!("the episode did not finish: {other:?}"),
@@ -73,6 +108,22 @@ fn an_episode_is_stepped_perturbed_and_survives_the_trip_to_the_page() {
     );
     assert_eq!(finished.sequence.len(), progress.len);
     assert_eq!(finished.run.as_ref().unwrap().steps(), progress.len);
+    // What the panels showed while it ran is the start of the episode, exactly.
+    let n = so_far.steps();
+    assert_eq!(
+        so_far.sequence.joints,
+        finished.sequence.joints[..so_far.sequence.joints.len()]
+    );
+    assert!(so_far.sequence.images[..] == finished.sequence.images[..so_far.sequence.images.len()]);
+    let run = finished.run.as_ref().unwrap();
+    for (m, states) in so_far.run.as_ref().unwrap().modules.iter().enumerate() {
+        let width = states.mu_q.len() / n;
+        assert_eq!(
+            states.mu_q[..],
+            run.modules[m].mu_q[..n * width],
+            "module {m}'s mu"
+        );
+    }
     assert!(
         finished.summary.starts_with("repositioning: "),
         "{}",

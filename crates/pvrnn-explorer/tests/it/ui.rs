@@ -1338,6 +1338,59 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     // link replays them.
     h.get_by_label("push the left arm").click();
     h.run_steps(2);
+    // While it acts, the main panels show the episode so far, the cursor on its newest
+    // step, and the address holds the drive rather than a sequence no link could open.
+    let app = h.state();
+    let live = pvrnn_explorer::driving::EPISODE_SO_FAR;
+    assert_eq!(app.view().sequence.as_deref(), Some(live));
+    let so_far = app.bundle().unwrap().dataset.by_name(live).unwrap().len();
+    assert!(so_far >= 1);
+    assert_eq!(app.view().t, so_far - 1);
+    assert_eq!(app.current_run().unwrap().trace.steps, so_far);
+    assert!(!app.view().to_hash().contains("seq="));
+    h.get_by_label("cover the right camera").click();
+    h.run_steps(2);
+    // It grows with the episode.
+    for _ in 0..200 {
+        h.step();
+        let app = h.state();
+        if app
+            .bundle()
+            .unwrap()
+            .dataset
+            .by_name(live)
+            .is_some_and(|s| s.len() > so_far)
+        {
+            break;
+        }
+    }
+    let app = h.state();
+    let grown = app.bundle().unwrap().dataset.by_name(live).unwrap().len();
+    assert!(grown > so_far, "{grown} steps, as before");
+    assert_eq!(app.current_run().unwrap().trace.steps, grown);
+    assert_eq!(
+        app.view().t,
+        grown - 1,
+        "the cursor follows the newest step"
+    );
+    // A cursor moved back stays where the user put it while the episode grows.
+    h.key_press(eframe::egui::Key::ArrowLeft);
+    h.step();
+    let back = h.state().view().t;
+    for _ in 0..200 {
+        h.step();
+        let app = h.state();
+        if app
+            .bundle()
+            .unwrap()
+            .dataset
+            .by_name(live)
+            .is_some_and(|s| s.len() > grown + 1)
+        {
+            break;
+        }
+    }
+    assert_eq!(h.state().view().t, back);
     h.get_by_label("see nothing").click();
     h.run_steps(2);
     assert!(
@@ -1354,6 +1407,11 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     );
     assert!(shown.contains(":0 | vision 3 proprio 1"), "{shown}");
     assert!(shown.contains(";vision="), "{shown}");
+    assert!(shown.contains(";occlude=right:"), "{shown}");
+    assert!(
+        app.bundle().unwrap().dataset.by_name(live).is_none(),
+        "the episode so far makes way for the episode"
+    );
     let episode = app
         .bundle()
         .unwrap()

@@ -96,6 +96,24 @@ fn bytes_field(m: &JsValue, name: &str) -> Result<Vec<u8>, String> {
         .to_vec())
 }
 
+/// An episode's parts as a message's fields under `names` (header, sequence, runs); the
+/// bytes are transferred, not copied.
+fn episode_fields(
+    fields: &mut Vec<(&'static str, JsValue)>,
+    transfer: &Array,
+    parts: EpisodeParts,
+    [header, sequence, runs]: [&'static str; 3],
+) {
+    fields.push((header, parts.header.into()));
+    for (name, bytes) in [(sequence, Some(parts.sequence)), (runs, parts.run)] {
+        if let Some(bytes) = bytes {
+            let bytes = Uint8Array::from(&bytes[..]);
+            transfer.push(&bytes.buffer());
+            fields.push((name, bytes.into()));
+        }
+    }
+}
+
 fn spec_field(m: &JsValue) -> Result<DriveSpec, String> {
     DriveSpec::parse_text(&string_field(m, "spec")?).map_err(|e| e.to_string())
 }
@@ -318,17 +336,8 @@ impl Reply {
                 match so_far {
                     Ok(parts) => {
                         if let Some(parts) = parts {
-                            fields.push(("so-far-header", parts.header.into()));
-                            for (name, bytes) in [
-                                ("so-far-sequence", Some(parts.sequence)),
-                                ("so-far-runs", parts.run),
-                            ] {
-                                if let Some(bytes) = bytes {
-                                    let bytes = Uint8Array::from(&bytes[..]);
-                                    transfer.push(&bytes.buffer());
-                                    fields.push((name, bytes.into()));
-                                }
-                            }
+                            let names = ["so-far-header", "so-far-sequence", "so-far-runs"];
+                            episode_fields(&mut fields, &transfer, parts, names);
                         }
                         message("drive-progress", *generation, &fields)
                     }
@@ -357,17 +366,9 @@ impl Reply {
                 };
                 match finished {
                     Ok(parts) => {
-                        let mut fields =
-                            vec![("id", JsValue::from(*id)), ("header", parts.header.into())];
-                        for (name, bytes) in
-                            [("sequence", Some(parts.sequence)), ("runs", parts.run)]
-                        {
-                            if let Some(bytes) = bytes {
-                                let bytes = Uint8Array::from(&bytes[..]);
-                                transfer.push(&bytes.buffer());
-                                fields.push((name, bytes.into()));
-                            }
-                        }
+                        let mut fields = vec![("id", JsValue::from(*id))];
+                        let names = ["header", "sequence", "runs"];
+                        episode_fields(&mut fields, &transfer, parts, names);
                         message("drive-done", *generation, &fields)
                     }
                     Err(why) => message(

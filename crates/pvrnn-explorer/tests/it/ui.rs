@@ -1323,6 +1323,27 @@ fn drive_to_the_end(h: &mut Harness<'static, ExplorerApp>) {
     panic!("the episode did not finish");
 }
 
+/// Frames (at least one, at most 200) until the episode being driven is longer than
+/// `steps`; its length.
+fn frames_until_longer(h: &mut Harness<'static, ExplorerApp>, steps: usize) -> usize {
+    let live = pvrnn_explorer::driving::EPISODE_SO_FAR;
+    let len = |h: &Harness<'static, ExplorerApp>| {
+        h.state()
+            .bundle()
+            .unwrap()
+            .dataset
+            .by_name(live)
+            .map_or(0, |s| s.len())
+    };
+    for _ in 0..200 {
+        h.step();
+        if len(h) > steps {
+            break;
+        }
+    }
+    len(h)
+}
+
 #[test]
 fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     let mut h = harness(ExplorerApp::new(
@@ -1351,21 +1372,8 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     h.get_by_label("cover the right camera").click();
     h.run_steps(2);
     // It grows with the episode.
-    for _ in 0..200 {
-        h.step();
-        let app = h.state();
-        if app
-            .bundle()
-            .unwrap()
-            .dataset
-            .by_name(live)
-            .is_some_and(|s| s.len() > so_far)
-        {
-            break;
-        }
-    }
+    let grown = frames_until_longer(&mut h, so_far);
     let app = h.state();
-    let grown = app.bundle().unwrap().dataset.by_name(live).unwrap().len();
     assert!(grown > so_far, "{grown} steps, as before");
     assert_eq!(app.current_run().unwrap().trace.steps, grown);
     assert_eq!(
@@ -1377,19 +1385,7 @@ fn the_network_drives_the_robot_and_a_link_replays_the_episode() {
     h.key_press(eframe::egui::Key::ArrowLeft);
     h.step();
     let back = h.state().view().t;
-    for _ in 0..200 {
-        h.step();
-        let app = h.state();
-        if app
-            .bundle()
-            .unwrap()
-            .dataset
-            .by_name(live)
-            .is_some_and(|s| s.len() > grown + 1)
-        {
-            break;
-        }
-    }
+    frames_until_longer(&mut h, grown + 1);
     assert_eq!(h.state().view().t, back);
     h.get_by_label("see nothing").click();
     h.run_steps(2);

@@ -114,6 +114,18 @@ fn episode_fields(
     }
 }
 
+/// Reads [`episode_fields`] back.
+fn episode_parts(m: &JsValue, [header, sequence, runs]: [&str; 3]) -> Result<EpisodeParts, String> {
+    Ok(EpisodeParts {
+        header: string_field(m, header)?,
+        sequence: bytes_field(m, sequence)?,
+        run: match field(m, runs).is_undefined() {
+            true => None,
+            false => Some(bytes_field(m, runs)?),
+        },
+    })
+}
+
 fn spec_field(m: &JsValue) -> Result<DriveSpec, String> {
     DriveSpec::parse_text(&string_field(m, "spec")?).map_err(|e| e.to_string())
 }
@@ -452,14 +464,7 @@ impl Reply {
                     so_far: match field(m, "so-far-header").is_undefined() {
                         true => None,
                         false => Some(Arc::new(EpisodeSoFar::from_parts(
-                            EpisodeParts {
-                                header: string_field(m, "so-far-header")?,
-                                sequence: bytes_field(m, "so-far-sequence")?,
-                                run: match field(m, "so-far-runs").is_undefined() {
-                                    true => None,
-                                    false => Some(bytes_field(m, "so-far-runs")?),
-                                },
-                            },
+                            episode_parts(m, ["so-far-header", "so-far-sequence", "so-far-runs"])?,
                             config,
                         )?)),
                     },
@@ -475,14 +480,7 @@ impl Reply {
                     generation,
                     id: id()?,
                     event: DriveEvent::Finished(Box::new(FinishedDrive::from_parts(
-                        EpisodeParts {
-                            header: string_field(m, "header")?,
-                            sequence: bytes_field(m, "sequence")?,
-                            run: match field(m, "runs").is_undefined() {
-                                true => None,
-                                false => Some(bytes_field(m, "runs")?),
-                            },
-                        },
+                        episode_parts(m, ["header", "sequence", "runs"])?,
                         config,
                     )?)),
                 });
